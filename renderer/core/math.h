@@ -1,0 +1,79 @@
+// Small vector math for the renderer. Vec3 doubles as linear RGB (Color).
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+
+namespace tessera {
+
+inline constexpr float kPi = 3.14159265358979323846f;
+inline constexpr float kInvPi = 0.31830988618379067154f;
+inline constexpr float kInv2Pi = 0.15915494309189533577f;
+
+struct Vec3 {
+    float x = 0.f, y = 0.f, z = 0.f;
+    constexpr Vec3() = default;
+    constexpr Vec3(float x_, float y_, float z_) : x(x_), y(y_), z(z_) {}
+    constexpr explicit Vec3(float v) : x(v), y(v), z(v) {}
+    float operator[](int i) const { return i == 0 ? x : (i == 1 ? y : z); }
+};
+using Color = Vec3;  // linear RGB
+
+struct Vec2 {
+    float x = 0.f, y = 0.f;
+};
+
+inline Vec3 operator+(Vec3 a, Vec3 b) { return {a.x + b.x, a.y + b.y, a.z + b.z}; }
+inline Vec3 operator-(Vec3 a, Vec3 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
+inline Vec3 operator-(Vec3 a) { return {-a.x, -a.y, -a.z}; }
+inline Vec3 operator*(Vec3 a, Vec3 b) { return {a.x * b.x, a.y * b.y, a.z * b.z}; }
+inline Vec3 operator*(Vec3 a, float s) { return {a.x * s, a.y * s, a.z * s}; }
+inline Vec3 operator*(float s, Vec3 a) { return a * s; }
+inline Vec3 operator/(Vec3 a, float s) { return a * (1.f / s); }
+inline Vec3& operator+=(Vec3& a, Vec3 b) { return a = a + b; }
+inline Vec3& operator*=(Vec3& a, Vec3 b) { return a = a * b; }
+inline Vec3& operator*=(Vec3& a, float s) { return a = a * s; }
+
+inline float Dot(Vec3 a, Vec3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+inline Vec3 Cross(Vec3 a, Vec3 b) {
+    return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+}
+inline float LengthSquared(Vec3 a) { return Dot(a, a); }
+inline float Length(Vec3 a) { return std::sqrt(Dot(a, a)); }
+inline Vec3 Normalize(Vec3 a) { return a / Length(a); }
+inline float MaxComponent(Vec3 a) { return std::max(a.x, std::max(a.y, a.z)); }
+inline float MaxAbsComponent(Vec3 a) {
+    return std::max(std::abs(a.x), std::max(std::abs(a.y), std::abs(a.z)));
+}
+inline bool IsBlack(Color c) { return c.x == 0.f && c.y == 0.f && c.z == 0.f; }
+inline bool IsFinite(Vec3 a) { return std::isfinite(a.x) && std::isfinite(a.y) && std::isfinite(a.z); }
+// Rec. 709 luminance: light power and Russian roulette weigh channels by it.
+inline float Luminance(Color c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
+
+// Orthonormal basis around a unit normal n (Duff et al. 2017, branchless, no singularity).
+struct Frame {
+    Vec3 s, t, n;
+    static Frame FromZ(Vec3 n) {
+        float sign = std::copysign(1.f, n.z);
+        float a = -1.f / (sign + n.z);
+        float b = n.x * n.y * a;
+        return {Vec3(1.f + sign * n.x * n.x * a, sign * b, -sign * n.x),
+                Vec3(b, sign + n.y * n.y * a, -n.y), n};
+    }
+    Vec3 ToLocal(Vec3 v) const { return {Dot(v, s), Dot(v, t), Dot(v, n)}; }
+    Vec3 FromLocal(Vec3 v) const { return s * v.x + t * v.y + n * v.z; }
+};
+
+struct Ray {
+    Vec3 o, d;  // d is unit length
+};
+
+// Moves a ray origin off a surface along its normal, scaled with the coordinates'
+// magnitude because float rounding error in a hit point grows with it.
+inline Vec3 OffsetRayOrigin(Vec3 p, Vec3 n, Vec3 w) {
+    float eps = 1e-5f * (1.f + MaxAbsComponent(p));
+    return p + n * (Dot(w, n) >= 0.f ? eps : -eps);
+}
+
+}  // namespace tessera

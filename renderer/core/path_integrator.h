@@ -1,0 +1,27 @@
+// Unidirectional path tracing with next event estimation, multiple importance sampling
+// (power heuristic over light sampling and BSDF sampling) and Russian roulette.
+// Estimates L(D)*E paths of the lecture's full solution for Lambertian surfaces.
+#pragma once
+
+#include "camera.h"
+#include "sampler.h"
+#include "scene.h"
+
+namespace tessera {
+
+struct PathSample {
+    Color radiance;
+    float alpha = 0.f;  // 1 where the camera ray hit geometry
+};
+
+class PathIntegrator {
+public:
+    explicit PathIntegrator(int max_depth) : max_depth_(max_depth) {}
+    // Radiance arriving along `ray`; max_depth bounds the number of scattering events.
+    PathSample Li(const Scene& scene, Ray ray, PixelSampler& sampler) const;
+
+private:
+    int max_depth_;
+};
+
+}  // namespace tessera

@@ -1,0 +1,91 @@
+#include "render.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+#include <xmmintrin.h>
+
+#include <atomic>
+#include <mutex>
+#include <stdexcept>
+
+#include "path_integrator.h"
+#include "sampler.h"
+
+namespace tessera {
+
+namespace {
+
+// Embree wants flush-to-zero and denormals-are-zero in every thread that traces rays.
+// Restore the caller's mode afterwards: the thread may be Python's.
+class ScopedFlushDenormals {
+public:
+    ScopedFlushDenormals() : saved_(_mm_getcsr()) { _mm_setcsr(saved_ | 0x8040u); }
+    ~ScopedFlushDenormals() { _mm_setcsr(saved_); }
+
+private:
+    unsigned int saved_;
+};
+
+}  // namespace
+
+RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOptions& options, TileRect tile,
+                       float* rgba) {
+    if (tile.width == 0 || tile.height == 0) return {};
+    if (uint64_t(tile.x0) + tile.width > camera.width || uint64_t(tile.y0) + tile.height > camera.height)
+        throw std::invalid_argument("tile lies outside the image");
+    if (options.spp == 0) throw std::invalid_argument("spp must be at least 1");
+    if (options.max_depth < 0) throw std::invalid_argument("max_depth must be >= 0");
+
+    const PathIntegrator integrator(options.max_depth);
+    std::atomic<uint64_t> nonfinite{0};
+    std::mutex first_mutex;
+    RenderStats stats;
+    const uint32_t n_pixels = tile.width * tile.height;
+
+    auto render_range = [&](const tbb::blocked_range<uint32_t>& range) {
+        ScopedFlushDenormals ftz;
+        for (uint32_t i = range.begin(); i != range.end(); ++i) {
+            const uint32_t x = tile.x0 + i % tile.width, y = tile.y0 + i / tile.width;
+            const uint64_t pixel_index = uint64_t(y) * camera.width + x;
+            // Double sums in sample order: the same pixel always sums the same values in
+            // the same order, whatever thread runs it.
+            double sum_r = 0, sum_g = 0, sum_b = 0, sum_a = 0;
+            for (uint32_t s = 0; s < options.spp; ++s) {
+                PixelSampler sampler(options.seed, pixel_index, s);
+                Vec2 jitter = sampler.Get2D();
+                Ray ray = camera.GenerateRay(float(x) + jitter.x, float(y) + jitter.y);
+                PathSample ps = integrator.Li(scene, ray, sampler);
+                if (!IsFinite(ps.radiance)) {
+                    if (nonfinite.fetch_add(1) == 0) {
+                        std::lock_guard<std::mutex> lock(first_mutex);
+                        stats.first_nonfinite_pixel_x = x;
+                        stats.first_nonfinite_pixel_y = y;
+                        stats.first_nonfinite_sample = s;
+                    }
+                    continue;
+                }
+                sum_r += ps.radiance.x;
+                sum_g += ps.radiance.y;
+                sum_b += ps.radiance.z;
+                sum_a += ps.alpha;
+            }
+            const double inv = 1.0 / double(options.spp);
+            float* out = rgba + 4 * size_t(i);
+            out[0] = float(sum_r * inv);
+            out[1] = float(sum_g * inv);
+            out[2] = float(sum_b * inv);
+            out[3] = float(sum_a * inv);
+        }
+    };
+
+    const int threads = options.threads > 0 ? options.threads : tbb::this_task_arena::max_concurrency();
+    tbb::task_arena arena(threads);
+    arena.execute([&] { tbb::parallel_for(tbb::blocked_range<uint32_t>(0, n_pixels, 8), render_range); });
+
+    stats.samples = uint64_t(n_pixels) * options.spp;
+    stats.nonfinite_samples = nonfinite.load();
+    return stats;
+}
+
+}  // namespace tessera

@@ -1,0 +1,275 @@
+#include "scene.h"
+
+#include <limits>
+#include <stdexcept>
+#include <string>
+
+#include "sampling.h"
+
+namespace tessera {
+
+namespace {
+
+void CheckDevice(RTCDevice device, const char* what) {
+    RTCError err = rtcGetDeviceError(device);
+    if (err != RTC_ERROR_NONE)
+        throw std::runtime_error(std::string("Embree error ") + std::to_string(int(err)) + " in " + what);
+}
+
+bool IsNonNegativeFinite(Color c) {
+    return IsFinite(c) && c.x >= 0.f && c.y >= 0.f && c.z >= 0.f;
+}
+
+}  // namespace
+
+RTCDevice EmbreeDevice() {
+    static RTCDevice device = [] {
+        RTCDevice d = rtcNewDevice("verbose=0");
+        if (!d) throw std::runtime_error("cannot create the Embree device");
+        return d;
+    }();
+    return device;
+}
+
+Scene::Scene(const SceneDesc& desc)
+    : triangle_material_(desc.triangle_material), materials_(desc.materials), spheres_(desc.sphere_lights) {
+    if (desc.positions.size() % 3 != 0) throw std::invalid_argument("positions must hold 3 floats per vertex");
+    if (desc.indices.size() % 3 != 0) throw std::invalid_argument("indices must hold 3 per triangle");
+    const size_t num_vertices = desc.positions.size() / 3;
+    num_triangles_ = desc.indices.size() / 3;
+    if (triangle_material_.size() != num_triangles_)
+        throw std::invalid_argument("triangle_material must have one entry per triangle");
+    if (num_vertices > 0xFFFFFFFFull) throw std::invalid_argument("too many vertices");
+    for (size_t i = 0; i < desc.positions.size(); ++i)
+        if (!std::isfinite(desc.positions[i]))
+            throw std::invalid_argument("vertex " + std::to_string(i / 3) + " has a non-finite coordinate");
+    for (size_t i = 0; i < desc.indices.size(); ++i)
+        if (desc.indices[i] >= num_vertices)
+            throw std::invalid_argument("triangle " + std::to_string(i / 3) + " indexes vertex " +
+                                        std::to_string(desc.indices[i]) + " of " + std::to_string(num_vertices));
+    for (size_t t = 0; t < num_triangles_; ++t)
+        if (triangle_material_[t] >= materials_.size())
+            throw std::invalid_argument("triangle " + std::to_string(t) + " has material " +
+                                        std::to_string(triangle_material_[t]) + " of " +
+                                        std::to_string(materials_.size()));
+    for (size_t m = 0; m < materials_.size(); ++m)
+        if (!IsNonNegativeFinite(materials_[m].albedo) || !IsNonNegativeFinite(materials_[m].emission) ||
+            MaxComponent(materials_[m].albedo) > 1.f)
+            throw std::invalid_argument("material " + std::to_string(m) +
+                                        ": albedo must be in [0, 1] and emission finite and >= 0");
+    for (size_t s = 0; s < spheres_.size(); ++s)
+        if (!IsFinite(spheres_[s].center) || !(spheres_[s].radius > 0.f) || !std::isfinite(spheres_[s].radius) ||
+            !IsNonNegativeFinite(spheres_[s].radiance))
+            throw std::invalid_argument("sphere light " + std::to_string(s) + " has a bad centre, radius or radiance");
+
+    RTCDevice device = EmbreeDevice();
+    scene_ = rtcNewScene(device);
+    // Watertight triangle test: a closed mesh must not leak light through its edges.
+    rtcSetSceneFlags(scene_, RTC_SCENE_FLAG_ROBUST);
+    rtcSetSceneBuildQuality(scene_, RTC_BUILD_QUALITY_HIGH);
+
+    {
+        RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+        // Embree may read 16 bytes from the last vertex, hence one vertex of padding.
+        auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                               3 * sizeof(float), num_vertices + 1));
+        auto* ib = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                                                  3 * sizeof(uint32_t), num_triangles_));
+        CheckDevice(device, "allocating triangle buffers");
+        std::copy(desc.positions.begin(), desc.positions.end(), vb);
+        vb[3 * num_vertices] = vb[3 * num_vertices + 1] = vb[3 * num_vertices + 2] = 0.f;
+        std::copy(desc.indices.begin(), desc.indices.end(), ib);
+        positions_ = vb;
+        indices_ = ib;
+        rtcCommitGeometry(geom);
+        uint32_t id = rtcAttachGeometry(scene_, geom);
+        rtcReleaseGeometry(geom);
+        if (id != kTriangleGeometry) throw std::logic_error("unexpected triangle geometry id");
+    }
+    if (!spheres_.empty()) {
+        RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_SPHERE_POINT);
+        auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4,
+                                                               4 * sizeof(float), spheres_.size()));
+        CheckDevice(device, "allocating sphere buffers");
+        for (size_t s = 0; s < spheres_.size(); ++s) {
+            vb[4 * s + 0] = spheres_[s].center.x;
+            vb[4 * s + 1] = spheres_[s].center.y;
+            vb[4 * s + 2] = spheres_[s].center.z;
+            vb[4 * s + 3] = spheres_[s].radius;
+        }
+        rtcCommitGeometry(geom);
+        uint32_t id = rtcAttachGeometry(scene_, geom);
+        rtcReleaseGeometry(geom);
+        if (id != kSphereGeometry) throw std::logic_error("unexpected sphere geometry id");
+    }
+    rtcCommitScene(scene_);
+    CheckDevice(device, "building the BVH");
+
+    // Emitters, each weighted by its emitted power Phi = pi * A * L (per side).
+    std::vector<double> power;
+    triangle_emitter_.assign(num_triangles_, kNoEmitter);
+    for (uint32_t t = 0; t < num_triangles_; ++t) {
+        const Material& m = materials_[triangle_material_[t]];
+        if (IsBlack(m.emission)) continue;
+        float area = 0.5f * Length(Cross(Vertex(t, 1) - Vertex(t, 0), Vertex(t, 2) - Vertex(t, 0)));
+        if (!(area > 0.f)) continue;  // degenerate: never hit, never sampled
+        triangle_emitter_[t] = int32_t(emitters_.size());
+        emitters_.push_back({false, t, area});
+        power.push_back(double(Luminance(m.emission)) * area * kPi * (m.two_sided_emission ? 2.0 : 1.0));
+    }
+    sphere_emitter_.assign(spheres_.size(), kNoEmitter);
+    for (uint32_t s = 0; s < spheres_.size(); ++s) {
+        if (IsBlack(spheres_[s].radiance)) continue;
+        float area = 4.f * kPi * spheres_[s].radius * spheres_[s].radius;
+        sphere_emitter_[s] = int32_t(emitters_.size());
+        emitters_.push_back({true, s, area});
+        power.push_back(double(Luminance(spheres_[s].radiance)) * area * kPi);
+    }
+    light_sampler_ = LightSampler(power);
+}
+
+Scene::~Scene() {
+    if (scene_) rtcReleaseScene(scene_);
+}
+
+Vec3 Scene::Vertex(uint32_t tri, int corner) const {
+    const float* p = positions_ + 3 * size_t(indices_[3 * size_t(tri) + corner]);
+    return {p[0], p[1], p[2]};
+}
+
+bool Scene::Intersect(const Ray& ray, SurfaceHit* hit) const {
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    RTCRayHit rh;
+    rh.ray.org_x = ray.o.x;
+    rh.ray.org_y = ray.o.y;
+    rh.ray.org_z = ray.o.z;
+    rh.ray.dir_x = ray.d.x;
+    rh.ray.dir_y = ray.d.y;
+    rh.ray.dir_z = ray.d.z;
+    rh.ray.tnear = 0.f;
+    rh.ray.tfar = std::numeric_limits<float>::infinity();
+    rh.ray.time = 0.f;
+    rh.ray.mask = 0xFFFFFFFFu;
+    rh.ray.id = 0;
+    rh.ray.flags = 0;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(scene_, &context, &rh);
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+    hit->t = rh.ray.tfar;
+    hit->geom_id = rh.hit.geomID;
+    hit->prim_id = rh.hit.primID;
+    if (rh.hit.geomID == kTriangleGeometry) {
+        // Recompute the hit point from barycentrics: smaller error than o + t d far away.
+        Vec3 p0 = Vertex(rh.hit.primID, 0), p1 = Vertex(rh.hit.primID, 1), p2 = Vertex(rh.hit.primID, 2);
+        float u = rh.hit.u, v = rh.hit.v;
+        hit->p = p0 * (1.f - u - v) + p1 * u + p2 * v;
+        hit->ng = Normalize(Cross(p1 - p0, p2 - p0));
+    } else {
+        const SphereLight& s = spheres_[rh.hit.primID];
+        Vec3 p = ray.o + ray.d * rh.ray.tfar;
+        hit->ng = Normalize(p - s.center);
+        hit->p = s.center + hit->ng * s.radius;
+    }
+    return true;
+}
+
+bool Scene::Occluded(Vec3 origin, Vec3 dir, float t_far) const {
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    RTCRay ray;
+    ray.org_x = origin.x;
+    ray.org_y = origin.y;
+    ray.org_z = origin.z;
+    ray.dir_x = dir.x;
+    ray.dir_y = dir.y;
+    ray.dir_z = dir.z;
+    ray.tnear = 0.f;
+    ray.tfar = t_far;
+    ray.time = 0.f;
+    ray.mask = 0xFFFFFFFFu;
+    ray.id = 0;
+    ray.flags = 0;
+    rtcOccluded1(scene_, &context, &ray);
+    return ray.tfar < 0.f;  // Embree sets tfar = -inf on a hit
+}
+
+const Material& Scene::MaterialAt(const SurfaceHit& hit) const {
+    static const Material kLightSurface{Color(0.f), Color(0.f), false};
+    return hit.geom_id == kTriangleGeometry ? materials_[triangle_material_[hit.prim_id]] : kLightSurface;
+}
+
+int32_t Scene::EmitterAt(const SurfaceHit& hit) const {
+    return hit.geom_id == kTriangleGeometry ? triangle_emitter_[hit.prim_id] : sphere_emitter_[hit.prim_id];
+}
+
+Color Scene::Emitted(int32_t emitter, const SurfaceHit& hit, Vec3 wo) const {
+    if (emitter < 0) return Color(0.f);
+    const Emitter& e = emitters_[emitter];
+    if (e.is_sphere) return spheres_[e.index].radiance;
+    const Material& m = materials_[triangle_material_[e.index]];
+    return (m.two_sided_emission || Dot(hit.ng, wo) > 0.f) ? m.emission : Color(0.f);
+}
+
+bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) const {
+    const Emitter& e = emitters_[emitter];
+    if (e.is_sphere) {
+        // Uniform in the cone the sphere subtends (pbrt-v4 4.2 / 12.2.2): no samples wasted
+        // on the hidden back side. From inside the sphere there is no light sampling.
+        const SphereLight& s = spheres_[e.index];
+        Vec3 to_center = s.center - ref;
+        float d2 = LengthSquared(to_center);
+        float r2 = s.radius * s.radius;
+        if (d2 <= r2) return false;
+        float d = std::sqrt(d2);
+        float one_minus_cos = ConeOneMinusCos(r2 / d2);
+        Vec3 local = SampleUniformCone(u, one_minus_cos);
+        Vec3 wi = Normalize(Frame::FromZ(to_center / d).FromLocal(local));
+        // Nearest intersection of ref + t wi with the sphere.
+        float b = Dot(to_center, wi);
+        float disc = std::max(0.f, r2 - (d2 - b * b));
+        out->distance = b - std::sqrt(disc);
+        out->wi = wi;
+        out->radiance = s.radiance;
+        out->pdf = 1.f / (2.f * kPi * one_minus_cos);
+        return out->distance > 0.f;
+    }
+    Vec3 b = SampleUniformTriangle(u);
+    Vec3 p0 = Vertex(e.index, 0), p1 = Vertex(e.index, 1), p2 = Vertex(e.index, 2);
+    Vec3 p = p0 * b.x + p1 * b.y + p2 * b.z;
+    Vec3 ng = Normalize(Cross(p1 - p0, p2 - p0));
+    Vec3 to_light = p - ref;
+    float d2 = LengthSquared(to_light);
+    if (!(d2 > 0.f)) return false;
+    float d = std::sqrt(d2);
+    Vec3 wi = to_light / d;
+    float cos_light = Dot(ng, -wi);
+    const Material& m = materials_[triangle_material_[e.index]];
+    if (!m.two_sided_emission && cos_light <= 0.f) return false;
+    cos_light = std::abs(cos_light);
+    if (cos_light < 1e-7f) return false;
+    out->wi = wi;
+    out->distance = d;
+    out->radiance = m.emission;
+    out->pdf = d2 / (cos_light * e.area);  // area measure 1/A converted to solid angle
+    return true;
+}
+
+float Scene::EmitterPdf(uint32_t emitter, Vec3 ref, const SurfaceHit& hit) const {
+    const Emitter& e = emitters_[emitter];
+    if (e.is_sphere) {
+        const SphereLight& s = spheres_[e.index];
+        float d2 = LengthSquared(s.center - ref);
+        float r2 = s.radius * s.radius;
+        if (d2 <= r2) return 0.f;
+        return 1.f / (2.f * kPi * ConeOneMinusCos(r2 / d2));
+    }
+    Vec3 to_light = hit.p - ref;
+    float d2 = LengthSquared(to_light);
+    float cos_light = std::abs(Dot(hit.ng, to_light)) / std::sqrt(d2);
+    if (cos_light < 1e-7f) return 0.f;
+    return d2 / (cos_light * e.area);
+}
+
+}  // namespace tessera

@@ -1,0 +1,103 @@
+// The renderable scene: flat world-space triangle arrays, a material table and analytic
+// sphere lights, built into one Embree 3 BVH. Emitters (emissive triangles and spheres)
+// are indexed once so that next event estimation and MIS share one light sampler.
+#pragma once
+
+#include <embree3/rtcore.h>
+
+#include <cstdint>
+#include <vector>
+
+#include "light_sampler.h"
+#include "math.h"
+
+namespace tessera {
+
+struct Material {
+    Color albedo;              // Lambertian reflectance, each channel in [0, 1]
+    Color emission;            // emitted radiance (W m^-2 sr^-1, linear RGB)
+    bool two_sided_emission = false;  // else emits only on the geometric normal's side
+};
+
+struct SphereLight {
+    Vec3 center;
+    float radius = 0.f;
+    Color radiance;
+};
+
+// Input to Scene. Plain arrays, as the USD translation produces them.
+struct SceneDesc {
+    std::vector<float> positions;            // 3 floats per vertex, world space
+    std::vector<uint32_t> indices;           // 3 vertex indices per triangle
+    std::vector<uint32_t> triangle_material; // one material index per triangle
+    std::vector<Material> materials;
+    std::vector<SphereLight> sphere_lights;
+};
+
+struct SurfaceHit {
+    float t = 0.f;
+    Vec3 p;
+    Vec3 ng;  // unit geometric normal, as wound (not flipped toward the ray)
+    uint32_t geom_id = 0, prim_id = 0;
+};
+
+struct LightSample {
+    Color radiance;  // emitted toward the reference point
+    Vec3 wi;         // unit direction from the reference point to the light
+    float distance = 0.f;
+    float pdf = 0.f;  // solid-angle density at the reference point, emitter already chosen
+};
+
+class Scene {
+public:
+    static constexpr uint32_t kTriangleGeometry = 0;
+    static constexpr uint32_t kSphereGeometry = 1;
+    static constexpr int32_t kNoEmitter = -1;
+
+    // Validates the description (indices in range, finite positions, material indices,
+    // non-negative finite colours) and throws std::invalid_argument naming the problem.
+    explicit Scene(const SceneDesc& desc);
+    ~Scene();
+    Scene(const Scene&) = delete;
+    Scene& operator=(const Scene&) = delete;
+
+    bool Intersect(const Ray& ray, SurfaceHit* hit) const;
+    bool Occluded(Vec3 origin, Vec3 dir, float t_far) const;
+
+    const Material& MaterialAt(const SurfaceHit& hit) const;
+    int32_t EmitterAt(const SurfaceHit& hit) const;
+    // Radiance leaving emitter e at the hit toward wo.
+    Color Emitted(int32_t emitter, const SurfaceHit& hit, Vec3 wo) const;
+
+    const LightSampler& light_sampler() const { return light_sampler_; }
+    bool SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) const;
+    // Solid-angle pdf at ref of SampleEmitter having produced the point of `hit`.
+    float EmitterPdf(uint32_t emitter, Vec3 ref, const SurfaceHit& hit) const;
+
+    size_t num_triangles() const { return num_triangles_; }
+    size_t num_emitters() const { return emitters_.size(); }
+
+private:
+    struct Emitter {
+        bool is_sphere = false;
+        uint32_t index = 0;  // triangle or sphere index
+        float area = 0.f;
+    };
+    Vec3 Vertex(uint32_t tri, int corner) const;
+
+    RTCScene scene_ = nullptr;
+    const float* positions_ = nullptr;  // owned by Embree's buffers
+    const uint32_t* indices_ = nullptr;
+    size_t num_triangles_ = 0;
+    std::vector<uint32_t> triangle_material_;
+    std::vector<Material> materials_;
+    std::vector<SphereLight> spheres_;
+    std::vector<Emitter> emitters_;
+    std::vector<int32_t> triangle_emitter_, sphere_emitter_;
+    LightSampler light_sampler_;
+};
+
+// The process-wide Embree device (created on first use, thread-safe).
+RTCDevice EmbreeDevice();
+
+}  // namespace tessera

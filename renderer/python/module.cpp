@@ -1,0 +1,111 @@
+// Python binding of the renderer core: flat numpy arrays in, float RGBA tiles out.
+// The GIL is released while the BVH is built and while tiles render.
+#include <nanobind/nanobind.h>
+#include <nanobind/ndarray.h>
+#include <nanobind/stl/array.h>
+#include <nanobind/stl/string.h>
+
+#include <array>
+#include <memory>
+
+#include "../core/render.h"
+#include "../core/scene.h"
+
+namespace nb = nanobind;
+using namespace nb::literals;
+using namespace tessera;
+
+namespace {
+
+template <typename T, int C>
+using InArray = nb::ndarray<const T, nb::shape<-1, C>, nb::c_contig, nb::device::cpu>;
+template <typename T>
+using InVector = nb::ndarray<const T, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
+
+Vec3 ToVec3(const std::array<float, 3>& a) { return {a[0], a[1], a[2]}; }
+
+SceneDesc MakeDesc(InArray<float, 3> positions, InArray<uint32_t, 3> indices, InVector<uint32_t> triangle_material,
+                   InArray<float, 3> albedo, InArray<float, 3> emission, InVector<bool> two_sided_emission,
+                   InArray<float, 7> sphere_lights) {
+    SceneDesc d;
+    d.positions.assign(positions.data(), positions.data() + positions.size());
+    d.indices.assign(indices.data(), indices.data() + indices.size());
+    d.triangle_material.assign(triangle_material.data(), triangle_material.data() + triangle_material.size());
+    const size_t n_mat = albedo.shape(0);
+    if (emission.shape(0) != n_mat || two_sided_emission.shape(0) != n_mat)
+        throw std::invalid_argument("albedo, emission and two_sided_emission need one row per material");
+    for (size_t m = 0; m < n_mat; ++m)
+        d.materials.push_back({Vec3(albedo(m, 0), albedo(m, 1), albedo(m, 2)),
+                               Vec3(emission(m, 0), emission(m, 1), emission(m, 2)), two_sided_emission(m)});
+    for (size_t s = 0; s < sphere_lights.shape(0); ++s)
+        d.sphere_lights.push_back({Vec3(sphere_lights(s, 0), sphere_lights(s, 1), sphere_lights(s, 2)),
+                                   sphere_lights(s, 3),
+                                   Vec3(sphere_lights(s, 4), sphere_lights(s, 5), sphere_lights(s, 6))});
+    return d;
+}
+
+}  // namespace
+
+NB_MODULE(_core, m) {
+    m.doc() = "Tessera renderer core (Embree 3 path tracer)";
+
+    nb::class_<Scene>(m, "Scene")
+        .def(
+            "__init__",
+            [](Scene* self, InArray<float, 3> positions, InArray<uint32_t, 3> indices,
+               InVector<uint32_t> triangle_material, InArray<float, 3> albedo, InArray<float, 3> emission,
+               InVector<bool> two_sided_emission, InArray<float, 7> sphere_lights) {
+                SceneDesc desc =
+                    MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission, sphere_lights);
+                nb::gil_scoped_release release;
+                new (self) Scene(desc);
+            },
+            "positions"_a, "indices"_a, "triangle_material"_a, "albedo"_a, "emission"_a, "two_sided_emission"_a,
+            "sphere_lights"_a,
+            "Builds the BVH. sphere_lights rows are (cx, cy, cz, radius, r, g, b) radiance.")
+        .def_prop_ro("num_triangles", &Scene::num_triangles)
+        .def_prop_ro("num_emitters", &Scene::num_emitters);
+
+    nb::class_<Camera>(m, "Camera")
+        .def(
+            "__init__",
+            [](Camera* self, std::array<float, 3> origin, std::array<float, 3> right, std::array<float, 3> up,
+               std::array<float, 3> forward, float tan_half_width, float tan_half_height, uint32_t width,
+               uint32_t height) {
+                if (width == 0 || height == 0) throw std::invalid_argument("image size must be positive");
+                if (!(tan_half_width > 0.f) || !(tan_half_height > 0.f) || !std::isfinite(tan_half_width) ||
+                    !std::isfinite(tan_half_height))
+                    throw std::invalid_argument("camera field of view must be finite and positive");
+                new (self) Camera{ToVec3(origin), Normalize(ToVec3(right)), Normalize(ToVec3(up)),
+                                  Normalize(ToVec3(forward)), tan_half_width, tan_half_height, width, height};
+            },
+            "origin"_a, "right"_a, "up"_a, "forward"_a, "tan_half_width"_a, "tan_half_height"_a, "width"_a,
+            "height"_a)
+        .def_ro("width", &Camera::width)
+        .def_ro("height", &Camera::height);
+
+    m.def(
+        "render_tile",
+        [](const Scene& scene, const Camera& camera, uint32_t x0, uint32_t y0, uint32_t width, uint32_t height,
+           uint32_t spp, uint32_t seed, int max_depth, int threads) {
+            auto pixels = std::make_unique<float[]>(size_t(width) * height * 4);
+            RenderStats stats;
+            {
+                nb::gil_scoped_release release;
+                stats = RenderTile(scene, camera, RenderOptions{spp, seed, max_depth, threads},
+                                   TileRect{x0, y0, width, height}, pixels.get());
+            }
+            float* data = pixels.release();
+            nb::capsule owner(data, [](void* p) noexcept { delete[] static_cast<float*>(p); });
+            nb::ndarray<nb::numpy, float, nb::shape<-1, -1, 4>> array(data, {height, width, 4}, owner);
+            nb::dict info;
+            info["samples"] = stats.samples;
+            info["nonfinite_samples"] = stats.nonfinite_samples;
+            info["first_nonfinite"] = nb::make_tuple(stats.first_nonfinite_pixel_x, stats.first_nonfinite_pixel_y,
+                                                     stats.first_nonfinite_sample);
+            return nb::make_tuple(array, info);
+        },
+        "scene"_a, "camera"_a, "x0"_a, "y0"_a, "width"_a, "height"_a, "spp"_a, "seed"_a = 0, "max_depth"_a = 64,
+        "threads"_a = 0,
+        "Renders a tile; returns (rgba float32 [height, width, 4], stats dict).");
+}

@@ -1,0 +1,183 @@
+#include <gtest/gtest.h>
+
+#include <cstring>
+
+#include "render.h"
+#include "scene.h"
+
+using namespace tessera;
+
+namespace {
+
+uint32_t AddMaterial(SceneDesc& d, Color albedo, Color emission, bool two_sided = false) {
+    d.materials.push_back({albedo, emission, two_sided});
+    return uint32_t(d.materials.size() - 1);
+}
+
+// Quad a-b-c-d (counter-clockwise seen from its front, where the normal points).
+void AddQuad(SceneDesc& d, Vec3 a, Vec3 b, Vec3 c, Vec3 e, uint32_t material) {
+    uint32_t base = uint32_t(d.positions.size() / 3);
+    for (Vec3 p : {a, b, c, e}) d.positions.insert(d.positions.end(), {p.x, p.y, p.z});
+    d.indices.insert(d.indices.end(), {base, base + 1, base + 2, base, base + 2, base + 3});
+    d.triangle_material.insert(d.triangle_material.end(), {material, material});
+}
+
+// Axis-aligned box [lo, hi], faces wound to face inward.
+void AddInwardBox(SceneDesc& d, Vec3 lo, Vec3 hi, uint32_t material) {
+    Vec3 p[8];
+    for (int i = 0; i < 8; ++i) p[i] = Vec3(i & 1 ? hi.x : lo.x, i & 2 ? hi.y : lo.y, i & 4 ? hi.z : lo.z);
+    AddQuad(d, p[0], p[1], p[3], p[2], material);  // z = lo, normal +z
+    AddQuad(d, p[4], p[6], p[7], p[5], material);  // z = hi, normal -z
+    AddQuad(d, p[0], p[4], p[5], p[1], material);  // y = lo, normal +y
+    AddQuad(d, p[2], p[3], p[7], p[6], material);  // y = hi, normal -y
+    AddQuad(d, p[0], p[2], p[6], p[4], material);  // x = lo, normal +x
+    AddQuad(d, p[1], p[5], p[7], p[3], material);  // x = hi, normal -x
+}
+
+Camera LookDownMinusZ(Vec3 origin, uint32_t w, uint32_t h, float tan_half = 0.5f) {
+    return Camera{origin, Vec3(1, 0, 0), Vec3(0, 1, 0), Vec3(0, 0, -1), tan_half, tan_half * h / w, w, h};
+}
+
+std::vector<float> Render(const Scene& s, const Camera& c, RenderOptions o, TileRect t) {
+    std::vector<float> out(size_t(t.width) * t.height * 4);
+    RenderStats stats = RenderTile(s, c, o, t, out.data());
+    EXPECT_EQ(stats.nonfinite_samples, 0u);
+    return out;
+}
+
+// A small Cornell-like box: white walls, red and green sides, a ceiling light, a block.
+SceneDesc SmallCornell() {
+    SceneDesc d;
+    uint32_t white = AddMaterial(d, Color(0.73f, 0.71f, 0.68f), Color(0.f));
+    uint32_t red = AddMaterial(d, Color(0.63f, 0.065f, 0.05f), Color(0.f));
+    uint32_t green = AddMaterial(d, Color(0.14f, 0.45f, 0.09f), Color(0.f));
+    uint32_t light = AddMaterial(d, Color(0.78f), Color(17.f, 12.f, 4.f));
+    AddQuad(d, {-1, -1, -1}, {1, -1, -1}, {1, -1, -3}, {-1, -1, -3}, white);  // floor
+    AddQuad(d, {-1, 1, -1}, {-1, 1, -3}, {1, 1, -3}, {1, 1, -1}, white);      // ceiling
+    AddQuad(d, {-1, -1, -3}, {1, -1, -3}, {1, 1, -3}, {-1, 1, -3}, white);    // back
+    AddQuad(d, {-1, -1, -1}, {-1, -1, -3}, {-1, 1, -3}, {-1, 1, -1}, red);    // left
+    AddQuad(d, {1, -1, -1}, {1, 1, -1}, {1, 1, -3}, {1, -1, -3}, green);      // right
+    AddQuad(d, {-0.3f, 0.99f, -1.7f}, {-0.3f, 0.99f, -2.3f}, {0.3f, 0.99f, -2.3f}, {0.3f, 0.99f, -1.7f}, light);
+    AddQuad(d, {-0.6f, -0.2f, -2.2f}, {0.f, -0.2f, -2.4f}, {0.1f, -0.2f, -1.9f}, {-0.5f, -0.2f, -1.7f}, white);
+    return d;
+}
+
+}  // namespace
+
+TEST(Render, EmitterSeenDirectlyIsExactlyItsRadiance) {
+    SceneDesc d;
+    uint32_t m = AddMaterial(d, Color(0.f), Color(0.3f, 2.f, 17.5f));
+    AddQuad(d, {-100, -100, -1}, {100, -100, -1}, {100, 100, -1}, {-100, 100, -1}, m);  // faces +z, the camera
+    Scene scene(d);
+    Camera cam = LookDownMinusZ({0, 0, 0}, 8, 6);
+    auto px = Render(scene, cam, {16, 1, 8, 2}, {0, 0, 8, 6});
+    for (size_t i = 0; i < 8 * 6; ++i) {
+        EXPECT_EQ(px[4 * i + 0], 0.3f);
+        EXPECT_EQ(px[4 * i + 1], 2.f);
+        EXPECT_EQ(px[4 * i + 2], 17.5f);
+        EXPECT_EQ(px[4 * i + 3], 1.f);
+    }
+    // The same one-sided emitter seen from behind emits nothing.
+    Camera behind{{0, 0, -2}, Vec3(-1, 0, 0), Vec3(0, 1, 0), Vec3(0, 0, 1), 0.5f, 0.375f, 8, 6};
+    auto back = Render(scene, behind, {16, 1, 8, 2}, {0, 0, 8, 6});
+    for (size_t i = 0; i < 8 * 6; ++i) EXPECT_EQ(back[4 * i + 0] + back[4 * i + 1] + back[4 * i + 2], 0.f);
+}
+
+TEST(Render, SphereLightSeenDirectlyIsExactlyItsRadiance) {
+    SceneDesc d;
+    d.sphere_lights.push_back({Vec3(0, 0, -10), 5.f, Color(1.5f, 0.25f, 4.f)});
+    Scene scene(d);
+    auto px = Render(scene, LookDownMinusZ({0, 0, 0}, 4, 4, 0.1f), {8, 3, 4, 1}, {0, 0, 4, 4});
+    for (size_t i = 0; i < 16; ++i) {
+        EXPECT_EQ(px[4 * i + 0], 1.5f);
+        EXPECT_EQ(px[4 * i + 2], 4.f);
+    }
+}
+
+TEST(Render, PixelsDoNotDependOnTilesOrThreads) {
+    Scene scene(SmallCornell());
+    const uint32_t W = 37, H = 23;
+    Camera cam = LookDownMinusZ({0, 0, 1.5f}, W, H, 0.45f);
+    RenderOptions opt{6, 42, 16, 2};
+    auto whole = Render(scene, cam, opt, {0, 0, W, H});
+
+    // 7 x 5 tiles of uneven sizes, rendered in reverse order with one thread.
+    const uint32_t xs[8] = {0, 3, 9, 10, 18, 25, 31, W};
+    const uint32_t ys[6] = {0, 1, 7, 12, 20, H};
+    std::vector<float> tiled(whole.size(), -1.f);
+    opt.threads = 1;
+    for (int ty = 4; ty >= 0; --ty)
+        for (int tx = 6; tx >= 0; --tx) {
+            TileRect t{xs[tx], ys[ty], xs[tx + 1] - xs[tx], ys[ty + 1] - ys[ty]};
+            auto px = Render(scene, cam, opt, t);
+            for (uint32_t y = 0; y < t.height; ++y)
+                std::memcpy(&tiled[4 * (size_t(t.y0 + y) * W + t.x0)], &px[4 * size_t(y) * t.width],
+                            4 * t.width * sizeof(float));
+        }
+    ASSERT_EQ(0, std::memcmp(whole.data(), tiled.data(), whole.size() * sizeof(float)));
+    // And the image is not trivially black.
+    double sum = 0;
+    for (float v : whole) sum += v;
+    EXPECT_GT(sum, 1.0);
+}
+
+TEST(Render, SeedChangesNoiseOnly) {
+    Scene scene(SmallCornell());
+    Camera cam = LookDownMinusZ({0, 0, 1.5f}, 16, 16, 0.45f);
+    auto a = Render(scene, cam, {4, 1, 16, 2}, {0, 0, 16, 16});
+    auto b = Render(scene, cam, {4, 2, 16, 2}, {0, 0, 16, 16});
+    EXPECT_NE(0, std::memcmp(a.data(), b.data(), a.size() * sizeof(float)));
+}
+
+// White furnace: inside a closed box whose walls all have albedo a and emit Le (both
+// sides), radiance everywhere is Le (1 + a + a^2 + ...) = Le / (1 - a).
+class Furnace : public ::testing::TestWithParam<float> {};
+
+TEST_P(Furnace, EveryPixelIsLeOverOneMinusAlbedo) {
+    const float a = GetParam();
+    const Color Le(0.5f, 1.f, 2.f);
+    SceneDesc d;
+    AddInwardBox(d, {-1, -2, -1.5f}, {3, 1, 2}, AddMaterial(d, Color(a), Le, true));
+    Scene scene(d);
+    const uint32_t W = 32, H = 32;
+    auto px = Render(scene, LookDownMinusZ({0.2f, -0.3f, 0.1f}, W, H, 1.2f), {64, 9, 100000, 2}, {0, 0, W, H});
+    for (int c = 0; c < 3; ++c) {
+        double expected = Le[c] / (1.0 - a);
+        double sum = 0, sum2 = 0;
+        for (size_t i = 0; i < W * H; ++i) {
+            sum += px[4 * i + c];
+            sum2 += double(px[4 * i + c]) * px[4 * i + c];
+        }
+        double n = W * H, mean = sum / n;
+        double stderr_mean = std::sqrt(std::max(0.0, sum2 / n - mean * mean) / n);
+        EXPECT_NEAR(mean, expected, 5.0 * stderr_mean + 1e-5 * expected) << "channel " << c << " albedo " << a;
+        EXPECT_GT(stderr_mean, 0.0);  // noise exists, so the tolerance is not vacuous
+        EXPECT_LT(stderr_mean, 0.01 * expected);
+    }
+}
+
+INSTANTIATE_TEST_SUITE_P(Albedo, Furnace, ::testing::Values(0.5f, 0.9f));
+
+TEST(Scene, RejectsBadInputWithAClearError) {
+    SceneDesc d = SmallCornell();
+    d.indices[4] = 100000;
+    EXPECT_THROW(Scene{d}, std::invalid_argument);
+    d = SmallCornell();
+    d.positions[7] = NAN;
+    EXPECT_THROW(Scene{d}, std::invalid_argument);
+    d = SmallCornell();
+    d.triangle_material[0] = 99;
+    EXPECT_THROW(Scene{d}, std::invalid_argument);
+    d = SmallCornell();
+    d.materials[0].albedo = Color(1.5f);
+    EXPECT_THROW(Scene{d}, std::invalid_argument);
+    d = SmallCornell();
+    d.materials[3].emission = Color(-1.f);
+    EXPECT_THROW(Scene{d}, std::invalid_argument);
+}
+
+TEST(Scene, EmptySceneRendersBlack) {
+    Scene scene(SceneDesc{});
+    auto px = Render(scene, LookDownMinusZ({0, 0, 0}, 4, 4), {2, 0, 8, 1}, {0, 0, 4, 4});
+    for (float v : px) EXPECT_EQ(v, 0.f);
+}

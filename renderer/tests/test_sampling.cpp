@@ -1,0 +1,137 @@
+#include <gtest/gtest.h>
+
+#include <set>
+
+#include "chi_square.h"
+#include "sampler.h"
+#include "sampling.h"
+
+using namespace tessera;
+using tessera::testing::ChiSquareTest;
+
+TEST(PixelSampler, IsAPureFunctionOfSeedPixelSampleDimension) {
+    PixelSampler a(7, 1234, 5), b(7, 1234, 5);
+    for (int d = 0; d < 64; ++d) EXPECT_EQ(a.Get1D(), b.Get1D());
+    // Changing any one input changes the stream.
+    PixelSampler ref(7, 1234, 5), other_seed(8, 1234, 5), other_pixel(7, 1235, 5), other_sample(7, 1234, 6);
+    float r = ref.Get1D();
+    EXPECT_NE(r, other_seed.Get1D());
+    EXPECT_NE(r, other_pixel.Get1D());
+    EXPECT_NE(r, other_sample.Get1D());
+}
+
+TEST(PixelSampler, ValuesAreUniformInUnitInterval) {
+    const int bins = 64, n = 640000;
+    std::vector<double> observed(bins, 0.0), expected(bins, double(n) / bins);
+    for (int i = 0; i < n; ++i) {
+        PixelSampler s(3, uint64_t(i) * 7919u, uint32_t(i % 17));
+        float u = s.Get1D();
+        ASSERT_GE(u, 0.f);
+        ASSERT_LT(u, 1.f);
+        observed[std::min(bins - 1, int(u * bins))] += 1.0;
+    }
+    auto r = ChiSquareTest(observed, expected);
+    EXPECT_TRUE(r.pass) << "chi2 " << r.statistic << " dof " << r.dof;
+}
+
+TEST(PixelSampler, ConsecutiveDimensionsAreIndependent) {
+    // 2-D histogram of (dim k, dim k+1) pairs must be uniform.
+    const int bins = 16, n = 512000;
+    std::vector<double> observed(bins * bins, 0.0), expected(bins * bins, double(n) / (bins * bins));
+    for (int i = 0; i < n; ++i) {
+        PixelSampler s(11, uint64_t(i), 0);
+        Vec2 u = s.Get2D();
+        observed[int(u.y * bins) * bins + int(u.x * bins)] += 1.0;
+    }
+    auto r = ChiSquareTest(observed, expected);
+    EXPECT_TRUE(r.pass) << "chi2 " << r.statistic << " dof " << r.dof;
+}
+
+// Histogram of directions over (cos theta, phi) bins against the exact integral of the
+// pdf over each bin, bin_integral(cos0, cos1, phi0, phi1), since d(omega) = d(cos) d(phi).
+template <typename SampleFn, typename BinIntegralFn>
+void ExpectDirectionsFollowPdf(SampleFn sample, BinIntegralFn bin_integral, const char* name) {
+    const int n_theta = 20, n_phi = 40, n = 1000000;
+    std::vector<double> observed(n_theta * n_phi, 0.0), expected(n_theta * n_phi, 0.0);
+    for (int i = 0; i < n; ++i) {
+        PixelSampler s(1, uint64_t(i), 0);
+        Vec3 w = sample(s.Get2D());
+        ASSERT_NEAR(Length(w), 1.f, 1e-4f) << name;
+        float ct = std::clamp(w.z, -1.f, 1.f);
+        float phi = std::atan2(w.y, w.x);
+        if (phi < 0.f) phi += 2.f * kPi;
+        int it = std::min(n_theta - 1, int((ct + 1.f) * 0.5f * n_theta));
+        int ip = std::min(n_phi - 1, int(phi / (2.f * kPi) * n_phi));
+        observed[it * n_phi + ip] += 1.0;
+    }
+    for (int it = 0; it < n_theta; ++it)
+        for (int ip = 0; ip < n_phi; ++ip) {
+            double c0 = -1.0 + 2.0 * it / n_theta, c1 = -1.0 + 2.0 * (it + 1) / n_theta;
+            double p0 = 2.0 * kPi * ip / n_phi, p1 = 2.0 * kPi * (ip + 1) / n_phi;
+            expected[it * n_phi + ip] = n * bin_integral(c0, c1, p0, p1);
+        }
+    auto r = ChiSquareTest(observed, expected);
+    EXPECT_TRUE(r.pass) << name << ": chi2 " << r.statistic << " dof " << r.dof;
+}
+
+TEST(Warps, CosineHemisphereMatchesItsPdf) {
+    // integral of cos/pi over the bin = (c1^2 - c0^2) / 2 * dphi / pi, for c >= 0
+    ExpectDirectionsFollowPdf([](Vec2 u) { return SampleCosineHemisphere(u); },
+                              [](double c0, double c1, double p0, double p1) {
+                                  c0 = std::max(c0, 0.0), c1 = std::max(c1, 0.0);
+                                  return (c1 * c1 - c0 * c0) / 2.0 * (p1 - p0) / kPi;
+                              },
+                              "cosine hemisphere");
+    for (float u : {0.f, 0.5f, 0.999999f}) EXPECT_NEAR(CosineHemispherePdf(SampleCosineHemisphere({u, 0.3f}).z) * kPi,
+                                                     SampleCosineHemisphere({u, 0.3f}).z, 1e-6f);
+}
+
+TEST(Warps, UniformConeMatchesItsPdf) {
+    for (float sin2 : {0.9f, 0.3f, 0.0005f}) {
+        double omc = ConeOneMinusCos(sin2);
+        ExpectDirectionsFollowPdf([omc](Vec2 u) { return SampleUniformCone(u, float(omc)); },
+                                  [omc](double c0, double c1, double p0, double p1) {
+                                      double overlap = std::max(0.0, std::min(c1, 1.0) - std::max(c0, 1.0 - omc));
+                                      return overlap * (p1 - p0) / (2.0 * kPi * omc);
+                                  },
+                                  "uniform cone");
+    }
+}
+
+TEST(Warps, ConeOneMinusCosIsAccurateForTinyCones) {
+    // Against a double-precision reference at small and moderate angles.
+    for (double sin2 : {1e-12, 1e-8, 1e-4, 9e-4, 1.1e-3, 0.5, 0.99}) {
+        double ref = sin2 / (1.0 + std::sqrt(1.0 - sin2));  // 1 - cos without cancellation
+        EXPECT_NEAR(ConeOneMinusCos(float(sin2)) / ref, 1.0, 1e-5) << sin2;
+    }
+}
+
+TEST(Warps, UniformTriangleBarycentricsAreUniform) {
+    // Sample the triangle (0,0),(1,0),(0,1); bin the unit square; bins fully inside get
+    // equal counts, and nothing lands outside.
+    const int bins = 16, n = 800000;
+    std::vector<double> observed(bins * bins, 0.0), expected(bins * bins, 0.0);
+    for (int i = 0; i < n; ++i) {
+        PixelSampler s(5, uint64_t(i), 0);
+        Vec3 b = SampleUniformTriangle(s.Get2D());
+        ASSERT_GE(b.x, 0.f);
+        ASSERT_GE(b.y, 0.f);
+        ASSERT_GE(b.z, -1e-6f);
+        float x = b.y, y = b.z;  // point = b1 * (1,0) + b2 * (0,1)
+        observed[std::min(bins - 1, int(y * bins)) * bins + std::min(bins - 1, int(x * bins))] += 1.0;
+    }
+    for (int iy = 0; iy < bins; ++iy)
+        for (int ix = 0; ix < bins; ++ix) {
+            double cell = 1.0 / (bins * bins);
+            if (ix + iy + 2 <= bins) expected[iy * bins + ix] = n * cell / 0.5;          // inside
+            else if (ix + iy + 1 == bins) expected[iy * bins + ix] = n * 0.5 * cell / 0.5;  // on the diagonal
+        }
+    auto r = ChiSquareTest(observed, expected);
+    EXPECT_TRUE(r.pass) << "chi2 " << r.statistic << " dof " << r.dof;
+}
+
+TEST(Mis, PowerHeuristicWeightsSumToOne) {
+    for (float a : {0.f, 1e-8f, 0.3f, 1.f, 7.f, 1e8f})
+        for (float b : {1e-8f, 0.3f, 1.f, 7.f, 1e8f}) EXPECT_NEAR(PowerHeuristic(a, b) + PowerHeuristic(b, a), 1.f, 1e-6f);
+    EXPECT_EQ(PowerHeuristic(INFINITY, 1.f), 1.f);
+}

@@ -1,0 +1,71 @@
+"""Image files: float RGBA EXR and tonemapped sRGB PNG previews, through OpenImageIO.
+
+Used by the local render and by the service's merger, so both write identical files.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import OpenImageIO as oiio
+
+
+def write_exr(path: str | Path, rgba: np.ndarray, metadata: dict[str, str] | None = None) -> None:
+    """Writes float32 linear RGBA (h, w, 4) as a float EXR (zip compression, lossless)."""
+    rgba = np.ascontiguousarray(rgba, dtype=np.float32)
+    h, w, c = rgba.shape
+    spec = oiio.ImageSpec(w, h, c, oiio.FLOAT)
+    spec.channelnames = ("R", "G", "B", "A")[:c]
+    spec.attribute("compression", "zip")
+    for key, value in (metadata or {}).items():
+        spec.attribute(key, str(value))
+    _write(path, spec, rgba)
+
+
+def read_exr(path: str | Path) -> np.ndarray:
+    """Reads an image as float32 (h, w, c), channels ordered R, G, B, A by name."""
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise OSError(f"cannot open {path}: {oiio.geterror()}")
+    try:
+        spec = inp.spec()
+        pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+        if pixels is None:
+            raise OSError(f"cannot read {path}: {inp.geterror()}")
+        names = list(spec.channelnames)
+    finally:
+        inp.close()
+    pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
+    order = [names.index(n) for n in ("R", "G", "B", "A") if n in names]
+    return pixels[:, :, order]
+
+
+def tonemap_srgb8(rgba: np.ndarray, exposure: float = 0.0) -> np.ndarray:
+    """Linear RGB -> 8-bit sRGB (clamped, exposure in stops). Non-finite pixels show magenta
+    so that they are noticed, not hidden."""
+    rgb = np.asarray(rgba, dtype=np.float32)[:, :, :3] * np.float32(2.0 ** exposure)
+    bad = ~np.isfinite(rgb).all(axis=2)
+    rgb = np.clip(np.nan_to_num(rgb, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
+    srgb = np.where(rgb <= 0.0031308, 12.92 * rgb, 1.055 * np.power(rgb, 1 / 2.4) - 0.055)
+    out = np.round(srgb * 255.0).astype(np.uint8)
+    out[bad] = (255, 0, 255)
+    return out
+
+
+def write_png_preview(path: str | Path, rgba: np.ndarray, exposure: float = 0.0) -> None:
+    rgb8 = np.ascontiguousarray(tonemap_srgb8(rgba, exposure))
+    h, w, _ = rgb8.shape
+    _write(path, oiio.ImageSpec(w, h, 3, oiio.UINT8), rgb8)
+
+
+def _write(path: str | Path, spec: oiio.ImageSpec, pixels: np.ndarray) -> None:
+    out = oiio.ImageOutput.create(str(path))
+    if out is None:
+        raise OSError(f"cannot create {path}: {oiio.geterror()}")
+    try:
+        if not out.open(str(path), spec):
+            raise OSError(f"cannot open {path} for writing: {out.geterror()}")
+        if not out.write_image(pixels):
+            raise OSError(f"cannot write {path}: {out.geterror()}")
+    finally:
+        out.close()
