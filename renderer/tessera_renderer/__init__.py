@@ -1,0 +1,88 @@
+"""Tessera's renderer: USD in, float RGBA tiles out. Knows nothing of Redis or HTTP.
+
+    scene = load_scene("scene.usda")
+    rgba = scene.render_tile(0, 0, 64, 64, width=512, height=512, spp=64, seed=0)
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from . import _core
+from .usd_scene import SceneData, SceneError, translate_stage
+
+__all__ = ["Scene", "SceneError", "load_scene", "NonFiniteSampleError"]
+
+log = logging.getLogger("tessera.renderer")
+
+
+class NonFiniteSampleError(RuntimeError):
+    """A sample came out NaN or Inf: a renderer bug, reported with where it happened."""
+
+
+class Scene:
+    """A translated scene with its BVH built, ready to render tiles of any size."""
+
+    def __init__(self, data: SceneData):
+        self.data = data
+        try:
+            self._core = _core.Scene(data.positions.reshape(-1, 3), data.indices.reshape(-1, 3),
+                                     data.triangle_material, data.albedo.reshape(-1, 3),
+                                     data.emission.reshape(-1, 3), data.two_sided_emission,
+                                     data.sphere_lights.reshape(-1, 7))
+        except ValueError as exc:
+            raise SceneError(f"invalid scene: {exc}") from None
+
+    @property
+    def width(self) -> int:
+        return self.data.resolution[0]
+
+    @property
+    def height(self) -> int:
+        return self.data.resolution[1]
+
+    @property
+    def warnings(self) -> list[str]:
+        return self.data.warnings
+
+    @property
+    def num_triangles(self) -> int:
+        return self._core.num_triangles
+
+    @property
+    def num_emitters(self) -> int:
+        return self._core.num_emitters
+
+    def camera(self, width: int, height: int) -> "_core.Camera":
+        c = self.data.camera
+        tan_w, tan_h = c.tan_half_angles(width, height)
+        return _core.Camera(c.origin, c.right, c.up, c.forward, tan_w, tan_h, width, height)
+
+    def render_tile(self, x0: int, y0: int, w: int, h: int, *, width: int | None = None,
+                    height: int | None = None, spp: int = 64, seed: int = 0, max_depth: int = 64,
+                    threads: int = 0) -> np.ndarray:
+        """Renders pixels [x0, x0+w) x [y0, y0+h) of a width x height image.
+        Returns float32 linear RGBA of shape (h, w, 4). Releases the GIL."""
+        width = width or self.width
+        height = height or self.height
+        rgba, stats = _core.render_tile(self._core, self.camera(width, height), x0, y0, w, h,
+                                        spp, seed, max_depth, threads)
+        if stats["nonfinite_samples"]:
+            x, y, s = stats["first_nonfinite"]
+            raise NonFiniteSampleError(
+                f"{stats['nonfinite_samples']} NaN/Inf samples in tile ({x0},{y0},{w}x{h}); "
+                f"first at pixel ({x},{y}) sample {s} (seed {seed})")
+        return rgba
+
+
+def load_scene(path: str | Path, frame: float | None = None) -> Scene:
+    """Reads a .usda/.usdc/.usdz file and builds it. Raises SceneError for bad input."""
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError(f"scene file not found: {path}")
+    data = translate_stage(str(path), frame)
+    for w in data.warnings:
+        log.warning("%s: %s", path.name, w)
+    return Scene(data)

@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# Sets everything up (scripts/setup.sh), then runs the whole test suite: the C++ unit
+# tests (GoogleTest through ctest) and the Python tests (pytest; they start their own
+# redis-server, API and worker processes). Exits non-zero if any test fails.
+set -uo pipefail
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+bash "$ROOT/scripts/setup.sh" || { echo "[test] set-up failed"; exit 1; }
+VENV=${TESSERA_VENV:-$ROOT/.venv}
+
+build_dir=$(ls -td "$ROOT"/build/*/ 2>/dev/null | head -n 1)
+status=0
+if [ -z "$build_dir" ] || [ ! -f "$build_dir/CTestTestfile.cmake" ]; then
+  echo "[test] no C++ build directory with tests under build/"; status=1
+else
+  echo "[test] C++ tests ($build_dir)"
+  ctest --test-dir "$build_dir" --output-on-failure || status=1
+fi
+
+echo "[test] Python tests"
+cd "$ROOT"
+"$VENV/bin/python" -m pytest "$@"
+rc=$?
+# pytest exits 5 when it collected nothing: that is a failure here, not a pass.
+[ $rc -eq 0 ] || status=1
+
+if [ $status -eq 0 ]; then echo "[test] all passed"; else echo "[test] FAILED"; fi
+exit $status

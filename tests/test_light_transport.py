@@ -1,0 +1,103 @@
+"""Physics checks through the whole USD -> render path, against closed-form answers."""
+import math
+
+import numpy as np
+import pytest
+from pxr import Gf, UsdLux
+
+from tessera_renderer import load_scene
+from usd_fixtures import (add_camera, add_render_settings, cornell_path, new_stage,  # noqa: F401
+                          write_furnace, write_rect_light_facing_camera)
+
+
+@pytest.mark.parametrize("albedo", [0.5, 0.9])
+def test_white_furnace(tmp_path, albedo):
+    """Closed Lambertian enclosure of albedo a emitting Le: every pixel Le / (1 - a)."""
+    le = np.array([0.5, 1.0, 2.0])
+    scene = load_scene(write_furnace(tmp_path / "furnace.usda", albedo, tuple(le)))
+    img = scene.render_tile(0, 0, 24, 24, spp=64, max_depth=1024, threads=2)
+    expected = le / (1 - albedo)
+    pixels = img[..., :3].reshape(-1, 3).astype(np.float64)
+    mean = pixels.mean(axis=0)
+    stderr = pixels.std(axis=0, ddof=1) / math.sqrt(len(pixels))
+    assert (stderr > 0).all() and (stderr < 0.02 * expected).all()
+    # 5 standard errors: a false failure is a ~1e-6 event; a 2 % bias would fail.
+    np.testing.assert_array_less(np.abs(mean - expected), 5 * stderr)
+    assert (img[..., 3] == 1.0).all()
+
+
+@pytest.mark.parametrize("kwargs,expected", [
+    (dict(intensity=1.0), (1.0, 1.0, 1.0)),
+    (dict(intensity=3.0, exposure=-1.0, color=(0.5, 1.0, 0.25)), (0.75, 1.5, 0.375)),
+    (dict(intensity=6.0, normalize=True), (1.0, 1.0, 1.0)),                # area 2 x 3 = 6
+    (dict(intensity=24.0, normalize=True, scale=2.0), (1.0, 1.0, 1.0)),    # world area 24
+])
+def test_rect_light_seen_head_on_has_the_usdlux_radiance(tmp_path, kwargs, expected):
+    """radiance = color * intensity * 2^exposure (/ world area if normalize)."""
+    scene = load_scene(write_rect_light_facing_camera(tmp_path / "rect.usda", **kwargs))
+    img = scene.render_tile(0, 0, 8, 8, spp=4)
+    np.testing.assert_allclose(img[..., :3].reshape(-1, 3), np.tile(expected, (64, 1)), rtol=1e-6)
+
+
+def test_rect_light_does_not_emit_backwards(tmp_path):
+    path = write_rect_light_facing_camera(tmp_path / "rect.usda")
+    from pxr import Usd, UsdGeom
+    stage = Usd.Stage.Open(str(path))
+    UsdGeom.Xformable(stage.GetPrimAtPath("/World/LightXf")).GetOrderedXformOps()[1].Set(0.0)  # turn it away
+    stage.Save()
+    img = load_scene(path).render_tile(0, 0, 8, 8, spp=4)
+    assert img[..., :3].max() == 0.0 and img[..., 3].min() == 1.0
+
+
+def test_sphere_light_normalize_divides_by_its_area(tmp_path):
+    stage = new_stage(tmp_path / "sphere.usda")
+    light = UsdLux.SphereLight.Define(stage, "/Light")
+    light.AddTranslateOp().Set(Gf.Vec3d(0, 0, -10))
+    light.CreateRadiusAttr(2.0)
+    light.CreateIntensityAttr(5.0)
+    light.CreateNormalizeAttr(True)
+    add_render_settings(stage, add_camera(stage, "/Cam", focal=100.0, haperture=2.0, vaperture=2.0), (4, 4))
+    stage.GetRootLayer().Save()
+    img = load_scene(tmp_path / "sphere.usda").render_tile(0, 0, 4, 4, spp=2)
+    np.testing.assert_allclose(img[..., :3], 5.0 / (4 * math.pi * 4.0), rtol=1e-6)
+
+
+def test_direct_light_from_a_small_sphere_matches_the_inverse_square_law(tmp_path):
+    """A white Lambertian floor lit by a small sphere light straight above it: the reflected
+    radiance is a/pi * E with E = Phi / (4 pi d^2) for a point-like source."""
+    from usd_fixtures import add_material, add_mesh
+    stage = new_stage(tmp_path / "irr.usda")
+    albedo, radius, d, L = 0.5, 0.01, 2.0, 1000.0
+    floor = add_material(stage, "/Floor", (albedo,) * 3)
+    # a floor at y=0 facing up, the camera looking straight down at it from just below the light
+    add_mesh(stage, "/Ground", [(-50, 0, -50), (-50, 0, 50), (50, 0, 50), (50, 0, -50)], [4], [0, 1, 2, 3], floor)
+    light = UsdLux.SphereLight.Define(stage, "/Light")
+    light.AddTranslateOp().Set(Gf.Vec3d(0, d, 0))
+    light.CreateRadiusAttr(radius)
+    light.CreateIntensityAttr(L)
+    cam = add_camera(stage, "/Cam", (0, d - 0.1, 0), focal=1000.0, haperture=1.0, vaperture=1.0)
+    cam.AddRotateXOp().Set(-90.0)
+    add_render_settings(stage, cam, (4, 4))
+    stage.GetRootLayer().Save()
+    scene = load_scene(tmp_path / "irr.usda")
+    img = scene.render_tile(0, 0, 4, 4, spp=256, max_depth=1)
+    # Sphere of radiance L seen from distance d: E = pi L (r/d)^2 exactly for a sphere
+    # straight overhead; reflected radiance a/pi * E.
+    expected = albedo / math.pi * math.pi * L * (radius / d) ** 2
+    np.testing.assert_allclose(img[..., :3].mean(), expected, rtol=0.01)
+
+
+def test_tiles_and_threads_do_not_change_pixels(cornell_path):
+    """7 x 5 tiles of uneven sizes with 1 thread == the whole image with 2 threads."""
+    scene = load_scene(cornell_path)
+    W, H = 61, 43
+    kw = dict(width=W, height=H, spp=3, seed=5, max_depth=8)
+    whole = scene.render_tile(0, 0, W, H, threads=2, **kw)
+    xs, ys = [0, 4, 13, 14, 30, 41, 50, W], [0, 9, 10, 25, 31, H]
+    tiled = np.full_like(whole, -1.0)
+    for j in reversed(range(5)):
+        for i in reversed(range(7)):
+            x0, y0, w, h = xs[i], ys[j], xs[i + 1] - xs[i], ys[j + 1] - ys[j]
+            tiled[y0:y0 + h, x0:x0 + w] = scene.render_tile(x0, y0, w, h, threads=1, **kw)
+    assert whole.tobytes() == tiled.tobytes()
+    assert whole[..., :3].mean() > 0.01

@@ -1,0 +1,103 @@
+"""Small USD scenes written with pxr for tests: each one has a known answer."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdRender, UsdShade
+
+
+def new_stage(path: Path) -> Usd.Stage:
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    return stage
+
+
+def add_material(stage, path: str, diffuse=(0.5, 0.5, 0.5), emissive=(0.0, 0.0, 0.0)) -> UsdShade.Material:
+    mat = UsdShade.Material.Define(stage, path)
+    shader = UsdShade.Shader.Define(stage, path + "/Surface")
+    shader.CreateIdAttr("UsdPreviewSurface")
+    shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*diffuse))
+    shader.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*emissive))
+    mat.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+    return mat
+
+
+def add_mesh(stage, path: str, points, counts, indices, material=None, double_sided=False):
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    mesh.CreatePointsAttr([Gf.Vec3f(*p) for p in points])
+    mesh.CreateFaceVertexCountsAttr(list(counts))
+    mesh.CreateFaceVertexIndicesAttr(list(indices))
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreateDoubleSidedAttr(double_sided)
+    if material is not None:
+        UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
+    return mesh
+
+
+def add_camera(stage, path: str, translate=(0, 0, 0), focal=50.0, haperture=36.0, vaperture=36.0):
+    cam = UsdGeom.Camera.Define(stage, path)
+    cam.AddTranslateOp().Set(Gf.Vec3d(*translate))
+    cam.CreateFocalLengthAttr(focal)
+    cam.CreateHorizontalApertureAttr(haperture)
+    cam.CreateVerticalApertureAttr(vaperture)
+    return cam
+
+
+def add_render_settings(stage, camera, resolution=(32, 32)):
+    settings = UsdRender.Settings.Define(stage, "/Render/Settings")
+    settings.CreateResolutionAttr(Gf.Vec2i(*resolution))
+    settings.CreateCameraRel().SetTargets([camera.GetPath()])
+    stage.SetMetadata("renderSettingsPrimPath", "/Render/Settings")
+    return settings
+
+
+def box_inward_faces(lo, hi):
+    """Points and quads of an axis-aligned box, wound to face inward."""
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    pts = [(x, y, z) for z in (z0, z1) for y in (y0, y1) for x in (x0, x1)]
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    return pts, [4] * 6, [i for q in quads for i in q]
+
+
+def write_furnace(path: Path, albedo: float, emission=(0.5, 1.0, 2.0), resolution=(24, 24)) -> Path:
+    """A closed box, every wall of albedo a emitting Le: radiance Le / (1 - a) everywhere."""
+    stage = new_stage(path)
+    mat = add_material(stage, "/Looks/Wall", (albedo,) * 3, emission)
+    pts, counts, idx = box_inward_faces((-2, -1, -3), (1, 2, 1))
+    add_mesh(stage, "/World/Box", pts, counts, idx, mat, double_sided=True)
+    cam = add_camera(stage, "/World/Camera", (0.1, 0.2, 0.3), focal=20.0)
+    add_render_settings(stage, cam, resolution)
+    stage.GetRootLayer().Save()
+    return path
+
+
+def write_rect_light_facing_camera(path: Path, *, width=2.0, height=3.0, intensity=1.0, exposure=0.0,
+                                   color=(1.0, 1.0, 1.0), normalize=False, scale=1.0) -> Path:
+    """A RectLight at z=-5 facing the camera at the origin (it emits along its local -Z, so it
+    is turned half round), large enough to fill the central pixels."""
+    stage = new_stage(path)
+    xf = UsdGeom.Xform.Define(stage, "/World/LightXf")
+    xf.AddTranslateOp().Set(Gf.Vec3d(0, 0, -5))
+    xf.AddRotateYOp().Set(180.0)
+    xf.AddScaleOp().Set(Gf.Vec3f(scale, scale, scale))
+    light = UsdLux.RectLight.Define(stage, "/World/LightXf/Light")
+    light.CreateWidthAttr(width)
+    light.CreateHeightAttr(height)
+    light.CreateIntensityAttr(intensity)
+    light.CreateExposureAttr(exposure)
+    light.CreateColorAttr(Gf.Vec3f(*color))
+    light.CreateNormalizeAttr(normalize)
+    cam = add_camera(stage, "/World/Camera", (0, 0, 0), focal=100.0, haperture=4.0, vaperture=4.0)
+    add_render_settings(stage, cam, (8, 8))
+    stage.GetRootLayer().Save()
+    return path
+
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="session")
+def cornell_path() -> Path:
+    return REPO / "examples" / "cornell" / "cornell.usda"
