@@ -30,7 +30,7 @@ def cmd_render(args: argparse.Namespace) -> int:
 
     from tessera_renderer import NonFiniteSampleError, SceneError, load_scene
 
-    from .images import write_exr, write_png_preview
+    from .images import render_metadata, write_exr, write_png_preview
     from .local import render_image
     from .protocol import RenderSettings
 
@@ -58,8 +58,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         print(f"tessera render: renderer bug: {exc}", file=sys.stderr)
         return 3
     output.parent.mkdir(parents=True, exist_ok=True)
-    write_exr(output, result.rgba, {"tessera:spp": settings.spp, "tessera:seed": settings.seed,
-                                    "tessera:scene": scene_path.name})
+    write_exr(output, result.rgba, render_metadata(settings.spp, settings.seed, scene_path.name))
     preview = output.with_suffix(".png")
     write_png_preview(preview, result.rgba)
     print(f"wrote {output} and {preview} in {result.seconds:.2f} s "

@@ -22,6 +22,11 @@ def write_exr(path: str | Path, rgba: np.ndarray, metadata: dict[str, str] | Non
     _write(path, spec, rgba)
 
 
+def render_metadata(spp: int, seed: int, scene_name: str) -> dict[str, str]:
+    """EXR header attributes describing how an image was rendered (local and farm alike)."""
+    return {"tessera:spp": str(spp), "tessera:seed": str(seed), "tessera:scene": scene_name}
+
+
 def read_exr(path: str | Path) -> np.ndarray:
     """Reads an image as float32 (h, w, c), channels ordered R, G, B, A by name."""
     inp = oiio.ImageInput.open(str(path))

@@ -6,8 +6,7 @@ import pytest
 from pxr import Gf, UsdLux
 
 from tessera_renderer import load_scene
-from usd_fixtures import (add_camera, add_render_settings, cornell_path, new_stage,  # noqa: F401
-                          write_furnace, write_rect_light_facing_camera)
+from usd_fixtures import add_camera, add_render_settings, new_stage, write_furnace, write_rect_light_facing_camera
 
 
 @pytest.mark.parametrize("albedo", [0.5, 0.9])

@@ -7,7 +7,7 @@ from pxr import Gf, UsdGeom, UsdLux
 
 from tessera_renderer import SceneError, load_scene
 from tessera_renderer.usd_scene import _triangulate_fan, translate_stage
-from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, cornell_path, new_stage  # noqa: F401
+from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, new_stage
 
 
 def triangle_areas(data):

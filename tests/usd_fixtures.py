@@ -3,8 +3,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import pytest
-
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdRender, UsdShade
 
 
@@ -94,10 +92,3 @@ def write_rect_light_facing_camera(path: Path, *, width=2.0, height=3.0, intensi
     stage.GetRootLayer().Save()
     return path
 
-
-REPO = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture(scope="session")
-def cornell_path() -> Path:
-    return REPO / "examples" / "cornell" / "cornell.usda"

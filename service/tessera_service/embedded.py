@@ -1,0 +1,176 @@
+"""A whole farm in one command: a private Redis, local workers and the API.
+
+serve() without a redis_url starts `redis-server` on a free local port (no persistence,
+in a temporary directory) and `workers` worker processes, runs the API in this process,
+and stops them all when the API stops (Ctrl-C / SIGTERM). With a redis_url only the API
+runs; workers are started elsewhere against the same Redis."""
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass
+
+import redis
+
+log = logging.getLogger("tessera.serve")
+
+WORKER_COMMAND = [sys.executable, "-m", "tessera", "worker"]
+WORKER_STOP_TIMEOUT = 30.0  # seconds a worker may take to finish its tile on shutdown
+
+
+def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
+          redis_url: str | None = None, *, worker_threads: int = 1,
+          log_level: str = "info") -> None:
+    """Runs the API on host:port until interrupted. See the module docstring."""
+    import uvicorn
+
+    from .app import create_app
+    from .settings import Settings
+
+    # Uvicorn handles SIGINT/SIGTERM while it runs and re-raises the signal once it has
+    # stopped; this handler absorbs that, so that the workers and Redis are then stopped
+    # in order. Outside of uvicorn's run a signal interrupts whatever we are waiting for.
+    phase = "starting"
+    embedded = redis_url is None
+
+    def on_signal(signum, frame):
+        if phase != "running":
+            raise KeyboardInterrupt
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with ExitStack() as stack:
+            if embedded:
+                tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="tessera-serve-"))
+                local = stack.enter_context(redis_server(tmp))
+                redis_url = local.url
+                log.warning("started a private redis-server at %s (nothing is persisted)",
+                            redis_url)
+                procs: list[subprocess.Popen] = []
+                stack.callback(stop_processes, procs, WORKER_STOP_TIMEOUT)
+                for _ in range(workers):
+                    procs.append(start_worker(redis_url, threads=worker_threads))
+                log.warning("started %d local worker(s)", workers)
+            app = create_app(Settings(redis_url=redis_url))
+            server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level=log_level))
+            phase = "running"
+            server.run()
+            phase = "stopping"
+            if embedded:
+                log.warning("stopping the local worker(s) and redis-server")
+    except KeyboardInterrupt:
+        log.warning("interrupted")
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+@dataclass
+class LocalRedis:
+    process: subprocess.Popen
+    url: str
+
+
+@contextmanager
+def redis_server(workdir: str, port: int | None = None, timeout: float = 10.0):
+    """A throwaway redis-server on 127.0.0.1 (free port, no persistence) for the block."""
+    exe = shutil.which("redis-server")
+    if exe is None:
+        raise RuntimeError("redis-server is not installed (apt-get install redis-server), "
+                           "or pass a Redis URL")
+    port = port or free_port()
+    logfile = os.path.join(workdir, "redis.log")
+    proc = subprocess.Popen(
+        [exe, "--port", str(port), "--bind", "127.0.0.1", "--save", "", "--appendonly", "no",
+         "--dir", workdir, "--logfile", logfile, "--daemonize", "no"],
+        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
+        start_new_session=True, preexec_fn=_die_with_parent)
+    url = f"redis://127.0.0.1:{port}/0"
+    try:
+        client = redis.Redis.from_url(url, socket_connect_timeout=1)
+        deadline = time.monotonic() + timeout
+        while True:
+            if proc.poll() is not None:
+                raise RuntimeError(f"redis-server exited with code {proc.returncode}: "
+                                   + _tail(logfile))
+            try:
+                client.ping()
+                break
+            except redis.ConnectionError:
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"redis-server did not answer within {timeout:g} s: "
+                                       + _tail(logfile)) from None
+                time.sleep(0.05)
+        client.close()
+        yield LocalRedis(proc, url)
+    finally:
+        stop_processes([proc], 10.0)
+
+
+def start_worker(redis_url: str, threads: int = 1, name: str | None = None,
+                 command: list[str] | None = None) -> subprocess.Popen:
+    """A worker process (in its own session, so that the terminal's Ctrl-C reaches only us
+    and we stop workers before Redis)."""
+    cmd = list(command or WORKER_COMMAND) + ["--threads", str(threads)]
+    if name:
+        cmd += ["--name", name]
+    return subprocess.Popen(cmd, env={**os.environ, "REDIS_URL": redis_url},
+                            stdin=subprocess.DEVNULL, start_new_session=True,
+                            preexec_fn=_die_with_parent)
+
+
+def stop_processes(procs: list[subprocess.Popen], timeout: float) -> None:
+    """SIGTERM, then SIGKILL whatever has not exited after timeout seconds."""
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    deadline = time.monotonic() + timeout
+    for p in procs:
+        try:
+            p.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            log.warning("process %d did not stop within %g s; killing it", p.pid, timeout)
+            p.kill()
+            p.wait()
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _load_prctl():
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        import ctypes
+        return ctypes.CDLL(None).prctl
+    except (OSError, AttributeError):
+        return None
+
+
+_prctl = _load_prctl()  # looked up here: the child after fork should only call it
+
+
+def _die_with_parent() -> None:
+    """In the child: get SIGTERM if the parent dies, so nothing is left running (Linux)."""
+    if _prctl is not None:
+        PR_SET_PDEATHSIG = 1
+        _prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM))
+
+
+def _tail(path: str, lines: int = 5) -> str:
+    try:
+        with open(path, errors="replace") as f:
+            return " | ".join(f.read().splitlines()[-lines:])
+    except OSError:
+        return "(no log)"

@@ -1,0 +1,85 @@
+"""Pre-flight of untrusted uploads: `python -m tessera_renderer.inspect FILE` in a child
+process with a time and memory limit, so that a hostile or broken file cannot crash,
+hang or exhaust the API process."""
+from __future__ import annotations
+
+import json
+import resource
+import signal
+import subprocess
+import sys
+from dataclasses import dataclass, field
+
+INSPECT_MODULE = "tessera_renderer.inspect"
+
+
+class PreflightRejected(Exception):
+    """The scene is unusable; the message says why (meant for the client)."""
+
+
+class PreflightBroken(Exception):
+    """The inspection itself could not run (a server problem, not the client's)."""
+
+
+@dataclass
+class SceneInfo:
+    width: int
+    height: int
+    warnings: list[str] = field(default_factory=list)
+    triangles: int = 0
+    lights: int = 0
+
+
+def _limits(memory_bytes: int):
+    def apply() -> None:  # runs in the child between fork and exec: keep it minimal
+        if memory_bytes > 0:
+            resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
+        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+    return apply
+
+
+def inspect_scene(path: str, *, timeout: float, memory_bytes: int) -> SceneInfo:
+    try:
+        proc = subprocess.run([sys.executable, "-m", INSPECT_MODULE, path],
+                              stdin=subprocess.DEVNULL, capture_output=True,
+                              timeout=timeout, preexec_fn=_limits(memory_bytes))
+    except subprocess.TimeoutExpired:
+        raise PreflightRejected(f"scene inspection timed out after {timeout:g} s") from None
+
+    result = _parse(proc.stdout)
+    if result is not None and proc.returncode in (0, 2):
+        if not result.get("ok"):
+            raise PreflightRejected(str(result.get("error") or "the scene was rejected"))
+        try:
+            return SceneInfo(width=int(result["width"]), height=int(result["height"]),
+                             warnings=[str(w) for w in result.get("warnings", [])],
+                             triangles=int(result.get("triangles", 0)),
+                             lights=int(result.get("lights", 0)))
+        except (KeyError, TypeError, ValueError) as e:
+            raise PreflightBroken(f"scene inspection returned an unexpected answer: {result!r}") from e
+
+    stderr = proc.stderr.decode(errors="replace").strip()
+    if proc.returncode < 0:
+        name = signal.Signals(-proc.returncode).name if -proc.returncode in signal.valid_signals() \
+            else f"signal {-proc.returncode}"
+        raise PreflightRejected(f"scene inspection crashed ({name})")
+    if "MemoryError" in stderr or "bad_alloc" in stderr:
+        raise PreflightRejected("scene inspection ran out of memory "
+                                f"(limit {memory_bytes / (1 << 20):.0f} MiB)")
+    tail = stderr.splitlines()[-5:]
+    raise PreflightBroken(f"scene inspection failed with exit code {proc.returncode}: "
+                          + " | ".join(tail))
+
+
+def _parse(stdout: bytes) -> dict | None:
+    """The JSON object on stdout (or on its last line, should anything else print first)."""
+    text = stdout.decode(errors="replace").strip()
+    lines = text.splitlines()
+    for candidate in (text, lines[-1] if lines else ""):
+        try:
+            value = json.loads(candidate)
+        except ValueError:
+            continue
+        if isinstance(value, dict):
+            return value
+    return None

@@ -1,0 +1,136 @@
+"""Shared fixtures: real redis-server, real uvicorn and worker subprocesses (no fakes)."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+import redis
+
+from tessera import protocol
+from tessera_service.embedded import free_port, redis_server as _redis_server, stop_processes
+
+REPO = Path(__file__).resolve().parents[1]
+CORNELL = REPO / "examples" / "cornell" / "cornell.usda"
+STARTUP_TIMEOUT = 30.0
+
+
+@pytest.fixture(scope="session")
+def cornell_path() -> Path:
+    """The bundled example scene."""
+    return CORNELL
+
+
+def clean_env(**extra: str) -> dict[str, str]:
+    """The test's environment without any Redis or Tessera settings of the developer's."""
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith("TESSERA_") and k != "REDIS_URL"}
+    env["PYTHONUNBUFFERED"] = "1"
+    env.update(extra)
+    return env
+
+
+class Process:
+    """A subprocess whose output goes to a log file, shown when something fails."""
+
+    def __init__(self, name: str, cmd: list[str], log_dir: Path, env: dict[str, str]):
+        self.name = name
+        self.log_path = log_dir / f"{name}.log"
+        self._log = open(self.log_path, "wb")
+        self.popen = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL,
+                                      stdout=self._log, stderr=subprocess.STDOUT)
+
+    @property
+    def pid(self) -> int:
+        return self.popen.pid
+
+    def alive(self) -> bool:
+        return self.popen.poll() is None
+
+    def log(self, lines: int = 40) -> str:
+        text = self.log_path.read_text(errors="replace").splitlines()
+        return f"--- {self.name} (exit {self.popen.poll()}) ---\n" + "\n".join(text[-lines:])
+
+    def stop(self, timeout: float = 10.0) -> None:
+        stop_processes([self.popen], timeout)
+        self._log.close()
+
+
+@pytest.fixture(scope="module")
+def redis_server(tmp_path_factory) -> str:
+    """URL of a fresh redis-server (free port, no persistence) for the test module."""
+    with _redis_server(str(tmp_path_factory.mktemp("redis"))) as local:
+        yield local.url
+
+
+@pytest.fixture(scope="module")
+def redis_client(redis_server) -> redis.Redis:
+    client = redis.Redis.from_url(redis_server)
+    yield client
+    client.close()
+
+
+def start_api(redis_url: str, log_dir: Path, **settings: str) -> tuple[Process, str]:
+    """uvicorn serving tessera_service on a free port; settings become TESSERA_* variables.
+    Returns once /healthz answers."""
+    port = free_port()
+    env = clean_env(TESSERA_REDIS_URL=redis_url,
+                    **{f"TESSERA_{k.upper()}": str(v) for k, v in settings.items()})
+    proc = Process(f"api-{port}", [sys.executable, "-m", "uvicorn", "--factory",
+                                   "tessera_service.app:create_app", "--host", "127.0.0.1",
+                                   "--port", str(port), "--log-level", "warning"], log_dir, env)
+    base = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + STARTUP_TIMEOUT
+    while True:
+        assert proc.alive(), "the API exited at startup\n" + proc.log()
+        try:
+            if httpx.get(f"{base}/healthz", timeout=1).status_code == 200:
+                return proc, base
+        except httpx.TransportError:
+            pass
+        assert time.monotonic() < deadline, "the API did not become ready\n" + proc.log()
+        time.sleep(0.05)
+
+
+def start_worker(redis_url: str, name: str, log_dir: Path, heartbeat_ttl: float = 2.0) -> Process:
+    """A worker process; returns once its heartbeat is in Redis."""
+    proc = Process(name, [sys.executable, "-m", "tessera_worker", "--name", name,
+                          "--threads", "1", "--heartbeat-ttl", str(heartbeat_ttl),
+                          "--log-level", "DEBUG"],
+                   log_dir, clean_env(REDIS_URL=redis_url))
+    client = redis.Redis.from_url(redis_url)
+    deadline = time.monotonic() + STARTUP_TIMEOUT
+    try:
+        while not client.exists(protocol.worker_key(name)):
+            assert proc.alive(), f"worker {name} exited at startup\n" + proc.log()
+            assert time.monotonic() < deadline, f"worker {name} did not start\n" + proc.log()
+            time.sleep(0.05)
+    finally:
+        client.close()
+    return proc
+
+
+def submit(client: httpx.Client, scene: Path, **form) -> httpx.Response:
+    with open(scene, "rb") as f:
+        return client.post("/jobs", files={"file": (scene.name, f)},
+                           data={k: str(v) for k, v in form.items()})
+
+
+def wait_for_job(client: httpx.Client, job_id: str, timeout: float = 60.0,
+                 processes: list[Process] = ()) -> dict:
+    """Polls the job until it reaches a final state; returns its last status."""
+    deadline = time.monotonic() + timeout
+    while True:
+        r = client.get(f"/jobs/{job_id}")
+        assert r.status_code == 200, r.text
+        status = r.json()
+        if status["state"] in protocol.FINAL_STATES:
+            return status
+        assert time.monotonic() < deadline, (
+            f"job {job_id} not finished after {timeout} s: {status}\n"
+            + "\n".join(p.log() for p in processes))
+        time.sleep(0.05)

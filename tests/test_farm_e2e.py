@@ -1,0 +1,255 @@
+"""The whole farm end to end: real redis-server, uvicorn API and worker processes.
+
+The farm's merged image must equal a local render with the same settings bit for bit,
+also when a worker dies mid-job and another takes over its tile."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import httpx
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+from conftest import (CORNELL, STARTUP_TIMEOUT, Process, clean_env, start_api, start_worker,
+                      submit, wait_for_job)
+from tessera import images, protocol
+from tessera.protocol import JobSpec, RenderSettings
+from tessera_renderer import load_scene
+from tessera_service.embedded import free_port
+from tessera_service.store import JobStore
+
+
+@pytest.fixture(scope="module")
+def farm(redis_server, tmp_path_factory):
+    """The API and two workers ("w-a", "w-b") on one Redis."""
+    logs = tmp_path_factory.mktemp("farm")
+    api_proc, base = start_api(redis_server, logs)
+    workers = {name: start_worker(redis_server, name, logs) for name in ("w-a", "w-b")}
+    with httpx.Client(base_url=base, timeout=60) as client:
+        client.processes = [api_proc, *workers.values()]
+        client.workers = workers
+        yield client
+    for proc in [*workers.values(), api_proc]:
+        proc.stop()
+
+
+def reference(settings: dict) -> np.ndarray:
+    """The image rendered locally in one piece, in this process."""
+    w, h = settings["width"], settings["height"]
+    return load_scene(str(CORNELL)).render_tile(0, 0, w, h, width=w, height=h, spp=settings["spp"],
+                                                seed=settings["seed"],
+                                                max_depth=settings["max_depth"], threads=0)
+
+
+def assert_bit_identical(actual: np.ndarray, expected: np.ndarray) -> None:
+    assert actual.shape == expected.shape and actual.dtype == expected.dtype == np.float32
+    differ = actual.view(np.uint32) != expected.view(np.uint32)
+    assert not differ.any(), (f"{int(differ.sum())} of {differ.size} channel values differ; "
+                              f"first at {np.argwhere(differ)[0].tolist()}")
+
+
+def download_exr(client: httpx.Client, job_id: str, path: Path) -> np.ndarray:
+    r = client.get(f"/jobs/{job_id}/image.exr")
+    assert r.status_code == 200, r.text
+    assert r.headers["content-type"] == "image/x-exr"
+    path.write_bytes(r.content)
+    return images.read_exr(path)
+
+
+def test_farm_image_equals_local_render(farm, redis_client, tmp_path):
+    form = dict(width=72, height=56, spp=8, seed=3, max_depth=16, tile_size=16)  # 5x4 uneven grid
+    r = submit(farm, CORNELL, **form)
+    assert r.status_code == 201, r.text
+    job = r.json()
+    assert job["tiles_total"] == 20 and (job["width"], job["height"]) == (72, 56)
+
+    status = wait_for_job(farm, job["id"], processes=farm.processes)
+    assert status["state"] == "done", status
+    assert status["tiles_done"] == status["tiles_total"] == 20
+    assert status["started_at"] and status["finished_at"] and status["render_seconds"] > 0
+    assert status["error"] is None
+
+    expected = reference(form)
+    assert_bit_identical(download_exr(farm, job["id"], tmp_path / "farm.exr"), expected)
+
+    r = farm.get(f"/jobs/{job['id']}/preview.png")
+    assert r.status_code == 200 and r.headers["content-type"] == "image/png"
+    (tmp_path / "farm.png").write_bytes(r.content)
+    png = oiio.ImageBuf(str(tmp_path / "farm.png"))
+    pixels = np.asarray(png.get_pixels(oiio.UINT8)).reshape(56, 72, 3)
+    assert np.array_equal(pixels, images.tonemap_srgb8(expected))
+
+    # The merged files are cached: the same bytes again, without re-merging.
+    assert redis_client.exists(protocol.job_image_key(job["id"], "exr"))
+    assert farm.get(f"/jobs/{job['id']}/image.exr").content == (tmp_path / "farm.exr").read_bytes()
+
+
+def test_bad_scenes_fail_cleanly_and_the_farm_goes_on(farm, redis_client, tmp_path):
+    # Rejected at upload by the pre-flight.
+    broken = tmp_path / "broken.usda"
+    broken.write_text("#usda 1.0\ndef Mesh \"m\" { this is not usda }\n")
+    r = submit(farm, broken)
+    assert r.status_code == 422 and r.json()["detail"].startswith("the scene cannot be rendered:")
+
+    # A scene that gets past the API but not the worker (queued straight into Redis):
+    # the job fails with the loader's message, the workers keep running.
+    store = JobStore(redis_client)
+    garbage = b"#usda 1.0\n(((( garbage"
+    scene_hash = uuid.uuid4().hex
+    store.put_scene(scene_hash, "bad.usda", garbage)
+    spec = JobSpec(job_id=uuid.uuid4().hex, scene_hash=scene_hash, scene_name="bad.usda",
+                   settings=RenderSettings(width=32, height=32, spp=1, tile_size=16))
+    store.create_job(spec, [])
+    status = wait_for_job(farm, spec.job_id, processes=farm.processes)
+    assert status["state"] == "failed", status
+    assert "cannot load scene 'bad.usda'" in status["error"]
+    r = farm.get(f"/jobs/{spec.job_id}/image.exr")
+    assert r.status_code == 409 and "failed" in r.json()["detail"]
+
+    # Everything still works afterwards.
+    assert all(p.alive() for p in farm.processes), "\n".join(p.log() for p in farm.processes)
+    form = dict(width=24, height=24, spp=2, seed=0, max_depth=8, tile_size=8)
+    r = submit(farm, CORNELL, **form)
+    assert r.status_code == 201, r.text
+    status = wait_for_job(farm, r.json()["id"], processes=farm.processes)
+    assert status["state"] == "done", status
+    assert_bit_identical(download_exr(farm, status["id"], tmp_path / "after.exr"), reference(form))
+
+
+def test_sigterm_lets_the_worker_finish_its_tile(farm, redis_server, redis_client, tmp_path):
+    """SIGTERM mid-tile: the worker renders and stores that tile, then exits cleanly."""
+    worker = start_worker(redis_server, "w-c", tmp_path)
+    try:
+        r = submit(farm, CORNELL, width=64, height=64, spp=384, seed=5, max_depth=16, tile_size=16)
+        assert r.status_code == 201, r.text
+        job_id = r.json()["id"]
+        deadline = time.monotonic() + 60
+        while not (held := redis_client.xpending_range(
+                protocol.TILE_STREAM, protocol.WORKER_GROUP, min="-", max="+", count=10,
+                consumername="w-c")):
+            assert time.monotonic() < deadline, "w-c never held a tile\n" + worker.log()
+            time.sleep(0.01)
+        entry_id = held[0]["message_id"]
+        (_, fields), = redis_client.xrange(protocol.TILE_STREAM, entry_id, entry_id)
+        task = protocol.TileTask.from_fields(fields)
+        assert task.job_id == job_id
+        worker.popen.send_signal(signal.SIGTERM)
+        assert worker.popen.wait(timeout=30) == 0, worker.log()
+        assert f"job {job_id} tile {task.tile.index} rendered" in worker.log(200), worker.log()
+        assert redis_client.hexists(protocol.job_tiles_key(job_id), str(task.tile.index))
+        assert not redis_client.exists(protocol.worker_key("w-c"))
+        assert all(c["name"] != b"w-c" for c in
+                   redis_client.xinfo_consumers(protocol.TILE_STREAM, protocol.WORKER_GROUP))
+        status = wait_for_job(farm, job_id, processes=farm.processes)
+        assert status["state"] == "done", status
+    finally:
+        worker.stop()
+
+
+def test_killed_worker_tile_is_taken_over(farm, redis_client, tmp_path):
+    """SIGKILL a worker mid-tile: its heartbeat expires, the other worker claims the tile,
+    and the image is still exactly the local render."""
+    victim = farm.workers["w-a"]
+    form = dict(width=80, height=80, spp=384, seed=11, max_depth=16, tile_size=16)  # 25 tiles
+    r = submit(farm, CORNELL, **form)
+    assert r.status_code == 201, r.text
+    job_id = r.json()["id"]
+
+    deadline = time.monotonic() + 60
+    while True:
+        status = farm.get(f"/jobs/{job_id}").json()
+        held = redis_client.xpending_range(protocol.TILE_STREAM, protocol.WORKER_GROUP,
+                                           min="-", max="+", count=10, consumername="w-a")
+        if 0 < status["tiles_done"] < status["tiles_total"] and held:
+            os.kill(victim.pid, signal.SIGKILL)
+            break
+        assert status["state"] not in protocol.FINAL_STATES, f"job ended before the kill: {status}"
+        assert time.monotonic() < deadline, "w-a never held a tile"
+        time.sleep(0.01)
+    victim.popen.wait(timeout=10)
+    assert status["state"] == "running"
+
+    status = wait_for_job(farm, job_id, processes=farm.processes)
+    assert status["state"] == "done", status
+    assert status["tiles_done"] == 25
+    assert_bit_identical(download_exr(farm, job_id, tmp_path / "farm.exr"), reference(form))
+
+    # Nothing is left pending, the dead worker is gone from the group and its heartbeat
+    # has expired.
+    assert not redis_client.exists(protocol.worker_key("w-a"))
+    deadline = time.monotonic() + 10
+    while (redis_client.xpending(protocol.TILE_STREAM, protocol.WORKER_GROUP)["pending"]
+           or any(c["name"] == b"w-a" for c in
+                  redis_client.xinfo_consumers(protocol.TILE_STREAM, protocol.WORKER_GROUP))):
+        assert time.monotonic() < deadline, "the dead worker's tile or name was left behind"
+        time.sleep(0.1)
+
+
+def test_embedded_serve_runs_a_whole_farm_and_stops_it(tmp_path):
+    """`tessera serve` without a Redis URL: private redis-server + local worker + API; on
+    SIGTERM everything it started is stopped."""
+    port = free_port()
+    serve = Process("serve", [sys.executable, "-m", "tessera", "serve", "--port", str(port),
+                              "--workers", "1"], tmp_path, clean_env())
+    try:
+        base = f"http://127.0.0.1:{port}"
+        deadline = time.monotonic() + STARTUP_TIMEOUT
+        while True:
+            assert serve.alive(), serve.log()
+            try:
+                if httpx.get(f"{base}/healthz", timeout=1).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            assert time.monotonic() < deadline, serve.log()
+            time.sleep(0.05)
+        children = _children(serve.pid)
+        assert len(children) == 2, children  # redis-server and one worker
+
+        with httpx.Client(base_url=base, timeout=60) as client:
+            r = submit(client, CORNELL, width=16, height=16, spp=1, tile_size=8)
+            assert r.status_code == 201, r.text
+            status = wait_for_job(client, r.json()["id"], processes=[serve])
+            assert status["state"] == "done", status
+
+        serve.popen.send_signal(signal.SIGTERM)
+        assert serve.popen.wait(timeout=30) == 0, serve.log()
+        for pid in children:
+            assert not _running(pid), f"process {pid} outlived `tessera serve`"
+    finally:
+        serve.stop()
+
+
+def test_worker_does_not_import_the_service():
+    code = ("import sys, tessera_worker.worker; "
+            "bad = sorted(m for m in sys.modules if m.split('.')[0] in "
+            "('fastapi', 'starlette', 'uvicorn', 'tessera_service')); assert not bad, bad")
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                stat = Path("/proc", entry, "stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                out.append(int(entry))
+    return out
+
+
+def _running(pid: int) -> bool:
+    try:
+        state = Path("/proc", str(pid), "stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"

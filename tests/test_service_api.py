@@ -1,0 +1,154 @@
+"""The HTTP API against a real redis-server and a real uvicorn process (no workers here:
+jobs stay queued unless cancelled)."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import httpx
+import pytest
+
+from conftest import CORNELL, start_api, submit
+from tessera import protocol
+
+UPLOAD_LIMIT = 64 * 1024
+
+
+@pytest.fixture(scope="module")
+def api(redis_server, tmp_path_factory):
+    proc, base = start_api(redis_server, tmp_path_factory.mktemp("api"),
+                           max_upload_bytes=UPLOAD_LIMIT)
+    with httpx.Client(base_url=base, timeout=60) as client:
+        yield client
+    proc.stop()
+
+
+def test_healthz(api):
+    r = api.get("/healthz")
+    assert r.status_code == 200
+    assert r.json() == {"status": "ok", "redis": True}
+
+
+def test_unknown_job_is_404(api):
+    for path in ("/jobs/nope", "/jobs/nope/image.exr", "/jobs/nope/preview.png"):
+        r = api.get(path)
+        assert r.status_code == 404, path
+        assert "no job with id 'nope'" in r.json()["detail"]
+    assert api.delete("/jobs/nope").status_code == 404
+
+
+def test_bad_suffix_is_400(api, tmp_path):
+    scene = tmp_path / "model.obj"
+    scene.write_text("v 0 0 0\n")
+    r = submit(api, scene)
+    assert r.status_code == 400
+    assert "'.obj'" in r.json()["detail"] and ".usda" in r.json()["detail"]
+    r = api.post("/jobs", files={"file": ("noext", b"#usda 1.0\n")})
+    assert r.status_code == 400 and "no suffix" in r.json()["detail"]
+
+
+def test_missing_file_is_422(api):
+    r = api.post("/jobs", data={"spp": "4"})
+    assert r.status_code == 422
+    assert any(e["loc"][-1] == "file" for e in r.json()["detail"])
+
+
+def test_oversize_upload_is_413(api):
+    limit_text = f"{UPLOAD_LIMIT} bytes"
+    # Just over the limit: caught while the file is saved.
+    r = api.post("/jobs", files={"file": ("big.usda", b"#usda 1.0\n" + b" " * UPLOAD_LIMIT)})
+    assert r.status_code == 413
+    assert "larger than the limit" in r.json()["detail"] and limit_text in r.json()["detail"]
+    # Far over: refused from Content-Length before the body is read.
+    r = api.post("/jobs", files={"file": ("huge.usda", b" " * (3 << 20))})
+    assert r.status_code == 413 and limit_text in r.json()["detail"]
+
+
+def test_oversize_chunked_upload_is_413(api):
+    """Without a Content-Length, the streamed body is cut off once it exceeds the limit."""
+    boundary = "tesseraboundary"
+    head = (f"--{boundary}\r\nContent-Disposition: form-data; name=\"file\"; "
+            f"filename=\"huge.usda\"\r\nContent-Type: application/octet-stream\r\n\r\n").encode()
+
+    def body():
+        yield head
+        for _ in range(48):  # 3 MiB
+            yield b" " * (64 * 1024)
+        yield f"\r\n--{boundary}--\r\n".encode()
+
+    try:
+        r = api.post("/jobs", content=body(),
+                     headers={"Content-Type": f"multipart/form-data; boundary={boundary}"})
+    except httpx.TransportError:
+        # The server may answer and close before the client has sent everything; then
+        # at least it must still be serving.
+        assert api.get("/healthz").status_code == 200
+        return
+    assert r.status_code == 413
+    assert "larger than the limit" in r.json()["detail"]
+
+
+def test_malformed_usd_is_422_with_message(api, tmp_path):
+    scene = tmp_path / "broken.usda"
+    scene.write_text("this is not a USD layer {{{\n")
+    r = submit(api, scene)
+    assert r.status_code == 422
+    detail = r.json()["detail"]
+    assert isinstance(detail, str) and detail.startswith("the scene cannot be rendered:")
+    assert len(detail) > len("the scene cannot be rendered: ") + 5
+
+
+@pytest.mark.parametrize("field,value", [("spp", "0"), ("tile_size", "4"), ("width", "-3"),
+                                         ("seed", "-1"), ("max_depth", "abc")])
+def test_bad_settings_are_422_naming_the_field(api, field, value):
+    r = submit(api, CORNELL, **{field: value})
+    assert r.status_code == 422, r.text
+    assert any(e["loc"][-1] == field for e in r.json()["detail"]), r.text
+
+
+def test_submit_uses_scene_resolution_and_creates_tiles(api, redis_client):
+    r = submit(api, CORNELL, spp=4, tile_size=100)
+    assert r.status_code == 201, r.text
+    job = r.json()
+    assert r.headers["location"] == f"/jobs/{job['id']}"
+    assert (job["width"], job["height"]) == (512, 512)  # the example's RenderSettings
+    assert job["state"] == "queued" and job["tiles_total"] == 36
+    assert redis_client.zscore(protocol.JOB_INDEX, job["id"]) is not None
+    status = api.get(f"/jobs/{job['id']}").json()
+    assert status["settings"] == {"width": 512, "height": 512, "spp": 4, "seed": 0,
+                                  "max_depth": 64, "tile_size": 100}
+    assert status["tiles_done"] == 0 and status["scene_name"] == "cornell.usda"
+    api.delete(f"/jobs/{job['id']}")
+
+
+def test_too_many_tiles_is_422(api):
+    r = submit(api, CORNELL, width=16384, height=16384, tile_size=8)
+    assert r.status_code == 422 and "tile_size" in r.json()["detail"]
+
+
+def test_cancel(api):
+    r = submit(api, CORNELL, width=40, height=30, spp=2, tile_size=16)
+    assert r.status_code == 201, r.text
+    job_id = r.json()["id"]
+    assert api.get(f"/jobs/{job_id}").json()["state"] == "queued"
+
+    r = api.get(f"/jobs/{job_id}/image.exr")
+    assert r.status_code == 409 and "queued" in r.json()["detail"]
+
+    r = api.delete(f"/jobs/{job_id}")
+    assert r.status_code == 200
+    status = r.json()
+    assert status["state"] == "cancelled" and status["finished_at"] is not None
+    assert api.get(f"/jobs/{job_id}").json()["state"] == "cancelled"
+    # cancelling again leaves it as it is
+    assert api.delete(f"/jobs/{job_id}").json()["finished_at"] == status["finished_at"]
+    for path in ("image.exr", "preview.png"):
+        r = api.get(f"/jobs/{job_id}/{path}")
+        assert r.status_code == 409 and "cancelled" in r.json()["detail"]
+
+
+def test_service_does_not_import_renderer_or_usd():
+    code = ("import sys, tessera_service.app, tessera_service.embedded; "
+            "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('pxr', 'tessera_renderer')); "
+            "assert not bad, bad")
+    subprocess.run([sys.executable, "-c", code], check=True)
