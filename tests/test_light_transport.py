@@ -100,3 +100,17 @@ def test_tiles_and_threads_do_not_change_pixels(cornell_path):
             tiled[y0:y0 + h, x0:x0 + w] = scene.render_tile(x0, y0, w, h, threads=1, **kw)
     assert whole.tobytes() == tiled.tobytes()
     assert whole[..., :3].mean() > 0.01
+
+
+def test_sample_ranges_compose_and_variance_matches_the_samples(cornell_path):
+    """Samples [0, 8) == the spp-weighted mean of passes [0, 3) and [3, 8); the reported
+    variance equals the sample variance computed from single-sample renders."""
+    scene = load_scene(cornell_path)
+    kw = dict(width=40, height=30, seed=3, max_depth=8)
+    whole, var = scene.render_tile(5, 5, 6, 4, spp=8, return_variance=True, **kw)
+    a = scene.render_tile(5, 5, 6, 4, spp=3, sample_start=0, **kw)
+    b = scene.render_tile(5, 5, 6, 4, spp=5, sample_start=3, **kw)
+    np.testing.assert_allclose(whole, (3 * a.astype(np.float64) + 5 * b) / 8, rtol=1e-5, atol=1e-7)
+    singles = np.stack([scene.render_tile(5, 5, 6, 4, spp=1, sample_start=s, **kw) for s in range(8)])
+    np.testing.assert_allclose(var, singles[..., :3].astype(np.float64).var(axis=0, ddof=1), rtol=1e-3, atol=1e-6)
+    assert var.max() > 0

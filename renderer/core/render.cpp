@@ -5,6 +5,7 @@
 #include <tbb/task_arena.h>
 #include <xmmintrin.h>
 
+#include <algorithm>
 #include <atomic>
 #include <mutex>
 #include <stdexcept>
@@ -30,11 +31,13 @@ private:
 }  // namespace
 
 RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOptions& options, TileRect tile,
-                       float* rgba) {
+                       float* rgba, float* variance) {
     if (tile.width == 0 || tile.height == 0) return {};
     if (uint64_t(tile.x0) + tile.width > camera.width || uint64_t(tile.y0) + tile.height > camera.height)
         throw std::invalid_argument("tile lies outside the image");
     if (options.spp == 0) throw std::invalid_argument("spp must be at least 1");
+    if (uint64_t(options.sample_start) + options.spp > 0xFFFFFFFFull)
+        throw std::invalid_argument("sample indices must stay below 2^32");
     if (options.max_depth < 0) throw std::invalid_argument("max_depth must be >= 0");
 
     const PathIntegrator integrator(options.max_depth);
@@ -51,7 +54,8 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
             // Double sums in sample order: the same pixel always sums the same values in
             // the same order, whatever thread runs it.
             double sum_r = 0, sum_g = 0, sum_b = 0, sum_a = 0;
-            for (uint32_t s = 0; s < options.spp; ++s) {
+            double sq_r = 0, sq_g = 0, sq_b = 0;
+            for (uint32_t s = options.sample_start; s < options.sample_start + options.spp; ++s) {
                 PixelSampler sampler(options.seed, pixel_index, s);
                 Vec2 jitter = sampler.Get2D();
                 Ray ray = camera.GenerateRay(float(x) + jitter.x, float(y) + jitter.y);
@@ -69,6 +73,9 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                 sum_g += ps.radiance.y;
                 sum_b += ps.radiance.z;
                 sum_a += ps.alpha;
+                sq_r += double(ps.radiance.x) * ps.radiance.x;
+                sq_g += double(ps.radiance.y) * ps.radiance.y;
+                sq_b += double(ps.radiance.z) * ps.radiance.z;
             }
             const double inv = 1.0 / double(options.spp);
             float* out = rgba + 4 * size_t(i);
@@ -76,6 +83,17 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
             out[1] = float(sum_g * inv);
             out[2] = float(sum_b * inv);
             out[3] = float(sum_a * inv);
+            if (variance) {
+                // Unbiased sample variance from the sums; 0 for a single sample.
+                const double n = double(options.spp);
+                auto var = [n](double sum, double sq) {
+                    return n > 1.0 ? std::max(0.0, (sq - sum * sum / n) / (n - 1.0)) : 0.0;
+                };
+                float* v = variance + 3 * size_t(i);
+                v[0] = float(var(sum_r, sq_r));
+                v[1] = float(var(sum_g, sq_g));
+                v[2] = float(var(sum_b, sq_b));
+            }
         }
     };
 

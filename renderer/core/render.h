@@ -12,7 +12,8 @@
 namespace tessera {
 
 struct RenderOptions {
-    uint32_t spp = 16;
+    uint32_t spp = 16;           // samples per pixel in this call
+    uint32_t sample_start = 0;   // index of the first sample: passes [a, b) and [b, c) compose into [a, c)
     uint32_t seed = 0;
     int max_depth = 64;
     int threads = 0;  // 0: all hardware threads
@@ -30,8 +31,11 @@ struct RenderStats {
     int64_t first_nonfinite_pixel_x = -1, first_nonfinite_pixel_y = -1, first_nonfinite_sample = -1;
 };
 
-// Writes tile.height * tile.width * 4 floats (RGBA, row-major) to `rgba`.
+// Writes tile.height * tile.width * 4 floats (RGBA, row-major) to `rgba`: the mean of
+// samples [sample_start, sample_start + spp). If `variance` is not null, also writes 3
+// floats per pixel: the unbiased sample variance of each RGB channel over those samples
+// (divide by spp for the variance of the mean).
 RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOptions& options, TileRect tile,
-                       float* rgba);
+                       float* rgba, float* variance = nullptr);
 
 }  // namespace tessera

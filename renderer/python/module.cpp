@@ -24,6 +24,13 @@ using InVector = nb::ndarray<const T, nb::shape<-1>, nb::c_contig, nb::device::c
 
 Vec3 ToVec3(const std::array<float, 3>& a) { return {a[0], a[1], a[2]}; }
 
+// Hands a heap buffer to numpy, which frees it with the array.
+nb::object ToNumpy(std::unique_ptr<float[]> buffer, std::initializer_list<size_t> shape) {
+    float* data = buffer.release();
+    nb::capsule owner(data, [](void* p) noexcept { delete[] static_cast<float*>(p); });
+    return nb::cast(nb::ndarray<nb::numpy, float>(data, shape.size(), shape.begin(), owner));
+}
+
 SceneDesc MakeDesc(InArray<float, 3> positions, InArray<uint32_t, 3> indices, InVector<uint32_t> triangle_material,
                    InArray<float, 3> albedo, InArray<float, 3> emission, InVector<bool> two_sided_emission,
                    InArray<float, 7> sphere_lights) {
@@ -87,25 +94,28 @@ NB_MODULE(_core, m) {
     m.def(
         "render_tile",
         [](const Scene& scene, const Camera& camera, uint32_t x0, uint32_t y0, uint32_t width, uint32_t height,
-           uint32_t spp, uint32_t seed, int max_depth, int threads) {
-            auto pixels = std::make_unique<float[]>(size_t(width) * height * 4);
+           uint32_t spp, uint32_t seed, int max_depth, int threads, uint32_t sample_start, bool with_variance) {
+            const size_t n = size_t(width) * height;
+            auto pixels = std::make_unique<float[]>(n * 4);
+            std::unique_ptr<float[]> variance;
+            if (with_variance) variance = std::make_unique<float[]>(n * 3);
             RenderStats stats;
             {
                 nb::gil_scoped_release release;
-                stats = RenderTile(scene, camera, RenderOptions{spp, seed, max_depth, threads},
-                                   TileRect{x0, y0, width, height}, pixels.get());
+                stats = RenderTile(scene, camera, RenderOptions{spp, sample_start, seed, max_depth, threads},
+                                   TileRect{x0, y0, width, height}, pixels.get(), variance.get());
             }
-            float* data = pixels.release();
-            nb::capsule owner(data, [](void* p) noexcept { delete[] static_cast<float*>(p); });
-            nb::ndarray<nb::numpy, float, nb::shape<-1, -1, 4>> array(data, {height, width, 4}, owner);
             nb::dict info;
             info["samples"] = stats.samples;
             info["nonfinite_samples"] = stats.nonfinite_samples;
             info["first_nonfinite"] = nb::make_tuple(stats.first_nonfinite_pixel_x, stats.first_nonfinite_pixel_y,
                                                      stats.first_nonfinite_sample);
-            return nb::make_tuple(array, info);
+            if (with_variance) info["variance"] = ToNumpy(std::move(variance), {height, width, 3});
+            return nb::make_tuple(ToNumpy(std::move(pixels), {height, width, 4}), info);
         },
         "scene"_a, "camera"_a, "x0"_a, "y0"_a, "width"_a, "height"_a, "spp"_a, "seed"_a = 0, "max_depth"_a = 64,
-        "threads"_a = 0,
-        "Renders a tile; returns (rgba float32 [height, width, 4], stats dict).");
+        "threads"_a = 0, "sample_start"_a = 0, "with_variance"_a = false,
+        "Renders samples [sample_start, sample_start + spp) of a tile; returns (rgba float32 [h, w, 4] mean, "
+        "stats dict). With with_variance, stats['variance'] is float32 [h, w, 3]: the per-channel sample "
+        "variance.");
 }

@@ -62,19 +62,22 @@ class Scene:
 
     def render_tile(self, x0: int, y0: int, w: int, h: int, *, width: int | None = None,
                     height: int | None = None, spp: int = 64, seed: int = 0, max_depth: int = 64,
-                    threads: int = 0) -> np.ndarray:
-        """Renders pixels [x0, x0+w) x [y0, y0+h) of a width x height image.
-        Returns float32 linear RGBA of shape (h, w, 4). Releases the GIL."""
+                    threads: int = 0, sample_start: int = 0, return_variance: bool = False):
+        """Renders pixels [x0, x0+w) x [y0, y0+h) of a width x height image, averaging samples
+        [sample_start, sample_start + spp) of each pixel. Returns float32 linear RGBA of shape
+        (h, w, 4); with return_variance, (rgba, variance) where variance is float32 (h, w, 3),
+        the per-channel sample variance (divide by spp for the variance of the mean).
+        Releases the GIL."""
         width = width or self.width
         height = height or self.height
         rgba, stats = _core.render_tile(self._core, self.camera(width, height), x0, y0, w, h,
-                                        spp, seed, max_depth, threads)
+                                        spp, seed, max_depth, threads, sample_start, return_variance)
         if stats["nonfinite_samples"]:
             x, y, s = stats["first_nonfinite"]
             raise NonFiniteSampleError(
                 f"{stats['nonfinite_samples']} NaN/Inf samples in tile ({x0},{y0},{w}x{h}); "
                 f"first at pixel ({x},{y}) sample {s} (seed {seed})")
-        return rgba
+        return (rgba, stats["variance"]) if return_variance else rgba
 
 
 def load_scene(path: str | Path, frame: float | None = None) -> Scene:
