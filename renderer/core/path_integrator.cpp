@@ -13,7 +13,14 @@ PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler
 
     for (int depth = 0;; ++depth) {
         SurfaceHit hit;
-        if (!scene.Intersect(ray, &hit)) break;
+        if (!scene.Intersect(ray, &hit)) {
+            // Escaped: lights at infinity (dome, distant cones), weighted like emitters.
+            scene.ForEachEnvironmentLight(ray.d, [&](uint32_t light, Color Le, float pdf) {
+                float w = depth == 0 ? 1.f : PowerHeuristic(bsdf_pdf, lights.Pmf(light) * pdf);
+                L += beta * Le * w;
+            });
+            break;
+        }
         if (depth == 0) result.alpha = 1.f;
         const Vec3 wo = -ray.d;
 
@@ -46,7 +53,8 @@ PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler
                 float light_pdf = pmf * ls.pdf;
                 if (cos_i > 0.f && light_pdf > 0.f &&
                     !scene.Occluded(OffsetRayOrigin(hit.p, n, ls.wi), ls.wi, ls.distance * (1.f - 1e-4f))) {
-                    float w = PowerHeuristic(light_pdf, CosineHemispherePdf(cos_i));
+                    // A delta light cannot be hit by BSDF sampling: light sampling takes it all.
+                    float w = ls.is_delta ? 1.f : PowerHeuristic(light_pdf, CosineHemispherePdf(cos_i));
                     L += beta * f * ls.radiance * (cos_i * w / light_pdf);
                 }
             }

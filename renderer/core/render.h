@@ -12,11 +12,11 @@
 namespace tessera {
 
 struct RenderOptions {
-    uint32_t spp = 16;           // samples per pixel in this call
-    uint32_t sample_start = 0;   // index of the first sample: passes [a, b) and [b, c) compose into [a, c)
+    uint32_t spp = 16;  // samples per pixel in this call
     uint32_t seed = 0;
     int max_depth = 64;
-    int threads = 0;  // 0: all hardware threads
+    int threads = 0;            // 0: all hardware threads
+    uint32_t sample_start = 0;  // index of the first sample: passes [a, b) and [b, c) compose into [a, c)
 };
 
 struct TileRect {

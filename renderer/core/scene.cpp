@@ -32,7 +32,12 @@ RTCDevice EmbreeDevice() {
 }
 
 Scene::Scene(const SceneDesc& desc)
-    : triangle_material_(desc.triangle_material), materials_(desc.materials), spheres_(desc.sphere_lights) {
+    : triangle_material_(desc.triangle_material),
+      materials_(desc.materials),
+      spheres_(desc.sphere_lights),
+      points_(desc.point_lights),
+      distants_(desc.distant_lights),
+      dome_radiance_(desc.dome_radiance) {
     if (desc.positions.size() % 3 != 0) throw std::invalid_argument("positions must hold 3 floats per vertex");
     if (desc.indices.size() % 3 != 0) throw std::invalid_argument("indices must hold 3 per triangle");
     const size_t num_vertices = desc.positions.size() / 3;
@@ -61,6 +66,19 @@ Scene::Scene(const SceneDesc& desc)
         if (!IsFinite(spheres_[s].center) || !(spheres_[s].radius > 0.f) || !std::isfinite(spheres_[s].radius) ||
             !IsNonNegativeFinite(spheres_[s].radiance))
             throw std::invalid_argument("sphere light " + std::to_string(s) + " has a bad centre, radius or radiance");
+    for (size_t i = 0; i < points_.size(); ++i)
+        if (!IsFinite(points_[i].position) || !IsNonNegativeFinite(points_[i].intensity))
+            throw std::invalid_argument("point light " + std::to_string(i) + " has a bad position or intensity");
+    for (size_t i = 0; i < distants_.size(); ++i) {
+        DistantLight& d = distants_[i];
+        float len = Length(d.direction);
+        if (!IsFinite(d.direction) || !(len > 0.f) || !(d.half_angle >= 0.f) || !(d.half_angle < 0.5f * kPi) ||
+            !IsNonNegativeFinite(d.radiance))
+            throw std::invalid_argument("distant light " + std::to_string(i) +
+                                        " needs a direction, a half angle in [0, pi/2) and radiance >= 0");
+        d.direction = d.direction / len;
+    }
+    if (!IsNonNegativeFinite(dome_radiance_)) throw std::invalid_argument("dome radiance must be finite and >= 0");
 
     RTCDevice device = EmbreeDevice();
     scene_ = rtcNewScene(device);
@@ -105,6 +123,16 @@ Scene::Scene(const SceneDesc& desc)
     rtcCommitScene(scene_);
     CheckDevice(device, "building the BVH");
 
+    // Bounding sphere of everything finite: lights at infinity deliver power over its disk.
+    RTCBounds b;
+    rtcGetSceneBounds(scene_, &b);
+    Vec3 lo(b.lower_x, b.lower_y, b.lower_z), hi(b.upper_x, b.upper_y, b.upper_z);
+    for (const PointLight& p : points_) {
+        lo = Vec3(std::min(lo.x, p.position.x), std::min(lo.y, p.position.y), std::min(lo.z, p.position.z));
+        hi = Vec3(std::max(hi.x, p.position.x), std::max(hi.y, p.position.y), std::max(hi.z, p.position.z));
+    }
+    if (lo.x <= hi.x && IsFinite(lo) && IsFinite(hi)) scene_radius_ = std::max(1e-3f, 0.5f * Length(hi - lo));
+
     // Emitters, each weighted by its emitted power Phi = pi * A * L (per side).
     std::vector<double> power;
     triangle_emitter_.assign(num_triangles_, kNoEmitter);
@@ -114,7 +142,7 @@ Scene::Scene(const SceneDesc& desc)
         float area = 0.5f * Length(Cross(Vertex(t, 1) - Vertex(t, 0), Vertex(t, 2) - Vertex(t, 0)));
         if (!(area > 0.f)) continue;  // degenerate: never hit, never sampled
         triangle_emitter_[t] = int32_t(emitters_.size());
-        emitters_.push_back({false, t, area});
+        emitters_.push_back({LightKind::kTriangle, t, area, 0.f});
         power.push_back(double(Luminance(m.emission)) * area * kPi * (m.two_sided_emission ? 2.0 : 1.0));
     }
     sphere_emitter_.assign(spheres_.size(), kNoEmitter);
@@ -122,8 +150,30 @@ Scene::Scene(const SceneDesc& desc)
         if (IsBlack(spheres_[s].radiance)) continue;
         float area = 4.f * kPi * spheres_[s].radius * spheres_[s].radius;
         sphere_emitter_[s] = int32_t(emitters_.size());
-        emitters_.push_back({true, s, area});
+        emitters_.push_back({LightKind::kSphere, s, area, 0.f});
         power.push_back(double(Luminance(spheres_[s].radiance)) * area * kPi);
+    }
+    for (uint32_t i = 0; i < points_.size(); ++i) {
+        if (IsBlack(points_[i].intensity)) continue;
+        emitters_.push_back({LightKind::kPoint, i, 0.f, 0.f});
+        power.push_back(4.0 * kPi * double(Luminance(points_[i].intensity)));
+    }
+    const double disk_area = kPi * double(scene_radius_) * scene_radius_;
+    for (uint32_t i = 0; i < distants_.size(); ++i) {
+        const DistantLight& d = distants_[i];
+        if (IsBlack(d.radiance)) continue;
+        float sin_half = std::sin(d.half_angle);
+        float omc = d.half_angle > 0.f ? ConeOneMinusCos(sin_half * sin_half) : 0.f;
+        if (omc > 0.f) environment_lights_.push_back(uint32_t(emitters_.size()));
+        emitters_.push_back({LightKind::kDistant, i, 0.f, omc});
+        // Irradiance on a facing surface: E = L pi sin^2 (cone), or the stored E (delta).
+        double irradiance = double(Luminance(d.radiance)) * (omc > 0.f ? kPi * sin_half * sin_half : 1.0);
+        power.push_back(irradiance * disk_area);
+    }
+    if (!IsBlack(dome_radiance_)) {
+        environment_lights_.push_back(uint32_t(emitters_.size()));
+        emitters_.push_back({LightKind::kDome, 0, 0.f, 0.f});
+        power.push_back(4.0 * kPi * disk_area * double(Luminance(dome_radiance_)));
     }
     light_sampler_ = LightSampler(power);
 }
@@ -207,14 +257,57 @@ int32_t Scene::EmitterAt(const SurfaceHit& hit) const {
 Color Scene::Emitted(int32_t emitter, const SurfaceHit& hit, Vec3 wo) const {
     if (emitter < 0) return Color(0.f);
     const Emitter& e = emitters_[emitter];
-    if (e.is_sphere) return spheres_[e.index].radiance;
+    if (e.kind == LightKind::kSphere) return spheres_[e.index].radiance;
     const Material& m = materials_[triangle_material_[e.index]];
     return (m.two_sided_emission || Dot(hit.ng, wo) > 0.f) ? m.emission : Color(0.f);
 }
 
 bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) const {
     const Emitter& e = emitters_[emitter];
-    if (e.is_sphere) {
+    out->is_delta = false;
+    switch (e.kind) {
+        case LightKind::kPoint: {
+            const PointLight& p = points_[e.index];
+            Vec3 to_light = p.position - ref;
+            float d2 = LengthSquared(to_light);
+            if (!(d2 > 0.f)) return false;
+            out->distance = std::sqrt(d2);
+            out->wi = to_light / out->distance;
+            out->radiance = p.intensity / d2;  // inverse-square law
+            out->pdf = 1.f;
+            out->is_delta = true;
+            return true;
+        }
+        case LightKind::kDistant: {
+            const DistantLight& d = distants_[e.index];
+            out->distance = std::numeric_limits<float>::infinity();
+            out->radiance = d.radiance;
+            if (e.one_minus_cos == 0.f) {  // delta: the stored value is the irradiance
+                out->wi = -d.direction;
+                out->pdf = 1.f;
+                out->is_delta = true;
+                return true;
+            }
+            out->wi = Normalize(Frame::FromZ(-d.direction).FromLocal(SampleUniformCone(u, e.one_minus_cos)));
+            out->pdf = 1.f / (2.f * kPi * e.one_minus_cos);
+            return true;
+        }
+        case LightKind::kDome: {
+            // Uniform over the sphere of directions.
+            float z = 1.f - 2.f * u.x;
+            float r = std::sqrt(std::max(0.f, 1.f - z * z));
+            float phi = 2.f * kPi * u.y;
+            out->wi = Vec3(r * std::cos(phi), r * std::sin(phi), z);
+            out->distance = std::numeric_limits<float>::infinity();
+            out->radiance = dome_radiance_;
+            out->pdf = 1.f / (4.f * kPi);
+            return true;
+        }
+        case LightKind::kSphere:
+        case LightKind::kTriangle:
+            break;
+    }
+    if (e.kind == LightKind::kSphere) {
         // Uniform in the cone the sphere subtends (pbrt-v4 4.2 / 12.2.2): no samples wasted
         // on the hidden back side. From inside the sphere there is no light sampling.
         const SphereLight& s = spheres_[e.index];
@@ -256,9 +349,24 @@ bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) 
     return true;
 }
 
+Color Scene::EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const {
+    if (e.kind == LightKind::kDome) {
+        *pdf = 1.f / (4.f * kPi);
+        return dome_radiance_;
+    }
+    const DistantLight& d = distants_[e.index];
+    // Inside the cone: 1 - cos(angle to the axis) <= 1 - cos(half angle).
+    if (1.f - Dot(dir, -d.direction) <= e.one_minus_cos) {
+        *pdf = 1.f / (2.f * kPi * e.one_minus_cos);
+        return d.radiance;
+    }
+    *pdf = 0.f;
+    return Color(0.f);
+}
+
 float Scene::EmitterPdf(uint32_t emitter, Vec3 ref, const SurfaceHit& hit) const {
     const Emitter& e = emitters_[emitter];
-    if (e.is_sphere) {
+    if (e.kind == LightKind::kSphere) {
         const SphereLight& s = spheres_[e.index];
         float d2 = LengthSquared(s.center - ref);
         float r2 = s.radius * s.radius;

@@ -25,6 +25,21 @@ struct SphereLight {
     Color radiance;
 };
 
+// An isotropic point: `intensity` in W/sr per channel (a delta light, never hit by rays).
+struct PointLight {
+    Vec3 position;
+    Color intensity;
+};
+
+// Light from a direction at infinity. `direction` is where the light travels (unit). With
+// half_angle > 0 it is a cone of directions of constant `radiance` (the sun's disk); with
+// half_angle == 0 a delta light, and `radiance` holds the irradiance on a facing surface.
+struct DistantLight {
+    Vec3 direction;
+    float half_angle = 0.f;
+    Color radiance;
+};
+
 // Input to Scene. Plain arrays, as the USD translation produces them.
 struct SceneDesc {
     std::vector<float> positions;            // 3 floats per vertex, world space
@@ -32,6 +47,9 @@ struct SceneDesc {
     std::vector<uint32_t> triangle_material; // one material index per triangle
     std::vector<Material> materials;
     std::vector<SphereLight> sphere_lights;
+    std::vector<PointLight> point_lights;
+    std::vector<DistantLight> distant_lights;
+    Color dome_radiance;  // constant environment radiance; black = no dome
 };
 
 struct SurfaceHit {
@@ -42,10 +60,11 @@ struct SurfaceHit {
 };
 
 struct LightSample {
-    Color radiance;  // emitted toward the reference point
+    Color radiance;  // arriving at the reference point (for delta lights, already / distance^2)
     Vec3 wi;         // unit direction from the reference point to the light
-    float distance = 0.f;
-    float pdf = 0.f;  // solid-angle density at the reference point, emitter already chosen
+    float distance = 0.f;  // infinity for lights at infinity
+    float pdf = 0.f;       // solid-angle density at the reference point, light already chosen
+    bool is_delta = false; // point or delta-distant light: pdf is a probability, no MIS
 };
 
 class Scene {
@@ -69,20 +88,30 @@ public:
     // Radiance leaving emitter e at the hit toward wo.
     Color Emitted(int32_t emitter, const SurfaceHit& hit, Vec3 wo) const;
 
+    // All lights (area emitters first, then points, distant lights, the dome), chosen by power.
     const LightSampler& light_sampler() const { return light_sampler_; }
     bool SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) const;
     // Solid-angle pdf at ref of SampleEmitter having produced the point of `hit`.
     float EmitterPdf(uint32_t emitter, Vec3 ref, const SurfaceHit& hit) const;
 
+    // Lights at infinity seen along a ray that escapes the scene: calls
+    // visit(light_index, radiance, solid-angle pdf of sampling that direction from it).
+    template <typename Visit>
+    void ForEachEnvironmentLight(Vec3 dir, Visit&& visit) const;
+    bool has_environment() const { return !environment_lights_.empty(); }
+
     size_t num_triangles() const { return num_triangles_; }
     size_t num_emitters() const { return emitters_.size(); }
 
 private:
+    enum class LightKind : uint8_t { kTriangle, kSphere, kPoint, kDistant, kDome };
     struct Emitter {
-        bool is_sphere = false;
-        uint32_t index = 0;  // triangle or sphere index
-        float area = 0.f;
+        LightKind kind = LightKind::kTriangle;
+        uint32_t index = 0;  // into triangles, spheres, point or distant lights
+        float area = 0.f;    // triangle and sphere
+        float one_minus_cos = 0.f;  // distant cone
     };
+    Color EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const;
     Vec3 Vertex(uint32_t tri, int corner) const;
 
     RTCScene scene_ = nullptr;
@@ -92,10 +121,24 @@ private:
     std::vector<uint32_t> triangle_material_;
     std::vector<Material> materials_;
     std::vector<SphereLight> spheres_;
+    std::vector<PointLight> points_;
+    std::vector<DistantLight> distants_;
+    Color dome_radiance_;
+    float scene_radius_ = 1.f;  // bounding sphere: the power of lights at infinity
     std::vector<Emitter> emitters_;
+    std::vector<uint32_t> environment_lights_;  // emitter indices of distant cones and the dome
     std::vector<int32_t> triangle_emitter_, sphere_emitter_;
     LightSampler light_sampler_;
 };
+
+template <typename Visit>
+void Scene::ForEachEnvironmentLight(Vec3 dir, Visit&& visit) const {
+    for (uint32_t i : environment_lights_) {
+        float pdf = 0.f;
+        Color L = EnvironmentRadiance(emitters_[i], dir, &pdf);
+        if (!IsBlack(L)) visit(i, L, pdf);
+    }
+}
 
 // The process-wide Embree device (created on first use, thread-safe).
 RTCDevice EmbreeDevice();

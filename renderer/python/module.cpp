@@ -33,7 +33,8 @@ nb::object ToNumpy(std::unique_ptr<float[]> buffer, std::initializer_list<size_t
 
 SceneDesc MakeDesc(InArray<float, 3> positions, InArray<uint32_t, 3> indices, InVector<uint32_t> triangle_material,
                    InArray<float, 3> albedo, InArray<float, 3> emission, InVector<bool> two_sided_emission,
-                   InArray<float, 7> sphere_lights) {
+                   InArray<float, 7> sphere_lights, InArray<float, 6> point_lights, InArray<float, 7> distant_lights,
+                   std::array<float, 3> dome_radiance) {
     SceneDesc d;
     d.positions.assign(positions.data(), positions.data() + positions.size());
     d.indices.assign(indices.data(), indices.data() + indices.size());
@@ -48,6 +49,14 @@ SceneDesc MakeDesc(InArray<float, 3> positions, InArray<uint32_t, 3> indices, In
         d.sphere_lights.push_back({Vec3(sphere_lights(s, 0), sphere_lights(s, 1), sphere_lights(s, 2)),
                                    sphere_lights(s, 3),
                                    Vec3(sphere_lights(s, 4), sphere_lights(s, 5), sphere_lights(s, 6))});
+    for (size_t i = 0; i < point_lights.shape(0); ++i)
+        d.point_lights.push_back({Vec3(point_lights(i, 0), point_lights(i, 1), point_lights(i, 2)),
+                                  Vec3(point_lights(i, 3), point_lights(i, 4), point_lights(i, 5))});
+    for (size_t i = 0; i < distant_lights.shape(0); ++i)
+        d.distant_lights.push_back({Vec3(distant_lights(i, 0), distant_lights(i, 1), distant_lights(i, 2)),
+                                    distant_lights(i, 3),
+                                    Vec3(distant_lights(i, 4), distant_lights(i, 5), distant_lights(i, 6))});
+    d.dome_radiance = ToVec3(dome_radiance);
     return d;
 }
 
@@ -61,15 +70,18 @@ NB_MODULE(_core, m) {
             "__init__",
             [](Scene* self, InArray<float, 3> positions, InArray<uint32_t, 3> indices,
                InVector<uint32_t> triangle_material, InArray<float, 3> albedo, InArray<float, 3> emission,
-               InVector<bool> two_sided_emission, InArray<float, 7> sphere_lights) {
-                SceneDesc desc =
-                    MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission, sphere_lights);
+               InVector<bool> two_sided_emission, InArray<float, 7> sphere_lights, InArray<float, 6> point_lights,
+               InArray<float, 7> distant_lights, std::array<float, 3> dome_radiance) {
+                SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
+                                          sphere_lights, point_lights, distant_lights, dome_radiance);
                 nb::gil_scoped_release release;
                 new (self) Scene(desc);
             },
             "positions"_a, "indices"_a, "triangle_material"_a, "albedo"_a, "emission"_a, "two_sided_emission"_a,
-            "sphere_lights"_a,
-            "Builds the BVH. sphere_lights rows are (cx, cy, cz, radius, r, g, b) radiance.")
+            "sphere_lights"_a, "point_lights"_a, "distant_lights"_a, "dome_radiance"_a,
+            "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
+            "(x, y, z, r, g, b intensity W/sr); distant_lights (dx, dy, dz travel direction, half angle in "
+            "radians, r, g, b radiance, or irradiance when the half angle is 0); dome_radiance (r, g, b).")
         .def_prop_ro("num_triangles", &Scene::num_triangles)
         .def_prop_ro("num_emitters", &Scene::num_emitters);
 
@@ -102,7 +114,7 @@ NB_MODULE(_core, m) {
             RenderStats stats;
             {
                 nb::gil_scoped_release release;
-                stats = RenderTile(scene, camera, RenderOptions{spp, sample_start, seed, max_depth, threads},
+                stats = RenderTile(scene, camera, RenderOptions{.spp = spp, .seed = seed, .max_depth = max_depth, .threads = threads, .sample_start = sample_start},
                                    TileRect{x0, y0, width, height}, pixels.get(), variance.get());
             }
             nb::dict info;

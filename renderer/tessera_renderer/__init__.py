@@ -28,10 +28,16 @@ class Scene:
     def __init__(self, data: SceneData):
         self.data = data
         try:
+            # Light tables added to SceneData later are optional here: absent means none.
+            point = getattr(data, "point_lights", None)
+            distant = getattr(data, "distant_lights", None)
+            dome = getattr(data, "dome_light", None)
             self._core = _core.Scene(data.positions.reshape(-1, 3), data.indices.reshape(-1, 3),
                                      data.triangle_material, data.albedo.reshape(-1, 3),
                                      data.emission.reshape(-1, 3), data.two_sided_emission,
-                                     data.sphere_lights.reshape(-1, 7))
+                                     data.sphere_lights.reshape(-1, 7),
+                                     _rows(point, 6), _rows(distant, 7),
+                                     tuple(float(x) for x in dome["radiance"]) if dome else (0.0, 0.0, 0.0))
         except ValueError as exc:
             raise SceneError(f"invalid scene: {exc}") from None
 
@@ -78,6 +84,12 @@ class Scene:
                 f"{stats['nonfinite_samples']} NaN/Inf samples in tile ({x0},{y0},{w}x{h}); "
                 f"first at pixel ({x},{y}) sample {s} (seed {seed})")
         return (rgba, stats["variance"]) if return_variance else rgba
+
+
+def _rows(table, columns: int) -> np.ndarray:
+    if table is None or len(table) == 0:
+        return np.zeros((0, columns), dtype=np.float32)
+    return np.ascontiguousarray(table, dtype=np.float32).reshape(-1, columns)
 
 
 def load_scene(path: str | Path, frame: float | None = None) -> Scene:
