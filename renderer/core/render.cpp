@@ -10,7 +10,9 @@
 #include <mutex>
 #include <stdexcept>
 
+#include "light_tracer.h"
 #include "path_integrator.h"
+#include "splat_film.h"
 #include "sampler.h"
 
 namespace tessera {
@@ -30,8 +32,25 @@ private:
 
 }  // namespace
 
+namespace {
+
+// What a pinhole sees without scattering: emitters and lights at infinity along the ray.
+PathSample DirectlyVisibleLight(const Scene& scene, const Ray& ray) {
+    PathSample result;
+    SurfaceHit hit;
+    if (scene.Intersect(ray, &hit)) {
+        result.alpha = 1.f;
+        if (int32_t e = scene.EmitterAt(hit); e != Scene::kNoEmitter) result.radiance = scene.Emitted(e, hit, -ray.d);
+    } else {
+        scene.ForEachEnvironmentLight(ray.d, [&](uint32_t, Color Le, float) { result.radiance += Le; });
+    }
+    return result;
+}
+
+}  // namespace
+
 RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOptions& options, TileRect tile,
-                       float* rgba, float* variance) {
+                       float* rgba, float* variance, int64_t* splats) {
     if (tile.width == 0 || tile.height == 0) return {};
     if (uint64_t(tile.x0) + tile.width > camera.width || uint64_t(tile.y0) + tile.height > camera.height)
         throw std::invalid_argument("tile lies outside the image");
@@ -40,14 +59,19 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
         throw std::invalid_argument("sample indices must stay below 2^32");
     if (options.max_depth < 0) throw std::invalid_argument("max_depth must be >= 0");
 
+    const bool light_tracing = options.integrator == Integrator::kLight;
+    if (light_tracing && !splats) throw std::invalid_argument("light tracing needs a full-frame splat buffer");
     const PathIntegrator integrator(options.max_depth);
-    std::atomic<uint64_t> nonfinite{0};
+    const LightTracer light_tracer(options.max_depth);
+    SplatFilm film(splats, camera.width, camera.height);
+    std::atomic<uint64_t> nonfinite{0}, rejected_splats{0};
     std::mutex first_mutex;
     RenderStats stats;
     const uint32_t n_pixels = tile.width * tile.height;
 
     auto render_range = [&](const tbb::blocked_range<uint32_t>& range) {
         ScopedFlushDenormals ftz;
+        LightTraceStats light_stats;
         for (uint32_t i = range.begin(); i != range.end(); ++i) {
             const uint32_t x = tile.x0 + i % tile.width, y = tile.y0 + i / tile.width;
             const uint64_t pixel_index = uint64_t(y) * camera.width + x;
@@ -59,7 +83,14 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                 PixelSampler sampler(options.seed, pixel_index, s);
                 Vec2 jitter = sampler.Get2D();
                 Ray ray = camera.GenerateRay(float(x) + jitter.x, float(y) + jitter.y);
-                PathSample ps = integrator.Li(scene, ray, sampler);
+                PathSample ps;
+                if (light_tracing) {
+                    ps = DirectlyVisibleLight(scene, ray);
+                    PixelSampler light_sampler(options.seed, pixel_index, s, /*stream=*/1);
+                    light_tracer.Trace(scene, camera, light_sampler, film, &light_stats);
+                } else {
+                    ps = integrator.Li(scene, ray, sampler);
+                }
                 if (!IsFinite(ps.radiance)) {
                     if (nonfinite.fetch_add(1) == 0) {
                         std::lock_guard<std::mutex> lock(first_mutex);
@@ -95,6 +126,7 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                 v[2] = float(var(sum_b, sq_b));
             }
         }
+        if (light_stats.rejected_splats) rejected_splats.fetch_add(light_stats.rejected_splats);
     };
 
     const int threads = options.threads > 0 ? options.threads : tbb::this_task_arena::max_concurrency();
@@ -103,6 +135,8 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
 
     stats.samples = uint64_t(n_pixels) * options.spp;
     stats.nonfinite_samples = nonfinite.load();
+    stats.light_paths = light_tracing ? stats.samples : 0;
+    stats.rejected_splats = rejected_splats.load();
     return stats;
 }
 

@@ -11,12 +11,18 @@
 
 namespace tessera {
 
+enum class Integrator : uint8_t {
+    kPath,   // path tracing with NEE, MIS and Russian roulette
+    kLight,  // light tracing: light paths splat onto the full frame through the camera
+};
+
 struct RenderOptions {
     uint32_t spp = 16;  // samples per pixel in this call
     uint32_t seed = 0;
     int max_depth = 64;
     int threads = 0;            // 0: all hardware threads
     uint32_t sample_start = 0;  // index of the first sample: passes [a, b) and [b, c) compose into [a, c)
+    Integrator integrator = Integrator::kPath;
 };
 
 struct TileRect {
@@ -29,13 +35,20 @@ struct RenderStats {
     // one located, so that it is reported rather than silently dropped.
     uint64_t nonfinite_samples = 0;
     int64_t first_nonfinite_pixel_x = -1, first_nonfinite_pixel_y = -1, first_nonfinite_sample = -1;
+    uint64_t light_paths = 0;      // light subpaths traced (one per pixel sample for kLight)
+    uint64_t rejected_splats = 0;  // splats that were not finite and >= 0: a bug if > 0
 };
 
 // Writes tile.height * tile.width * 4 floats (RGBA, row-major) to `rgba`: the mean of
 // samples [sample_start, sample_start + spp). If `variance` is not null, also writes 3
 // floats per pixel: the unbiased sample variance of each RGB channel over those samples
 // (divide by spp for the variance of the mean).
+//
+// kLight also adds every light path's camera connections, anywhere in the frame, to
+// `splats` (camera.width * camera.height * 3 int64, fixed point, see splat_film.h); `rgba`
+// then holds only the light that reaches the camera unscattered. The final image is
+// rgba + splats * pixel_count / (kSplatScale * total light paths of all tiles).
 RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOptions& options, TileRect tile,
-                       float* rgba, float* variance = nullptr);
+                       float* rgba, float* variance = nullptr, int64_t* splats = nullptr);
 
 }  // namespace tessera

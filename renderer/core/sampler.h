@@ -20,8 +20,11 @@ inline uint64_t Mix64(uint64_t z) {
 
 class PixelSampler {
 public:
-    PixelSampler(uint32_t seed, uint64_t pixel_index, uint32_t sample_index)
-        : key_(Mix64(Mix64(Mix64(seed + 0x6A09E667F3BCC909ull) ^ pixel_index) ^ sample_index)) {}
+    // `stream` separates independent uses of the same pixel sample (e.g. its camera path
+    // and its light path).
+    PixelSampler(uint32_t seed, uint64_t pixel_index, uint32_t sample_index, uint32_t stream = 0)
+        : key_(Mix64(Mix64(Mix64(seed + 0x6A09E667F3BCC909ull + (uint64_t(stream) << 32)) ^ pixel_index) ^
+                     sample_index)) {}
 
     // Uniform in [0, 1): 24 random bits, so 1.0f is never returned.
     float Get1D() {

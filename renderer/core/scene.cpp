@@ -131,7 +131,10 @@ Scene::Scene(const SceneDesc& desc)
         lo = Vec3(std::min(lo.x, p.position.x), std::min(lo.y, p.position.y), std::min(lo.z, p.position.z));
         hi = Vec3(std::max(hi.x, p.position.x), std::max(hi.y, p.position.y), std::max(hi.z, p.position.z));
     }
-    if (lo.x <= hi.x && IsFinite(lo) && IsFinite(hi)) scene_radius_ = std::max(1e-3f, 0.5f * Length(hi - lo));
+    if (lo.x <= hi.x && IsFinite(lo) && IsFinite(hi)) {
+        scene_center_ = (lo + hi) * 0.5f;
+        scene_radius_ = std::max(1e-3f, 0.5f * Length(hi - lo));
+    }
 
     // Emitters, each weighted by its emitted power Phi = pi * A * L (per side).
     std::vector<double> power;
@@ -347,6 +350,78 @@ bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) 
     out->radiance = m.emission;
     out->pdf = d2 / (cos_light * e.area);  // area measure 1/A converted to solid angle
     return true;
+}
+
+bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_side, EmissionSample* out) const {
+    const Emitter& e = emitters_[emitter];
+    out->on_surface = false;
+    switch (e.kind) {
+        case LightKind::kTriangle: {
+            const Material& m = materials_[triangle_material_[e.index]];
+            Vec3 p0 = Vertex(e.index, 0), p1 = Vertex(e.index, 1), p2 = Vertex(e.index, 2);
+            Vec3 b = SampleUniformTriangle(u_pos);
+            Vec3 n = Normalize(Cross(p1 - p0, p2 - p0));
+            float sides = 1.f;
+            if (m.two_sided_emission) {
+                sides = 2.f;
+                if (u_side < 0.5f) n = -n;
+            }
+            out->p = p0 * b.x + p1 * b.y + p2 * b.z;
+            out->n = n;
+            out->wo = Normalize(Frame::FromZ(n).FromLocal(SampleCosineHemisphere(u_dir)));
+            // Le cos / ((1/A) (cos/pi) (1/sides)) = Le pi A sides
+            out->beta = m.emission * (kPi * e.area * sides);
+            out->on_surface = true;
+            return true;
+        }
+        case LightKind::kSphere: {
+            const SphereLight& s = spheres_[e.index];
+            float z = 1.f - 2.f * u_pos.x, r = std::sqrt(std::max(0.f, 1.f - z * z)), phi = 2.f * kPi * u_pos.y;
+            Vec3 n(r * std::cos(phi), r * std::sin(phi), z);
+            out->p = s.center + n * s.radius;
+            out->n = n;
+            out->wo = Normalize(Frame::FromZ(n).FromLocal(SampleCosineHemisphere(u_dir)));
+            out->beta = s.radiance * (kPi * e.area);
+            out->on_surface = true;
+            return true;
+        }
+        case LightKind::kPoint: {
+            const PointLight& pl = points_[e.index];
+            float z = 1.f - 2.f * u_dir.x, r = std::sqrt(std::max(0.f, 1.f - z * z)), phi = 2.f * kPi * u_dir.y;
+            out->p = pl.position;
+            out->wo = Vec3(r * std::cos(phi), r * std::sin(phi), z);
+            out->beta = pl.intensity * (4.f * kPi);  // I / (1 / 4 pi)
+            return true;
+        }
+        case LightKind::kDistant:
+        case LightKind::kDome: {
+            float pdf_dir = 1.f;
+            Color L;
+            if (e.kind == LightKind::kDome) {
+                float z = 1.f - 2.f * u_dir.x, r = std::sqrt(std::max(0.f, 1.f - z * z)), phi = 2.f * kPi * u_dir.y;
+                out->wo = Vec3(r * std::cos(phi), r * std::sin(phi), z);
+                pdf_dir = 1.f / (4.f * kPi);
+                L = dome_radiance_;
+            } else {
+                const DistantLight& d = distants_[e.index];
+                L = d.radiance;
+                if (e.one_minus_cos > 0.f) {
+                    out->wo = Normalize(Frame::FromZ(d.direction).FromLocal(SampleUniformCone(u_dir, e.one_minus_cos)));
+                    pdf_dir = 1.f / (2.f * kPi * e.one_minus_cos);
+                } else {
+                    out->wo = d.direction;  // delta: L holds the irradiance
+                }
+            }
+            // A point on the disk of the bounding sphere facing wo, upstream of the scene.
+            Vec2 disk = SampleUniformDiskConcentric(u_pos);
+            Frame f = Frame::FromZ(out->wo);
+            out->p = scene_center_ + (f.s * disk.x + f.t * disk.y - out->wo) * scene_radius_;
+            float pdf_pos = 1.f / (kPi * scene_radius_ * scene_radius_);
+            out->beta = L / (pdf_pos * pdf_dir);
+            return true;
+        }
+    }
+    return false;
 }
 
 Color Scene::EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const {

@@ -67,6 +67,16 @@ struct LightSample {
     bool is_delta = false; // point or delta-distant light: pdf is a probability, no MIS
 };
 
+// The start of a light subpath: a ray leaving a light, and its throughput
+// Le |cos| / (pdf_position pdf_direction), not yet divided by the light's selection pmf.
+struct EmissionSample {
+    Vec3 p;
+    Vec3 wo;     // unit direction the light travels
+    Color beta;
+    bool on_surface = false;  // p lies on a surface (offset the ray); not for points and infinite lights
+    Vec3 n;                   // that surface's normal on the emitting side
+};
+
 class Scene {
 public:
     static constexpr uint32_t kTriangleGeometry = 0;
@@ -93,6 +103,11 @@ public:
     bool SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) const;
     // Solid-angle pdf at ref of SampleEmitter having produced the point of `hit`.
     float EmitterPdf(uint32_t emitter, Vec3 ref, const SurfaceHit& hit) const;
+
+    // Samples a ray leaving light `emitter` (for light tracing and bidirectional methods).
+    // Area lights: uniform point, cosine-weighted direction; points: uniform direction;
+    // lights at infinity: a direction, then a point on the scene's bounding disk across it.
+    bool SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_side, EmissionSample* out) const;
 
     // Lights at infinity seen along a ray that escapes the scene: calls
     // visit(light_index, radiance, solid-angle pdf of sampling that direction from it).
@@ -124,6 +139,7 @@ private:
     std::vector<PointLight> points_;
     std::vector<DistantLight> distants_;
     Color dome_radiance_;
+    Vec3 scene_center_;
     float scene_radius_ = 1.f;  // bounding sphere: the power of lights at infinity
     std::vector<Emitter> emitters_;
     std::vector<uint32_t> environment_lights_;  // emitter indices of distant cones and the dome

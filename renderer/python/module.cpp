@@ -3,12 +3,14 @@
 #include <nanobind/nanobind.h>
 #include <nanobind/ndarray.h>
 #include <nanobind/stl/array.h>
+#include <nanobind/stl/optional.h>
 #include <nanobind/stl/string.h>
 
 #include <array>
 #include <memory>
 
 #include "../core/render.h"
+#include "../core/splat_film.h"
 #include "../core/scene.h"
 
 namespace nb = nanobind;
@@ -22,7 +24,15 @@ using InArray = nb::ndarray<const T, nb::shape<-1, C>, nb::c_contig, nb::device:
 template <typename T>
 using InVector = nb::ndarray<const T, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
 
+using SplatArray = nb::ndarray<int64_t, nb::shape<-1, -1, 3>, nb::c_contig, nb::device::cpu>;
+
 Vec3 ToVec3(const std::array<float, 3>& a) { return {a[0], a[1], a[2]}; }
+
+Integrator ParseIntegrator(const std::string& name) {
+    if (name == "path") return Integrator::kPath;
+    if (name == "light") return Integrator::kLight;
+    throw std::invalid_argument("unknown integrator '" + name + "' (known: path, light)");
+}
 
 // Hands a heap buffer to numpy, which frees it with the array.
 nb::object ToNumpy(std::unique_ptr<float[]> buffer, std::initializer_list<size_t> shape) {
@@ -64,6 +74,7 @@ SceneDesc MakeDesc(InArray<float, 3> positions, InArray<uint32_t, 3> indices, In
 
 NB_MODULE(_core, m) {
     m.doc() = "Tessera renderer core (Embree 3 path tracer)";
+    m.attr("SPLAT_SCALE") = kSplatScale;
 
     nb::class_<Scene>(m, "Scene")
         .def(
@@ -106,7 +117,16 @@ NB_MODULE(_core, m) {
     m.def(
         "render_tile",
         [](const Scene& scene, const Camera& camera, uint32_t x0, uint32_t y0, uint32_t width, uint32_t height,
-           uint32_t spp, uint32_t seed, int max_depth, int threads, uint32_t sample_start, bool with_variance) {
+           uint32_t spp, uint32_t seed, int max_depth, int threads, uint32_t sample_start, bool with_variance,
+           const std::string& integrator, std::optional<SplatArray> splats) {
+            RenderOptions options{.spp = spp, .seed = seed, .max_depth = max_depth, .threads = threads,
+                                  .sample_start = sample_start, .integrator = ParseIntegrator(integrator)};
+            int64_t* splat_data = nullptr;
+            if (splats) {
+                if (splats->shape(0) != camera.height || splats->shape(1) != camera.width)
+                    throw std::invalid_argument("splats must have shape (height, width, 3) of the full image");
+                splat_data = splats->data();
+            }
             const size_t n = size_t(width) * height;
             auto pixels = std::make_unique<float[]>(n * 4);
             std::unique_ptr<float[]> variance;
@@ -114,20 +134,24 @@ NB_MODULE(_core, m) {
             RenderStats stats;
             {
                 nb::gil_scoped_release release;
-                stats = RenderTile(scene, camera, RenderOptions{.spp = spp, .seed = seed, .max_depth = max_depth, .threads = threads, .sample_start = sample_start},
-                                   TileRect{x0, y0, width, height}, pixels.get(), variance.get());
+                stats = RenderTile(scene, camera, options, TileRect{x0, y0, width, height}, pixels.get(),
+                                   variance.get(), splat_data);
             }
             nb::dict info;
             info["samples"] = stats.samples;
             info["nonfinite_samples"] = stats.nonfinite_samples;
             info["first_nonfinite"] = nb::make_tuple(stats.first_nonfinite_pixel_x, stats.first_nonfinite_pixel_y,
                                                      stats.first_nonfinite_sample);
+            info["light_paths"] = stats.light_paths;
+            info["rejected_splats"] = stats.rejected_splats;
             if (with_variance) info["variance"] = ToNumpy(std::move(variance), {height, width, 3});
             return nb::make_tuple(ToNumpy(std::move(pixels), {height, width, 4}), info);
         },
         "scene"_a, "camera"_a, "x0"_a, "y0"_a, "width"_a, "height"_a, "spp"_a, "seed"_a = 0, "max_depth"_a = 64,
-        "threads"_a = 0, "sample_start"_a = 0, "with_variance"_a = false,
+        "threads"_a = 0, "sample_start"_a = 0, "with_variance"_a = false, "integrator"_a = "path",
+        "splats"_a = nb::none(),
         "Renders samples [sample_start, sample_start + spp) of a tile; returns (rgba float32 [h, w, 4] mean, "
         "stats dict). With with_variance, stats['variance'] is float32 [h, w, 3]: the per-channel sample "
-        "variance.");
+        "variance. integrator: 'path' or 'light'; 'light' adds its camera connections to `splats`, an int64 "
+        "(height, width, 3) full-frame fixed-point buffer (scale 2^24) owned by the caller.");
 }

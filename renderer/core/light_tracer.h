@@ -1,0 +1,33 @@
+// Light tracing (Arvo 1986; the lecture's method 9): paths start on lights, and every
+// scattering vertex is connected to the pinhole camera through its importance function,
+// splatting onto the full frame. Estimates the L(D)+E paths; light reaching the camera
+// without scattering (emitters and the sky seen directly) comes from the camera rays of
+// the tile's own pixels instead, as a pinhole can never be hit by a light path.
+//
+// Normalisation (see ResolveLightTracing): with We = 1 / (A cos^4 theta) over the image
+// plane at distance 1 of area A, a pixel's value is sum(splats) * pixel_count / light_paths.
+#pragma once
+
+#include "camera.h"
+#include "sampler.h"
+#include "scene.h"
+#include "splat_film.h"
+
+namespace tessera {
+
+struct LightTraceStats {
+    uint64_t rejected_splats = 0;  // non-finite, negative or unrepresentable: a bug if > 0
+};
+
+class LightTracer {
+public:
+    explicit LightTracer(int max_depth) : max_depth_(max_depth) {}
+    // Traces one light path with the given sampler and splats its camera connections.
+    void Trace(const Scene& scene, const Camera& camera, PixelSampler& sampler, SplatFilm& film,
+               LightTraceStats* stats) const;
+
+private:
+    int max_depth_;
+};
+
+}  // namespace tessera

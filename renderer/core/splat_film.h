@@ -1,0 +1,52 @@
+// Full-frame accumulator for light-tracing splats: contributions that land on any pixel
+// of the image, wherever the tile that traced them is.
+//
+// Invariant: the accumulated value does not depend on the order of additions. Splats are
+// added as 64-bit fixed point (integer addition is associative), so tiles rendered in any
+// order, on any number of threads or machines, sum to exactly the same frame. A float sum
+// would differ in its last bits with the order.
+#pragma once
+
+#include <atomic>
+#include <cmath>
+#include <cstdint>
+
+#include "math.h"
+
+namespace tessera {
+
+inline constexpr double kSplatScale = 16777216.0;  // 2^24: resolution 6e-8, headroom ~5e11
+
+class SplatFilm {
+public:
+    // `data` holds width * height * 3 int64 (RGB), zeroed by the caller.
+    SplatFilm(int64_t* data, uint32_t width, uint32_t height) : data_(data), width_(width), height_(height) {}
+
+    // Adds `value` at continuous raster position (px, py); safe from many threads.
+    // Returns false (adding nothing) for a value that is not finite and >= 0, or too large
+    // to represent; the caller counts that as a bad sample.
+    bool Add(float px, float py, Color value) {
+        if (!(px >= 0.f) || !(py >= 0.f)) return false;
+        uint32_t x = uint32_t(px), y = uint32_t(py);
+        if (x >= width_ || y >= height_) return false;
+        int64_t q[3];
+        for (int c = 0; c < 3; ++c) {
+            double v = double(value[c]) * kSplatScale;
+            if (!(v >= 0.0) || !(v < 9.0e18)) return false;  // NaN, negative, or overflow
+            q[c] = std::llround(v);
+        }
+        int64_t* p = data_ + 3 * (size_t(y) * width_ + x);
+        for (int c = 0; c < 3; ++c)
+            if (q[c]) std::atomic_ref<int64_t>(p[c]).fetch_add(q[c], std::memory_order_relaxed);
+        return true;
+    }
+
+    uint32_t width() const { return width_; }
+    uint32_t height() const { return height_; }
+
+private:
+    int64_t* data_;
+    uint32_t width_, height_;
+};
+
+}  // namespace tessera

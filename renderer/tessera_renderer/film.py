@@ -1,0 +1,33 @@
+"""Turning tile results into an image: the one place the splat normalisation is written.
+
+A tile rendered with the `light` integrator returns its own pixels' directly visible light
+(`rgba`) and adds its light paths' camera connections, wherever they land, to a full-frame
+int64 fixed-point buffer. Summing those buffers over all tiles is exact and order-free, so
+any tiling on any number of machines gives the same image. The image is
+
+    rgba + splats * pixel_count / (SPLAT_SCALE * light_paths)
+
+with light_paths the total over all tiles (one per pixel sample).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ._core import SPLAT_SCALE
+
+INTEGRATORS = ("path", "light")
+SPLATTING_INTEGRATORS = ("light",)
+
+
+def new_splat_buffer(width: int, height: int) -> np.ndarray:
+    return np.zeros((height, width, 3), dtype=np.int64)
+
+
+def resolve_image(rgba: np.ndarray, splats: np.ndarray | None, light_paths: int) -> np.ndarray:
+    """Full-frame float32 RGBA from the camera part and the summed splats."""
+    out = np.array(rgba, dtype=np.float32, copy=True)
+    if splats is not None and light_paths > 0:
+        height, width = out.shape[:2]
+        scale = width * height / (SPLAT_SCALE * light_paths)
+        out[..., :3] += (splats.astype(np.float64) * scale).astype(np.float32)
+    return out

@@ -1,0 +1,104 @@
+"""Integrators against each other and against the determinism guarantee.
+
+`path` and `light` estimate the same image by different means (camera paths with next
+event estimation vs. light paths splatted through the camera's importance), so agreement
+between them is a test of both against physics, not against yesterday's output.
+"""
+import numpy as np
+import pytest
+
+from tessera_renderer import load_scene
+from tessera_renderer.film import new_splat_buffer, resolve_image
+
+W = H = 32
+Z_LIMIT = 4.5  # two-sided; 12 statistics per comparison
+
+
+def render(scene, integrator, seed, spp, **kw):
+    if integrator == "light":
+        splats = new_splat_buffer(W, H)
+        cam = scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, threads=2,
+                                integrator="light", splats=splats, **kw)
+        return resolve_image(cam, splats, W * H * spp)
+    return scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, threads=2, **kw)
+
+
+def quadrant_means(img):
+    return np.stack([img[y:y + H // 2, x:x + W // 2, :3].mean(axis=(0, 1))
+                     for y in (0, H // 2) for x in (0, W // 2)]).astype(np.float64)
+
+
+def z_scores(a_runs, b_runs):
+    """Two-sample z per quadrant and channel from independent repeats (different seeds)."""
+    a, b = np.array(a_runs), np.array(b_runs)
+    se = np.sqrt(a.var(axis=0, ddof=1) / len(a) + b.var(axis=0, ddof=1) / len(b))
+    return (a.mean(axis=0) - b.mean(axis=0)) / se, se / np.abs(b.mean(axis=0))
+
+
+@pytest.fixture(scope="module")
+def cornell_runs(cornell_path):
+    scene = load_scene(cornell_path)
+    runs = {name: [quadrant_means(render(scene, name, seed, 128, max_depth=32)) for seed in range(16)]
+            for name in ("path", "light")}
+    return runs
+
+
+def test_path_and_light_tracing_converge_to_the_same_cornell_box(cornell_runs):
+    z, rel_se = z_scores(cornell_runs["light"], cornell_runs["path"])
+    assert np.abs(z).max() < Z_LIMIT, f"light vs path z-scores:\n{z.round(2)}"
+    # The comparison is sharp enough to matter: a few percent would show.
+    assert np.median(rel_se) < 0.005
+
+
+def test_the_agreement_test_rejects_a_three_percent_error(cornell_runs):
+    """Negative control: the same statistics must flag light tracing scaled by 1.03."""
+    biased = [q * 1.03 for q in cornell_runs["light"]]
+    z, _ = z_scores(biased, cornell_runs["path"])
+    assert np.abs(z).max() > Z_LIMIT
+
+
+def test_light_tracing_is_invariant_to_tiles_threads_and_merge_order(cornell_path):
+    """7 x 5 uneven tiles, each with its own splat buffer, merged in reverse order with one
+    thread == the whole image with two threads, bit for bit."""
+    scene = load_scene(cornell_path)
+    Wi, Hi, spp = 45, 31, 4
+    kw = dict(width=Wi, height=Hi, spp=spp, seed=9, max_depth=16, integrator="light")
+    whole_splats = np.zeros((Hi, Wi, 3), np.int64)
+    whole = scene.render_tile(0, 0, Wi, Hi, threads=2, splats=whole_splats, **kw)
+
+    xs, ys = [0, 5, 6, 17, 22, 30, 41, Wi], [0, 3, 11, 12, 26, Hi]
+    cam = np.full_like(whole, -1.0)
+    tile_splats = []
+    for j in range(5):
+        for i in range(7):
+            x0, y0, w, h = xs[i], ys[j], xs[i + 1] - xs[i], ys[j + 1] - ys[j]
+            buf = np.zeros((Hi, Wi, 3), np.int64)
+            cam[y0:y0 + h, x0:x0 + w] = scene.render_tile(x0, y0, w, h, threads=1, splats=buf, **kw)
+            tile_splats.append(buf)
+    merged = np.zeros_like(whole_splats)
+    for buf in reversed(tile_splats):
+        merged += buf
+    assert cam.tobytes() == whole.tobytes()
+    assert np.array_equal(merged, whole_splats)
+    assert np.count_nonzero(whole_splats) > 0.5 * whole_splats.size  # splats land all over
+    a = resolve_image(whole, whole_splats, Wi * Hi * spp)
+    b = resolve_image(cam, merged, Wi * Hi * spp)
+    assert a.tobytes() == b.tobytes()
+
+
+def test_dropping_out_of_tile_splats_would_be_wrong(cornell_path):
+    """A tile's light paths reach pixels far outside it: keeping only in-tile splats (the
+    crop-window bug) loses most of the light tracer's image."""
+    scene = load_scene(cornell_path)
+    buf = new_splat_buffer(W, H)
+    scene.render_tile(0, 0, 8, 8, width=W, height=H, spp=16, seed=1, integrator="light", splats=buf)
+    inside = buf[:8, :8].sum()
+    assert buf.sum() > 5 * inside > 0
+
+
+def test_unknown_integrator_is_a_clear_error(cornell_path):
+    scene = load_scene(cornell_path)
+    with pytest.raises(ValueError, match="unknown integrator 'bdtp'"):
+        scene.render_tile(0, 0, 4, 4, width=8, height=8, spp=1, integrator="bdtp")
+    with pytest.raises(ValueError, match="splat buffer"):
+        scene.render_tile(0, 0, 4, 4, width=8, height=8, spp=1, integrator="light")
