@@ -15,10 +15,10 @@ Z_LIMIT = 4.5  # two-sided; 12 statistics per comparison
 
 
 def render(scene, integrator, seed, spp, **kw):
-    if integrator == "light":
+    if integrator in ("light", "bdpt"):
         splats = new_splat_buffer(W, H)
         cam = scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, threads=2,
-                                integrator="light", splats=splats, **kw)
+                                integrator=integrator, splats=splats, **kw)
         return resolve_image(cam, splats, W * H * spp)
     return scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, threads=2, **kw)
 
@@ -39,7 +39,7 @@ def z_scores(a_runs, b_runs):
 def cornell_runs(cornell_path):
     scene = load_scene(cornell_path)
     runs = {name: [quadrant_means(render(scene, name, seed, 128, max_depth=32)) for seed in range(16)]
-            for name in ("path", "light")}
+            for name in ("path", "light", "bdpt")}
     return runs
 
 
@@ -50,6 +50,12 @@ def test_path_and_light_tracing_converge_to_the_same_cornell_box(cornell_runs):
     assert np.median(rel_se) < 0.005
 
 
+def test_bdpt_converges_to_the_same_cornell_box(cornell_runs):
+    z, rel_se = z_scores(cornell_runs["bdpt"], cornell_runs["path"])
+    assert np.abs(z).max() < Z_LIMIT, f"bdpt vs path z-scores:\n{z.round(2)}"
+    assert np.median(rel_se) < 0.005
+
+
 def test_the_agreement_test_rejects_a_three_percent_error(cornell_runs):
     """Negative control: the same statistics must flag light tracing scaled by 1.03."""
     biased = [q * 1.03 for q in cornell_runs["light"]]
@@ -57,12 +63,13 @@ def test_the_agreement_test_rejects_a_three_percent_error(cornell_runs):
     assert np.abs(z).max() > Z_LIMIT
 
 
-def test_light_tracing_is_invariant_to_tiles_threads_and_merge_order(cornell_path):
+@pytest.mark.parametrize("integrator", ["light", "bdpt"])
+def test_splatting_integrators_are_invariant_to_tiles_threads_and_merge_order(cornell_path, integrator):
     """7 x 5 uneven tiles, each with its own splat buffer, merged in reverse order with one
     thread == the whole image with two threads, bit for bit."""
     scene = load_scene(cornell_path)
     Wi, Hi, spp = 45, 31, 4
-    kw = dict(width=Wi, height=Hi, spp=spp, seed=9, max_depth=16, integrator="light")
+    kw = dict(width=Wi, height=Hi, spp=spp, seed=9, max_depth=16, integrator=integrator)
     whole_splats = np.zeros((Hi, Wi, 3), np.int64)
     whole = scene.render_tile(0, 0, Wi, Hi, threads=2, splats=whole_splats, **kw)
 

@@ -15,6 +15,12 @@
 
 namespace tessera {
 
+// Connects point p (geometric normal ng, for the ray offset) to the pinhole: false if the
+// camera cannot see p. Writes the raster position, the unit direction to the camera and
+// We cos_camera / d^2 = 1 / (A cos^3 theta_camera d^2).
+bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, Vec3 ng, float* px, float* py, Vec3* wc,
+                     float* importance_over_d2);
+
 struct LightTraceStats {
     uint64_t rejected_splats = 0;  // non-finite, negative or unrepresentable: a bug if > 0
 };

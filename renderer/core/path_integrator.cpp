@@ -1,5 +1,6 @@
 #include "path_integrator.h"
 
+#include "bsdf.h"
 #include "sampling.h"
 
 namespace tessera {
@@ -7,8 +8,10 @@ namespace tessera {
 PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler) const {
     PathSample result;
     Color L(0.f), beta(1.f);
-    float bsdf_pdf = 0.f;  // solid-angle pdf of the direction that produced `ray`
-    Vec3 prev_p;           // the vertex `ray` left from (for the light pdf under MIS)
+    float bsdf_pdf = 0.f;         // solid-angle pdf of the direction that produced `ray`
+    bool specular_bounce = false; // ...and whether it came from a delta lobe (no MIS then)
+    float eta_scale = 1.f;        // product of eta^2 over refractions, hidden from roulette
+    Vec3 prev_p;                  // the vertex `ray` left from (for the light pdf under MIS)
     const LightSampler& lights = scene.light_sampler();
 
     for (int depth = 0;; ++depth) {
@@ -16,7 +19,7 @@ PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler
         if (!scene.Intersect(ray, &hit)) {
             // Escaped: lights at infinity (dome, distant cones), weighted like emitters.
             scene.ForEachEnvironmentLight(ray.d, [&](uint32_t light, Color Le, float pdf) {
-                float w = depth == 0 ? 1.f : PowerHeuristic(bsdf_pdf, lights.Pmf(light) * pdf);
+                float w = (depth == 0 || specular_bounce) ? 1.f : PowerHeuristic(bsdf_pdf, lights.Pmf(light) * pdf);
                 L += beta * Le * w;
             });
             break;
@@ -25,54 +28,60 @@ PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler
         const Vec3 wo = -ray.d;
 
         // Emission reached by BSDF sampling, weighted against light sampling of the same
-        // point. The camera ray (depth 0) has no competing strategy.
+        // point. The camera ray and delta bounces have no competing strategy.
         if (int32_t e = scene.EmitterAt(hit); e != Scene::kNoEmitter) {
             Color Le = scene.Emitted(e, hit, wo);
             if (!IsBlack(Le)) {
                 float w = 1.f;
-                if (depth > 0) w = PowerHeuristic(bsdf_pdf, lights.Pmf(uint32_t(e)) * scene.EmitterPdf(e, prev_p, hit));
+                if (depth > 0 && !specular_bounce)
+                    w = PowerHeuristic(bsdf_pdf, lights.Pmf(uint32_t(e)) * scene.EmitterPdf(e, prev_p, hit));
                 L += beta * Le * w;
             }
         }
         if (depth >= max_depth_) break;
 
-        const Material& m = scene.MaterialAt(hit);
-        if (IsBlack(m.albedo)) break;
-        // Lambertian surfaces reflect on both sides: shade with the normal facing wo.
-        const Vec3 n = Dot(hit.ng, wo) >= 0.f ? hit.ng : -hit.ng;
-        const Color f = m.albedo * kInvPi;
+        const BSDF bsdf = scene.BSDFAt(hit, TransportMode::Radiance);
+        if (bsdf.Flags() == kBSDFUnset) break;
+        // The frame keeps the wound normal: dielectrics tell inside from outside by it.
+        const Frame frame = Frame::FromZ(hit.ng);
+        const Vec3 wo_local = frame.ToLocal(wo);
 
-        // Next event estimation: one emitter chosen by power, one point on it.
-        if (!lights.empty()) {
+        // Next event estimation: one light chosen by power, one point on it.
+        if (!lights.empty() && bsdf.IsNonSpecular()) {
             float pmf = 0.f;
             uint32_t light = lights.Sample(sampler.Get1D(), &pmf);
             Vec2 u = sampler.Get2D();
             LightSample ls;
             if (scene.SampleEmitter(light, hit.p, u, &ls)) {
-                float cos_i = Dot(n, ls.wi);
-                float light_pdf = pmf * ls.pdf;
-                if (cos_i > 0.f && light_pdf > 0.f &&
-                    !scene.Occluded(OffsetRayOrigin(hit.p, n, ls.wi), ls.wi, ls.distance * (1.f - 1e-4f))) {
+                const Vec3 wi_local = frame.ToLocal(ls.wi);
+                const Color f = bsdf.f(wo_local, wi_local) * std::abs(wi_local.z);
+                const float light_pdf = pmf * ls.pdf;
+                if (!IsBlack(f) && light_pdf > 0.f &&
+                    !scene.Occluded(OffsetRayOrigin(hit.p, hit.ng, ls.wi), ls.wi, ls.distance * (1.f - 1e-4f))) {
                     // A delta light cannot be hit by BSDF sampling: light sampling takes it all.
-                    float w = ls.is_delta ? 1.f : PowerHeuristic(light_pdf, CosineHemispherePdf(cos_i));
-                    L += beta * f * ls.radiance * (cos_i * w / light_pdf);
+                    float w = ls.is_delta ? 1.f : PowerHeuristic(light_pdf, bsdf.PDF(wo_local, wi_local));
+                    L += beta * f * ls.radiance * (w / light_pdf);
                 }
             }
         }
 
-        // BSDF sampling: cosine-weighted, so f cos / pdf = albedo.
-        Vec3 local = SampleCosineHemisphere(sampler.Get2D());
-        bsdf_pdf = CosineHemispherePdf(local.z);
-        if (!(bsdf_pdf > 0.f)) break;
-        Vec3 wi = Frame::FromZ(n).FromLocal(local);
-        beta *= m.albedo;
+        // BSDF sampling continues the path.
+        const float uc = sampler.Get1D();
+        const std::optional<BSDFSample> bs = bsdf.Sample_f(wo_local, uc, sampler.Get2D());
+        if (!bs || !(bs->pdf > 0.f) || IsBlack(bs->f)) break;
+        const Vec3 wi = Normalize(frame.FromLocal(bs->wi));
+        beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf);
+        bsdf_pdf = bs->pdf;
+        specular_bounce = bs->is_specular;
+        if (bs->is_transmission) eta_scale *= bs->eta * bs->eta;
         prev_p = hit.p;
-        ray = {OffsetRayOrigin(hit.p, n, wi), Normalize(wi)};
+        ray = {OffsetRayOrigin(hit.p, hit.ng, wi), wi};
 
         // Russian roulette from the third vertex on: survive with probability equal to the
-        // throughput's largest channel, then divide, keeping the estimator unbiased.
+        // throughput's largest channel (refraction's radiance scaling removed), then
+        // divide, keeping the estimator unbiased.
         if (depth >= 2) {
-            float q = std::min(1.f, MaxComponent(beta));
+            float q = std::min(1.f, MaxComponent(beta) * eta_scale);
             if (sampler.Get1D() >= q) break;
             beta = beta / q;
         }

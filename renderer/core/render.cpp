@@ -10,6 +10,7 @@
 #include <mutex>
 #include <stdexcept>
 
+#include "bdpt.h"
 #include "light_tracer.h"
 #include "path_integrator.h"
 #include "splat_film.h"
@@ -60,7 +61,10 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
     if (options.max_depth < 0) throw std::invalid_argument("max_depth must be >= 0");
 
     const bool light_tracing = options.integrator == Integrator::kLight;
-    if (light_tracing && !splats) throw std::invalid_argument("light tracing needs a full-frame splat buffer");
+    const bool bidirectional = options.integrator == Integrator::kBDPT;
+    if ((light_tracing || bidirectional) && !splats)
+        throw std::invalid_argument("light tracing and bdpt need a full-frame splat buffer");
+    const BDPTIntegrator bdpt(options.max_depth);
     const PathIntegrator integrator(options.max_depth);
     const LightTracer light_tracer(options.max_depth);
     SplatFilm film(splats, camera.width, camera.height);
@@ -88,6 +92,9 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                     ps = DirectlyVisibleLight(scene, ray);
                     PixelSampler light_sampler(options.seed, pixel_index, s, /*stream=*/1);
                     light_tracer.Trace(scene, camera, light_sampler, film, &light_stats);
+                } else if (bidirectional) {
+                    PixelSampler light_sampler(options.seed, pixel_index, s, /*stream=*/1);
+                    ps = bdpt.Sample(scene, camera, ray, sampler, light_sampler, film, &light_stats.rejected_splats);
                 } else {
                     ps = integrator.Li(scene, ray, sampler);
                 }
@@ -135,7 +142,7 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
 
     stats.samples = uint64_t(n_pixels) * options.spp;
     stats.nonfinite_samples = nonfinite.load();
-    stats.light_paths = light_tracing ? stats.samples : 0;
+    stats.light_paths = (light_tracing || bidirectional) ? stats.samples : 0;
     stats.rejected_splats = rejected_splats.load();
     return stats;
 }

@@ -14,6 +14,7 @@ namespace tessera {
 enum class Integrator : uint8_t {
     kPath,   // path tracing with NEE, MIS and Russian roulette
     kLight,  // light tracing: light paths splat onto the full frame through the camera
+    kBDPT,   // bidirectional path tracing; its t = 1 strategies splat like kLight
 };
 
 struct RenderOptions {
@@ -44,7 +45,7 @@ struct RenderStats {
 // floats per pixel: the unbiased sample variance of each RGB channel over those samples
 // (divide by spp for the variance of the mean).
 //
-// kLight also adds every light path's camera connections, anywhere in the frame, to
+// kLight and kBDPT also add every light path's camera connections, anywhere in the frame, to
 // `splats` (camera.width * camera.height * 3 int64, fixed point, see splat_film.h); `rgba`
 // then holds only the light that reaches the camera unscattered. The final image is
 // rgba + splats * pixel_count / (kSplatScale * total light paths of all tiles).

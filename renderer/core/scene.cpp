@@ -57,11 +57,16 @@ Scene::Scene(const SceneDesc& desc)
             throw std::invalid_argument("triangle " + std::to_string(t) + " has material " +
                                         std::to_string(triangle_material_[t]) + " of " +
                                         std::to_string(materials_.size()));
-    for (size_t m = 0; m < materials_.size(); ++m)
+    for (size_t m = 0; m < materials_.size(); ++m) {
         if (!IsNonNegativeFinite(materials_[m].albedo) || !IsNonNegativeFinite(materials_[m].emission) ||
             MaxComponent(materials_[m].albedo) > 1.f)
             throw std::invalid_argument("material " + std::to_string(m) +
                                         ": albedo must be in [0, 1] and emission finite and >= 0");
+        // Cutout by the material's own opacity (textured opacity will refine this per hit).
+        const auto& pv = materials_[m].preview;
+        material_is_cutout_.push_back(pv && IsCutout(*pv, pv->opacity));
+        has_cutouts_ = has_cutouts_ || material_is_cutout_.back();
+    }
     for (size_t s = 0; s < spheres_.size(); ++s)
         if (!IsFinite(spheres_[s].center) || !(spheres_[s].radius > 0.f) || !std::isfinite(spheres_[s].radius) ||
             !IsNonNegativeFinite(spheres_[s].radiance))
@@ -190,7 +195,24 @@ Vec3 Scene::Vertex(uint32_t tri, int corner) const {
     return {p[0], p[1], p[2]};
 }
 
+bool Scene::IsCutoutHit(const SurfaceHit& hit) const {
+    return hit.geom_id == kTriangleGeometry && material_is_cutout_[triangle_material_[hit.prim_id]];
+}
+
 bool Scene::Intersect(const Ray& ray, SurfaceHit* hit) const {
+    if (!has_cutouts_) return IntersectClosest(ray, 0.f, hit);
+    // Step through cutout surfaces. Each step restarts just past the previous hit, so a
+    // ray crosses at most as many cutout layers as lie along it.
+    float t_near = 0.f;
+    for (int layer = 0; layer < 1024; ++layer) {
+        if (!IntersectClosest(ray, t_near, hit)) return false;
+        if (!IsCutoutHit(*hit)) return true;
+        t_near = std::nextafter(hit->t, std::numeric_limits<float>::infinity()) * (1.f + 1e-6f);
+    }
+    return false;
+}
+
+bool Scene::IntersectClosest(const Ray& ray, float t_near, SurfaceHit* hit) const {
     RTCIntersectContext context;
     rtcInitIntersectContext(&context);
     RTCRayHit rh;
@@ -200,7 +222,7 @@ bool Scene::Intersect(const Ray& ray, SurfaceHit* hit) const {
     rh.ray.dir_x = ray.d.x;
     rh.ray.dir_y = ray.d.y;
     rh.ray.dir_z = ray.d.z;
-    rh.ray.tnear = 0.f;
+    rh.ray.tnear = t_near;
     rh.ray.tfar = std::numeric_limits<float>::infinity();
     rh.ray.time = 0.f;
     rh.ray.mask = 0xFFFFFFFFu;
@@ -229,6 +251,10 @@ bool Scene::Intersect(const Ray& ray, SurfaceHit* hit) const {
 }
 
 bool Scene::Occluded(Vec3 origin, Vec3 dir, float t_far) const {
+    if (has_cutouts_) {
+        SurfaceHit hit;
+        return Intersect({origin, dir}, &hit) && hit.t < t_far;
+    }
     RTCIntersectContext context;
     rtcInitIntersectContext(&context);
     RTCRay ray;
@@ -249,8 +275,15 @@ bool Scene::Occluded(Vec3 origin, Vec3 dir, float t_far) const {
 }
 
 const Material& Scene::MaterialAt(const SurfaceHit& hit) const {
-    static const Material kLightSurface{Color(0.f), Color(0.f), false};
+    static const Material kLightSurface{Color(0.f), Color(0.f), false, std::nullopt};
     return hit.geom_id == kTriangleGeometry ? materials_[triangle_material_[hit.prim_id]] : kLightSurface;
+}
+
+BSDF Scene::BSDFAt(const SurfaceHit& hit, TransportMode mode) const {
+    if (hit.geom_id != kTriangleGeometry) return BSDF();
+    const Material& m = materials_[triangle_material_[hit.prim_id]];
+    if (m.preview) return MakePreviewSurfaceBSDF(*m.preview, mode);
+    return BSDF(DiffuseBSDF(m.albedo));
 }
 
 int32_t Scene::EmitterAt(const SurfaceHit& hit) const {
@@ -279,12 +312,14 @@ bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) 
             out->radiance = p.intensity / d2;  // inverse-square law
             out->pdf = 1.f;
             out->is_delta = true;
+            out->n = Vec3(0.f);
             return true;
         }
         case LightKind::kDistant: {
             const DistantLight& d = distants_[e.index];
             out->distance = std::numeric_limits<float>::infinity();
             out->radiance = d.radiance;
+            out->n = Vec3(0.f);
             if (e.one_minus_cos == 0.f) {  // delta: the stored value is the irradiance
                 out->wi = -d.direction;
                 out->pdf = 1.f;
@@ -304,6 +339,7 @@ bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) 
             out->distance = std::numeric_limits<float>::infinity();
             out->radiance = dome_radiance_;
             out->pdf = 1.f / (4.f * kPi);
+            out->n = Vec3(0.f);
             return true;
         }
         case LightKind::kSphere:
@@ -329,6 +365,7 @@ bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) 
         out->wi = wi;
         out->radiance = s.radiance;
         out->pdf = 1.f / (2.f * kPi * one_minus_cos);
+        out->n = Normalize(ref + wi * out->distance - s.center);
         return out->distance > 0.f;
     }
     Vec3 b = SampleUniformTriangle(u);
@@ -349,6 +386,7 @@ bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) 
     out->distance = d;
     out->radiance = m.emission;
     out->pdf = d2 / (cos_light * e.area);  // area measure 1/A converted to solid angle
+    out->n = ng;
     return true;
 }
 
@@ -372,6 +410,10 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
             // Le cos / ((1/A) (cos/pi) (1/sides)) = Le pi A sides
             out->beta = m.emission * (kPi * e.area * sides);
             out->on_surface = true;
+            out->Le = m.emission;
+            out->pdf_pos = 1.f / e.area;
+            out->pdf_dir = std::abs(Dot(out->wo, n)) * kInvPi / sides;
+            out->infinite = out->delta_light = false;
             return true;
         }
         case LightKind::kSphere: {
@@ -383,6 +425,10 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
             out->wo = Normalize(Frame::FromZ(n).FromLocal(SampleCosineHemisphere(u_dir)));
             out->beta = s.radiance * (kPi * e.area);
             out->on_surface = true;
+            out->Le = s.radiance;
+            out->pdf_pos = 1.f / e.area;
+            out->pdf_dir = std::abs(Dot(out->wo, n)) * kInvPi;
+            out->infinite = out->delta_light = false;
             return true;
         }
         case LightKind::kPoint: {
@@ -391,6 +437,11 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
             out->p = pl.position;
             out->wo = Vec3(r * std::cos(phi), r * std::sin(phi), z);
             out->beta = pl.intensity * (4.f * kPi);  // I / (1 / 4 pi)
+            out->Le = pl.intensity;
+            out->pdf_pos = 1.f;
+            out->pdf_dir = 1.f / (4.f * kPi);
+            out->infinite = false;
+            out->delta_light = true;
             return true;
         }
         case LightKind::kDistant:
@@ -418,10 +469,70 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
             out->p = scene_center_ + (f.s * disk.x + f.t * disk.y - out->wo) * scene_radius_;
             float pdf_pos = 1.f / (kPi * scene_radius_ * scene_radius_);
             out->beta = L / (pdf_pos * pdf_dir);
+            out->Le = L;
+            out->pdf_pos = pdf_pos;
+            out->pdf_dir = pdf_dir;
+            out->infinite = true;
+            out->delta_light = e.kind == LightKind::kDistant && e.one_minus_cos == 0.f;
             return true;
         }
     }
     return false;
+}
+
+float Scene::EmissionPdfDirection(uint32_t emitter, Vec3 n, Vec3 w) const {
+    const Emitter& e = emitters_[emitter];
+    switch (e.kind) {
+        case LightKind::kPoint:
+            return 1.f / (4.f * kPi);
+        case LightKind::kSphere:
+            return std::max(0.f, Dot(n, w)) * kInvPi;
+        case LightKind::kTriangle: {
+            const Material& m = materials_[triangle_material_[e.index]];
+            if (m.two_sided_emission) return std::abs(Dot(n, w)) * kInvPi * 0.5f;
+            return std::max(0.f, Dot(n, w)) * kInvPi;
+        }
+        case LightKind::kDistant:
+            return e.one_minus_cos > 0.f ? 1.f / (2.f * kPi * e.one_minus_cos) : 0.f;
+        case LightKind::kDome:
+            return 1.f / (4.f * kPi);
+    }
+    return 0.f;
+}
+
+float Scene::EmissionPdfPosition(uint32_t emitter) const {
+    const Emitter& e = emitters_[emitter];
+    switch (e.kind) {
+        case LightKind::kPoint:
+            return 1.f;
+        case LightKind::kSphere:
+        case LightKind::kTriangle:
+            return 1.f / e.area;
+        case LightKind::kDistant:
+        case LightKind::kDome:
+            return 1.f / (kPi * scene_radius_ * scene_radius_);
+    }
+    return 0.f;
+}
+
+float Scene::InfiniteLightDensity(Vec3 w) const {
+    float pdf = 0.f;
+    for (uint32_t i : environment_lights_) {
+        float p = 0.f;
+        EnvironmentRadiance(emitters_[i], w, &p);
+        pdf += light_sampler_.Pmf(i) * p;
+    }
+    return pdf;
+}
+
+bool Scene::IsInfiniteLight(uint32_t emitter) const {
+    LightKind k = emitters_[emitter].kind;
+    return k == LightKind::kDistant || k == LightKind::kDome;
+}
+
+bool Scene::IsDeltaLight(uint32_t emitter) const {
+    const Emitter& e = emitters_[emitter];
+    return e.kind == LightKind::kPoint || (e.kind == LightKind::kDistant && e.one_minus_cos == 0.f);
 }
 
 Color Scene::EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const {

@@ -6,8 +6,10 @@
 #include <embree3/rtcore.h>
 
 #include <cstdint>
+#include <optional>
 #include <vector>
 
+#include "bsdf.h"
 #include "light_sampler.h"
 #include "math.h"
 
@@ -17,6 +19,9 @@ struct Material {
     Color albedo;              // Lambertian reflectance, each channel in [0, 1]
     Color emission;            // emitted radiance (W m^-2 sr^-1, linear RGB)
     bool two_sided_emission = false;  // else emits only on the geometric normal's side
+    // A UsdPreviewSurface; without it the surface is a pure Lambertian of `albedo` (which
+    // UsdPreviewSurface cannot express: its Fresnel lobe never vanishes).
+    std::optional<MaterialParams> preview;
 };
 
 struct SphereLight {
@@ -65,6 +70,7 @@ struct LightSample {
     float distance = 0.f;  // infinity for lights at infinity
     float pdf = 0.f;       // solid-angle density at the reference point, light already chosen
     bool is_delta = false; // point or delta-distant light: pdf is a probability, no MIS
+    Vec3 n;                // the light's surface normal at the sample (zero for points, infinity)
 };
 
 // The start of a light subpath: a ray leaving a light, and its throughput
@@ -75,6 +81,12 @@ struct EmissionSample {
     Color beta;
     bool on_surface = false;  // p lies on a surface (offset the ray); not for points and infinite lights
     Vec3 n;                   // that surface's normal on the emitting side
+    // The factors of beta, for bidirectional MIS: beta = Le |cos| / (pdf_pos pdf_dir).
+    Color Le;                 // radiance (intensity for points, irradiance for delta-distant)
+    float pdf_pos = 0.f;      // area density (1 for points; the bounding disk's for infinity)
+    float pdf_dir = 0.f;      // solid-angle density (1 for delta-distant)
+    bool infinite = false;    // a light at infinity: p is on the bounding disk, not the light
+    bool delta_light = false; // point or delta-distant: no path can hit it
 };
 
 class Scene {
@@ -90,10 +102,13 @@ public:
     Scene(const Scene&) = delete;
     Scene& operator=(const Scene&) = delete;
 
+    // Cutout surfaces (opacity below a positive opacityThreshold) are passed through.
     bool Intersect(const Ray& ray, SurfaceHit* hit) const;
     bool Occluded(Vec3 origin, Vec3 dir, float t_far) const;
 
     const Material& MaterialAt(const SurfaceHit& hit) const;
+    // The scattering function at a hit; a black DiffuseBSDF on light-only geometry.
+    BSDF BSDFAt(const SurfaceHit& hit, TransportMode mode) const;
     int32_t EmitterAt(const SurfaceHit& hit) const;
     // Radiance leaving emitter e at the hit toward wo.
     Color Emitted(int32_t emitter, const SurfaceHit& hit, Vec3 wo) const;
@@ -108,6 +123,18 @@ public:
     // Area lights: uniform point, cosine-weighted direction; points: uniform direction;
     // lights at infinity: a direction, then a point on the scene's bounding disk across it.
     bool SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_side, EmissionSample* out) const;
+
+    // Densities of SampleEmission, for bidirectional MIS.
+    // Direction: a finite light at a point with normal n (zero for points) emitting toward w.
+    float EmissionPdfDirection(uint32_t emitter, Vec3 n, Vec3 w) const;
+    // Position: 1/area for area lights, 1 for points, the bounding disk's for lights at infinity.
+    float EmissionPdfPosition(uint32_t emitter) const;
+    // Sum over lights at infinity of pmf * solid-angle density of their emitting toward -w
+    // (w points from the scene toward the light). Zero for delta-distant lights.
+    float InfiniteLightDensity(Vec3 w) const;
+    bool IsInfiniteLight(uint32_t emitter) const;
+    bool IsDeltaLight(uint32_t emitter) const;
+    float scene_radius() const { return scene_radius_; }
 
     // Lights at infinity seen along a ray that escapes the scene: calls
     // visit(light_index, radiance, solid-angle pdf of sampling that direction from it).
@@ -133,7 +160,12 @@ private:
     const float* positions_ = nullptr;  // owned by Embree's buffers
     const uint32_t* indices_ = nullptr;
     size_t num_triangles_ = 0;
+    bool IntersectClosest(const Ray& ray, float t_near, SurfaceHit* hit) const;
+    bool IsCutoutHit(const SurfaceHit& hit) const;
+
     std::vector<uint32_t> triangle_material_;
+    std::vector<uint8_t> material_is_cutout_;
+    bool has_cutouts_ = false;
     std::vector<Material> materials_;
     std::vector<SphereLight> spheres_;
     std::vector<PointLight> points_;

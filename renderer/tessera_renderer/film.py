@@ -15,8 +15,8 @@ import numpy as np
 
 from ._core import SPLAT_SCALE
 
-INTEGRATORS = ("path", "light")
-SPLATTING_INTEGRATORS = ("light",)
+INTEGRATORS = ("path", "light", "bdpt")
+SPLATTING_INTEGRATORS = ("light", "bdpt")
 
 
 def new_splat_buffer(width: int, height: int) -> np.ndarray:

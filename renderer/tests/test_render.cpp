@@ -273,7 +273,7 @@ TEST(Scene, RejectsBadLights) {
 // Light tracing and path tracing estimate the same image; with every kind of light in the
 // scene this checks each light's emission sampling (light tracer) against its direct
 // sampling and MIS (path tracer).
-TEST(Integrators, PathAndLightTracingAgreeForEveryLightKind) {
+TEST(Integrators, PathLightAndBidirectionalAgreeForEveryLightKind) {
     // A floor of modest size: lights at infinity emit over the scene's bounding disk, and a
     // huge disk would make the light tracer correct but far too noisy to compare.
     SceneDesc d = FloorScene(0.6f, 4.f);
@@ -300,31 +300,44 @@ TEST(Integrators, PathAndLightTracingAgreeForEveryLightKind) {
         for (double& v : q) v /= double(W * H / 4);
         return q;
     };
-    std::vector<std::array<double, 12>> path_runs, light_runs;
-    for (int k = 0; k < K; ++k) {
-        RenderOptions opt{spp, uint32_t(100 + k), 16, 2};
-        path_runs.push_back(quadrants(Render(scene, cam, opt, {0, 0, W, H})));
+    auto splatting_render = [&](RenderOptions opt) {
         std::vector<int64_t> splats(size_t(W) * H * 3, 0);
         std::vector<float> img(size_t(W) * H * 4);
-        opt.integrator = Integrator::kLight;
         RenderStats stats = RenderTile(scene, cam, opt, {0, 0, W, H}, img.data(), nullptr, splats.data());
-        ASSERT_EQ(stats.rejected_splats, 0u);
-        ASSERT_EQ(stats.light_paths, uint64_t(W) * H * spp);
+        EXPECT_EQ(stats.rejected_splats, 0u);
+        EXPECT_EQ(stats.nonfinite_samples, 0u);
+        EXPECT_EQ(stats.light_paths, uint64_t(W) * H * spp);
         const double scale = double(W * H) / (kSplatScale * double(stats.light_paths));
         for (size_t i = 0; i < size_t(W) * H; ++i)
             for (int c = 0; c < 3; ++c) img[4 * i + c] += float(double(splats[3 * i + c]) * scale);
-        light_runs.push_back(quadrants(img));
+        return img;
+    };
+    std::vector<std::array<double, 12>> path_runs, light_runs, bdpt_runs;
+    for (int k = 0; k < K; ++k) {
+        RenderOptions opt{spp, uint32_t(100 + k), 16, 2};
+        path_runs.push_back(quadrants(Render(scene, cam, opt, {0, 0, W, H})));
+        opt.integrator = Integrator::kLight;
+        light_runs.push_back(quadrants(splatting_render(opt)));
+        opt.integrator = Integrator::kBDPT;
+        bdpt_runs.push_back(quadrants(splatting_render(opt)));
     }
+    auto stats = [&](const std::vector<std::array<double, 12>>& runs, int s, double* mean, double* var) {
+        *mean = *var = 0;
+        for (int k = 0; k < K; ++k) *mean += runs[k][s] / K;
+        for (int k = 0; k < K; ++k) *var += std::pow(runs[k][s] - *mean, 2) / (K - 1);
+    };
     double max_biased_z = 0;  // negative control: the light tracer scaled by 1.1 must be flagged
     for (int s = 0; s < 12; ++s) {
-        double mp = 0, ml = 0, vp = 0, vl = 0;
-        for (int k = 0; k < K; ++k) mp += path_runs[k][s] / K, ml += light_runs[k][s] / K;
-        for (int k = 0; k < K; ++k)
-            vp += std::pow(path_runs[k][s] - mp, 2) / (K - 1), vl += std::pow(light_runs[k][s] - ml, 2) / (K - 1);
-        double se = std::sqrt(vp / K + vl / K);
-        EXPECT_LT(std::abs(ml - mp), 4.5 * se) << "statistic " << s << ": path " << mp << " light " << ml;
-        EXPECT_LT(se, 0.02 * mp) << "statistic " << s << " is too noisy to mean anything (path " << mp
-                                 << ", light " << ml << ")";
+        double mp, ml, mb, vp, vl, vb;
+        stats(path_runs, s, &mp, &vp);
+        stats(light_runs, s, &ml, &vl);
+        stats(bdpt_runs, s, &mb, &vb);
+        double se_l = std::sqrt(vp / K + vl / K), se_b = std::sqrt(vp / K + vb / K);
+        EXPECT_LT(std::abs(ml - mp), 4.5 * se_l) << "statistic " << s << ": path " << mp << " light " << ml;
+        EXPECT_LT(std::abs(mb - mp), 4.5 * se_b) << "statistic " << s << ": path " << mp << " bdpt " << mb;
+        EXPECT_LT(se_l, 0.02 * mp) << "statistic " << s << " is too noisy to mean anything (path " << mp
+                                   << ", light " << ml << ")";
+        EXPECT_LT(se_b, 0.02 * mp) << "statistic " << s << ": path " << mp << ", bdpt " << mb;
         max_biased_z = std::max(max_biased_z, std::abs(1.1 * ml - mp) / std::sqrt(vp / K + 1.21 * vl / K));
     }
     EXPECT_GT(max_biased_z, 4.5);
