@@ -45,7 +45,8 @@ nb::object ToNumpy(std::unique_ptr<float[]> buffer, std::initializer_list<size_t
 SceneDesc MakeDesc(InArray<float, 3> positions, InArray<uint32_t, 3> indices, InVector<uint32_t> triangle_material,
                    InArray<float, 3> albedo, InArray<float, 3> emission, InVector<bool> two_sided_emission,
                    InArray<float, 7> sphere_lights, InArray<float, 6> point_lights, InArray<float, 7> distant_lights,
-                   std::array<float, 3> dome_radiance) {
+                   std::array<float, 3> dome_radiance, std::optional<InArray<float, 14>> preview_params,
+                   std::optional<InVector<bool>> preview_mask) {
     SceneDesc d;
     d.positions.assign(positions.data(), positions.data() + positions.size());
     d.indices.assign(indices.data(), indices.data() + indices.size());
@@ -68,6 +69,27 @@ SceneDesc MakeDesc(InArray<float, 3> positions, InArray<uint32_t, 3> indices, In
                                     distant_lights(i, 3),
                                     Vec3(distant_lights(i, 4), distant_lights(i, 5), distant_lights(i, 6))});
     d.dome_radiance = ToVec3(dome_radiance);
+    if (preview_params && preview_mask) {
+        if (preview_params->shape(0) != n_mat || preview_mask->shape(0) != n_mat)
+            throw std::invalid_argument("preview_params and preview_mask need one row per material");
+        for (size_t m = 0; m < n_mat; ++m) {
+            if (!(*preview_mask)(m)) continue;
+            const auto& q = *preview_params;
+            MaterialParams p;
+            p.diffuse_color = d.materials[m].albedo;
+            p.emissive_color = d.materials[m].emission;
+            p.specular_color = Vec3(q(m, 0), q(m, 1), q(m, 2));
+            p.metallic = q(m, 3);
+            p.roughness = q(m, 4);
+            p.ior = q(m, 5);
+            p.clearcoat = q(m, 6);
+            p.clearcoat_roughness = q(m, 7);
+            p.opacity = q(m, 8);
+            p.opacity_threshold = q(m, 9);
+            p.use_specular_workflow = q(m, 10) != 0.f;
+            d.materials[m].preview = p;
+        }
+    }
     return d;
 }
 
@@ -83,17 +105,23 @@ NB_MODULE(_core, m) {
             [](Scene* self, InArray<float, 3> positions, InArray<uint32_t, 3> indices,
                InVector<uint32_t> triangle_material, InArray<float, 3> albedo, InArray<float, 3> emission,
                InVector<bool> two_sided_emission, InArray<float, 7> sphere_lights, InArray<float, 6> point_lights,
-               InArray<float, 7> distant_lights, std::array<float, 3> dome_radiance) {
+               InArray<float, 7> distant_lights, std::array<float, 3> dome_radiance,
+               std::optional<InArray<float, 14>> preview_params, std::optional<InVector<bool>> preview_mask) {
                 SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
-                                          sphere_lights, point_lights, distant_lights, dome_radiance);
+                                          sphere_lights, point_lights, distant_lights, dome_radiance, preview_params,
+                                          preview_mask);
                 nb::gil_scoped_release release;
                 new (self) Scene(desc);
             },
             "positions"_a, "indices"_a, "triangle_material"_a, "albedo"_a, "emission"_a, "two_sided_emission"_a,
             "sphere_lights"_a, "point_lights"_a, "distant_lights"_a, "dome_radiance"_a,
+            "preview_params"_a = nb::none(), "preview_mask"_a = nb::none(),
             "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
             "(x, y, z, r, g, b intensity W/sr); distant_lights (dx, dy, dz travel direction, half angle in "
-            "radians, r, g, b radiance, or irradiance when the half angle is 0); dome_radiance (r, g, b).")
+            "radians, r, g, b radiance, or irradiance when the half angle is 0); dome_radiance (r, g, b); "
+            "preview_params (specular rgb, metallic, roughness, ior, clearcoat, clearcoat_roughness, opacity, "
+            "opacity_threshold, use_specular_workflow, 3 unused) for the materials where preview_mask is set: "
+            "those are UsdPreviewSurfaces, the others pure Lambertian.")
         .def_prop_ro("num_triangles", &Scene::num_triangles)
         .def_prop_ro("num_emitters", &Scene::num_emitters);
 

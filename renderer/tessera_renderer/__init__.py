@@ -37,7 +37,9 @@ class Scene:
                                      data.emission.reshape(-1, 3), data.two_sided_emission,
                                      data.sphere_lights.reshape(-1, 7),
                                      _rows(point, 6), _rows(distant, 7),
-                                     tuple(float(x) for x in dome["radiance"]) if dome else (0.0, 0.0, 0.0))
+                                     tuple(float(x) for x in dome["radiance"]) if dome else (0.0, 0.0, 0.0),
+                                     *_preview_table(getattr(data, "material_params", None),
+                                                     len(data.albedo.reshape(-1, 3))))
         except ValueError as exc:
             raise SceneError(f"invalid scene: {exc}") from None
 
@@ -91,6 +93,23 @@ class Scene:
                 f"{stats['nonfinite_samples']} NaN/Inf samples in tile ({x0},{y0},{w}x{h}); "
                 f"first at pixel ({x},{y}) sample {s} (seed {seed})")
         return (rgba, stats["variance"]) if return_variance else rgba
+
+
+# Column order of the core's UsdPreviewSurface table (renderer/python/module.cpp).
+_PREVIEW_COLUMNS = ("metallic", "roughness", "ior", "clearcoat", "clearcoat_roughness", "opacity",
+                    "opacity_threshold", "use_specular_workflow")
+
+
+def _preview_table(params: dict | None, rows: int):
+    """(params (M, 14), mask (M,)) for materials that are UsdPreviewSurfaces, marked by
+    params["preview"]; without that key every material is Lambertian."""
+    if not params or "preview" not in params or rows == 0:
+        return None, None
+    table = np.zeros((rows, 14), dtype=np.float32)
+    table[:, 0:3] = np.asarray(params["specular_color"], np.float32).reshape(rows, 3)
+    for k, name in enumerate(_PREVIEW_COLUMNS):
+        table[:, 3 + k] = np.asarray(params[name], np.float32).reshape(rows)
+    return table, np.asarray(params["preview"], bool).reshape(rows)
 
 
 def _rows(table, columns: int) -> np.ndarray:

@@ -342,3 +342,92 @@ TEST(Integrators, PathLightAndBidirectionalAgreeForEveryLightKind) {
     }
     EXPECT_GT(max_biased_z, 4.5);
 }
+
+namespace {
+
+uint32_t AddPreview(SceneDesc& d, const MaterialParams& p, Color emission = Color(0.f), bool two_sided = false) {
+    d.materials.push_back({p.diffuse_color, emission, two_sided, p});
+    return uint32_t(d.materials.size() - 1);
+}
+
+double MeanOverPixels(const std::vector<float>& px, int c, double* stderr_mean) {
+    double sum = 0, sum2 = 0, n = double(px.size() / 4);
+    for (size_t i = 0; i < px.size() / 4; ++i) sum += px[4 * i + c], sum2 += double(px[4 * i + c]) * px[4 * i + c];
+    double mean = sum / n;
+    *stderr_mean = std::sqrt(std::max(0.0, sum2 / n - mean * mean) / n);
+    return mean;
+}
+
+}  // namespace
+
+// Every wall a smooth metal of reflectance c (UsdPreviewSurface metallic = 1, roughness 0:
+// F0 = F90 = c at every angle) emitting Le: each path is a chain of perfect reflections, so
+// L = Le (1 + c + c^2 + ...) = Le / (1 - c).
+TEST(Materials, SmoothMetalFurnaceIsLeOverOneMinusReflectance) {
+    MaterialParams metal;
+    metal.diffuse_color = Color(0.8f, 0.5f, 0.2f);
+    metal.metallic = 1.f;
+    metal.roughness = 0.f;
+    SceneDesc d;
+    const Color Le(1.f, 2.f, 0.5f);
+    AddInwardBox(d, {-1, -2, -1.5f}, {3, 1, 2}, AddPreview(d, metal, Le, true));
+    Scene scene(d);
+    for (Integrator integrator : {Integrator::kPath, Integrator::kBDPT}) {
+        std::vector<float> px(16 * 16 * 4);
+        std::vector<int64_t> splats(16 * 16 * 3, 0);
+        RenderOptions opt{64, 4, 10000, 2};
+        opt.integrator = integrator;
+        RenderTile(scene, LookDownMinusZ({0.2f, -0.3f, 0.1f}, 16, 16, 1.f), opt, {0, 0, 16, 16}, px.data(), nullptr,
+                   splats.data());
+        for (int c = 0; c < 3; ++c) {
+            double se, mean = MeanOverPixels(px, c, &se);  // no t = 1 strategies reach a pinhole via mirrors
+            double expected = Le[c] / (1.0 - metal.diffuse_color[c]);
+            EXPECT_NEAR(mean, expected, 5 * se + 1e-4 * expected) << "channel " << c << " integrator " << int(integrator);
+        }
+    }
+}
+
+// A smooth dielectric UsdPreviewSurface (black diffuse, ior 1.5) reflecting a large emitter:
+// the pixel is Le times Schlick's Fresnel at the angle of incidence.
+TEST(Materials, SmoothSpecularReflectsSchlickFresnel) {
+    MaterialParams mirror;
+    mirror.diffuse_color = Color(0.f);
+    mirror.roughness = 0.f;
+    mirror.ior = 1.5f;
+    SceneDesc d;
+    AddQuad(d, {-50, 0, -50}, {-50, 0, 50}, {50, 0, 50}, {50, 0, -50}, AddPreview(d, mirror));  // faces +y
+    const Color Le(3.f, 3.f, 3.f);
+    AddQuad(d, {-500, 20, -500}, {500, 20, -500}, {500, 20, 500}, {-500, 20, 500},
+            AddMaterial(d, Color(0.f), Le));  // faces -y
+    Scene scene(d);
+    const float theta = 1.05f;  // ~60 degrees from the normal
+    Vec3 fwd(std::sin(theta), -std::cos(theta), 0.f);
+    Camera cam{{0, 1, 0}, Vec3(0, 0, -1), Normalize(Cross(Vec3(0, 0, -1), fwd)), fwd, 1e-4f, 1e-4f, 4, 4};
+    auto px = Render(scene, cam, {16, 1, 8, 1}, {0, 0, 4, 4});
+    const double f0 = 0.04, cos_t = std::cos(theta);
+    const double schlick = f0 + (1 - f0) * std::pow(1 - cos_t, 5);
+    EXPECT_NEAR(MeanChannel(px, 1), 3.0 * schlick, 1e-3 * 3.0 * schlick);
+}
+
+// Clear glass (opacity 0, ior 1.5, smooth) as a slab in front of an emitter, at normal
+// incidence: with R = ((n - 1) / (n + 1))^2 and every internal reflection, T = (1 - R) / (1 + R).
+// The radiance scaling by n^2 going in is undone coming out.
+TEST(Materials, GlassSlabTransmitsOneMinusROverOnePlusR) {
+    MaterialParams glass;
+    glass.opacity = 0.f;
+    glass.roughness = 0.f;
+    glass.ior = 1.5f;
+    SceneDesc d;
+    uint32_t g = AddPreview(d, glass);
+    AddQuad(d, {-50, -50, -1}, {50, -50, -1}, {50, 50, -1}, {-50, 50, -1}, g);          // front, normal +z
+    AddQuad(d, {-50, -50, -1.2f}, {-50, 50, -1.2f}, {50, 50, -1.2f}, {50, -50, -1.2f}, g);  // back, normal -z
+    const Color Le(2.f);
+    AddQuad(d, {-500, -500, -5}, {500, -500, -5}, {500, 500, -5}, {-500, 500, -5}, AddMaterial(d, Color(0.f), Le));
+    Scene scene(d);
+    std::vector<float> px(16 * 16 * 4);
+    RenderTile(scene, LookDownMinusZ({0, 0, 0}, 16, 16, 1e-4f), {256, 2, 64, 2}, {0, 0, 16, 16}, px.data());
+    const double R = 0.04, expected = 2.0 * (1 - R) / (1 + R);
+    double se, mean = MeanOverPixels(px, 0, &se);
+    EXPECT_NEAR(mean, expected, 5 * se + 1e-4);
+    EXPECT_LT(se, 0.01 * expected);
+}
