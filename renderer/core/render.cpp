@@ -14,6 +14,7 @@
 #include "light_tracer.h"
 #include "path_integrator.h"
 #include "splat_film.h"
+#include "whitted_integrator.h"
 #include "sampler.h"
 
 namespace tessera {
@@ -65,7 +66,9 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
     if ((light_tracing || bidirectional) && !splats)
         throw std::invalid_argument("light tracing and bdpt need a full-frame splat buffer");
     const BDPTIntegrator bdpt(options.max_depth);
-    const PathIntegrator integrator(options.max_depth);
+    const PathIntegrator integrator(options.integrator == Integrator::kLocal ? std::min(options.max_depth, 1)
+                                                                              : options.max_depth);
+    const WhittedIntegrator whitted(options.max_depth);
     const LightTracer light_tracer(options.max_depth);
     SplatFilm film(splats, camera.width, camera.height);
     std::atomic<uint64_t> nonfinite{0}, rejected_splats{0};
@@ -95,8 +98,10 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                 } else if (bidirectional) {
                     PixelSampler light_sampler(options.seed, pixel_index, s, /*stream=*/1);
                     ps = bdpt.Sample(scene, camera, ray, sampler, light_sampler, film, &light_stats.rejected_splats);
+                } else if (options.integrator == Integrator::kWhitted) {
+                    ps = whitted.Li(scene, ray, sampler);
                 } else {
-                    ps = integrator.Li(scene, ray, sampler);
+                    ps = integrator.Li(scene, ray, sampler);  // path, or local (depth 1)
                 }
                 if (!IsFinite(ps.radiance)) {
                     if (nonfinite.fetch_add(1) == 0) {

@@ -15,6 +15,8 @@ enum class Integrator : uint8_t {
     kPath,   // path tracing with NEE, MIS and Russian roulette
     kLight,  // light tracing: light paths splat onto the full frame through the camera
     kBDPT,   // bidirectional path tracing; its t = 1 strategies splat like kLight
+    kLocal,    // direct light only (one bounce): the lecture's local shading, L (D|S) E
+    kWhitted,  // direct light + ideal mirror/refraction recursion, L [D|S] S_M* E
 };
 
 struct RenderOptions {

@@ -32,7 +32,9 @@ Integrator ParseIntegrator(const std::string& name) {
     if (name == "path") return Integrator::kPath;
     if (name == "light") return Integrator::kLight;
     if (name == "bdpt") return Integrator::kBDPT;
-    throw std::invalid_argument("unknown integrator '" + name + "' (known: path, light, bdpt)");
+    if (name == "local") return Integrator::kLocal;
+    if (name == "whitted") return Integrator::kWhitted;
+    throw std::invalid_argument("unknown integrator '" + name + "' (known: path, light, bdpt, local, whitted)");
 }
 
 // Hands a heap buffer to numpy, which frees it with the array.
@@ -181,6 +183,6 @@ NB_MODULE(_core, m) {
         "splats"_a = nb::none(),
         "Renders samples [sample_start, sample_start + spp) of a tile; returns (rgba float32 [h, w, 4] mean, "
         "stats dict). With with_variance, stats['variance'] is float32 [h, w, 3]: the per-channel sample "
-        "variance. integrator: 'path', 'light' or 'bdpt'; 'light' and 'bdpt' add its camera connections to `splats`, an int64 "
+        "variance. integrator: 'path', 'light', 'bdpt', 'local' or 'whitted'; 'light' and 'bdpt' add its camera connections to `splats`, an int64 "
         "(height, width, 3) full-frame fixed-point buffer (scale 2^24) owned by the caller.");
 }

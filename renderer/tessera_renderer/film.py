@@ -15,7 +15,7 @@ import numpy as np
 
 from ._core import SPLAT_SCALE
 
-INTEGRATORS = ("path", "light", "bdpt")
+INTEGRATORS = ("path", "light", "bdpt", "local", "whitted")
 SPLATTING_INTEGRATORS = ("light", "bdpt")
 
 

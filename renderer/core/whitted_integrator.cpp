@@ -1,0 +1,64 @@
+#include "whitted_integrator.h"
+
+#include "bsdf.h"
+#include "sampling.h"
+
+namespace tessera {
+
+PathSample WhittedIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler) const {
+    PathSample result;
+    Color L(0.f), beta(1.f);
+    const LightSampler& lights = scene.light_sampler();
+    for (int depth = 0;; ++depth) {
+        SurfaceHit hit;
+        if (!scene.Intersect(ray, &hit)) {
+            // Seen directly or through mirrors only: BSDF sampling never met these lights
+            // at a diffuse vertex, so no weighting is needed.
+            scene.ForEachEnvironmentLight(ray.d, [&](uint32_t, Color Le, float) { L += beta * Le; });
+            break;
+        }
+        if (depth == 0) result.alpha = 1.f;
+        const Vec3 wo = -ray.d;
+        if (int32_t e = scene.EmitterAt(hit); e != Scene::kNoEmitter) L += beta * scene.Emitted(e, hit, wo);
+        if (depth >= max_depth_) break;
+
+        const BSDF bsdf = scene.BSDFAt(hit, TransportMode::Radiance);
+        if (bsdf.Flags() == kBSDFUnset) break;
+        const Frame frame = Frame::FromZ(hit.ng);
+        const Vec3 wo_local = frame.ToLocal(wo);
+
+        // Direct light through the non-delta lobes: light sampling alone (unweighted, as
+        // emitters are never reached by BSDF sampling at such a vertex here).
+        if (!lights.empty() && bsdf.IsNonSpecular()) {
+            float pmf = 0.f;
+            uint32_t light = lights.Sample(sampler.Get1D(), &pmf);
+            LightSample ls;
+            if (scene.SampleEmitter(light, hit.p, sampler.Get2D(), &ls) && pmf * ls.pdf > 0.f) {
+                const Vec3 wi_local = frame.ToLocal(ls.wi);
+                const Color f = bsdf.f(wo_local, wi_local) * std::abs(wi_local.z);
+                if (!IsBlack(f) &&
+                    !scene.Occluded(OffsetRayOrigin(hit.p, hit.ng, ls.wi), ls.wi, ls.distance * (1.f - 1e-4f)))
+                    L += beta * f * ls.radiance / (pmf * ls.pdf);
+            }
+        }
+
+        // Recursion along delta lobes only. Sampling the full BSDF and stopping on a
+        // non-delta choice keeps the estimate of the delta part unbiased.
+        if (!bsdf.HasDelta()) break;
+        const float uc = sampler.Get1D();
+        const std::optional<BSDFSample> bs = bsdf.Sample_f(wo_local, uc, sampler.Get2D());
+        if (!bs || !bs->is_specular || !(bs->pdf > 0.f) || IsBlack(bs->f)) break;
+        const Vec3 wi = Normalize(frame.FromLocal(bs->wi));
+        beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf);
+        ray = {OffsetRayOrigin(hit.p, hit.ng, wi), wi};
+        if (depth >= 4) {  // long mirror chains: roulette keeps them finite without bias
+            float q = std::min(1.f, MaxComponent(beta));
+            if (sampler.Get1D() >= q) break;
+            beta = beta / q;
+        }
+    }
+    result.radiance = L;
+    return result;
+}
+
+}  // namespace tessera

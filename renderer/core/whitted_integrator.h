@@ -1,0 +1,23 @@
+// Whitted ray tracing (1980; the lecture's method 2), L [D|S] S_M* E: direct light at
+// every surface (next event estimation, shadow rays), and recursion only along ideal
+// mirror reflection and refraction (the BSDF's delta lobes). Glossy and diffuse
+// interreflection and caustics (L S D) are not part of the method and stay dark.
+#pragma once
+
+#include "camera.h"
+#include "path_integrator.h"
+#include "sampler.h"
+#include "scene.h"
+
+namespace tessera {
+
+class WhittedIntegrator {
+public:
+    explicit WhittedIntegrator(int max_depth) : max_depth_(max_depth) {}
+    PathSample Li(const Scene& scene, Ray ray, PixelSampler& sampler) const;
+
+private:
+    int max_depth_;
+};
+
+}  // namespace tessera
