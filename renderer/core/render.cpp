@@ -87,16 +87,16 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
             double sum_r = 0, sum_g = 0, sum_b = 0, sum_a = 0;
             double sq_r = 0, sq_g = 0, sq_b = 0;
             for (uint32_t s = options.sample_start; s < options.sample_start + options.spp; ++s) {
-                PixelSampler sampler(options.seed, pixel_index, s);
+                PixelSampler sampler(options.seed, pixel_index, s, /*stream=*/0, options.sampler);
                 Vec2 jitter = sampler.Get2D();
                 Ray ray = camera.GenerateRay(float(x) + jitter.x, float(y) + jitter.y);
                 PathSample ps;
                 if (light_tracing) {
                     ps = DirectlyVisibleLight(scene, ray);
-                    PixelSampler light_sampler(options.seed, pixel_index, s, /*stream=*/1);
+                    PixelSampler light_sampler(options.seed, pixel_index, s, /*stream=*/1, options.sampler);
                     light_tracer.Trace(scene, camera, light_sampler, film, &light_stats);
                 } else if (bidirectional) {
-                    PixelSampler light_sampler(options.seed, pixel_index, s, /*stream=*/1);
+                    PixelSampler light_sampler(options.seed, pixel_index, s, /*stream=*/1, options.sampler);
                     ps = bdpt.Sample(scene, camera, ray, sampler, light_sampler, film, &light_stats.rejected_splats);
                 } else if (options.integrator == Integrator::kWhitted) {
                     ps = whitted.Li(scene, ray, sampler);

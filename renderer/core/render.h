@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "camera.h"
+#include "sampler.h"
 #include "scene.h"
 
 namespace tessera {
@@ -26,6 +27,7 @@ struct RenderOptions {
     int threads = 0;            // 0: all hardware threads
     uint32_t sample_start = 0;  // index of the first sample: passes [a, b) and [b, c) compose into [a, c)
     Integrator integrator = Integrator::kPath;
+    SamplerKind sampler = SamplerKind::kOwenSobol;
 };
 
 struct TileRect {

@@ -28,6 +28,12 @@ using SplatArray = nb::ndarray<int64_t, nb::shape<-1, -1, 3>, nb::c_contig, nb::
 
 Vec3 ToVec3(const std::array<float, 3>& a) { return {a[0], a[1], a[2]}; }
 
+SamplerKind ParseSampler(const std::string& name) {
+    if (name == "sobol") return SamplerKind::kOwenSobol;
+    if (name == "independent") return SamplerKind::kIndependent;
+    throw std::invalid_argument("unknown sampler '" + name + "' (known: sobol, independent)");
+}
+
 Integrator ParseIntegrator(const std::string& name) {
     if (name == "path") return Integrator::kPath;
     if (name == "light") return Integrator::kLight;
@@ -149,9 +155,10 @@ NB_MODULE(_core, m) {
         "render_tile",
         [](const Scene& scene, const Camera& camera, uint32_t x0, uint32_t y0, uint32_t width, uint32_t height,
            uint32_t spp, uint32_t seed, int max_depth, int threads, uint32_t sample_start, bool with_variance,
-           const std::string& integrator, std::optional<SplatArray> splats) {
+           const std::string& integrator, std::optional<SplatArray> splats, const std::string& sampler) {
             RenderOptions options{.spp = spp, .seed = seed, .max_depth = max_depth, .threads = threads,
-                                  .sample_start = sample_start, .integrator = ParseIntegrator(integrator)};
+                                  .sample_start = sample_start, .integrator = ParseIntegrator(integrator),
+                                  .sampler = ParseSampler(sampler)};
             int64_t* splat_data = nullptr;
             if (splats) {
                 if (splats->shape(0) != camera.height || splats->shape(1) != camera.width)
@@ -180,9 +187,10 @@ NB_MODULE(_core, m) {
         },
         "scene"_a, "camera"_a, "x0"_a, "y0"_a, "width"_a, "height"_a, "spp"_a, "seed"_a = 0, "max_depth"_a = 64,
         "threads"_a = 0, "sample_start"_a = 0, "with_variance"_a = false, "integrator"_a = "path",
-        "splats"_a = nb::none(),
+        "splats"_a = nb::none(), "sampler"_a = "sobol",
         "Renders samples [sample_start, sample_start + spp) of a tile; returns (rgba float32 [h, w, 4] mean, "
         "stats dict). With with_variance, stats['variance'] is float32 [h, w, 3]: the per-channel sample "
         "variance. integrator: 'path', 'light', 'bdpt', 'local' or 'whitted'; 'light' and 'bdpt' add its camera connections to `splats`, an int64 "
-        "(height, width, 3) full-frame fixed-point buffer (scale 2^24) owned by the caller.");
+        "(height, width, 3) full-frame fixed-point buffer (scale 2^24) owned by the caller. sampler: 'sobol' "
+        "(padded Owen-scrambled Sobol, default) or 'independent'.");
 }

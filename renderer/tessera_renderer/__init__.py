@@ -71,19 +71,21 @@ class Scene:
     def render_tile(self, x0: int, y0: int, w: int, h: int, *, width: int | None = None,
                     height: int | None = None, spp: int = 64, seed: int = 0, max_depth: int = 64,
                     threads: int = 0, sample_start: int = 0, return_variance: bool = False,
-                    integrator: str = "path", splats: np.ndarray | None = None):
+                    integrator: str = "path", splats: np.ndarray | None = None,
+                    sampler: str = "sobol"):
         """Renders pixels [x0, x0+w) x [y0, y0+h) of a width x height image, averaging samples
         [sample_start, sample_start + spp) of each pixel. Returns float32 linear RGBA of shape
         (h, w, 4); with return_variance, (rgba, variance) where variance is float32 (h, w, 3),
         the per-channel sample variance (divide by spp for the variance of the mean).
         integrator "light" also adds the tile's light-path splats to `splats`, an int64
         (height, width, 3) full-frame buffer (see film.py for turning it into an image); the
-        tile traced w * h * spp light paths. Releases the GIL."""
+        tile traced w * h * spp light paths. sampler: "sobol" (Owen-scrambled, default) or
+        "independent". Releases the GIL."""
         width = width or self.width
         height = height or self.height
         rgba, stats = _core.render_tile(self._core, self.camera(width, height), x0, y0, w, h,
                                         spp, seed, max_depth, threads, sample_start, return_variance,
-                                        integrator, splats)
+                                        integrator, splats, sampler)
         if stats["rejected_splats"]:
             raise NonFiniteSampleError(f"{stats['rejected_splats']} NaN/Inf/negative splats in tile "
                                        f"({x0},{y0},{w}x{h}) (seed {seed})")

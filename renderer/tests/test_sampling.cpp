@@ -135,3 +135,75 @@ TEST(Mis, PowerHeuristicWeightsSumToOne) {
         for (float b : {1e-8f, 0.3f, 1.f, 7.f, 1e8f}) EXPECT_NEAR(PowerHeuristic(a, b) + PowerHeuristic(b, a), 1.f, 1e-6f);
     EXPECT_EQ(PowerHeuristic(INFINITY, 1.f), 1.f);
 }
+
+// Owen-scrambled Sobol: the first 2^k samples of a pixel's 2-D dimension form a (0, k, 2)-net
+// (exactly one point in every elementary interval of area 2^-k), for every dimension, pixel
+// and seed; and 1-D dimensions put one sample in each of 2^k equal strata.
+TEST(OwenSobol, EveryPrefixOfPowerOfTwoLengthIsANet) {
+    for (uint64_t pixel : {0ull, 17ull, 123456789ull})
+        for (int dim = 0; dim < 6; ++dim)
+            for (int k : {2, 4, 6, 8}) {
+                const uint32_t n = 1u << k;
+                for (int split = 0; split <= k; ++split) {  // intervals of 2^-split x 2^-(k-split)
+                    std::vector<int> count(n, 0);
+                    for (uint32_t i = 0; i < n; ++i) {
+                        PixelSampler s(3, pixel, i, 0, SamplerKind::kOwenSobol);
+                        for (int skip = 0; skip < dim; ++skip) s.Get2D();
+                        Vec2 u = s.Get2D();
+                        uint32_t cx = uint32_t(u.x * float(1u << split)), cy = uint32_t(u.y * float(1u << (k - split)));
+                        ++count[(cy << split) | cx];
+                    }
+                    for (int c : count) ASSERT_EQ(c, 1) << "pixel " << pixel << " dim " << dim << " k " << k;
+                }
+                std::vector<int> strata(n, 0);
+                for (uint32_t i = 0; i < n; ++i) {
+                    PixelSampler s(3, pixel, i, 0, SamplerKind::kOwenSobol);
+                    for (int skip = 0; skip < dim; ++skip) s.Get1D();
+                    ++strata[uint32_t(s.Get1D() * float(n))];
+                }
+                for (int c : strata) ASSERT_EQ(c, 1);
+            }
+}
+
+TEST(OwenSobol, AlignedPassesAreNetsToo) {
+    // Samples [64, 128) (a second pass) are stratified like the first 64.
+    std::vector<int> count(64, 0);
+    for (uint32_t i = 64; i < 128; ++i) {
+        PixelSampler s(9, 42, i, 0, SamplerKind::kOwenSobol);
+        Vec2 u = s.Get2D();
+        ++count[uint32_t(u.y * 8.f) * 8 + uint32_t(u.x * 8.f)];
+    }
+    for (int c : count) EXPECT_EQ(c, 1);
+}
+
+TEST(OwenSobol, PixelsAndDimensionsAreDecorrelated) {
+    // Across many pixels, a sample's values in dimensions 0 and 1 (and the same dimension
+    // in neighbouring pixels) are uncorrelated: |r| ~ 1/sqrt(n).
+    const int n = 20000;
+    double sxy = 0, sxz = 0, sx = 0, sy = 0, sz = 0, sxx = 0, syy = 0, szz = 0;
+    for (int p = 0; p < n; ++p) {
+        PixelSampler a(1, uint64_t(p), 5, 0, SamplerKind::kOwenSobol), b(1, uint64_t(p) + 1, 5, 0, SamplerKind::kOwenSobol);
+        double x = a.Get1D(), y = a.Get1D(), z = b.Get1D();
+        sx += x, sy += y, sz += z, sxy += x * y, sxz += x * z, sxx += x * x, syy += y * y, szz += z * z;
+    }
+    auto corr = [n](double sab, double sa, double sb, double saa, double sbb) {
+        double cov = sab / n - sa / n * sb / n;
+        return cov / std::sqrt((saa / n - sa * sa / n / n) * (sbb / n - sb * sb / n / n));
+    };
+    EXPECT_LT(std::abs(corr(sxy, sx, sy, sxx, syy)), 0.04);
+    EXPECT_LT(std::abs(corr(sxz, sx, sz, sxx, szz)), 0.04);
+}
+
+TEST(OwenSobol, ValuesAreUniformOverPixels) {
+    const int bins = 64, n = 256000;
+    std::vector<double> observed(bins, 0.0), expected(bins, double(n) / bins);
+    for (int i = 0; i < n; ++i) {
+        PixelSampler s(3, uint64_t(i), uint32_t(i % 7), 0, SamplerKind::kOwenSobol);
+        float u = s.Get1D();
+        ASSERT_GE(u, 0.f);
+        ASSERT_LT(u, 1.f);
+        observed[std::min(bins - 1, int(u * bins))] += 1.0;
+    }
+    auto r = ChiSquareTest(observed, expected);
+    EXPECT_TRUE(r.pass) << "chi2 " << r.statistic << " dof " << r.dof;
+}
