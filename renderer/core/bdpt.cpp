@@ -1,5 +1,6 @@
 #include "bdpt.h"
 
+#include <limits>
 #include <vector>
 
 #include "bsdf.h"
@@ -76,7 +77,7 @@ public:
         Vec3 wn = DirectionTo(v, next);
         float pdf;
         if (v.type == VertexType::kCamera) {
-            pdf = camera_.PdfDirection(wn);
+            pdf = camera_.PdfDirection(v.p, wn);
         } else {
             Vec3 wp = DirectionTo(v, *prev);
             pdf = v.bsdf.PDF(v.frame.ToLocal(wp), v.frame.ToLocal(wn));
@@ -121,8 +122,9 @@ public:
     }
 
     // Extends path[0..] (path[-1] is the previous vertex) by up to `max_vertices`.
+    // t_min / t_max clip the first segment only (the camera's clipping range).
     int RandomWalk(Ray ray, Color beta, float pdf, int max_vertices, TransportMode mode, PixelSampler& sampler,
-                   Vertex* path) const {
+                   Vertex* path, float t_min = 0.f, float t_max = std::numeric_limits<float>::infinity()) const {
         if (max_vertices == 0) return 0;
         int n = 0;
         float pdf_fwd = pdf;
@@ -131,7 +133,9 @@ public:
             Vertex& prev = path[n - 1];
             Vertex& v = path[n];
             SurfaceHit hit;
-            if (!scene_.Intersect(ray, &hit)) {
+            const bool first = n == 0;
+            if (!scene_.Intersect(ray, &hit, first ? t_min : 0.f,
+                                  first ? t_max : std::numeric_limits<float>::infinity())) {
                 // A camera ray escaping to lights at infinity ends the subpath on one of them.
                 if (mode == TransportMode::Radiance && scene_.has_environment()) {
                     v = Vertex{};
@@ -187,10 +191,12 @@ public:
     int CameraSubpath(const Ray& ray, PixelSampler& sampler, Vertex* path) const {
         path[0] = Vertex{};
         path[0].type = VertexType::kCamera;
-        path[0].p = camera_.origin;
+        path[0].p = ray.o;  // the lens point
         path[0].beta = Color(1.f);
-        return 1 + RandomWalk(ray, Color(1.f), camera_.PdfDirection(ray.d), max_depth_ + 1, TransportMode::Radiance,
-                              sampler, path + 1);
+        float t_min, t_max;
+        camera_.ClipRange(ray.d, &t_min, &t_max);
+        return 1 + RandomWalk(ray, Color(1.f), camera_.PdfDirection(ray.o, ray.d), max_depth_ + 1,
+                              TransportMode::Radiance, sampler, path + 1, t_min, t_max);
     }
 
     int LightSubpath(PixelSampler& sampler, Vertex* path) const {
@@ -296,10 +302,12 @@ public:
             if (!qs.Connectible() || qs.type != VertexType::kSurface) return Color(0.f);
             Vec3 wc;
             float importance;
-            if (!ConnectToCamera(scene_, camera_, qs.p, qs.ng, px, py, &wc, &importance)) return Color(0.f);
+            Vec3 lens;
+            if (!ConnectToCamera(scene_, camera_, qs.p, qs.ng, sampler.Get2D(), px, py, &wc, &importance, &lens))
+                return Color(0.f);
             *sampled = Vertex{};
             sampled->type = VertexType::kCamera;
-            sampled->p = camera_.origin;
+            sampled->p = lens;
             Vec3 wc_local = qs.frame.ToLocal(wc);
             return qs.beta * qs.bsdf.f(qs.frame.ToLocal(qs.wo), wc_local) * (std::abs(wc_local.z) * importance);
         }

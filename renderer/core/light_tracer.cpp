@@ -5,19 +5,20 @@
 
 namespace tessera {
 
-// Connects surface point p (geometric normal ng) to the pinhole. Returns false if the
-// camera cannot see p. Writes the raster position, the unit direction to the camera and
-// the importance factor We cos_camera / d^2 = 1 / (A cos^3 theta_camera d^2).
-bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, Vec3 ng, float* px, float* py, Vec3* wc,
-                     float* importance_over_d2) {
-    Vec3 to_camera = camera.origin - p;
+bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, Vec3 ng, Vec2 u_lens, float* px, float* py,
+                     Vec3* wc, float* importance_over_d2, Vec3* lens_point) {
+    const Vec3 lens = camera.LensPoint(u_lens);
+    Vec3 to_camera = lens - p;
     float d2 = LengthSquared(to_camera);
     if (!(d2 > 0.f)) return false;
     float d = std::sqrt(d2), cos_camera;
     *wc = to_camera / d;
-    if (!camera.Project(-*wc, px, py, &cos_camera)) return false;
+    if (!camera.Project(lens, -*wc, px, py, &cos_camera)) return false;
+    const float depth = d * cos_camera;
+    if (depth < camera.near || depth > camera.far) return false;
     if (scene.Occluded(OffsetRayOrigin(p, ng, *wc), *wc, d * (1.f - 1e-4f))) return false;
     *importance_over_d2 = 1.f / (camera.ImagePlaneArea() * cos_camera * cos_camera * cos_camera * d2);
+    if (lens_point) *lens_point = lens;
     return true;
 }
 
@@ -47,7 +48,9 @@ void LightTracer::Trace(const Scene& scene, const Camera& camera, PixelSampler& 
 
         float px, py, importance;
         Vec3 wc;
-        if (bsdf.IsNonSpecular() && ConnectToCamera(scene, camera, hit.p, hit.ng, &px, &py, &wc, &importance)) {
+        const Vec2 u_lens = sampler.Get2D();
+        if (bsdf.IsNonSpecular() &&
+            ConnectToCamera(scene, camera, hit.p, hit.ng, u_lens, &px, &py, &wc, &importance)) {
             const Vec3 wc_local = frame.ToLocal(wc);
             Color contribution = beta * bsdf.f(wo_local, wc_local) * (std::abs(wc_local.z) * importance);
             if (!IsBlack(contribution) && !film.Add(px, py, contribution) && stats) ++stats->rejected_splats;

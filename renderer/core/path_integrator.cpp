@@ -5,7 +5,7 @@
 
 namespace tessera {
 
-PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler) const {
+PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const {
     PathSample result;
     Color L(0.f), beta(1.f);
     float bsdf_pdf = 0.f;         // solid-angle pdf of the direction that produced `ray`
@@ -16,7 +16,7 @@ PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler
 
     for (int depth = 0;; ++depth) {
         SurfaceHit hit;
-        if (!scene.Intersect(ray, &hit)) {
+        if (!(depth == 0 ? scene.Intersect(ray, &hit, t_min, t_max) : scene.Intersect(ray, &hit))) {
             // Escaped: lights at infinity (dome, distant cones), weighted like emitters.
             scene.ForEachEnvironmentLight(ray.d, [&](uint32_t light, Color Le, float pdf) {
                 float w = (depth == 0 || specular_bounce) ? 1.f : PowerHeuristic(bsdf_pdf, lights.Pmf(light) * pdf);

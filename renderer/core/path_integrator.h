@@ -3,6 +3,8 @@
 // Estimates L(D)*E paths of the lecture's full solution for Lambertian surfaces.
 #pragma once
 
+#include <limits>
+
 #include "camera.h"
 #include "sampler.h"
 #include "scene.h"
@@ -18,7 +20,9 @@ class PathIntegrator {
 public:
     explicit PathIntegrator(int max_depth) : max_depth_(max_depth) {}
     // Radiance arriving along `ray`; max_depth bounds the number of scattering events.
-    PathSample Li(const Scene& scene, Ray ray, PixelSampler& sampler) const;
+    // [t_min, t_max] limits the first segment (the camera's clipping range).
+    PathSample Li(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min = 0.f,
+                  float t_max = std::numeric_limits<float>::infinity()) const;
 
 private:
     int max_depth_;

@@ -37,10 +37,10 @@ private:
 namespace {
 
 // What a pinhole sees without scattering: emitters and lights at infinity along the ray.
-PathSample DirectlyVisibleLight(const Scene& scene, const Ray& ray) {
+PathSample DirectlyVisibleLight(const Scene& scene, const Ray& ray, float t_min, float t_max) {
     PathSample result;
     SurfaceHit hit;
-    if (scene.Intersect(ray, &hit)) {
+    if (scene.Intersect(ray, &hit, t_min, t_max)) {
         result.alpha = 1.f;
         if (int32_t e = scene.EmitterAt(hit); e != Scene::kNoEmitter) result.radiance = scene.Emitted(e, hit, -ray.d);
     } else {
@@ -89,19 +89,24 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
             for (uint32_t s = options.sample_start; s < options.sample_start + options.spp; ++s) {
                 PixelSampler sampler(options.seed, pixel_index, s, /*stream=*/0, options.sampler);
                 Vec2 jitter = sampler.Get2D();
-                Ray ray = camera.GenerateRay(float(x) + jitter.x, float(y) + jitter.y);
+                // The lens dimensions are drawn only for a lens, so pinhole images keep
+                // their sample streams.
+                Ray ray = camera.GenerateRay(float(x) + jitter.x, float(y) + jitter.y,
+                                             camera.HasLens() ? sampler.Get2D() : Vec2{0.5f, 0.5f});
+                float t_min, t_max;
+                camera.ClipRange(ray.d, &t_min, &t_max);
                 PathSample ps;
                 if (light_tracing) {
-                    ps = DirectlyVisibleLight(scene, ray);
+                    ps = DirectlyVisibleLight(scene, ray, t_min, t_max);
                     PixelSampler light_sampler(options.seed, pixel_index, s, /*stream=*/1, options.sampler);
                     light_tracer.Trace(scene, camera, light_sampler, film, &light_stats);
                 } else if (bidirectional) {
                     PixelSampler light_sampler(options.seed, pixel_index, s, /*stream=*/1, options.sampler);
                     ps = bdpt.Sample(scene, camera, ray, sampler, light_sampler, film, &light_stats.rejected_splats);
                 } else if (options.integrator == Integrator::kWhitted) {
-                    ps = whitted.Li(scene, ray, sampler);
+                    ps = whitted.Li(scene, ray, sampler, t_min, t_max);
                 } else {
-                    ps = integrator.Li(scene, ray, sampler);  // path, or local (depth 1)
+                    ps = integrator.Li(scene, ray, sampler, t_min, t_max);  // path, or local (depth 1)
                 }
                 if (!IsFinite(ps.radiance)) {
                     if (nonfinite.fetch_add(1) == 0) {

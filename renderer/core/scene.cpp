@@ -199,20 +199,20 @@ bool Scene::IsCutoutHit(const SurfaceHit& hit) const {
     return hit.geom_id == kTriangleGeometry && material_is_cutout_[triangle_material_[hit.prim_id]];
 }
 
-bool Scene::Intersect(const Ray& ray, SurfaceHit* hit) const {
-    if (!has_cutouts_) return IntersectClosest(ray, 0.f, hit);
+bool Scene::Intersect(const Ray& ray, SurfaceHit* hit, float t_min, float t_max) const {
+    if (!has_cutouts_) return IntersectClosest(ray, t_min, t_max, hit);
     // Step through cutout surfaces. Each step restarts just past the previous hit, so a
     // ray crosses at most as many cutout layers as lie along it.
-    float t_near = 0.f;
+    float t_near = t_min;
     for (int layer = 0; layer < 1024; ++layer) {
-        if (!IntersectClosest(ray, t_near, hit)) return false;
+        if (!IntersectClosest(ray, t_near, t_max, hit)) return false;
         if (!IsCutoutHit(*hit)) return true;
         t_near = std::nextafter(hit->t, std::numeric_limits<float>::infinity()) * (1.f + 1e-6f);
     }
     return false;
 }
 
-bool Scene::IntersectClosest(const Ray& ray, float t_near, SurfaceHit* hit) const {
+bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceHit* hit) const {
     RTCIntersectContext context;
     rtcInitIntersectContext(&context);
     RTCRayHit rh;
@@ -223,7 +223,7 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, SurfaceHit* hit) cons
     rh.ray.dir_y = ray.d.y;
     rh.ray.dir_z = ray.d.z;
     rh.ray.tnear = t_near;
-    rh.ray.tfar = std::numeric_limits<float>::infinity();
+    rh.ray.tfar = t_far;
     rh.ray.time = 0.f;
     rh.ray.mask = 0xFFFFFFFFu;
     rh.ray.id = 0;

@@ -6,6 +6,7 @@
 #include <embree3/rtcore.h>
 
 #include <cstdint>
+#include <limits>
 #include <optional>
 #include <vector>
 
@@ -103,7 +104,8 @@ public:
     Scene& operator=(const Scene&) = delete;
 
     // Cutout surfaces (opacity below a positive opacityThreshold) are passed through.
-    bool Intersect(const Ray& ray, SurfaceHit* hit) const;
+    bool Intersect(const Ray& ray, SurfaceHit* hit, float t_min = 0.f,
+                   float t_max = std::numeric_limits<float>::infinity()) const;
     bool Occluded(Vec3 origin, Vec3 dir, float t_far) const;
 
     const Material& MaterialAt(const SurfaceHit& hit) const;
@@ -160,7 +162,7 @@ private:
     const float* positions_ = nullptr;  // owned by Embree's buffers
     const uint32_t* indices_ = nullptr;
     size_t num_triangles_ = 0;
-    bool IntersectClosest(const Ray& ray, float t_near, SurfaceHit* hit) const;
+    bool IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceHit* hit) const;
     bool IsCutoutHit(const SurfaceHit& hit) const;
 
     std::vector<uint32_t> triangle_material_;

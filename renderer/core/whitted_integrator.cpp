@@ -5,13 +5,13 @@
 
 namespace tessera {
 
-PathSample WhittedIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler) const {
+PathSample WhittedIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const {
     PathSample result;
     Color L(0.f), beta(1.f);
     const LightSampler& lights = scene.light_sampler();
     for (int depth = 0;; ++depth) {
         SurfaceHit hit;
-        if (!scene.Intersect(ray, &hit)) {
+        if (!(depth == 0 ? scene.Intersect(ray, &hit, t_min, t_max) : scene.Intersect(ray, &hit))) {
             // Seen directly or through mirrors only: BSDF sampling never met these lights
             // at a diffuse vertex, so no weighting is needed.
             scene.ForEachEnvironmentLight(ray.d, [&](uint32_t, Color Le, float) { L += beta * Le; });

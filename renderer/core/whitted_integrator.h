@@ -4,6 +4,8 @@
 // interreflection and caustics (L S D) are not part of the method and stay dark.
 #pragma once
 
+#include <limits>
+
 #include "camera.h"
 #include "path_integrator.h"
 #include "sampler.h"
@@ -14,7 +16,9 @@ namespace tessera {
 class WhittedIntegrator {
 public:
     explicit WhittedIntegrator(int max_depth) : max_depth_(max_depth) {}
-    PathSample Li(const Scene& scene, Ray ray, PixelSampler& sampler) const;
+    // [t_min, t_max] limits the first segment (the camera's clipping range).
+    PathSample Li(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min = 0.f,
+                  float t_max = std::numeric_limits<float>::infinity()) const;
 
 private:
     int max_depth_;

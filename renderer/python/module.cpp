@@ -7,6 +7,7 @@
 #include <nanobind/stl/string.h>
 
 #include <array>
+#include <limits>
 #include <memory>
 
 #include "../core/render.h"
@@ -138,16 +139,25 @@ NB_MODULE(_core, m) {
             "__init__",
             [](Camera* self, std::array<float, 3> origin, std::array<float, 3> right, std::array<float, 3> up,
                std::array<float, 3> forward, float tan_half_width, float tan_half_height, uint32_t width,
-               uint32_t height) {
+               uint32_t height, float lens_radius, float focal_distance, float near, float far) {
                 if (width == 0 || height == 0) throw std::invalid_argument("image size must be positive");
+                if (!(lens_radius >= 0.f) || !std::isfinite(lens_radius) || !(focal_distance > 0.f) ||
+                    !std::isfinite(focal_distance))
+                    throw std::invalid_argument("lens radius must be >= 0 and focus distance > 0 (both finite)");
+                if (!(near >= 0.f) || !(far > near))
+                    throw std::invalid_argument("clipping range needs 0 <= near < far");
                 if (!(tan_half_width > 0.f) || !(tan_half_height > 0.f) || !std::isfinite(tan_half_width) ||
                     !std::isfinite(tan_half_height))
                     throw std::invalid_argument("camera field of view must be finite and positive");
                 new (self) Camera{ToVec3(origin), Normalize(ToVec3(right)), Normalize(ToVec3(up)),
-                                  Normalize(ToVec3(forward)), tan_half_width, tan_half_height, width, height};
+                                  Normalize(ToVec3(forward)), tan_half_width, tan_half_height, width, height,
+                                  lens_radius, focal_distance, near, far};
             },
             "origin"_a, "right"_a, "up"_a, "forward"_a, "tan_half_width"_a, "tan_half_height"_a, "width"_a,
-            "height"_a)
+            "height"_a, "lens_radius"_a = 0.f, "focal_distance"_a = 1.f, "near"_a = 0.f,
+            "far"_a = std::numeric_limits<float>::infinity(),
+            "A pinhole, or a thin lens of radius lens_radius focused at focal_distance; primary rays see "
+            "depths in [near, far].")
         .def_ro("width", &Camera::width)
         .def_ro("height", &Camera::height);
 

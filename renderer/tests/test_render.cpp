@@ -476,3 +476,85 @@ TEST(Integrators, WhittedSeesAPointLitFloorThroughAMirrorExactly) {
     // The floor point is the origin: d = 5, cos = 4/5. The mirror also shadows nothing there.
     EXPECT_NEAR(MeanChannel(px, 0), 0.7 * 0.5 / kPi * 10.0 * 0.8 / 25.0, 1e-6);
 }
+
+namespace {
+
+// Fraction of a disk of radius R whose x coordinate is below a.
+double DiskFractionBelow(double a, double R) {
+    if (a <= -R) return 0.0;
+    if (a >= R) return 1.0;
+    return 0.5 + (a * std::sqrt(R * R - a * a) + R * R * std::asin(a / R)) / (kPi * R * R);
+}
+
+}  // namespace
+
+// Depth of field against geometry: an emitting half-plane (x < 0) at depth z_obj in front
+// of the focus plane z_f. The ray from lens point (lx, ly) through focus-plane point
+// (fx, fy) crosses depth z_obj at x = lx (1 - k) + fx k, k = z_obj / z_f, so a pixel's value
+// is Le times the fraction of the lens disk with lx < -fx k / (1 - k).
+TEST(Camera, ThinLensBlurIsTheLensFractionSeeingTheEmitter) {
+    SceneDesc d;
+    const Color Le(1.f);
+    const float z_obj = 2.f, z_f = 5.f, R = 0.2f;
+    AddQuad(d, {-100, -100, -z_obj}, {0, -100, -z_obj}, {0, 100, -z_obj}, {-100, 100, -z_obj},
+            AddMaterial(d, Color(0.f), Le));  // x < 0, facing +z
+    Scene scene(d);
+    const uint32_t W = 32, H = 1;
+    Camera cam = LookDownMinusZ({0, 0, 0}, W, H, 0.05f);  // focus-plane x spans +-0.25
+    cam.lens_radius = R;
+    cam.focal_distance = z_f;
+    auto px = Render(scene, cam, {1024, 3, 4, 1}, {0, 0, W, H});
+    const double k = z_obj / z_f;
+    for (uint32_t x = 0; x < W; ++x) {
+        // Average the analytic fraction over the pixel's footprint on the focus plane.
+        double expected = 0;
+        for (int j = 0; j < 64; ++j) {
+            double fx = ((x + (j + 0.5) / 64.0) / W * 2.0 - 1.0) * 0.05 * z_f;
+            expected += DiskFractionBelow(-fx * k / (1 - k), R) / 64.0;
+        }
+        EXPECT_NEAR(px[4 * x], expected, 0.01) << "pixel " << x;
+    }
+    // The blur is real: the middle of the image is neither 0 nor 1.
+    EXPECT_GT(px[4 * (W / 2)], 0.2f);
+    EXPECT_LT(px[4 * (W / 2)], 0.8f);
+}
+
+TEST(Camera, LensPathLightAndBidirectionalAgree) {
+    // The thin lens in light tracing and BDPT (lens sampling, focus-plane projection,
+    // importance) against the camera rays of path tracing.
+    Scene scene(SmallCornell());
+    const uint32_t W = 16, H = 16;
+    Camera cam = LookDownMinusZ({0, 0, 1.5f}, W, H, 0.45f);
+    cam.lens_radius = 0.15f;
+    cam.focal_distance = 2.0f;
+    double mean[3] = {0, 0, 0};
+    for (int k = 0; k < 3; ++k) {
+        RenderOptions opt{256, 7, 16, 2};
+        opt.integrator = k == 0 ? Integrator::kPath : (k == 1 ? Integrator::kLight : Integrator::kBDPT);
+        std::vector<float> img(size_t(W) * H * 4);
+        std::vector<int64_t> splats(size_t(W) * H * 3, 0);
+        RenderStats st = RenderTile(scene, cam, opt, {0, 0, W, H}, img.data(), nullptr, splats.data());
+        double sum = 0;
+        for (size_t i = 0; i < size_t(W) * H; ++i) sum += img[4 * i + 1] + double(splats[3 * i + 1]) / kSplatScale *
+                                                                              (st.light_paths ? double(W * H) / double(st.light_paths) : 0.0);
+        mean[k] = sum / (W * H);
+    }
+    EXPECT_GT(mean[0], 0.05);
+    EXPECT_NEAR(mean[1], mean[0], 0.02 * mean[0]);
+    EXPECT_NEAR(mean[2], mean[0], 0.02 * mean[0]);
+}
+
+TEST(Camera, ClippingRangeHidesGeometryOutsideIt) {
+    SceneDesc d;
+    AddQuad(d, {-10, -10, -5}, {10, -10, -5}, {10, 10, -5}, {-10, 10, -5}, AddMaterial(d, Color(0.f), Color(2.f)));
+    AddQuad(d, {-10, -10, -1}, {10, -10, -1}, {10, 10, -1}, {-10, 10, -1}, AddMaterial(d, Color(0.f), Color(0.f)));
+    Scene scene(d);
+    Camera cam = LookDownMinusZ({0, 0, 0}, 4, 4, 0.1f);
+    EXPECT_EQ(Render(scene, cam, {2, 0, 4, 1}, {0, 0, 4, 4})[0], 0.f);  // the black blocker
+    cam.near = 2.f;                                                     // clipped away
+    EXPECT_EQ(Render(scene, cam, {2, 0, 4, 1}, {0, 0, 4, 4})[0], 2.f);
+    cam.far = 4.f;  // and now the emitter too
+    auto none = Render(scene, cam, {2, 0, 4, 1}, {0, 0, 4, 4});
+    EXPECT_EQ(none[0], 0.f);
+    EXPECT_EQ(none[3], 0.f);
+}
