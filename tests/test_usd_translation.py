@@ -84,15 +84,15 @@ def test_invisible_and_guide_prims_are_skipped_and_unsupported_ones_warned(tmp_p
     add_mesh(stage, "/Hidden/Child", *tri)
     guide = add_mesh(stage, "/Guide", *tri)
     guide.CreatePurposeAttr(UsdGeom.Tokens.guide)
-    UsdGeom.Sphere.Define(stage, "/Ball")
-    UsdGeom.Sphere.Define(stage, "/Ball2")
-    UsdLux.DomeLight.Define(stage, "/Dome")
+    UsdGeom.BasisCurves.Define(stage, "/Hair")
+    UsdGeom.BasisCurves.Define(stage, "/Hair2")
+    UsdGeom.Points.Define(stage, "/Dust")
     stage.GetRootLayer().Save()
     data = translate_stage(str(tmp_path / "v.usda"))
     assert len(data.indices) == 1
     text = " | ".join(data.warnings)
-    assert "2 Sphere prims not supported yet" in text
-    assert "1 DomeLight prim not supported yet" in text
+    assert "2 BasisCurves prims not supported yet" in text
+    assert "1 Points prim not supported yet" in text
     assert "no camera" in text
 
 
@@ -158,3 +158,16 @@ def test_nan_points_drop_their_triangles_with_a_warning(tmp_path):
     assert any("NaN" in w for w in scene.warnings)
     img = scene.render_tile(0, 0, 8, 8, spp=2)
     assert np.isfinite(img).all()
+
+
+def test_concave_quads_are_split_inside_themselves(tmp_path):
+    """A dart with its reflex vertex at corner 1: the fan's diagonal 0-2 would lie outside."""
+    stage = new_stage(tmp_path / "dart.usda")
+    dart = [(2, -1, 0), (0.5, 0, 0), (2, 1, 0), (0, 0, 0)]   # shoelace area 0.5
+    add_mesh(stage, "/Dart", dart, [4], [0, 1, 2, 3])
+    stage.GetRootLayer().Save()
+    data = translate_stage(str(tmp_path / "dart.usda"))
+    p = data.positions[data.indices]
+    z = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])[:, 2]
+    assert (z > 0).all()  # both triangles keep the polygon's orientation
+    assert triangle_areas(data).sum() == pytest.approx(0.5)

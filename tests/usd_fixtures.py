@@ -59,10 +59,18 @@ def box_inward_faces(lo, hi):
     return pts, [4] * 6, [i for q in quads for i in q]
 
 
-def write_furnace(path: Path, albedo: float, emission=(0.5, 1.0, 2.0), resolution=(24, 24)) -> Path:
-    """A closed box, every wall of albedo a emitting Le: radiance Le / (1 - a) everywhere."""
+def write_furnace(path: Path, albedo: float, emission=(0.5, 1.0, 2.0), resolution=(24, 24), *,
+                  metallic: float | None = None, roughness: float | None = None) -> Path:
+    """A closed box, every wall a UsdPreviewSurface of diffuseColor `albedo` emitting Le,
+    seen from inside. With metallic 1 and roughness 0 each wall reflects `albedo` at every
+    angle, so the radiance is Le / (1 - albedo) everywhere."""
     stage = new_stage(path)
     mat = add_material(stage, "/Looks/Wall", (albedo,) * 3, emission)
+    shader = UsdShade.Shader(stage.GetPrimAtPath("/Looks/Wall/Surface"))
+    if metallic is not None:
+        shader.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(metallic)
+    if roughness is not None:
+        shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(roughness)
     pts, counts, idx = box_inward_faces((-2, -1, -3), (1, 2, 1))
     add_mesh(stage, "/World/Box", pts, counts, idx, mat, double_sided=True)
     cam = add_camera(stage, "/World/Camera", (0.1, 0.2, 0.3), focal=20.0)

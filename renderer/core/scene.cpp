@@ -84,6 +84,25 @@ Scene::Scene(const SceneDesc& desc)
         d.direction = d.direction / len;
     }
     if (!IsNonNegativeFinite(dome_radiance_)) throw std::invalid_argument("dome radiance must be finite and >= 0");
+    if (desc.dome_width > 0) {
+        if (desc.dome_rgb.size() != size_t(desc.dome_width) * desc.dome_height * 3 || desc.dome_height == 0)
+            throw std::invalid_argument("dome texture size does not match its pixels");
+        for (float v : desc.dome_rgb)
+            if (!(v >= 0.f) || !std::isfinite(v)) throw std::invalid_argument("dome texture has negative or non-finite texels");
+        dome_w_ = desc.dome_width;
+        dome_h_ = desc.dome_height;
+        dome_rgb_ = desc.dome_rgb;
+        std::copy(desc.dome_world_to_light, desc.dome_world_to_light + 9, dome_m_);
+        std::vector<float> weights(size_t(dome_w_) * dome_h_);
+        for (uint32_t y = 0; y < dome_h_; ++y) {
+            const float sin_theta = std::sin(kPi * (float(y) + 0.5f) / float(dome_h_));
+            for (uint32_t x = 0; x < dome_w_; ++x) {
+                const float* t = &dome_rgb_[3 * (size_t(y) * dome_w_ + x)];
+                weights[size_t(y) * dome_w_ + x] = Luminance(Color(t[0], t[1], t[2])) * sin_theta;
+            }
+        }
+        dome_distribution_ = Distribution2D(weights, dome_w_, dome_h_);
+    }
 
     RTCDevice device = EmbreeDevice();
     scene_ = rtcNewScene(device);
@@ -178,10 +197,23 @@ Scene::Scene(const SceneDesc& desc)
         double irradiance = double(Luminance(d.radiance)) * (omc > 0.f ? kPi * sin_half * sin_half : 1.0);
         power.push_back(irradiance * disk_area);
     }
-    if (!IsBlack(dome_radiance_)) {
+    if (!IsBlack(dome_radiance_) && (!DomeTextured() || !dome_distribution_.empty())) {
+        double mean = 1.0;  // solid-angle mean of the texture's luminance
+        if (DomeTextured()) {
+            double sum = 0.0, weight = 0.0;
+            for (uint32_t y = 0; y < dome_h_; ++y) {
+                double sin_theta = std::sin(kPi * (y + 0.5) / dome_h_);
+                for (uint32_t x = 0; x < dome_w_; ++x) {
+                    const float* t = &dome_rgb_[3 * (size_t(y) * dome_w_ + x)];
+                    sum += Luminance(Color(t[0], t[1], t[2])) * sin_theta;
+                    weight += sin_theta;
+                }
+            }
+            mean = sum / weight;
+        }
         environment_lights_.push_back(uint32_t(emitters_.size()));
         emitters_.push_back({LightKind::kDome, 0, 0.f, 0.f});
-        power.push_back(4.0 * kPi * disk_area * double(Luminance(dome_radiance_)));
+        power.push_back(4.0 * kPi * disk_area * double(Luminance(dome_radiance_)) * mean);
     }
     light_sampler_ = LightSampler(power);
 }
@@ -331,16 +363,10 @@ bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) 
             return true;
         }
         case LightKind::kDome: {
-            // Uniform over the sphere of directions.
-            float z = 1.f - 2.f * u.x;
-            float r = std::sqrt(std::max(0.f, 1.f - z * z));
-            float phi = 2.f * kPi * u.y;
-            out->wi = Vec3(r * std::cos(phi), r * std::sin(phi), z);
+            out->wi = SampleDome(u, &out->pdf, &out->radiance);
             out->distance = std::numeric_limits<float>::infinity();
-            out->radiance = dome_radiance_;
-            out->pdf = 1.f / (4.f * kPi);
             out->n = Vec3(0.f);
-            return true;
+            return out->pdf > 0.f;
         }
         case LightKind::kSphere:
         case LightKind::kTriangle:
@@ -449,10 +475,8 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
             float pdf_dir = 1.f;
             Color L;
             if (e.kind == LightKind::kDome) {
-                float z = 1.f - 2.f * u_dir.x, r = std::sqrt(std::max(0.f, 1.f - z * z)), phi = 2.f * kPi * u_dir.y;
-                out->wo = Vec3(r * std::cos(phi), r * std::sin(phi), z);
-                pdf_dir = 1.f / (4.f * kPi);
-                L = dome_radiance_;
+                out->wo = -SampleDome(u_dir, &pdf_dir, &L);  // light travels away from the dome
+                if (!(pdf_dir > 0.f)) return false;
             } else {
                 const DistantLight& d = distants_[e.index];
                 L = d.radiance;
@@ -494,8 +518,11 @@ float Scene::EmissionPdfDirection(uint32_t emitter, Vec3 n, Vec3 w) const {
         }
         case LightKind::kDistant:
             return e.one_minus_cos > 0.f ? 1.f / (2.f * kPi * e.one_minus_cos) : 0.f;
-        case LightKind::kDome:
-            return 1.f / (4.f * kPi);
+        case LightKind::kDome: {
+            float pdf;
+            DomeRadiance(-w, &pdf);
+            return pdf;
+        }
     }
     return 0.f;
 }
@@ -535,11 +562,50 @@ bool Scene::IsDeltaLight(uint32_t emitter) const {
     return e.kind == LightKind::kPoint || (e.kind == LightKind::kDistant && e.one_minus_cos == 0.f);
 }
 
-Color Scene::EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const {
-    if (e.kind == LightKind::kDome) {
+Color Scene::DomeRadiance(Vec3 w, float* pdf) const {
+    if (!DomeTextured()) {
         *pdf = 1.f / (4.f * kPi);
         return dome_radiance_;
     }
+    const float* m = dome_m_;
+    Vec3 l(m[0] * w.x + m[1] * w.y + m[2] * w.z, m[3] * w.x + m[4] * w.y + m[5] * w.z,
+           m[6] * w.x + m[7] * w.y + m[8] * w.z);
+    // OpenEXR lat-long: longitude +pi..-pi across, latitude +pi/2..-pi/2 down; (lat 0,
+    // lon 0) is +z and (0, pi/2) is +x.
+    const float lat = std::asin(std::clamp(l.y, -1.f, 1.f)), lon = std::atan2(l.x, l.z);
+    const Vec2 uv{0.5f - lon * kInv2Pi, 0.5f - lat * kInvPi};
+    const float cos_lat = std::cos(lat);
+    *pdf = cos_lat > 0.f ? dome_distribution_.Pdf(uv) / (2.f * kPi * kPi * cos_lat) : 0.f;
+    uint32_t x = std::min(dome_w_ - 1, uint32_t(std::max(0.f, uv.x) * float(dome_w_)));
+    uint32_t y = std::min(dome_h_ - 1, uint32_t(std::max(0.f, uv.y) * float(dome_h_)));
+    const float* t = &dome_rgb_[3 * (size_t(y) * dome_w_ + x)];
+    return dome_radiance_ * Color(t[0], t[1], t[2]);
+}
+
+Vec3 Scene::SampleDome(Vec2 u, float* pdf, Color* L) const {
+    if (!DomeTextured()) {
+        float z = 1.f - 2.f * u.x, r = std::sqrt(std::max(0.f, 1.f - z * z)), phi = 2.f * kPi * u.y;
+        *pdf = 1.f / (4.f * kPi);
+        *L = dome_radiance_;
+        return Vec3(r * std::cos(phi), r * std::sin(phi), z);
+    }
+    float pdf_uv;
+    const Vec2 uv = dome_distribution_.Sample(u, &pdf_uv);
+    const float lon = kPi * (1.f - 2.f * uv.x), lat = kPi * (0.5f - uv.y);
+    const float cos_lat = std::cos(lat);
+    const Vec3 l(cos_lat * std::sin(lon), std::sin(lat), cos_lat * std::cos(lon));
+    const float* m = dome_m_;  // world = M^T l (M is a rotation)
+    const Vec3 w = Normalize(Vec3(m[0] * l.x + m[3] * l.y + m[6] * l.z, m[1] * l.x + m[4] * l.y + m[7] * l.z,
+                                  m[2] * l.x + m[5] * l.y + m[8] * l.z));
+    *pdf = cos_lat > 0.f ? pdf_uv / (2.f * kPi * kPi * cos_lat) : 0.f;
+    // The radiance of the texel the direction falls in (as DomeRadiance looks it up).
+    float unused;
+    *L = DomeRadiance(w, &unused);
+    return w;
+}
+
+Color Scene::EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const {
+    if (e.kind == LightKind::kDome) return DomeRadiance(dir, pdf);
     const DistantLight& d = distants_[e.index];
     // Inside the cone: 1 - cos(angle to the axis) <= 1 - cos(half angle).
     if (1.f - Dot(dir, -d.direction) <= e.one_minus_cos) {

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "bsdf.h"
+#include "distribution_2d.h"
 #include "light_sampler.h"
 #include "math.h"
 
@@ -55,7 +56,13 @@ struct SceneDesc {
     std::vector<SphereLight> sphere_lights;
     std::vector<PointLight> point_lights;
     std::vector<DistantLight> distant_lights;
-    Color dome_radiance;  // constant environment radiance; black = no dome
+    Color dome_radiance;  // constant environment radiance (the scale of a texture); black = no dome
+    // Optional lat-long texture (OpenEXR convention, +Y pole in the dome's own space):
+    // radiance = dome_radiance * texel. world_to_light is row-major (the dome's rotation,
+    // poleAxis included).
+    uint32_t dome_width = 0, dome_height = 0;
+    std::vector<float> dome_rgb;  // dome_height rows of dome_width RGB texels
+    float dome_world_to_light[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
 };
 
 struct SurfaceHit {
@@ -173,6 +180,15 @@ private:
     std::vector<PointLight> points_;
     std::vector<DistantLight> distants_;
     Color dome_radiance_;
+    // Textured dome: texels, the rotation into its lat-long frame, and a sampling
+    // distribution proportional to luminance * sin(theta) over (u, v).
+    uint32_t dome_w_ = 0, dome_h_ = 0;
+    std::vector<float> dome_rgb_;
+    float dome_m_[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+    Distribution2D dome_distribution_;
+    bool DomeTextured() const { return dome_w_ > 0; }
+    Color DomeRadiance(Vec3 w, float* pdf) const;          // w toward the dome
+    Vec3 SampleDome(Vec2 u, float* pdf, Color* L) const;   // returns w toward the dome
     Vec3 scene_center_;
     float scene_radius_ = 1.f;  // bounding sphere: the power of lights at infinity
     std::vector<Emitter> emitters_;

@@ -25,6 +25,7 @@ using InArray = nb::ndarray<const T, nb::shape<-1, C>, nb::c_contig, nb::device:
 template <typename T>
 using InVector = nb::ndarray<const T, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
 
+using DomeImage = nb::ndarray<const float, nb::shape<-1, -1, 3>, nb::c_contig, nb::device::cpu>;
 using SplatArray = nb::ndarray<int64_t, nb::shape<-1, -1, 3>, nb::c_contig, nb::device::cpu>;
 
 Vec3 ToVec3(const std::array<float, 3>& a) { return {a[0], a[1], a[2]}; }
@@ -55,7 +56,8 @@ SceneDesc MakeDesc(InArray<float, 3> positions, InArray<uint32_t, 3> indices, In
                    InArray<float, 3> albedo, InArray<float, 3> emission, InVector<bool> two_sided_emission,
                    InArray<float, 7> sphere_lights, InArray<float, 6> point_lights, InArray<float, 7> distant_lights,
                    std::array<float, 3> dome_radiance, std::optional<InArray<float, 14>> preview_params,
-                   std::optional<InVector<bool>> preview_mask) {
+                   std::optional<InVector<bool>> preview_mask, std::optional<DomeImage> dome_texture,
+                   std::optional<InArray<float, 3>> dome_world_to_light) {
     SceneDesc d;
     d.positions.assign(positions.data(), positions.data() + positions.size());
     d.indices.assign(indices.data(), indices.data() + indices.size());
@@ -78,6 +80,15 @@ SceneDesc MakeDesc(InArray<float, 3> positions, InArray<uint32_t, 3> indices, In
                                     distant_lights(i, 3),
                                     Vec3(distant_lights(i, 4), distant_lights(i, 5), distant_lights(i, 6))});
     d.dome_radiance = ToVec3(dome_radiance);
+    if (dome_texture) {
+        d.dome_height = uint32_t(dome_texture->shape(0));
+        d.dome_width = uint32_t(dome_texture->shape(1));
+        d.dome_rgb.assign(dome_texture->data(), dome_texture->data() + dome_texture->size());
+    }
+    if (dome_world_to_light) {
+        if (dome_world_to_light->shape(0) != 3) throw std::invalid_argument("dome_world_to_light must be 3x3");
+        for (int i = 0; i < 9; ++i) d.dome_world_to_light[i] = dome_world_to_light->data()[i];
+    }
     if (preview_params && preview_mask) {
         if (preview_params->shape(0) != n_mat || preview_mask->shape(0) != n_mat)
             throw std::invalid_argument("preview_params and preview_mask need one row per material");
@@ -115,22 +126,25 @@ NB_MODULE(_core, m) {
                InVector<uint32_t> triangle_material, InArray<float, 3> albedo, InArray<float, 3> emission,
                InVector<bool> two_sided_emission, InArray<float, 7> sphere_lights, InArray<float, 6> point_lights,
                InArray<float, 7> distant_lights, std::array<float, 3> dome_radiance,
-               std::optional<InArray<float, 14>> preview_params, std::optional<InVector<bool>> preview_mask) {
+               std::optional<InArray<float, 14>> preview_params, std::optional<InVector<bool>> preview_mask,
+               std::optional<DomeImage> dome_texture, std::optional<InArray<float, 3>> dome_world_to_light) {
                 SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
                                           sphere_lights, point_lights, distant_lights, dome_radiance, preview_params,
-                                          preview_mask);
+                                          preview_mask, dome_texture, dome_world_to_light);
                 nb::gil_scoped_release release;
                 new (self) Scene(desc);
             },
             "positions"_a, "indices"_a, "triangle_material"_a, "albedo"_a, "emission"_a, "two_sided_emission"_a,
             "sphere_lights"_a, "point_lights"_a, "distant_lights"_a, "dome_radiance"_a,
-            "preview_params"_a = nb::none(), "preview_mask"_a = nb::none(),
+            "preview_params"_a = nb::none(), "preview_mask"_a = nb::none(), "dome_texture"_a = nb::none(),
+            "dome_world_to_light"_a = nb::none(),
             "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
             "(x, y, z, r, g, b intensity W/sr); distant_lights (dx, dy, dz travel direction, half angle in "
             "radians, r, g, b radiance, or irradiance when the half angle is 0); dome_radiance (r, g, b); "
             "preview_params (specular rgb, metallic, roughness, ior, clearcoat, clearcoat_roughness, opacity, "
             "opacity_threshold, use_specular_workflow, 3 unused) for the materials where preview_mask is set: "
-            "those are UsdPreviewSurfaces, the others pure Lambertian.")
+            "those are UsdPreviewSurfaces, the others pure Lambertian. dome_texture: float32 (h, w, 3) lat-long "
+            "(OpenEXR convention) multiplied by dome_radiance; dome_world_to_light: its 3x3 rotation.")
         .def_prop_ro("num_triangles", &Scene::num_triangles)
         .def_prop_ro("num_emitters", &Scene::num_emitters);
 

@@ -39,7 +39,8 @@ class Scene:
                                      _rows(point, 6), _rows(distant, 7),
                                      tuple(float(x) for x in dome["radiance"]) if dome else (0.0, 0.0, 0.0),
                                      *_preview_table(getattr(data, "material_params", None),
-                                                     len(data.albedo.reshape(-1, 3))))
+                                                     len(data.albedo.reshape(-1, 3))),
+                                     *_dome_texture(dome))
         except ValueError as exc:
             raise SceneError(f"invalid scene: {exc}") from None
 
@@ -66,7 +67,9 @@ class Scene:
     def camera(self, width: int, height: int) -> "_core.Camera":
         c = self.data.camera
         tan_w, tan_h = c.tan_half_angles(width, height)
-        return _core.Camera(c.origin, c.right, c.up, c.forward, tan_w, tan_h, width, height)
+        return _core.Camera(c.origin, c.right, c.up, c.forward, tan_w, tan_h, width, height,
+                            lens_radius=c.lens_radius, focal_distance=c.focus_distance, near=c.clip_near,
+                            far=c.clip_far)
 
     def render_tile(self, x0: int, y0: int, w: int, h: int, *, width: int | None = None,
                     height: int | None = None, spp: int = 64, seed: int = 0, max_depth: int = 64,
@@ -103,15 +106,35 @@ _PREVIEW_COLUMNS = ("metallic", "roughness", "ior", "clearcoat", "clearcoat_roug
 
 
 def _preview_table(params: dict | None, rows: int):
-    """(params (M, 14), mask (M,)) for materials that are UsdPreviewSurfaces, marked by
-    params["preview"]; without that key every material is Lambertian."""
-    if not params or "preview" not in params or rows == 0:
+    """(params (M, 14), mask (M,)) for materials that are UsdPreviewSurfaces (marked by
+    params["preview_surface"]); other rows (displayColor, no material) are Lambertian."""
+    if not params or "preview_surface" not in params or rows == 0:
         return None, None
     table = np.zeros((rows, 14), dtype=np.float32)
     table[:, 0:3] = np.asarray(params["specular_color"], np.float32).reshape(rows, 3)
     for k, name in enumerate(_PREVIEW_COLUMNS):
         table[:, 3 + k] = np.asarray(params[name], np.float32).reshape(rows)
-    return table, np.asarray(params["preview"], bool).reshape(rows)
+    return table, np.asarray(params["preview_surface"], bool).reshape(rows)
+
+
+def _dome_texture(dome: dict | None):
+    """(texels float32 (h, w, 3), world_to_light (3, 3)) of a textured dome, else (None, None).
+    The path was checked by the sandbox when the scene was translated."""
+    if not dome or not dome.get("texture"):
+        return None, None
+    import OpenImageIO as oiio
+
+    buf = oiio.ImageBuf(str(dome["texture"]))
+    if buf.has_error:
+        raise SceneError(f"dome texture {dome['texture']}: {buf.geterror()}")
+    pixels = np.asarray(buf.get_pixels(oiio.FLOAT), dtype=np.float32)
+    if pixels.ndim == 2:
+        pixels = pixels[:, :, None]
+    if pixels.shape[2] < 3:  # grey: replicate
+        pixels = np.repeat(pixels[:, :, :1], 3, axis=2)
+    rgb = np.ascontiguousarray(np.nan_to_num(pixels[:, :, :3], nan=0.0, posinf=0.0, neginf=0.0).clip(min=0.0))
+    rotation = np.ascontiguousarray(np.asarray(dome.get("world_to_light", np.eye(3)), np.float32).reshape(3, 3))
+    return rgb, rotation
 
 
 def _rows(table, columns: int) -> np.ndarray:
@@ -120,12 +143,16 @@ def _rows(table, columns: int) -> np.ndarray:
     return np.ascontiguousarray(table, dtype=np.float32).reshape(-1, columns)
 
 
-def load_scene(path: str | Path, frame: float | None = None) -> Scene:
-    """Reads a .usda/.usdc/.usdz file and builds it. Raises SceneError for bad input."""
+def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path | None = None,
+               instancing: str = "flatten", default_light: bool = False) -> Scene:
+    """Reads a bundle (.usda/.usdc/.usd, .usdz or .zip) through the sandbox and builds it.
+    For a loose layer, `root` (default: its directory) is the bundle every asset must stay
+    in. Raises SceneError for bad input."""
     path = Path(path)
     if not path.is_file():
         raise SceneError(f"scene file not found: {path}")
-    data = translate_stage(str(path), frame)
+    data = translate_stage(str(path), frame, root=None if root is None else str(root),
+                           instancing=instancing, default_light=default_light)
     for w in data.warnings:
         log.warning("%s: %s", path.name, w)
     return Scene(data)

@@ -1,0 +1,418 @@
+"""The job's bundle is a sandbox: every asset a scene names must resolve inside it.
+
+A bundle is one of
+- a loose .usda/.usdc/.usd file: the bundle is the directory holding it (or `root`),
+- a .usdz package or a .zip archive: unpacked into a fresh private directory first.
+
+`open_bundle` unpacks (with a zip-bomb guard) and pre-flights every dependency with
+`UsdUtils.ComputeAllDependencies`, whose processing callback sees each authored asset path
+*before* the layer it names is opened: a path that is a URI, absolute, escapes the bundle
+(`..`, or a symlink on disk), or needs a search-path lookup is dropped there and reported,
+so no file outside the bundle is ever opened. `open_stage` then opens the stage with
+resolver search paths cleared and checks again that every layer the stage used lies
+inside; `Bundle.resolve_texture` does the same for each texture the translator reads.
+
+Every rejection is a SceneError whose message names the offending path.
+"""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import stat
+import tempfile
+import weakref
+import zipfile
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+
+from .usd_scene import SceneError
+
+USD_SUFFIXES = (".usda", ".usdc", ".usd", ".usdz")
+BUNDLE_SUFFIXES = USD_SUFFIXES + (".zip",)
+_URI = re.compile(r"^[A-Za-z][A-Za-z0-9+.\-]*:")   # also catches Windows drives (C:)
+_LAYER_EXTENSIONS = {".usda", ".usdc", ".usd", ".usdz", ".sdf"}
+
+
+def _env_int(name: str, default: int) -> int:
+    try:
+        return int(os.environ.get(name, default))
+    except ValueError:
+        return default
+
+
+@dataclass(frozen=True)
+class Limits:
+    """What one job may contain. Environment variables TESSERA_MAX_* override the defaults."""
+
+    unpacked_bytes: int = _env_int("TESSERA_MAX_UNPACKED_BYTES", 2 << 30)
+    files: int = _env_int("TESSERA_MAX_FILES", 20_000)
+    prims: int = _env_int("TESSERA_MAX_PRIMS", 2_000_000)
+    triangles: int = _env_int("TESSERA_MAX_TRIANGLES", 60_000_000)
+    texture_pixels: int = _env_int("TESSERA_MAX_TEXTURE_PIXELS", 16384 * 16384)
+    # compressed -> uncompressed ratio above which one zip member is called a bomb
+    compression_ratio: int = _env_int("TESSERA_MAX_COMPRESSION_RATIO", 200)
+
+
+DEFAULT_LIMITS = Limits()
+
+
+@dataclass
+class Bundle:
+    """An opened, pre-flighted bundle. `root` is the directory containment is checked
+    against; `root_layer` the layer to open. Holds the unpack directory alive."""
+
+    root: Path
+    root_layer: Path
+    limits: Limits = DEFAULT_LIMITS
+    warnings: list[str] = field(default_factory=list)
+    _tmp: str | None = None
+
+    def __post_init__(self) -> None:
+        if self._tmp:
+            # The unpacked files must outlive the Python object only as long as the Scene
+            # that points at its textures; the finalizer removes them after that.
+            self._finalizer = weakref.finalize(self, shutil.rmtree, self._tmp, True)
+
+    def cleanup(self) -> None:
+        if self._tmp:
+            self._finalizer()
+
+    # -- containment ---------------------------------------------------------------
+    def check_asset(self, authored: str, anchor_dir: str, *, what: str) -> Path:
+        """The absolute path inside the bundle that `authored` (as written in a layer whose
+        directory is `anchor_dir`) names; SceneError if it would leave the bundle."""
+        return _contained(authored, anchor_dir, self.root, what)
+
+    def resolve_texture(self, asset, layer_dir: str | None, where: str) -> Path | None:
+        """The texture file an Sdf.AssetPath names, checked for containment; None (the
+        caller warns) when it does not exist."""
+        authored = asset.path if hasattr(asset, "path") else str(asset)
+        if not authored:
+            return None
+        resolved = getattr(asset, "resolvedPath", "") or ""
+        if resolved and "[" not in resolved:
+            path = _contained(resolved, str(self.root), self.root, f"texture of {where}")
+        else:
+            path = _contained(authored, layer_dir or str(self.root), self.root, f"texture of {where}")
+        probe = Path(str(path).replace("<UDIM>", "1001"))
+        if "<UDIM>" in str(path):
+            tiles = list(path.parent.glob(path.name.replace("<UDIM>", "1[0-9][0-9][0-9]")))
+            for tile in tiles:  # every tile, not just the first, may be a symlink
+                _contained(str(tile), str(self.root), self.root, f"texture of {where}")
+            return path if tiles else None
+        return path if probe.is_file() else None
+
+
+def _contained(path: str, anchor_dir: str, root: Path, what: str) -> Path:
+    """`path` anchored at `anchor_dir` (an absolute `path` is taken as it is: callers pass
+    resolved paths here, authored absolute paths are refused before), if it lies inside
+    `root` both as written and after following symlinks."""
+    if "\x00" in path:
+        raise SceneError(f"{what}: asset path {path!r} contains a NUL byte")
+    if _URI.match(path):
+        raise SceneError(f"{what}: asset path {path!r} is a URI; only files inside the bundle are allowed")
+    if os.path.isabs(path):
+        candidate = os.path.normpath(path)
+    else:
+        candidate = os.path.normpath(os.path.join(anchor_dir, path.replace("\\", "/")))
+    root_s = os.path.normpath(str(root))
+    if os.path.commonpath([candidate, root_s]) != root_s:
+        raise SceneError(f"{what}: asset path {path!r} resolves outside the bundle")
+    # A symlink on disk may point anywhere: compare real paths as well.
+    real = os.path.realpath(candidate.replace("<UDIM>", "1001"))
+    real_root = os.path.realpath(root_s)
+    if os.path.exists(real) and os.path.commonpath([real, real_root]) != real_root:
+        raise SceneError(f"{what}: asset path {path!r} is a symlink leading outside the bundle")
+    return Path(candidate)
+
+
+# -- unpacking ----------------------------------------------------------------------
+def _check_member(info: zipfile.ZipInfo, archive: str) -> str | None:
+    """The member's safe relative name, None for a directory; SceneError otherwise."""
+    name = info.filename
+    if "\x00" in name or "\\" in name:
+        raise SceneError(f"{archive}: member {name!r} has an invalid name")
+    if name.startswith("/") or _URI.match(name):
+        raise SceneError(f"{archive}: member {name!r} has an absolute name")
+    parts = PurePosixPath(name).parts
+    if ".." in parts:
+        raise SceneError(f"{archive}: member {name!r} escapes the archive with '..'")
+    mode = info.external_attr >> 16
+    if info.create_system == 3 and mode:  # made on Unix: the high bits are st_mode
+        if stat.S_ISLNK(mode):
+            raise SceneError(f"{archive}: member {name!r} is a symlink; symlinks are not allowed")
+        if stat.S_IFMT(mode) not in (0, stat.S_IFREG, stat.S_IFDIR):  # 0: permissions only
+            raise SceneError(f"{archive}: member {name!r} is not a regular file")
+    if info.flag_bits & 0x1:
+        raise SceneError(f"{archive}: member {name!r} is encrypted")
+    if name.endswith("/"):
+        return None
+    return "/".join(p for p in parts if p not in ("", "."))
+
+
+def unpack_archive(archive: Path, dest: Path, limits: Limits = DEFAULT_LIMITS) -> list[str]:
+    """Unpacks a .zip or .usdz into `dest` (which must be empty), refusing absolute names,
+    `..`, symlinks, duplicate names and anything over the limits. Returns the member names
+    in archive order. Sizes are checked as declared and again as actually inflated."""
+    label = archive.name
+    try:
+        zf = zipfile.ZipFile(archive)
+    except (zipfile.BadZipFile, OSError, ValueError) as exc:
+        raise SceneError(f"{label}: not a readable zip archive ({exc})") from None
+    with zf:
+        infos = zf.infolist()
+        if len(infos) > limits.files:
+            raise SceneError(f"{label}: {len(infos)} members, more than the limit of {limits.files} files")
+        names: list[str] = []
+        seen: set[str] = set()
+        declared = 0
+        for info in infos:
+            rel = _check_member(info, label)
+            if rel is None:
+                continue
+            if rel.lower() in seen:
+                raise SceneError(f"{label}: member {rel!r} appears twice")
+            seen.add(rel.lower())
+            declared += info.file_size
+            if declared > limits.unpacked_bytes:
+                raise SceneError(f"{label}: unpacks to more than {limits.unpacked_bytes} bytes "
+                                 f"(at member {rel!r})")
+            if info.compress_size and info.file_size > limits.compression_ratio * max(info.compress_size, 1024):
+                raise SceneError(f"{label}: member {rel!r} inflates {info.file_size // info.compress_size}x "
+                                 f"(zip bomb guard)")
+            names.append(rel)
+        total = 0
+        for info, rel in zip([i for i in infos if not i.filename.endswith("/")], names):
+            target = dest.joinpath(*rel.split("/"))
+            target.parent.mkdir(parents=True, exist_ok=True)
+            written = 0
+            try:
+                fd = os.open(target, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
+                with zf.open(info) as src, os.fdopen(fd, "wb") as out:
+                    while chunk := src.read(1 << 20):
+                        written += len(chunk)
+                        total += len(chunk)
+                        # The declared size can lie; the inflated bytes cannot.
+                        if written > info.file_size or total > limits.unpacked_bytes:
+                            raise SceneError(f"{label}: member {rel!r} inflates past its declared size "
+                                             f"or the limit of {limits.unpacked_bytes} bytes (zip bomb guard)")
+                        out.write(chunk)
+            except (zipfile.BadZipFile, zlib.error, OSError, EOFError, NotImplementedError) as exc:
+                raise SceneError(f"{label}: member {rel!r} cannot be unpacked ({exc})") from None
+    return names
+
+
+def _pick_root_layer(names: list[str], label: str, package: bool) -> str:
+    """The root layer: the first member for a .usdz (the package rule); for a .zip the only
+    USD file at the top level, else the first member when it is a USD file."""
+    usd = [n for n in names if PurePosixPath(n).suffix.lower() in USD_SUFFIXES]
+    if not usd:
+        raise SceneError(f"{label}: no USD layer inside ({', '.join(names[:5]) or 'empty archive'})")
+    if package:
+        if PurePosixPath(names[0]).suffix.lower() not in (".usda", ".usdc", ".usd"):
+            raise SceneError(f"{label}: the first member {names[0]!r} of a usdz must be a USD layer")
+        return names[0]
+    top = [n for n in usd if "/" not in n]
+    if len(top) == 1:
+        return top[0]
+    if names and names[0] in usd:
+        return names[0]
+    raise SceneError(f"{label}: cannot tell the root layer among {', '.join(top or usd)}; "
+                     f"put it first in the archive or make it the only USD file at the top level")
+
+
+def open_bundle(path: str | Path, *, root: str | Path | None = None,
+                limits: Limits = DEFAULT_LIMITS) -> Bundle:
+    """Unpacks (if needed) and pre-flights a bundle. Raises SceneError naming the offending
+    file or asset path. For a loose layer, `root` (default: its directory) is the sandbox."""
+    path = Path(path).absolute()
+    if not path.is_file():
+        raise SceneError(f"scene file not found: {path}")
+    suffix = path.suffix.lower()
+    if suffix not in BUNDLE_SUFFIXES:
+        raise SceneError(f"{path.name}: unsupported file type {suffix or '(none)'}; "
+                         f"use {', '.join(BUNDLE_SUFFIXES)}")
+    if path.stat().st_size == 0:
+        raise SceneError(f"{path.name}: the file is empty")
+    if suffix in (".zip", ".usdz"):
+        tmp = tempfile.mkdtemp(prefix="tessera-bundle-")
+        try:
+            names = unpack_archive(path, Path(tmp), limits)
+            rel = _pick_root_layer(names, path.name, suffix == ".usdz")
+            bundle = Bundle(Path(os.path.realpath(tmp)), Path(os.path.realpath(tmp), rel), limits, _tmp=tmp)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+    else:
+        base = Path(os.path.realpath(root if root is not None else path.parent))
+        real = Path(os.path.realpath(path))
+        if os.path.commonpath([str(real), str(base)]) != str(base):
+            raise SceneError(f"{path.name}: the root layer is outside its bundle {base}")
+        bundle = Bundle(base, real, limits)
+    try:
+        preflight(bundle)
+    except BaseException:
+        bundle.cleanup()
+        raise
+    return bundle
+
+
+def preflight(bundle: Bundle) -> None:
+    """Walks every layer and asset path the root layer depends on (all variants, payloads,
+    clips, textures) and rejects anything that leaves the bundle.
+
+    The walk is our own breadth-first search: a layer is opened (Sdf.Layer.FindOrOpen)
+    only after its path passed the checks, and `UsdUtils.ModifyAssetPaths` with an
+    identity function lists a layer's asset paths without opening anything.
+    (UsdUtils.ComputeAllDependencies opens sublayers before its processing callback sees
+    them, so it cannot be the gate.)"""
+    from pxr import Sdf, Tf, UsdUtils
+
+    _clear_search_paths()
+    problems: list[str] = []
+    missing: list[str] = []
+    seen: set[str] = set()
+    queue = [str(bundle.root_layer)]
+    seen.add(queue[0])
+    while queue:
+        identifier = queue.pop(0)
+        where = _rel(identifier, bundle.root)
+        try:
+            layer = Sdf.Layer.FindOrOpen(identifier)
+        except Tf.ErrorException as exc:
+            problems.append(f"cannot read USD file {where}: {_first_line(str(exc))}")
+            continue
+        if layer is None:
+            problems.append(f"cannot read USD file {where}")
+            continue
+        authored_paths: list[str] = []
+        UsdUtils.ModifyAssetPaths(layer, lambda p: (authored_paths.append(p), p)[1])
+        for authored in dict.fromkeys(authored_paths):
+            try:
+                target = _check_dependency(bundle, layer, authored, where)
+            except SceneError as exc:
+                problems.append(str(exc))
+                continue
+            if target is None:
+                continue
+            outer = target.split("[", 1)[0]
+            is_layer = os.path.splitext(target.rstrip("]"))[1].lower() in _LAYER_EXTENSIONS
+            probe = outer.replace("<UDIM>", "1001")
+            if "<UDIM>" in outer:
+                continue  # texture tiles: checked for containment, read by the translator
+            if not os.path.exists(probe):
+                if is_layer:
+                    problems.append(f"{where}: layer {authored!r} is not in the bundle"
+                                    + ("" if authored.startswith(("./", "../")) else
+                                       " (search-path lookups are not allowed)"))
+                else:
+                    missing.append(f"{authored} (in {where})")
+                continue
+            if is_layer:
+                if "[" not in target and os.path.getsize(outer) == 0:
+                    problems.append(f"{where}: layer {authored!r} is an empty file")
+                    continue
+                if target not in seen:
+                    seen.add(target)
+                    if len(seen) > bundle.limits.files:
+                        raise SceneError(f"the bundle references more than {bundle.limits.files} layers (limit)")
+                    queue.append(target)
+    if missing:
+        unique_missing = list(dict.fromkeys(missing))
+        bundle.warnings.append(f"{len(unique_missing)} asset(s) missing from the bundle, rendered without "
+                               f"them: {', '.join(unique_missing[:4])}" + (" ..." if len(unique_missing) > 4 else ""))
+    if problems:
+        unique = list(dict.fromkeys(problems))
+        raise SceneError("; ".join(unique[:5]) + (f" (and {len(unique) - 5} more)" if len(unique) > 5 else ""))
+
+
+def _check_dependency(bundle: Bundle, layer, authored: str, where: str) -> str | None:
+    """The identifier an asset path of `layer` names, if it stays inside the bundle."""
+    from pxr import Sdf
+
+    if not authored:
+        return None
+    if "\x00" in authored:
+        raise SceneError(f"{where}: asset path {authored!r} contains a NUL byte")
+    if _URI.match(authored):
+        raise SceneError(f"{where}: asset path {authored!r} is a URI; only files inside the bundle are allowed")
+    if authored.startswith(("/", "\\")) or os.path.isabs(authored):
+        raise SceneError(f"{where}: asset path {authored!r} is absolute; only relative paths inside "
+                         f"the bundle are allowed")
+    real = layer.realPath or layer.identifier
+    if "[" in authored:
+        # A package-relative path (pkg.usdz[inner]): the package must be inside the bundle
+        # and the inner path must stay inside the package.
+        outer, _, inner = authored.partition("[")
+        inner_norm = os.path.normpath(inner.rstrip("]").replace("\\", "/"))
+        if not authored.endswith("]") or inner_norm.startswith("..") or os.path.isabs(inner_norm) \
+                or "[" in inner:
+            raise SceneError(f"{where}: asset path {authored!r} is not a valid path inside a package")
+        anchor = os.path.dirname(real.split("[", 1)[0])
+        package = bundle.check_asset(outer, anchor, what=where)
+        return f"{package}[{inner_norm}]"
+    if "[" in real:
+        # Inside a nested package: anchored within it, and must not climb out of it.
+        anchored = Sdf.ComputeAssetPathRelativeToLayer(layer, authored)
+        outer, _, inner = anchored.partition("[")
+        inner_norm = os.path.normpath(inner.rstrip("]").replace("\\", "/"))
+        if inner_norm.startswith("..") or os.path.isabs(inner_norm) or not anchored.endswith("]"):
+            raise SceneError(f"{where}: asset path {authored!r} resolves outside its package")
+        bundle.check_asset(outer, str(bundle.root), what=where)
+        return anchored
+    return str(bundle.check_asset(authored, os.path.dirname(real), what=where))
+
+
+def open_stage(bundle: Bundle):
+    """Opens the pre-flighted root layer with search paths cleared, then checks that every
+    layer the composed stage used lies inside the bundle."""
+    from pxr import Ar, Tf, Usd
+
+    _clear_search_paths()
+    try:
+        stage = Usd.Stage.Open(str(bundle.root_layer), Ar.DefaultResolverContext([]), Usd.Stage.LoadAll)
+    except Tf.ErrorException as exc:
+        raise SceneError(f"cannot read USD file {bundle.root_layer.name}: {_first_line(str(exc))}") from None
+    if stage is None:
+        raise SceneError(f"cannot read USD file {bundle.root_layer.name}")
+    root = os.path.realpath(str(bundle.root))
+    for layer in stage.GetUsedLayers():
+        if layer.anonymous:
+            continue
+        real = os.path.realpath((layer.realPath or layer.identifier).split("[", 1)[0])
+        if os.path.commonpath([real, root]) != root:
+            raise SceneError(f"layer {layer.identifier} lies outside the bundle")
+    for err in stage.GetCompositionErrors():
+        text = str(err.GetMessage()) if hasattr(err, "GetMessage") else str(err)
+        if "cycle" in text.lower():
+            raise SceneError(f"composition cycle: {_first_line(text)}")
+        bundle.warnings.append(f"composition: {_first_line(text)}")
+    return stage
+
+
+_search_cleared = False
+
+
+def _clear_search_paths() -> None:
+    # The default resolver's search paths come from PXR_AR_DEFAULT_SEARCH_PATH; a bundle
+    # must never be able to reach them.
+    global _search_cleared
+    if not _search_cleared:
+        from pxr import Ar
+        Ar.DefaultResolver.SetDefaultSearchPath([])
+        _search_cleared = True
+
+
+def _rel(path: str, root: Path) -> str:
+    try:
+        return str(Path(path.split("[", 1)[0]).relative_to(root)) + (
+            "[" + path.split("[", 1)[1] if "[" in path else "")
+    except ValueError:
+        return path
+
+
+def _first_line(text: str) -> str:
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    return "; ".join(lines[:3])[:500] if lines else "unknown error"

@@ -1,0 +1,236 @@
+"""Translate once: a translated scene as one versioned binary blob.
+
+    blob = translate_to_blob("bundle.zip")        # sandbox + USD -> bytes (once per scene)
+    scene = scene_from_blob(blob)                 # bytes -> Scene, no USD involved
+
+Layout (little-endian):
+
+    8 bytes   magic b"TSSCENE\\0"
+    4 bytes   uint32 format version (BLOB_VERSION)
+    4 bytes   uint32 header length H
+    H bytes   JSON header: scene metadata, array table {name: dtype, shape, offset},
+              embedded file table {name: offset, size}
+    ...       padding to 64 bytes, then every array's raw bytes (each 64-byte aligned),
+              then the bytes of every texture file the scene uses
+
+Arrays come back as zero-copy views of the blob. Texture files travel inside the blob
+(a worker that fetches it may not have the bundle) and are written to a private
+directory that lives as long as the Scene. Cache keys should include BLOB_VERSION and
+TRANSLATOR_VERSION so an upgrade never reads an old blob as new.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import json
+import os
+import shutil
+import struct
+import tempfile
+import weakref
+from pathlib import Path
+
+import numpy as np
+
+from .usd_scene import CameraDesc, SceneData, SceneError
+
+MAGIC = b"TSSCENE\0"
+BLOB_VERSION = 1
+# Bumped whenever translation output changes for the same input.
+TRANSLATOR_VERSION = 2  # 2: camera lens and clipping range
+_ALIGN = 64
+_PROTO_FIELDS = ("positions", "indices", "triangle_material", "shading_normals", "uvs")
+
+
+def cache_key(scene_hash: str) -> str:
+    """The key a translated scene is stored under, for a bundle's content hash."""
+    return f"tessera:blob:v{BLOB_VERSION}.{TRANSLATOR_VERSION}:{scene_hash}"
+
+
+def translate_to_blob(path: str | Path, frame: float | None = None, *, root: str | Path | None = None,
+                      instancing: str = "flatten", default_light: bool = False) -> bytes:
+    """Sandboxes, pre-flights and translates a bundle; returns the blob. SceneError for
+    bad input."""
+    from .usd_scene import translate_stage
+
+    data = translate_stage(str(path), frame, root=None if root is None else str(root),
+                           instancing=instancing, default_light=default_light)
+    try:
+        return scene_data_to_blob(data)
+    finally:
+        bundle = getattr(data, "_bundle", None)
+        if bundle is not None:
+            bundle.cleanup()
+
+
+def scene_data_to_blob(data: SceneData) -> bytes:
+    arrays: dict[str, np.ndarray] = {
+        "positions": data.positions, "indices": data.indices, "triangle_material": data.triangle_material,
+        "albedo": data.albedo, "emission": data.emission, "two_sided_emission": data.two_sided_emission,
+        "sphere_lights": data.sphere_lights, "distant_lights": data.distant_lights,
+        "point_lights": data.point_lights, "instances": data.instances,
+        "instance_transforms": data.instance_transforms,
+    }
+    for key, value in data.material_params.items():
+        arrays[f"material_params.{key}"] = value
+    if data.shading_normals is not None:
+        arrays["shading_normals"] = data.shading_normals
+    if data.uvs is not None:
+        arrays["uvs"] = data.uvs
+    for i, proto in enumerate(data.prototypes):
+        for f in _PROTO_FIELDS:
+            if proto.get(f) is not None:
+                arrays[f"prototypes.{i}.{f}"] = proto[f]
+
+    # Texture files, each once, named by their index in the blob.
+    files: list[tuple[str, str]] = []   # (blob name, source path)
+    by_source: dict[str, str] = {}
+    textures = []
+    for k, tex in enumerate(data.textures):
+        tex = dict(tex)
+        src = tex["file"]
+        if "<UDIM>" in src:
+            # Tiles of one UDIM set share a directory so the pattern still names them.
+            tiles = _udim_files(src)
+            for s in tiles:
+                files.append((f"u{k}/{os.path.basename(s)}", s))
+            tex["file"] = f"u{k}/{os.path.basename(src)}"
+            tex["udim_files"] = [f"u{k}/{os.path.basename(s)}" for s in tiles]
+        else:
+            if src not in by_source:
+                by_source[src] = f"f{len(by_source)}/{os.path.basename(src)}"
+                files.append((by_source[src], src))
+            tex["file"] = by_source[src]
+        textures.append(tex)
+    dome = dict(data.dome_light) if data.dome_light else None
+    if dome and dome.get("texture"):
+        src = dome["texture"]
+        if src not in by_source:
+            by_source[src] = f"f{len(by_source)}/{os.path.basename(src)}"
+            files.append((by_source[src], src))
+        dome["texture"] = by_source[src]
+
+    c = data.camera
+    meta = {
+        "camera": {k: (v if math.isfinite(v) else None) if isinstance(v, float) else v
+                   for k, v in dataclasses.asdict(c).items()},
+        "resolution": list(data.resolution), "resolution_from_stage": data.resolution_from_stage,
+        "warnings": data.warnings, "textures": textures,
+        "material_textures": [[m, name, t] for (m, name), t in data.material_textures.items()],
+        "dome_light": dome, "meters_per_unit": data.meters_per_unit, "up_axis": data.up_axis,
+        "prototypes": len(data.prototypes), "translator_version": TRANSLATOR_VERSION,
+    }
+    table, offset = {}, 0
+    for name, a in arrays.items():
+        a = np.ascontiguousarray(a)
+        arrays[name] = a
+        table[name] = {"dtype": a.dtype.str, "shape": list(a.shape), "offset": offset}
+        offset = _aligned(offset + a.nbytes)
+    file_table = {}
+    sizes = [os.path.getsize(src) for _, src in files]
+    for (name, _), size in zip(files, sizes):
+        file_table[name] = {"offset": offset, "size": size}
+        offset = _aligned(offset + size)
+    header = json.dumps({"meta": meta, "arrays": table, "files": file_table}, separators=(",", ":")).encode()
+    start = _aligned(16 + len(header))
+    out = bytearray(start + offset)
+    out[:16] = MAGIC + struct.pack("<II", BLOB_VERSION, len(header))
+    out[16:16 + len(header)] = header
+    for name, a in arrays.items():
+        o = start + table[name]["offset"]
+        out[o:o + a.nbytes] = a.tobytes()  # tobytes: also fine for bool arrays
+    for name, src in files:
+        o = start + file_table[name]["offset"]
+        with open(src, "rb") as f:
+            out[o:o + file_table[name]["size"]] = f.read()
+    return bytes(out)
+
+
+def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
+    """SceneData from a blob: arrays are read-only views into `blob`."""
+    buf = memoryview(blob)
+    if len(buf) < 16 or bytes(buf[:8]) != MAGIC:
+        raise SceneError("not a Tessera scene blob")
+    version, hlen = struct.unpack("<II", buf[8:16])
+    if version != BLOB_VERSION:
+        raise SceneError(f"scene blob version {version}, this renderer reads version {BLOB_VERSION}")
+    try:
+        header = json.loads(bytes(buf[16:16 + hlen]))
+    except ValueError:
+        raise SceneError("corrupt scene blob header") from None
+    start = _aligned(16 + hlen)
+    arrays = {}
+    for name, spec in header["arrays"].items():
+        dtype = np.dtype(spec["dtype"])
+        count = int(np.prod(spec["shape"], dtype=np.int64))
+        end = start + spec["offset"] + count * dtype.itemsize
+        if end > len(buf):
+            raise SceneError("truncated scene blob")
+        arrays[name] = np.frombuffer(buf, dtype=dtype, count=count,
+                                     offset=start + spec["offset"]).reshape(spec["shape"])
+    meta = header["meta"]
+    tmp = None
+    rename: dict[str, str] = {}
+    if header["files"]:
+        tmp = tempfile.mkdtemp(prefix="tessera-blob-")
+        for name, spec in header["files"].items():
+            target = Path(tmp, *name.split("/"))
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_bytes(buf[start + spec["offset"]:start + spec["offset"] + spec["size"]])
+            rename[name] = str(target)
+    textures = []
+    for tex in meta["textures"]:
+        tex = dict(tex)
+        if tex.get("udim_files") is not None:
+            tex["udim_files"] = [rename[n] for n in tex["udim_files"]]
+            tex["file"] = os.path.join(tmp, *tex["file"].split("/")) if tmp else tex["file"]
+        else:
+            tex["file"] = rename.get(tex["file"], tex["file"])
+        textures.append(tex)
+    dome = meta["dome_light"]
+    if dome and dome.get("texture"):
+        dome = {**dome, "texture": rename[dome["texture"]]}
+    cam = meta["camera"]
+    prototypes = [{f: arrays.get(f"prototypes.{i}.{f}") for f in _PROTO_FIELDS} for i in range(meta["prototypes"])]
+    data = SceneData(
+        positions=arrays["positions"], indices=arrays["indices"], triangle_material=arrays["triangle_material"],
+        albedo=arrays["albedo"], emission=arrays["emission"], two_sided_emission=arrays["two_sided_emission"],
+        sphere_lights=arrays["sphere_lights"],
+        camera=CameraDesc(**{k: tuple(v) if isinstance(v, list) else (math.inf if v is None else v)
+                             for k, v in cam.items()}),
+        resolution=tuple(meta["resolution"]), resolution_from_stage=meta["resolution_from_stage"],
+        warnings=list(meta["warnings"]),
+        material_params={k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("material_params.")},
+        shading_normals=arrays.get("shading_normals"), uvs=arrays.get("uvs"),
+        textures=textures, material_textures={(m, n): t for m, n, t in meta["material_textures"]},
+        distant_lights=arrays["distant_lights"], point_lights=arrays["point_lights"], dome_light=dome,
+        prototypes=prototypes, instances=arrays["instances"], instance_transforms=arrays["instance_transforms"],
+        meters_per_unit=meta["meters_per_unit"], up_axis=meta["up_axis"])
+    if tmp:
+        data._blob_files = _Dir(tmp)
+    return data
+
+
+def scene_from_blob(blob: bytes | bytearray | memoryview):
+    """The Scene (BVH built) for a blob from translate_to_blob."""
+    from . import Scene
+
+    return Scene(scene_data_from_blob(blob))
+
+
+class _Dir:
+    """Removes a private directory once nothing refers to it."""
+
+    def __init__(self, path: str):
+        self.path = path
+        self._finalizer = weakref.finalize(self, shutil.rmtree, path, True)
+
+
+def _udim_files(pattern: str) -> list[str]:
+    import glob
+    return sorted(glob.glob(pattern.replace("<UDIM>", "1[0-9][0-9][0-9]")))
+
+
+def _aligned(n: int) -> int:
+    return (n + _ALIGN - 1) // _ALIGN * _ALIGN
