@@ -109,3 +109,29 @@ def test_unknown_integrator_is_a_clear_error(cornell_path):
         scene.render_tile(0, 0, 4, 4, width=8, height=8, spp=1, integrator="bdtp")
     with pytest.raises(ValueError, match="splat buffer"):
         scene.render_tile(0, 0, 4, 4, width=8, height=8, spp=1, integrator="light")
+
+
+def test_auto_chooses_bdpt_only_where_caustics_can_form(tmp_path, cornell_path):
+    from pxr import Gf, Sdf, UsdShade
+
+    from usd_fixtures import add_material, add_mesh, new_stage
+
+    assert load_scene(cornell_path).resolve_integrator("auto") == "path"  # rough diffuse walls
+
+    def scene_with(**inputs):
+        path = tmp_path / f"auto_{len(list(tmp_path.iterdir()))}.usda"
+        stage = new_stage(path)
+        mat = add_material(stage, "/M", (0.5, 0.5, 0.5))
+        shader = UsdShade.Shader(stage.GetPrimAtPath("/M/Surface"))
+        for name, value in inputs.items():
+            shader.CreateInput(name, Sdf.ValueTypeNames.Float).Set(value)
+        add_mesh(stage, "/Q", [(0, 0, 0), (1, 0, 0), (1, 1, 0)], [3], [0, 1, 2], mat)
+        stage.GetRootLayer().Save()
+        return load_scene(path)
+
+    assert scene_with(opacity=0.0).resolve_integrator("auto") == "bdpt"           # glass
+    assert scene_with(metallic=1.0, roughness=0.05).resolve_integrator("auto") == "bdpt"  # mirror
+    assert scene_with(metallic=1.0, roughness=0.8).resolve_integrator("auto") == "path"   # brushed
+    assert scene_with(roughness=0.05).resolve_integrator("auto") == "path"        # glossy plastic
+    assert scene_with(opacity=0.2, opacityThreshold=0.5).resolve_integrator("auto") == "path"  # cutout
+    assert scene_with(opacity=0.0).resolve_integrator("whitted") == "whitted"

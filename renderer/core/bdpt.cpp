@@ -21,7 +21,9 @@ struct Vertex {
     bool infinite = false;     // a light at infinity: only its direction matters
     bool delta_light = false;  // a point or delta-distant light: cannot be hit
     int32_t emitter = -1;      // light vertices; surface vertices that emit
+    bool importance = false;   // on a light subpath: BSDFs transport importance
     Vec3 p, ng;                // ng is zero off surfaces (pinhole, points, infinity)
+    Vec3 ns;                   // shading normal (surfaces; = ng on lights)
     Vec3 wo;                   // surfaces: toward the previous vertex of the subpath
     Vec3 dir;                  // lights at infinity: the direction the light travels
     Color beta;                // subpath throughput up to and including this vertex
@@ -68,7 +70,10 @@ public:
     // BSDF value at surface vertex v for light going between `v.wo` and `next`.
     Color F(const Vertex& v, const Vertex& next) const {
         Vec3 wi = DirectionTo(v, next);
-        return v.bsdf.f(v.frame.ToLocal(v.wo), v.frame.ToLocal(wi));
+        Vec3 wo_local = v.frame.ToLocal(v.wo), wi_local = v.frame.ToLocal(wi);
+        if (!SidesAgree(v.wo, wi, v.ng, wo_local, wi_local)) return Color(0.f);
+        Color f = v.bsdf.f(wo_local, wi_local);
+        return v.importance ? f * ImportanceShadingCorrection(v.wo, wi, v.ns, v.ng) : f;
     }
 
     // Density, in the measure of `next`, that `v` (reached from `prev`) samples `next`.
@@ -153,11 +158,13 @@ public:
             v.type = VertexType::kSurface;
             v.p = hit.p;
             v.ng = hit.ng;
+            v.ns = hit.ns;
+            v.importance = mode == TransportMode::Importance;
             v.wo = -ray.d;
             v.hit = hit;
             v.emitter = scene_.EmitterAt(hit);
             v.bsdf = scene_.BSDFAt(hit, mode);
-            v.frame = Frame::FromZ(hit.ng);
+            v.frame = Frame::FromZ(hit.ns);
             v.beta = beta;
             v.pdf_fwd = ConvertDensity(pdf_fwd, prev, v);
             if (++n >= max_vertices) break;
@@ -173,9 +180,11 @@ public:
                 v.delta = true;
                 pdf_fwd = pdf_rev = 0.f;
             }
-            beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf);
-            if (bs->is_transmission) eta_scale *= bs->eta * bs->eta;
             const Vec3 wi = Normalize(v.frame.FromLocal(bs->wi));
+            if (!SidesAgree(v.wo, wi, v.ng, wo_local, bs->wi)) break;
+            beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf);
+            if (v.importance) beta *= ImportanceShadingCorrection(v.wo, wi, v.ns, v.ng);
+            if (bs->is_transmission) eta_scale *= bs->eta * bs->eta;
             prev.pdf_rev = ConvertDensity(pdf_rev, v, prev);
             ray = {OffsetRayOrigin(hit.p, hit.ng, wi), wi};
             // Russian roulette past the third vertex (throughput only: see the header).
@@ -216,6 +225,7 @@ public:
         v.emitter = int32_t(light);
         v.p = es.p;
         v.ng = es.on_surface ? es.n : Vec3(0.f);
+        v.ns = v.ng;
         v.infinite = es.infinite;
         v.delta_light = es.delta_light;
         v.dir = es.wo;
@@ -308,8 +318,7 @@ public:
             *sampled = Vertex{};
             sampled->type = VertexType::kCamera;
             sampled->p = lens;
-            Vec3 wc_local = qs.frame.ToLocal(wc);
-            return qs.beta * qs.bsdf.f(qs.frame.ToLocal(qs.wo), wc_local) * (std::abs(wc_local.z) * importance);
+            return qs.beta * F(qs, *sampled) * (std::abs(Dot(wc, qs.ns)) * importance);
         }
         if (s == 1) {
             const Vertex& pt = camera[t - 1];
@@ -327,10 +336,10 @@ public:
             sampled->delta_light = scene_.IsDeltaLight(light_index);
             sampled->dir = -ls.wi;
             sampled->p = sampled->infinite ? pt.p + ls.wi * (2.f * scene_.scene_radius()) : pt.p + ls.wi * ls.distance;
-            sampled->ng = ls.n;
+            sampled->ng = sampled->ns = ls.n;
             sampled->beta = ls.radiance / (pmf * ls.pdf);
             sampled->pdf_fwd = PdfLightOrigin(*sampled, pt);
-            Color f = F(pt, *sampled) * std::abs(Dot(ls.wi, pt.ng));
+            Color f = F(pt, *sampled) * std::abs(Dot(ls.wi, pt.ns));
             if (IsBlack(f) || IsBlack(sampled->beta)) return Color(0.f);
             if (scene_.Occluded(OffsetRayOrigin(pt.p, pt.ng, ls.wi), ls.wi, ls.distance * (1.f - 1e-4f)))
                 return Color(0.f);
@@ -346,7 +355,9 @@ public:
         Vec3 w = d / dist;  // from qs to pt
         Color L = qs.beta * F(qs, pt) * F(pt, qs) * pt.beta;
         if (IsBlack(L)) return Color(0.f);
-        float g = std::abs(Dot(qs.ng, w)) * std::abs(Dot(pt.ng, w)) / d2;
+        // Cosines at the BSDFs are taken to the shading normals (ng off surfaces is zero,
+        // but both ends here are surfaces).
+        float g = std::abs(Dot(qs.ns, w)) * std::abs(Dot(pt.ns, w)) / d2;
         if (!(g > 0.f)) return Color(0.f);
         if (scene_.Occluded(OffsetRayOrigin(qs.p, qs.ng, w), w, dist * (1.f - 1e-4f))) return Color(0.f);
         return L * g;

@@ -43,8 +43,9 @@ void LightTracer::Trace(const Scene& scene, const Camera& camera, PixelSampler& 
         // pointing back toward the light.
         const BSDF bsdf = scene.BSDFAt(hit, TransportMode::Importance);
         if (bsdf.Flags() == kBSDFUnset) break;
-        const Frame frame = Frame::FromZ(hit.ng);
-        const Vec3 wo_local = frame.ToLocal(-ray.d);
+        const Frame frame = Frame::FromZ(hit.ns);
+        const Vec3 wo = -ray.d;
+        const Vec3 wo_local = frame.ToLocal(wo);
 
         float px, py, importance;
         Vec3 wc;
@@ -52,7 +53,10 @@ void LightTracer::Trace(const Scene& scene, const Camera& camera, PixelSampler& 
         if (bsdf.IsNonSpecular() &&
             ConnectToCamera(scene, camera, hit.p, hit.ng, u_lens, &px, &py, &wc, &importance)) {
             const Vec3 wc_local = frame.ToLocal(wc);
-            Color contribution = beta * bsdf.f(wo_local, wc_local) * (std::abs(wc_local.z) * importance);
+            Color contribution(0.f);
+            if (SidesAgree(wo, wc, hit.ng, wo_local, wc_local))
+                contribution = beta * bsdf.f(wo_local, wc_local) *
+                               (std::abs(wc_local.z) * importance * ImportanceShadingCorrection(wo, wc, hit.ns, hit.ng));
             if (!IsBlack(contribution) && !film.Add(px, py, contribution) && stats) ++stats->rejected_splats;
         }
         if (depth == max_depth_) break;
@@ -61,7 +65,8 @@ void LightTracer::Trace(const Scene& scene, const Camera& camera, PixelSampler& 
         const std::optional<BSDFSample> bs = bsdf.Sample_f(wo_local, uc, sampler.Get2D());
         if (!bs || !(bs->pdf > 0.f) || IsBlack(bs->f)) break;
         const Vec3 wi = Normalize(frame.FromLocal(bs->wi));
-        beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf);
+        if (!SidesAgree(wo, wi, hit.ng, wo_local, bs->wi)) break;
+        beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf * ImportanceShadingCorrection(wo, wi, hit.ns, hit.ng));
         if (bs->is_transmission) eta_scale *= bs->eta * bs->eta;
         ray = {OffsetRayOrigin(hit.p, hit.ng, wi), wi};
         if (depth >= 3) {

@@ -42,8 +42,8 @@ PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler
 
         const BSDF bsdf = scene.BSDFAt(hit, TransportMode::Radiance);
         if (bsdf.Flags() == kBSDFUnset) break;
-        // The frame keeps the wound normal: dielectrics tell inside from outside by it.
-        const Frame frame = Frame::FromZ(hit.ng);
+        // The frame keeps the wound side: dielectrics tell inside from outside by it.
+        const Frame frame = Frame::FromZ(hit.ns);
         const Vec3 wo_local = frame.ToLocal(wo);
 
         // Next event estimation: one light chosen by power, one point on it.
@@ -54,7 +54,9 @@ PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler
             LightSample ls;
             if (scene.SampleEmitter(light, hit.p, u, &ls)) {
                 const Vec3 wi_local = frame.ToLocal(ls.wi);
-                const Color f = bsdf.f(wo_local, wi_local) * std::abs(wi_local.z);
+                const Color f = SidesAgree(wo, ls.wi, hit.ng, wo_local, wi_local)
+                                    ? bsdf.f(wo_local, wi_local) * std::abs(wi_local.z)
+                                    : Color(0.f);
                 const float light_pdf = pmf * ls.pdf;
                 if (!IsBlack(f) && light_pdf > 0.f &&
                     !scene.Occluded(OffsetRayOrigin(hit.p, hit.ng, ls.wi), ls.wi, ls.distance * (1.f - 1e-4f))) {
@@ -70,6 +72,7 @@ PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler
         const std::optional<BSDFSample> bs = bsdf.Sample_f(wo_local, uc, sampler.Get2D());
         if (!bs || !(bs->pdf > 0.f) || IsBlack(bs->f)) break;
         const Vec3 wi = Normalize(frame.FromLocal(bs->wi));
+        if (!SidesAgree(wo, wi, hit.ng, wo_local, bs->wi)) break;
         beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf);
         bsdf_pdf = bs->pdf;
         specular_bounce = bs->is_specular;

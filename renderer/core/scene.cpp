@@ -33,6 +33,7 @@ RTCDevice EmbreeDevice() {
 
 Scene::Scene(const SceneDesc& desc)
     : triangle_material_(desc.triangle_material),
+      shading_normals_(desc.shading_normals),
       materials_(desc.materials),
       spheres_(desc.sphere_lights),
       points_(desc.point_lights),
@@ -45,6 +46,8 @@ Scene::Scene(const SceneDesc& desc)
     if (triangle_material_.size() != num_triangles_)
         throw std::invalid_argument("triangle_material must have one entry per triangle");
     if (num_vertices > 0xFFFFFFFFull) throw std::invalid_argument("too many vertices");
+    if (!shading_normals_.empty() && shading_normals_.size() != 9 * num_triangles_)
+        throw std::invalid_argument("shading_normals must hold 3 normals per triangle");
     for (size_t i = 0; i < desc.positions.size(); ++i)
         if (!std::isfinite(desc.positions[i]))
             throw std::invalid_argument("vertex " + std::to_string(i / 3) + " has a non-finite coordinate");
@@ -273,10 +276,19 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceH
         float u = rh.hit.u, v = rh.hit.v;
         hit->p = p0 * (1.f - u - v) + p1 * u + p2 * v;
         hit->ng = Normalize(Cross(p1 - p0, p2 - p0));
+        hit->ns = hit->ng;
+        if (!shading_normals_.empty()) {
+            const float* n = &shading_normals_[9 * size_t(rh.hit.primID)];
+            Vec3 ns = Vec3(n[0], n[1], n[2]) * (1.f - u - v) + Vec3(n[3], n[4], n[5]) * u + Vec3(n[6], n[7], n[8]) * v;
+            float len = Length(ns);
+            // Degenerate or non-finite authored normals fall back to the facet's.
+            if (len > 1e-6f && std::isfinite(len)) hit->ns = Dot(ns, hit->ng) >= 0.f ? ns / len : -ns / len;
+        }
     } else {
         const SphereLight& s = spheres_[rh.hit.primID];
         Vec3 p = ray.o + ray.d * rh.ray.tfar;
         hit->ng = Normalize(p - s.center);
+        hit->ns = hit->ng;
         hit->p = s.center + hit->ng * s.radius;
     }
     return true;

@@ -52,6 +52,7 @@ struct SceneDesc {
     std::vector<float> positions;            // 3 floats per vertex, world space
     std::vector<uint32_t> indices;           // 3 vertex indices per triangle
     std::vector<uint32_t> triangle_material; // one material index per triangle
+    std::vector<float> shading_normals;      // optional: 9 floats per triangle (3 corner normals)
     std::vector<Material> materials;
     std::vector<SphereLight> sphere_lights;
     std::vector<PointLight> point_lights;
@@ -69,8 +70,22 @@ struct SurfaceHit {
     float t = 0.f;
     Vec3 p;
     Vec3 ng;  // unit geometric normal, as wound (not flipped toward the ray)
+    Vec3 ns;  // unit shading normal (interpolated authored normals, else ng), on ng's side
     uint32_t geom_id = 0, prim_id = 0;
 };
+
+// Shading normals bend the BSDF's frame away from the geometry. Two rules keep that
+// physical (Veach 1997, 5.3): a scattering is allowed only if the shading frame and the
+// geometry agree on whether it is a reflection or a transmission (no light leaks through
+// surfaces), and light transported as importance (light subpaths) is multiplied by
+// |wo.ns| |wi.ng| / (|wo.ng| |wi.ns|) so that the adjoint BSDF stays correct.
+inline bool SidesAgree(Vec3 wo, Vec3 wi, Vec3 ng, Vec3 wo_local, Vec3 wi_local) {
+    return (Dot(wo, ng) * Dot(wi, ng) > 0.f) == (wo_local.z * wi_local.z > 0.f);
+}
+inline float ImportanceShadingCorrection(Vec3 wo, Vec3 wi, Vec3 ns, Vec3 ng) {
+    float denom = std::abs(Dot(wo, ng)) * std::abs(Dot(wi, ns));
+    return denom > 0.f ? std::abs(Dot(wo, ns)) * std::abs(Dot(wi, ng)) / denom : 0.f;
+}
 
 struct LightSample {
     Color radiance;  // arriving at the reference point (for delta lights, already / distance^2)
@@ -173,6 +188,7 @@ private:
     bool IsCutoutHit(const SurfaceHit& hit) const;
 
     std::vector<uint32_t> triangle_material_;
+    std::vector<float> shading_normals_;
     std::vector<uint8_t> material_is_cutout_;
     bool has_cutouts_ = false;
     std::vector<Material> materials_;

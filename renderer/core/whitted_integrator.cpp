@@ -24,7 +24,7 @@ PathSample WhittedIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& samp
 
         const BSDF bsdf = scene.BSDFAt(hit, TransportMode::Radiance);
         if (bsdf.Flags() == kBSDFUnset) break;
-        const Frame frame = Frame::FromZ(hit.ng);
+        const Frame frame = Frame::FromZ(hit.ns);
         const Vec3 wo_local = frame.ToLocal(wo);
 
         // Direct light through the non-delta lobes: light sampling alone (unweighted, as
@@ -35,7 +35,9 @@ PathSample WhittedIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& samp
             LightSample ls;
             if (scene.SampleEmitter(light, hit.p, sampler.Get2D(), &ls) && pmf * ls.pdf > 0.f) {
                 const Vec3 wi_local = frame.ToLocal(ls.wi);
-                const Color f = bsdf.f(wo_local, wi_local) * std::abs(wi_local.z);
+                const Color f = SidesAgree(wo, ls.wi, hit.ng, wo_local, wi_local)
+                                    ? bsdf.f(wo_local, wi_local) * std::abs(wi_local.z)
+                                    : Color(0.f);
                 if (!IsBlack(f) &&
                     !scene.Occluded(OffsetRayOrigin(hit.p, hit.ng, ls.wi), ls.wi, ls.distance * (1.f - 1e-4f)))
                     L += beta * f * ls.radiance / (pmf * ls.pdf);
@@ -49,6 +51,7 @@ PathSample WhittedIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& samp
         const std::optional<BSDFSample> bs = bsdf.Sample_f(wo_local, uc, sampler.Get2D());
         if (!bs || !bs->is_specular || !(bs->pdf > 0.f) || IsBlack(bs->f)) break;
         const Vec3 wi = Normalize(frame.FromLocal(bs->wi));
+        if (!SidesAgree(wo, wi, hit.ng, wo_local, bs->wi)) break;
         beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf);
         ray = {OffsetRayOrigin(hit.p, hit.ng, wi), wi};
         if (depth >= 4) {  // long mirror chains: roulette keeps them finite without bias

@@ -25,6 +25,7 @@ using InArray = nb::ndarray<const T, nb::shape<-1, C>, nb::c_contig, nb::device:
 template <typename T>
 using InVector = nb::ndarray<const T, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
 
+using CornerNormals = nb::ndarray<const float, nb::shape<-1, 3, 3>, nb::c_contig, nb::device::cpu>;
 using DomeImage = nb::ndarray<const float, nb::shape<-1, -1, 3>, nb::c_contig, nb::device::cpu>;
 using SplatArray = nb::ndarray<int64_t, nb::shape<-1, -1, 3>, nb::c_contig, nb::device::cpu>;
 
@@ -57,7 +58,8 @@ SceneDesc MakeDesc(InArray<float, 3> positions, InArray<uint32_t, 3> indices, In
                    InArray<float, 7> sphere_lights, InArray<float, 6> point_lights, InArray<float, 7> distant_lights,
                    std::array<float, 3> dome_radiance, std::optional<InArray<float, 14>> preview_params,
                    std::optional<InVector<bool>> preview_mask, std::optional<DomeImage> dome_texture,
-                   std::optional<InArray<float, 3>> dome_world_to_light) {
+                   std::optional<InArray<float, 3>> dome_world_to_light,
+                   std::optional<CornerNormals> shading_normals) {
     SceneDesc d;
     d.positions.assign(positions.data(), positions.data() + positions.size());
     d.indices.assign(indices.data(), indices.data() + indices.size());
@@ -80,6 +82,11 @@ SceneDesc MakeDesc(InArray<float, 3> positions, InArray<uint32_t, 3> indices, In
                                     distant_lights(i, 3),
                                     Vec3(distant_lights(i, 4), distant_lights(i, 5), distant_lights(i, 6))});
     d.dome_radiance = ToVec3(dome_radiance);
+    if (shading_normals) {
+        if (shading_normals->shape(0) != d.indices.size() / 3)
+            throw std::invalid_argument("shading_normals must have shape (triangles, 3, 3)");
+        d.shading_normals.assign(shading_normals->data(), shading_normals->data() + shading_normals->size());
+    }
     if (dome_texture) {
         d.dome_height = uint32_t(dome_texture->shape(0));
         d.dome_width = uint32_t(dome_texture->shape(1));
@@ -127,24 +134,26 @@ NB_MODULE(_core, m) {
                InVector<bool> two_sided_emission, InArray<float, 7> sphere_lights, InArray<float, 6> point_lights,
                InArray<float, 7> distant_lights, std::array<float, 3> dome_radiance,
                std::optional<InArray<float, 14>> preview_params, std::optional<InVector<bool>> preview_mask,
-               std::optional<DomeImage> dome_texture, std::optional<InArray<float, 3>> dome_world_to_light) {
+               std::optional<DomeImage> dome_texture, std::optional<InArray<float, 3>> dome_world_to_light,
+               std::optional<CornerNormals> shading_normals) {
                 SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
                                           sphere_lights, point_lights, distant_lights, dome_radiance, preview_params,
-                                          preview_mask, dome_texture, dome_world_to_light);
+                                          preview_mask, dome_texture, dome_world_to_light, shading_normals);
                 nb::gil_scoped_release release;
                 new (self) Scene(desc);
             },
             "positions"_a, "indices"_a, "triangle_material"_a, "albedo"_a, "emission"_a, "two_sided_emission"_a,
             "sphere_lights"_a, "point_lights"_a, "distant_lights"_a, "dome_radiance"_a,
             "preview_params"_a = nb::none(), "preview_mask"_a = nb::none(), "dome_texture"_a = nb::none(),
-            "dome_world_to_light"_a = nb::none(),
+            "dome_world_to_light"_a = nb::none(), "shading_normals"_a = nb::none(),
             "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
             "(x, y, z, r, g, b intensity W/sr); distant_lights (dx, dy, dz travel direction, half angle in "
             "radians, r, g, b radiance, or irradiance when the half angle is 0); dome_radiance (r, g, b); "
             "preview_params (specular rgb, metallic, roughness, ior, clearcoat, clearcoat_roughness, opacity, "
             "opacity_threshold, use_specular_workflow, 3 unused) for the materials where preview_mask is set: "
             "those are UsdPreviewSurfaces, the others pure Lambertian. dome_texture: float32 (h, w, 3) lat-long "
-            "(OpenEXR convention) multiplied by dome_radiance; dome_world_to_light: its 3x3 rotation.")
+            "(OpenEXR convention) multiplied by dome_radiance; dome_world_to_light: its 3x3 rotation; "
+            "shading_normals: float32 (triangles, 3, 3) world-space corner normals.")
         .def_prop_ro("num_triangles", &Scene::num_triangles)
         .def_prop_ro("num_emitters", &Scene::num_emitters);
 

@@ -17,6 +17,10 @@ __all__ = ["Scene", "SceneError", "load_scene", "NonFiniteSampleError"]
 
 log = logging.getLogger("tessera.renderer")
 
+# Below this UsdPreviewSurface roughness a metal or clearcoat reflects sharply enough to
+# form caustics that path tracing finds only by chance (see docs/integrators.md).
+AUTO_SMOOTH_ROUGHNESS = 0.3
+
 
 class NonFiniteSampleError(RuntimeError):
     """A sample came out NaN or Inf: a renderer bug, reported with where it happened."""
@@ -40,7 +44,8 @@ class Scene:
                                      tuple(float(x) for x in dome["radiance"]) if dome else (0.0, 0.0, 0.0),
                                      *_preview_table(getattr(data, "material_params", None),
                                                      len(data.albedo.reshape(-1, 3))),
-                                     *_dome_texture(dome))
+                                     *_dome_texture(dome),
+                                     _corner_normals(getattr(data, "shading_normals", None)))
         except ValueError as exc:
             raise SceneError(f"invalid scene: {exc}") from None
 
@@ -64,6 +69,31 @@ class Scene:
     def num_emitters(self) -> int:
         return self._core.num_emitters
 
+    def resolve_integrator(self, name: str) -> str:
+        """`auto` -> `bdpt` if some material can focus light into caustics (glass or other
+        transmission, or a smooth mirror-like lobe: metallic, or specular/clearcoat roughness
+        below AUTO_SMOOTH_ROUGHNESS), else `path`. A pure function of the scene, so every
+        worker resolves it the same way. Other names pass through."""
+        if name != "auto":
+            return name
+        params = getattr(self.data, "material_params", None) or {}
+        flags = params.get("preview_surface")
+        if flags is None:
+            return "path"
+        preview = np.asarray(flags, bool).reshape(-1)
+        opacity = np.asarray(params["opacity"], np.float32).reshape(-1)
+        threshold = np.asarray(params["opacity_threshold"], np.float32).reshape(-1)
+        roughness = np.asarray(params["roughness"], np.float32).reshape(-1)
+        metallic = np.asarray(params["metallic"], np.float32).reshape(-1)
+        clearcoat = np.asarray(params["clearcoat"], np.float32).reshape(-1)
+        coat_roughness = np.asarray(params["clearcoat_roughness"], np.float32).reshape(-1)
+        used = np.zeros(len(preview), bool)
+        used[np.unique(self.data.triangle_material)] = True
+        transmits = (opacity < 1.0) & (threshold <= 0.0)
+        smooth = ((roughness < AUTO_SMOOTH_ROUGHNESS) & (metallic > 0.0)) | \
+                 ((clearcoat > 0.0) & (coat_roughness < AUTO_SMOOTH_ROUGHNESS))
+        return "bdpt" if np.any(preview & used & (transmits | smooth)) else "path"
+
     def camera(self, width: int, height: int) -> "_core.Camera":
         c = self.data.camera
         tan_w, tan_h = c.tan_half_angles(width, height)
@@ -86,6 +116,7 @@ class Scene:
         "independent". Releases the GIL."""
         width = width or self.width
         height = height or self.height
+        integrator = self.resolve_integrator(integrator)
         rgba, stats = _core.render_tile(self._core, self.camera(width, height), x0, y0, w, h,
                                         spp, seed, max_depth, threads, sample_start, return_variance,
                                         integrator, splats, sampler)
@@ -115,6 +146,12 @@ def _preview_table(params: dict | None, rows: int):
     for k, name in enumerate(_PREVIEW_COLUMNS):
         table[:, 3 + k] = np.asarray(params[name], np.float32).reshape(rows)
     return table, np.asarray(params["preview_surface"], bool).reshape(rows)
+
+
+def _corner_normals(normals) -> np.ndarray | None:
+    if normals is None or len(normals) == 0:
+        return None
+    return np.ascontiguousarray(normals, dtype=np.float32).reshape(-1, 3, 3)
 
 
 def _dome_texture(dome: dict | None):

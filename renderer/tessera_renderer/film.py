@@ -15,7 +15,7 @@ import numpy as np
 
 from ._core import SPLAT_SCALE
 
-INTEGRATORS = ("path", "light", "bdpt", "local", "whitted")
+INTEGRATORS = ("path", "light", "bdpt", "local", "whitted", "auto")
 SPLATTING_INTEGRATORS = ("light", "bdpt")
 
 

@@ -664,3 +664,94 @@ TEST(Dome, TexturedDomeIntegratorsAgree) {
     EXPECT_NEAR(mean[1], mean[0], 0.03 * mean[0]);
     EXPECT_NEAR(mean[2], mean[0], 0.02 * mean[0]);
 }
+
+namespace {
+
+// A UV sphere of radius r at c, with smooth corner normals when `smooth`.
+void AddSphereMesh(SceneDesc& d, Vec3 c, float r, uint32_t material, bool smooth, int n_theta = 8, int n_phi = 12) {
+    auto point = [&](int i, int j) {
+        float th = kPi * float(i) / n_theta, ph = 2.f * kPi * float(j) / n_phi;
+        return Vec3(std::sin(th) * std::cos(ph), std::cos(th), std::sin(th) * std::sin(ph));
+    };
+    for (int i = 0; i < n_theta; ++i)
+        for (int j = 0; j < n_phi; ++j) {
+            Vec3 a = point(i, j), b = point(i + 1, j), cc = point(i + 1, j + 1), e = point(i, j + 1);
+            for (auto tri : {std::array<Vec3, 3>{a, e, cc}, std::array<Vec3, 3>{a, cc, b}}) {
+                uint32_t base = uint32_t(d.positions.size() / 3);
+                for (Vec3 q : tri) {
+                    Vec3 p = c + q * r;
+                    d.positions.insert(d.positions.end(), {p.x, p.y, p.z});
+                }
+                d.indices.insert(d.indices.end(), {base, base + 1, base + 2});
+                d.triangle_material.push_back(material);
+                if (smooth)
+                    for (Vec3 q : tri) d.shading_normals.insert(d.shading_normals.end(), {q.x, q.y, q.z});
+            }
+        }
+}
+
+}  // namespace
+
+TEST(ShadingNormals, LambertianShadingFollowsTheShadingNormal) {
+    // One quad facing +y whose corner normals all lean 30 degrees toward +x, lit by a delta
+    // distant light from straight above: radiance a/pi E cos(30 deg), not a/pi E.
+    SceneDesc d;
+    uint32_t m = AddMaterial(d, Color(0.5f), Color(0.f));
+    AddQuad(d, {-1, 0, -1}, {-1, 0, 1}, {1, 0, 1}, {1, 0, -1}, m);  // small, so light paths find the view
+    const Vec3 n(std::sin(0.5236f), std::cos(0.5236f), 0.f);
+    for (int k = 0; k < 6; ++k) d.shading_normals.insert(d.shading_normals.end(), {n.x, n.y, n.z});
+    d.distant_lights.push_back({Vec3(0, -1, 0), 0.f, Color(2.f)});
+    Scene scene(d);
+    const double expected = 0.5 / kPi * 2.0 * std::cos(0.5236);
+    auto px = Render(scene, LookDownAtOrigin(1.f), {4, 0, 1, 1}, {0, 0, 4, 4});
+    EXPECT_NEAR(MeanChannel(px, 0), expected, 1e-5);
+    // Seen obliquely, light tracing must give the same radiance: its light paths carry
+    // importance, which needs the adjoint correction for shading normals (without it this
+    // view would be off by |wc.ns| / |wc.ng| ~ 40 %).
+    const uint32_t W = 8, H = 8;
+    Vec3 fwd = Normalize(Vec3(-1.f, -0.6f, 0.f));
+    Camera oblique{{1.5f, 0.9f, 0}, Vec3(0, 0, -1), Normalize(Cross(Vec3(0, 0, -1), fwd)), fwd, 0.15f, 0.15f, W, H};
+    for (Integrator integrator : {Integrator::kPath, Integrator::kLight, Integrator::kBDPT}) {
+        RenderOptions opt{2048, 2, 1, 2};
+        opt.integrator = integrator;
+        std::vector<float> img(size_t(W) * H * 4);
+        std::vector<int64_t> splats(size_t(W) * H * 3, 0);
+        RenderStats st = RenderTile(scene, oblique, opt, {0, 0, W, H}, img.data(), nullptr, splats.data());
+        double sum = 0;
+        for (size_t i = 0; i < size_t(W) * H; ++i)
+            sum += img[4 * i] + (st.light_paths ? double(splats[3 * i]) / kSplatScale * double(W * H) / double(st.light_paths)
+                                                : 0.0);
+        EXPECT_NEAR(sum / (W * H), expected, 0.03 * expected) << "integrator " << int(integrator);
+    }
+}
+
+TEST(ShadingNormals, SmoothSpheresKeepPathLightAndBidirectionalInAgreement) {
+    // The importance correction for shading normals (light tracing, BDPT light subpaths)
+    // against path tracing, which needs none.
+    SceneDesc d = FloorScene(0.6f, 4.f);
+    for (int k = 0; k < 6; ++k) d.shading_normals.insert(d.shading_normals.end(), {0.f, 1.f, 0.f});  // the floor's
+    // Very coarse, so shading and geometric normals differ by up to ~45 degrees.
+    AddSphereMesh(d, Vec3(0, 1, 0), 0.9f, AddMaterial(d, Color(0.8f, 0.6f, 0.4f), Color(0.f)), true, 3, 4);
+    d.point_lights.push_back({Vec3(2, 3, 1), Color(30.f)});
+    d.sphere_lights.push_back({Vec3(-2, 2.5f, -1), 0.4f, Color(8.f)});
+    Scene scene(d);
+    const uint32_t W = 16, H = 16;
+    Camera cam{{0, 3, 5}, Vec3(1, 0, 0), Normalize(Vec3(0, 0.93f, -0.37f)), Normalize(Vec3(0, -0.37f, -0.93f)),
+               0.6f, 0.6f, W, H};
+    double mean[3];
+    for (int k = 0; k < 3; ++k) {
+        RenderOptions opt{512, 5, 16, 2};
+        opt.integrator = k == 0 ? Integrator::kPath : (k == 1 ? Integrator::kLight : Integrator::kBDPT);
+        std::vector<float> img(size_t(W) * H * 4);
+        std::vector<int64_t> splats(size_t(W) * H * 3, 0);
+        RenderStats st = RenderTile(scene, cam, opt, {0, 0, W, H}, img.data(), nullptr, splats.data());
+        double sum = 0;
+        for (size_t i = 0; i < size_t(W) * H; ++i)
+            sum += img[4 * i] + (st.light_paths ? double(splats[3 * i]) / kSplatScale * double(W * H) / double(st.light_paths)
+                                                : 0.0);
+        mean[k] = sum / (W * H);
+    }
+    EXPECT_GT(mean[0], 0.05);
+    EXPECT_NEAR(mean[1], mean[0], 0.02 * mean[0]);
+    EXPECT_NEAR(mean[2], mean[0], 0.02 * mean[0]);
+}
