@@ -29,9 +29,13 @@ def caustic_scene(directory: Path) -> Path:
     """The Cornell box plus a glass sphere (opacity 0, ior 1.5, smooth) and a mirror sphere."""
     from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
+    import shutil
+
+    # The sandbox accepts only relative paths inside the bundle: copy the box beside it.
+    shutil.copy(CORNELL, directory / "cornell.usda")
     path = directory / "cornell_caustics.usda"
     stage = Usd.Stage.CreateNew(str(path))
-    stage.GetRootLayer().subLayerPaths.append(str(CORNELL))
+    stage.GetRootLayer().subLayerPaths.append("cornell.usda")
     for name, pos, inputs in (("Glass", (185, 90, 169), {"opacity": 0.0, "ior": 1.5, "roughness": 0.0}),
                               ("Mirror", (370, 90, 351), {"metallic": 1.0, "roughness": 0.0})):
         mat = UsdShade.Material.Define(stage, f"/Cornell/Looks/{name}")
@@ -75,7 +79,7 @@ def main() -> int:
     ap.add_argument("--res", type=int, default=64)
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--seeds", type=int, default=3)
-    ap.add_argument("--ref-spp", type=int, default=4096)
+    ap.add_argument("--ref-spp", type=int, default=2048)
     args = ap.parse_args()
     out: dict = {"res": args.res, "spp": args.spp, "reference": f"bdpt, {args.ref_spp} spp", "scenes": {}}
     lines = ["# Integrators at equal sample counts", "",

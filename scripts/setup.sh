@@ -11,7 +11,7 @@ SUDO=""
 APT_PACKAGES=(
   build-essential cmake ninja-build pkg-config python3-venv
   libembree-dev libtbb-dev libopenimageio-dev openimageio-tools libopenexr-dev
-  libgtest-dev redis-server
+  libgtest-dev redis-server iproute2
 )
 
 missing=()

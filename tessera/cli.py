@@ -44,37 +44,160 @@ def cmd_render(args: argparse.Namespace) -> int:
     width, height = args.res or (scene.width, scene.height)
     try:
         settings = RenderSettings(width=width, height=height, spp=args.spp, seed=args.seed,
-                                  max_depth=args.max_depth, tile_size=args.tile)
+                                  max_depth=args.max_depth, tile_size=args.tile,
+                                  integrator=args.integrator, **_noise_target(args))
     except ValidationError as exc:
         print(f"tessera render: invalid settings: {exc}", file=sys.stderr)
         return 2
     for w in scene.warnings:
         print(f"warning: {w}", file=sys.stderr)
+    samples = (f"noise target {settings.target_error:.2%} ({settings.min_spp}-{settings.max_spp} spp)"
+               if settings.adaptive else f"{settings.spp} spp")
     print(f"{scene_path.name}: {scene.num_triangles} triangles, {scene.num_emitters} emitters; "
-          f"{width}x{height}, {settings.spp} spp, seed {settings.seed}", file=sys.stderr)
+          f"{width}x{height}, {samples}, seed {settings.seed}", file=sys.stderr)
     try:
         result = render_image(scene, settings, threads=args.threads, progress=not args.quiet)
     except NonFiniteSampleError as exc:
         print(f"tessera render: renderer bug: {exc}", file=sys.stderr)
         return 3
     output.parent.mkdir(parents=True, exist_ok=True)
-    write_exr(output, result.rgba, render_metadata(settings.spp, settings.seed, scene_path.name))
+    write_exr(output, result.rgba, render_metadata(
+        settings.max_spp if settings.adaptive else settings.spp, settings.seed, scene_path.name))
     preview = output.with_suffix(".png")
     write_png_preview(preview, result.rgba)
+    if settings.adaptive:
+        mean_spp = result.samples / (settings.width * settings.height)
+        print(f"noise target {settings.target_error:.2%}: {mean_spp:.1f} spp on average, "
+              f"{result.passes} tile passes", file=sys.stderr)
     print(f"wrote {output} and {preview} in {result.seconds:.2f} s "
           f"({result.samples_per_second / 1e6:.2f} M samples/s)", file=sys.stderr)
     return 0
 
 
+def _noise_target(args: argparse.Namespace) -> dict:
+    """The noise-target settings of `render` (and `submit`); empty for a fixed spp."""
+    if args.target_error is None:
+        return {}
+    return {k: v for k, v in dict(target_error=args.target_error, min_spp=args.min_spp,
+                                  max_spp=args.max_spp, time_limit=args.time_limit).items()
+            if v is not None}
+
+
+def _add_integrator_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--integrator", default="path",
+                        choices=("path", "bdpt", "light", "whitted", "local", "auto"),
+                        help="light transport method (default path; see docs/integrators.md)")
+
+
+def _add_noise_target_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--target-error", type=float, nargs="?", const=0.01, default=None,
+                        metavar="REL", help="render to a relative noise target instead of a "
+                                            "fixed --spp (default target 0.01 = 1 %%)")
+    parser.add_argument("--min-spp", type=_positive, help="noise target: first pass (default 16)")
+    parser.add_argument("--max-spp", type=_positive, help="noise target: most samples (default 1024)")
+    parser.add_argument("--time-limit", type=float,
+                        help="noise target: seconds after which no further passes start")
+
+
 def cmd_worker(args: argparse.Namespace) -> int:
+    from tessera_worker.settings import settings_from_args
     from tessera_worker.worker import run_worker
 
-    redis_url = args.redis_url or os.environ.get("REDIS_URL")
-    if not redis_url:
+    if not (args.redis_url or os.environ.get("REDIS_URL")
+            or os.environ.get("TESSERA_WORKER_REDIS_URL")):
         print("tessera worker: set REDIS_URL or pass --redis-url", file=sys.stderr)
         return 2
-    run_worker(redis_url, name=args.name, threads=args.threads)
+    run_worker(settings=settings_from_args(args), name=args.name)
     return 0
+
+
+def cmd_submit(args: argparse.Namespace) -> int:
+    """Uploads a scene to a farm's API; with --wait follows its progress and downloads
+    the image."""
+    import json
+
+    import httpx
+    from tqdm import tqdm
+
+    scene = Path(args.scene)
+    token = args.token or os.environ.get("TESSERA_TOKEN")
+    headers = {"Authorization": f"Bearer {token}"} if token else {}
+    form = {k: v for k, v in dict(spp=args.spp, seed=args.seed, max_depth=args.max_depth,
+                                  tile_size=args.tile, priority=args.priority, integrator=args.integrator,
+                                  **_noise_target(args)).items() if v is not None}
+    if args.res:
+        form["width"], form["height"] = args.res
+    try:
+        with httpx.Client(base_url=args.server.rstrip("/"), headers=headers,
+                          timeout=httpx.Timeout(60, read=None)) as client:
+            try:
+                with open(scene, "rb") as f:
+                    r = client.post("/jobs", files={"file": (scene.name, f)},
+                                    data={k: str(v) for k, v in form.items()})
+            except OSError as exc:
+                print(f"tessera submit: {exc}", file=sys.stderr)
+                return 2
+            if r.status_code != 201:
+                print(f"tessera submit: the server refused the job ({r.status_code}): "
+                      f"{_detail(r)}", file=sys.stderr)
+                return 2
+            job = r.json()
+            for w in job["warnings"]:
+                print(f"warning: {w}", file=sys.stderr)
+            print(job["id"])
+            if not args.wait:
+                return 0
+            total = job["tiles_total"]
+            with tqdm(total=total, unit="tile", desc=job["id"][:8], disable=args.quiet,
+                      dynamic_ncols=True) as bar:
+                state = job["state"]
+                while state not in ("done", "failed", "cancelled"):
+                    # The event stream ends with the job's final state; reconnect if the
+                    # connection drops before that.
+                    try:
+                        with client.stream("GET", f"/jobs/{job['id']}/events") as events:
+                            for line in events.iter_lines():
+                                if not line.startswith("data: "):
+                                    continue
+                                event = json.loads(line[6:])
+                                if event.get("type") == "tile":
+                                    bar.n = int(event.get("tiles_done", bar.n))
+                                    bar.refresh()
+                                elif event.get("type") == "state":
+                                    state = event["state"]
+                    except httpx.TransportError:
+                        pass
+                    status = client.get(f"/jobs/{job['id']}").json()
+                    state = status["state"]
+                    bar.n = status["tiles_done"]
+                    bar.refresh()
+            if state != "done":
+                print(f"tessera submit: job {job['id']} {state}"
+                      + (f": {status['error']}" if status.get("error") else ""), file=sys.stderr)
+                return 1
+            output = Path(args.output) if args.output else Path(scene.stem + ".exr")
+            output.parent.mkdir(parents=True, exist_ok=True)
+            with client.stream("GET", f"/jobs/{job['id']}/image.exr") as r, open(output, "wb") as out:
+                if r.status_code != 200:
+                    r.read()
+                    print(f"tessera submit: cannot download the image: {_detail(r)}",
+                          file=sys.stderr)
+                    return 1
+                for chunk in r.iter_bytes():
+                    out.write(chunk)
+            print(f"wrote {output} ({status['elapsed_seconds']:.2f} s on the farm)",
+                  file=sys.stderr)
+            return 0
+    except httpx.HTTPError as exc:
+        print(f"tessera submit: cannot talk to {args.server}: {exc}", file=sys.stderr)
+        return 2
+
+
+def _detail(response) -> str:
+    try:
+        return str(response.json().get("detail"))
+    except ValueError:
+        return response.text[:200]
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
@@ -102,13 +225,34 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--tile", type=_positive, default=64, help="tile size in pixels (default 64)")
     r.add_argument("--frame", type=float, help="time code to render (default: the stage's default time)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    _add_noise_target_options(r)
+    _add_integrator_option(r)
     r.set_defaults(func=cmd_render)
 
+    from tessera_worker.settings import add_worker_options
+
     w = sub.add_parser("worker", help="render tiles from the Redis queue at REDIS_URL")
-    w.add_argument("--redis-url", help="default: $REDIS_URL")
-    w.add_argument("--name", help="consumer name (default: host-pid-random)")
-    w.add_argument("--threads", type=int, default=0, help="render threads (default: all cores)")
+    add_worker_options(w)
     w.set_defaults(func=cmd_worker)
+
+    m = sub.add_parser("submit", help="send a scene to a farm's API (see `tessera serve`)")
+    m.add_argument("scene", help=".usda/.usdc/.usdz file")
+    m.add_argument("--server", default=os.environ.get("TESSERA_SERVER", "http://127.0.0.1:8000"),
+                   help="API base URL (default: $TESSERA_SERVER or http://127.0.0.1:8000)")
+    m.add_argument("--token", help="bearer token (default: $TESSERA_TOKEN)")
+    m.add_argument("--wait", action="store_true",
+                   help="follow the job with a progress bar and download the image")
+    m.add_argument("-o", "--output", help="with --wait: the EXR to write (default: SCENE_NAME.exr here)")
+    m.add_argument("--spp", type=_positive, help="samples per pixel (server default 64)")
+    m.add_argument("--res", type=_resolution, help="WxH (default: the scene's)")
+    m.add_argument("--seed", type=int)
+    m.add_argument("--max-depth", type=_positive)
+    m.add_argument("--tile", type=_positive, help="tile size in pixels")
+    m.add_argument("--priority", type=int, help="0-9, higher first (default 5)")
+    m.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    _add_noise_target_options(m)
+    _add_integrator_option(m)
+    m.set_defaults(func=cmd_submit)
 
     s = sub.add_parser("serve", help="run the HTTP API; without REDIS_URL also a private Redis and local workers")
     s.add_argument("--host", default="127.0.0.1")

@@ -1,46 +1,111 @@
 """The one job/tile message schema shared by the service and the workers.
 
 Everything that crosses Redis is declared here and nowhere else: the message models
-(versioned), the tile grid, the key layout and the encoding of tile results. The service
-writes jobs and tile tasks; workers read tasks and write results; both import this module.
+(versioned), the tile grid and pass schedule, the key layout, the encoding of tile results,
+how passes combine, and the Lua scripts that move a job through its states (so that the
+service and the workers cannot disagree about them).
 
 Invariant: a pixel's value depends only on (scene, pixel, sample index, seed), so the
-tile grid is a scheduling choice and never changes the image.
+tile grid is a scheduling choice and never changes the image. Passes are combined by
+`combine_passes`, which the local renderer uses too, so a farm render equals a local one
+bit for bit whatever the pass schedule.
 """
 from __future__ import annotations
 
 import struct
+import zlib
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, model_validator
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
 # Redis key layout. Everything Tessera stores lives under this prefix.
 PREFIX = "tessera"
-TILE_STREAM = f"{PREFIX}:tiles"          # stream of TileTask messages
-WORKER_GROUP = "workers"                  # the consumer group every worker joins
+WORKER_GROUP = "workers"                  # the consumer group on every job's queue
 JOB_INDEX = f"{PREFIX}:jobs"              # sorted set: job id -> creation time
+READY = f"{PREFIX}:ready"                 # sorted set: job id -> scheduling score (see below)
+ACTIVE = f"{PREFIX}:active"               # set: ids of jobs not yet in a final state
+WORKERS = f"{PREFIX}:workers"             # set: names of workers that have registered
+STATS = f"{PREFIX}:stats"                 # hash: farm-wide counters (for /metrics)
+WAKE = f"{PREFIX}:wake"                   # list: tokens that wake idle workers (BLPOP)
+WAKE_MAX = 64
+DEAD_LETTER = f"{PREFIX}:dead"            # stream: poisoned tiles with their last error
+DEAD_LETTER_MAXLEN = 1000
+EVENTS_MAXLEN = 10000                     # per job; tile/pass/state events for SSE
+LOG_MAXLEN = 1000                         # per job; lines of the job log
+
+# Scheduling: READY's score is BAND * (MAX_PRIORITY - priority) + tiles served. The lowest
+# score is served next: higher priority first, and among equal priorities the job that has
+# been served least (fair share). A job (re)entering the ready set starts at the lowest
+# served count of its band, so it neither starves others nor waits behind them.
+MIN_PRIORITY, MAX_PRIORITY, DEFAULT_PRIORITY = 0, 9, 5
+BAND = 2 ** 40
+
+# Failure policy (per job, overridable in JobSpec).
+DEFAULT_MAX_ATTEMPTS = 3      # failed deliveries of one tile pass before the job fails
+BLOCKLIST_AFTER = 2           # failures of one job on one worker before it stops taking them
 
 
 def scene_key(scene_hash: str) -> str:
-    """Hash {name, data}: a scene stored once per content hash."""
+    """Hash {name, data}: a scene stored once per content hash (TTL: the scene retention,
+    refreshed by every job that uses it)."""
     return f"{PREFIX}:scene:{scene_hash}"
+
+
+def preflight_key(scene_hash: str) -> str:
+    """String: the pre-flight inspection result (JSON) of a scene, so that a scene that was
+    already validated is not inspected again."""
+    return f"{PREFIX}:preflight:{scene_hash}"
+
+
+def translated_scene_key(scene_hash: str, blob_version: str) -> str:
+    """String: the renderer's translated scene blob (translate once, load everywhere), per
+    blob/translator version so that an upgraded worker never reads an old blob as new."""
+    return f"{PREFIX}:translated:{blob_version}:{scene_hash}"
 
 
 def job_key(job_id: str) -> str:
     """Hash: the job's spec (JSON), state, counters and timings. Fields:
-    spec (JobSpec JSON), state (JobState), tiles_total, warnings (JSON list of str),
-    error (set when failed), created_at / started_at / finished_at (unix seconds),
-    render_seconds (sum of the render times of the stored tiles)."""
+    spec, state (JobState), priority, tiles_total, tiles_done (tiles whose last pass is
+    stored), passes_done, samples_done, warnings (JSON list), error (set when failed),
+    created_at / started_at / finished_at (unix seconds), render_seconds, retention
+    (seconds the job is kept after it ends), resume_state (while paused)."""
     return f"{PREFIX}:job:{job_id}"
 
 
+def job_queue_key(job_id: str) -> str:
+    """Stream of the job's open TileTask messages, read through the WORKER_GROUP group.
+    Entries are deleted once acknowledged, so the stream holds only open work."""
+    return f"{PREFIX}:job:{job_id}:queue"
+
+
 def job_tiles_key(job_id: str) -> str:
-    """Hash: tile index -> encoded tile result. Keyed by index so a tile rendered twice
-    (at-least-once delivery) is stored once."""
+    """Hash: result_field(tile, pass) -> encoded TileResult. Written with HSETNX, so a
+    pass rendered twice (at-least-once delivery) is stored once."""
     return f"{PREFIX}:job:{job_id}:tiles"
+
+
+def job_events_key(job_id: str) -> str:
+    """Stream of progress events: type=tile|pass|state|failure (see `JobEvent`)."""
+    return f"{PREFIX}:job:{job_id}:events"
+
+
+def job_log_key(job_id: str) -> str:
+    """List of log lines (oldest first), capped at LOG_MAXLEN."""
+    return f"{PREFIX}:job:{job_id}:log"
+
+
+def job_failures_key(job_id: str) -> str:
+    """Hash: "tile:<result field>" -> failed attempts, "worker:<name>" -> failures there."""
+    return f"{PREFIX}:job:{job_id}:failures"
+
+
+def job_blocklist_key(job_id: str) -> str:
+    """Set: workers that no longer take this job's tiles."""
+    return f"{PREFIX}:job:{job_id}:blocklist"
 
 
 def job_image_key(job_id: str, fmt: Literal["exr", "png"]) -> str:
@@ -49,24 +114,81 @@ def job_image_key(job_id: str, fmt: Literal["exr", "png"]) -> str:
     return f"{PREFIX}:job:{job_id}:image.{fmt}"
 
 
+def job_keys(job_id: str) -> list[str]:
+    """Every key of one job (for expiry and deletion)."""
+    return [job_key(job_id), job_queue_key(job_id), job_tiles_key(job_id),
+            job_events_key(job_id), job_log_key(job_id), job_failures_key(job_id),
+            job_blocklist_key(job_id), job_image_key(job_id, "exr"), job_image_key(job_id, "png")]
+
+
 def worker_key(worker_name: str) -> str:
-    """String with a TTL: present while the worker is alive (its heartbeat)."""
+    """Hash with a TTL, present while the worker is alive (its heartbeat): host, pid,
+    started_at, beat_at, current ("job/tile/pass" or ""), tiles_done, failures."""
     return f"{PREFIX}:worker:{worker_name}"
 
 
-JobState = Literal["queued", "running", "done", "failed", "cancelled"]
+def result_field(tile_index: int, pass_index: int) -> str:
+    return f"{tile_index}:{pass_index}"
+
+
+JobState = Literal["queued", "running", "paused", "done", "failed", "cancelled"]
 FINAL_STATES = ("done", "failed", "cancelled")
 
 
 class RenderSettings(BaseModel):
-    """What to render. Resolution is final here (scene defaults already applied)."""
+    """What to render. Resolution is final here (scene defaults already applied).
+
+    With `target_error` unset every tile gets `spp` samples in one pass. With it set the
+    image is rendered to a noise target: tiles get passes of min_spp, then doubling up to
+    max_spp samples, until their relative noise (see `tile_error`) is at most target_error,
+    or until `time_limit` seconds after the job started."""
 
     width: int = Field(ge=1, le=16384)
     height: int = Field(ge=1, le=16384)
-    spp: int = Field(default=64, ge=1, le=1 << 20)
+    spp: int = Field(default=64, ge=1, le=1 << 20, description="samples per pixel (fixed mode)")
     seed: int = Field(default=0, ge=0, le=2**32 - 1)
     max_depth: int = Field(default=64, ge=1, le=1024)
     tile_size: int = Field(default=64, ge=8, le=4096)
+    target_error: float | None = Field(
+        default=None, gt=0, le=1,
+        description="relative noise to stop at (0.01 = 1 %); unset: fixed spp")
+    min_spp: int = Field(default=16, ge=1, le=1 << 20,
+                         description="samples of the first pass (noise-target mode)")
+    max_spp: int = Field(default=1024, ge=1, le=1 << 20,
+                         description="most samples any pixel gets (noise-target mode)")
+    time_limit: float | None = Field(
+        default=None, gt=0, le=7 * 86400,
+        description="seconds after the job starts when no further passes begin "
+                    "(noise-target mode; makes the image depend on timing)")
+    integrator: Literal["path", "bdpt", "light", "whitted", "local", "auto"] = Field(
+        default="path", description="light transport method (docs/integrators.md)")
+
+    @model_validator(mode="after")
+    def _spp_range(self) -> "RenderSettings":
+        if self.target_error is not None and self.min_spp > self.max_spp:
+            raise ValueError(f"min_spp ({self.min_spp}) is larger than max_spp ({self.max_spp})")
+        if self.target_error is not None and self.integrator in SPLATTING_INTEGRATORS:
+            # Their light paths land on every tile's pixels, so a tile's noise is not its
+            # own to judge: per-tile stopping would be wrong.
+            raise ValueError(f"target_error works with the path, whitted and local integrators, "
+                             f"not {self.integrator!r}: use a fixed spp")
+        return self
+
+    @property
+    def adaptive(self) -> bool:
+        return self.target_error is not None
+
+
+def pass_range(settings: RenderSettings, pass_index: int) -> tuple[int, int] | None:
+    """(sample_start, spp) of pass `pass_index`, or None past the last pass."""
+    if not settings.adaptive:
+        return (0, settings.spp) if pass_index == 0 else None
+    start, end = 0, settings.min_spp
+    for _ in range(pass_index):
+        if end >= settings.max_spp:
+            return None
+        start, end = end, min(2 * end, settings.max_spp)
+    return start, end - start
 
 
 class TileRect(BaseModel):
@@ -78,22 +200,31 @@ class TileRect(BaseModel):
 
 
 class JobSpec(BaseModel):
-    schema_version: Literal[1] = SCHEMA_VERSION
+    schema_version: Literal[2] = SCHEMA_VERSION
     job_id: str
     scene_hash: str
     scene_name: str  # the uploaded file name; its suffix tells USD the format
     settings: RenderSettings
+    priority: int = Field(default=DEFAULT_PRIORITY, ge=MIN_PRIORITY, le=MAX_PRIORITY)
+    max_attempts: int = Field(default=DEFAULT_MAX_ATTEMPTS, ge=1, le=100)
 
 
 class TileTask(BaseModel):
-    """One stream message: everything a worker needs to render one tile."""
+    """One stream message: everything a worker needs to render one pass of one tile."""
 
-    schema_version: Literal[1] = SCHEMA_VERSION
+    schema_version: Literal[2] = SCHEMA_VERSION
     job_id: str
     scene_hash: str
     scene_name: str
     settings: RenderSettings
     tile: TileRect
+    pass_index: int = Field(default=0, ge=0)
+    priority: int = Field(default=DEFAULT_PRIORITY, ge=MIN_PRIORITY, le=MAX_PRIORITY)
+    max_attempts: int = Field(default=DEFAULT_MAX_ATTEMPTS, ge=1, le=100)
+
+    @property
+    def field(self) -> str:
+        return result_field(self.tile.index, self.pass_index)
 
     def to_fields(self) -> dict[str, str]:
         return {"task": self.model_dump_json()}
@@ -104,6 +235,9 @@ class TileTask(BaseModel):
         if raw is None:
             raise ValueError("stream entry has no 'task' field")
         return cls.model_validate_json(raw)
+
+    def next_pass(self) -> "TileTask":
+        return self.model_copy(update={"pass_index": self.pass_index + 1})
 
 
 def tile_grid(width: int, height: int, tile_size: int) -> list[TileRect]:
@@ -117,30 +251,340 @@ def tile_grid(width: int, height: int, tile_size: int) -> list[TileRect]:
     return tiles
 
 
-# Tile result encoding: a fixed header then float32 RGBA pixels, row-major.
-_TILE_HEADER = struct.Struct("<4sIiiii")  # magic, version, x0, y0, width, height
+def job_tasks(spec: JobSpec) -> list[TileTask]:
+    """The first pass of every tile of a job."""
+    s = spec.settings
+    return [TileTask(job_id=spec.job_id, scene_hash=spec.scene_hash, scene_name=spec.scene_name,
+                     settings=s, tile=rect, priority=spec.priority, max_attempts=spec.max_attempts)
+            for rect in tile_grid(s.width, s.height, s.tile_size)]
+
+
+# ------------------------------------------------------------------ tile results
+# Version 2: a fixed header, then float32 sections, row-major:
+#   rgba (h, w, 4): the mean of samples [sample_start, sample_start + spp)
+#   variance (h, w, 3) if FLAG_VARIANCE: per-channel unbiased sample variance
+#   splat if FLAG_SPLAT: a rect header (x0, y0, w, h) and int64 (h, w, 3) light-tracing
+#       splats in the renderer's fixed point (tessera_renderer.film), covering that rect of
+#       the full frame (the bounding box of where the pass's light paths landed). Summed
+#       over all results (exact, order-free) and normalised by the job's total light_paths
+#       (film.resolve_image).
+# Version 1 (header without the pass fields, rgba only) is still read.
+_HEADER_V1 = struct.Struct("<4sIiiii")          # magic, version, x0, y0, width, height
+_HEADER = struct.Struct("<4sIiiiiIIIIQ")         # ... pass_index, sample_start, spp, flags, light_paths
+_SPLAT_RECT = struct.Struct("<iiii")
 _TILE_MAGIC = b"TSRT"
+FLAG_VARIANCE = 1
+FLAG_SPLAT = 2         # splat section stored raw
+FLAG_SPLAT_ZLIB = 4    # splat section's int64 bytes zlib-compressed (u32 length first)
+
+# Integrators whose light paths splat onto the whole frame (and `auto`, which may be one).
+SPLATTING_INTEGRATORS = ("light", "bdpt", "auto")
+# The renderer's fixed-point splat scale (tessera_renderer film; kSplatScale in C++). The
+# farm normalises merged splats with it; tests/test_protocol.py pins the two together.
+SPLAT_SCALE = float(1 << 24)
 
 
-def encode_tile(rect: TileRect, rgba: np.ndarray) -> bytes:
+@dataclass
+class TileResult:
+    x0: int
+    y0: int
+    rgba: np.ndarray                    # float32 (h, w, 4)
+    pass_index: int = 0
+    sample_start: int = 0
+    spp: int = 0                        # 0: unknown (a version-1 result)
+    variance: np.ndarray | None = None  # float32 (h, w, 3)
+    splat_rect: tuple[int, int, int, int] | None = None
+    splat: np.ndarray | None = None     # int64 (h, w, 3), fixed point
+    light_paths: int = 0
+
+
+def encode_tile(rect: TileRect, rgba: np.ndarray, *, pass_index: int = 0, sample_start: int = 0,
+                spp: int = 0, variance: np.ndarray | None = None,
+                splat_rect: tuple[int, int, int, int] | None = None,
+                splat: np.ndarray | None = None, light_paths: int = 0) -> bytes:
     rgba = np.ascontiguousarray(rgba, dtype=np.float32)
     if rgba.shape != (rect.height, rect.width, 4):
         raise ValueError(f"tile {rect.index}: pixels have shape {rgba.shape}, "
                          f"expected {(rect.height, rect.width, 4)}")
-    header = _TILE_HEADER.pack(_TILE_MAGIC, SCHEMA_VERSION, rect.x0, rect.y0,
-                               rect.width, rect.height)
-    return header + rgba.tobytes()
+    flags = 0
+    parts = [rgba.tobytes()]
+    if variance is not None:
+        variance = np.ascontiguousarray(variance, dtype=np.float32)
+        if variance.shape != (rect.height, rect.width, 3):
+            raise ValueError(f"tile {rect.index}: variance has shape {variance.shape}, "
+                             f"expected {(rect.height, rect.width, 3)}")
+        flags |= FLAG_VARIANCE
+        parts.append(variance.tobytes())
+    if splat is not None:
+        if splat_rect is None:
+            raise ValueError("a splat layer needs its rectangle")
+        splat = np.ascontiguousarray(splat, dtype=np.int64)
+        if splat.shape != (splat_rect[3], splat_rect[2], 3):
+            raise ValueError(f"splat layer has shape {splat.shape}, rect {splat_rect}")
+        # Splat layers are mostly small integers and zeros: zlib shrinks them several fold.
+        packed = zlib.compress(splat.tobytes(), 1)
+        flags |= FLAG_SPLAT | FLAG_SPLAT_ZLIB
+        parts += [_SPLAT_RECT.pack(*splat_rect), struct.pack("<I", len(packed)), packed]
+    header = _HEADER.pack(_TILE_MAGIC, SCHEMA_VERSION, rect.x0, rect.y0, rect.width, rect.height,
+                          pass_index, sample_start, spp, flags, light_paths)
+    return header + b"".join(parts)
 
 
-def decode_tile(data: bytes) -> tuple[int, int, np.ndarray]:
-    """Returns (x0, y0, rgba[h, w, 4])."""
-    if len(data) < _TILE_HEADER.size:
+def decode_tile(data: bytes) -> TileResult:
+    if len(data) < _HEADER_V1.size:
         raise ValueError("tile result is truncated")
-    magic, version, x0, y0, w, h = _TILE_HEADER.unpack_from(data)
-    if magic != _TILE_MAGIC or version != SCHEMA_VERSION:
+    magic, version, x0, y0, w, h = _HEADER_V1.unpack_from(data)
+    if magic != _TILE_MAGIC or version not in (1, 2):
         raise ValueError(f"tile result has unknown format {magic!r} v{version}")
-    expected = _TILE_HEADER.size + w * h * 4 * 4
+    if w < 1 or h < 1 or w > 1 << 16 or h > 1 << 16:
+        raise ValueError(f"tile result has impossible size {w}x{h}")
+    if version == 1:
+        expected = _HEADER_V1.size + w * h * 16
+        if len(data) != expected:
+            raise ValueError(f"tile result has {len(data)} bytes, expected {expected}")
+        return TileResult(x0, y0, _floats(data, _HEADER_V1.size, (h, w, 4)))
+    if len(data) < _HEADER.size:
+        raise ValueError("tile result is truncated")
+    *_, pass_index, sample_start, spp, flags, light_paths = _HEADER.unpack_from(data)
+    expected = _HEADER.size + w * h * 16 + (w * h * 12 if flags & FLAG_VARIANCE else 0)
+    offset = _HEADER.size
+    result = TileResult(x0, y0, None, pass_index, sample_start, spp, light_paths=light_paths)
+    if flags & FLAG_SPLAT:
+        if len(data) < expected + _SPLAT_RECT.size:
+            raise ValueError("tile result is truncated")
+        sx, sy, sw, sh = _SPLAT_RECT.unpack_from(data, expected)
+        if sw < 0 or sh < 0:
+            raise ValueError("tile result has a negative splat size")
+        result.splat_rect = (sx, sy, sw, sh)
+        if flags & FLAG_SPLAT_ZLIB:
+            if len(data) < expected + _SPLAT_RECT.size + 4:
+                raise ValueError("tile result is truncated")
+            (packed_len,) = struct.unpack_from("<I", data, expected + _SPLAT_RECT.size)
+            splat_offset = expected + _SPLAT_RECT.size + 4
+            expected += _SPLAT_RECT.size + 4 + packed_len
+        else:
+            expected += _SPLAT_RECT.size + sw * sh * 24
     if len(data) != expected:
         raise ValueError(f"tile result has {len(data)} bytes, expected {expected}")
-    rgba = np.frombuffer(data, dtype=np.float32, offset=_TILE_HEADER.size).reshape(h, w, 4)
-    return x0, y0, rgba
+    result.rgba = _floats(data, offset, (h, w, 4))
+    offset += w * h * 16
+    if flags & FLAG_VARIANCE:
+        result.variance = _floats(data, offset, (h, w, 3))
+        offset += w * h * 12
+    if flags & FLAG_SPLAT:
+        sx, sy, sw, sh = result.splat_rect
+        if flags & FLAG_SPLAT_ZLIB:
+            try:
+                raw = zlib.decompress(data[splat_offset:splat_offset + packed_len], bufsize=sw * sh * 24)
+            except zlib.error as e:
+                raise ValueError(f"tile result has a corrupt splat layer: {e}") from None
+            if len(raw) != sw * sh * 24:
+                raise ValueError("tile result's splat layer has the wrong size")
+            result.splat = np.frombuffer(raw, dtype=np.int64).reshape(sh, sw, 3)
+        else:
+            result.splat = np.frombuffer(data, dtype=np.int64, count=sw * sh * 3,
+                                         offset=offset + _SPLAT_RECT.size).reshape(sh, sw, 3)
+    return result
+
+
+def splat_layer(splats: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray]:
+    """The bounding rectangle (x0, y0, w, h) of a full-frame splat buffer's non-zero pixels
+    and that part of it (an empty rectangle when nothing landed)."""
+    nonzero = np.any(splats != 0, axis=2)
+    rows, cols = np.flatnonzero(nonzero.any(axis=1)), np.flatnonzero(nonzero.any(axis=0))
+    if len(rows) == 0:
+        return (0, 0, 0, 0), np.zeros((0, 0, 3), np.int64)
+    y0, y1, x0, x1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    return (x0, y0, x1 - x0, y1 - y0), np.ascontiguousarray(splats[y0:y1, x0:x1])
+
+
+def add_splats(total: np.ndarray, rect: tuple[int, int, int, int], layer: np.ndarray) -> None:
+    """Adds a splat layer into a full-frame int64 buffer (exact and order-free)."""
+    x0, y0, w, h = rect
+    if w and h:
+        total[y0:y0 + h, x0:x0 + w] += layer
+
+
+def resolve_splats(rgba: np.ndarray, splats: np.ndarray | None, light_paths: int) -> np.ndarray:
+    """Full-frame float32 RGBA = camera part + splats * pixel_count / (SPLAT_SCALE * light
+    paths of all tiles). The renderer's film.resolve_image, for the farm's side."""
+    out = np.array(rgba, dtype=np.float32, copy=True)
+    if splats is not None and light_paths > 0:
+        height, width = out.shape[:2]
+        out[..., :3] += (splats.astype(np.float64) * (width * height / (SPLAT_SCALE * light_paths))).astype(np.float32)
+    return out
+
+
+def _floats(data: bytes, offset: int, shape: tuple[int, ...]) -> np.ndarray:
+    count = int(np.prod(shape))
+    return np.frombuffer(data, dtype=np.float32, count=count, offset=offset).reshape(shape)
+
+
+# ------------------------------------------------------------------ combining passes
+_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+
+
+def combine_passes(passes: list[TileResult]) -> tuple[np.ndarray, np.ndarray | None, int]:
+    """Combines passes of one tile (in pass order) into (rgba float32, variance or None,
+    total samples): the sample-count-weighted mean, computed in float64. One pass is
+    returned as it is, so a fixed-spp image is exactly the renderer's output."""
+    passes = sorted(passes, key=lambda p: p.pass_index)
+    if len(passes) == 1:
+        p = passes[0]
+        return p.rgba, p.variance, p.spp
+    counts = [p.spp for p in passes]
+    if min(counts) < 1:
+        raise ValueError("cannot combine passes without sample counts")
+    total = sum(counts)
+    mean = sum(n * p.rgba.astype(np.float64) for n, p in zip(counts, passes)) / total
+    variance = None
+    if all(p.variance is not None for p in passes) and total > 1:
+        # Chan et al.: pooled sum of squared deviations of the combined sample set.
+        m2 = sum((n - 1) * p.variance.astype(np.float64)
+                 + n * (p.rgba[..., :3].astype(np.float64) - mean[..., :3]) ** 2
+                 for n, p in zip(counts, passes))
+        variance = (m2 / (total - 1)).astype(np.float32)
+    return mean.astype(np.float32), variance, total
+
+
+def tile_error(rgba: np.ndarray, variance: np.ndarray, samples: int) -> float:
+    """The tile's relative noise: the RMS over its pixels of (standard error of the pixel's
+    luminance) / (its luminance), with luminances floored at 1 % of the tile's mean (and
+    1e-4) so that black pixels do not dominate. A tile without variance (background) is 0."""
+    lum = rgba[..., :3].astype(np.float64) @ _LUMINANCE
+    var_mean = (variance.astype(np.float64) @ (_LUMINANCE ** 2)) / max(samples, 1)
+    floor = max(1e-4, 0.01 * float(np.mean(np.abs(lum))))
+    rel = var_mean / np.maximum(np.abs(lum), floor) ** 2
+    return float(np.sqrt(np.mean(rel)))
+
+
+def tile_finished(settings: RenderSettings, pass_index: int, rgba: np.ndarray,
+                  variance: np.ndarray | None, samples: int) -> bool:
+    """Whether a tile needs no further pass after `pass_index` (timing aside)."""
+    if pass_range(settings, pass_index + 1) is None:
+        return True
+    if variance is None:
+        return False
+    return tile_error(rgba, variance, samples) <= settings.target_error
+
+
+# ------------------------------------------------------------------ events
+class JobEvent(BaseModel):
+    """One entry of a job's event stream (also sent as SSE `data`)."""
+
+    type: Literal["state", "tile", "pass", "failure"]
+    state: JobState | None = None
+    tile: int | None = None
+    pass_index: int | None = None
+    samples: int | None = None
+    tiles_done: int | None = None
+    message: str | None = None
+
+
+# ------------------------------------------------------------------ state machine (Lua)
+# Shared by the service and the workers. Key names are built from the job id inside the
+# scripts (single-instance Redis; no cluster).
+LUA_HELPERS = f"""
+local P = '{PREFIX}:'
+local function jk(id) return P .. 'job:' .. id end
+local function event(id, ...)
+  redis.call('XADD', jk(id) .. ':events', 'MAXLEN', '~', {EVENTS_MAXLEN}, '*', ...)
+end
+local function logline(id, now, text)
+  local stamp = tostring(now)
+  redis.call('RPUSH', jk(id) .. ':log', stamp .. ' ' .. text)
+  redis.call('LTRIM', jk(id) .. ':log', -{LOG_MAXLEN}, -1)
+end
+local wake_tokens = {{}}
+for i = 1, 8 do wake_tokens[i] = '1' end
+-- Puts a job (back) into the ready set, starting at its band's lowest served count.
+local function make_ready(id, priority)
+  local lo = {BAND} * ({MAX_PRIORITY} - tonumber(priority))
+  local first = redis.call('ZRANGEBYSCORE', '{READY}', lo, lo + {BAND} - 1, 'WITHSCORES', 'LIMIT', 0, 1)
+  local score = lo
+  if #first > 0 then score = tonumber(first[2]) end
+  redis.call('ZADD', '{READY}', 'NX', score, id)
+  -- Wakes idle workers now rather than at their next poll; capped, so it never grows.
+  redis.call('RPUSH', '{WAKE}', unpack(wake_tokens))
+  redis.call('LTRIM', '{WAKE}', -{WAKE_MAX}, -1)
+end
+-- Moves a job to a final state: its open work is dropped and its keys start to expire.
+local function finish(id, state, now, err)
+  local key = jk(id)
+  if err then
+    redis.call('HSET', key, 'state', state, 'finished_at', now, 'error', err)
+  else
+    redis.call('HSET', key, 'state', state, 'finished_at', now)
+  end
+  redis.call('ZREM', '{READY}', id)
+  redis.call('SREM', '{ACTIVE}', id)
+  redis.call('DEL', key .. ':queue')
+  if err then
+    event(id, 'type', 'state', 'state', state, 'message', err)
+    logline(id, now, 'job ' .. state .. ': ' .. err)
+  else
+    event(id, 'type', 'state', 'state', state)
+    logline(id, now, 'job ' .. state)
+  end
+  local ttl = tonumber(redis.call('HGET', key, 'retention') or '0')
+  if ttl and ttl > 0 then
+    for _, suffix in ipairs({{'', ':tiles', ':events', ':log', ':failures', ':blocklist'}}) do
+      redis.call('EXPIRE', key .. suffix, ttl)
+    end
+  end
+end
+local function is_final(state)
+  return state == 'done' or state == 'failed' or state == 'cancelled'
+end
+"""
+
+# Creates a job's ready entry after its hash and queue exist. ARGV: id, priority.
+LUA_MAKE_READY = LUA_HELPERS + """
+make_ready(ARGV[1], ARGV[2])
+return 1
+"""
+
+# ARGV: id, now, error. Fails the job unless final. Returns the state before the call.
+LUA_FAIL_JOB = LUA_HELPERS + """
+local state = redis.call('HGET', jk(ARGV[1]), 'state')
+if not state then return '' end
+if not is_final(state) then finish(ARGV[1], 'failed', ARGV[2], ARGV[3]) end
+return state
+"""
+
+# ARGV: id, now. Returns the state before the call ('' if no such job).
+LUA_CANCEL_JOB = LUA_HELPERS + """
+local state = redis.call('HGET', jk(ARGV[1]), 'state')
+if not state then return '' end
+if not is_final(state) then finish(ARGV[1], 'cancelled', ARGV[2], nil) end
+return state
+"""
+
+# Paused jobs leave the ready set; tiles already being rendered are still stored.
+# ARGV: id, now. Returns the state before the call.
+LUA_PAUSE_JOB = LUA_HELPERS + """
+local key = jk(ARGV[1])
+local state = redis.call('HGET', key, 'state')
+if not state then return '' end
+if state == 'queued' or state == 'running' then
+  redis.call('HSET', key, 'state', 'paused', 'resume_state', state)
+  redis.call('ZREM', '{READY}', ARGV[1])
+  event(ARGV[1], 'type', 'state', 'state', 'paused')
+  logline(ARGV[1], ARGV[2], 'job paused')
+end
+return state
+""".replace("{READY}", READY)
+
+LUA_RESUME_JOB = LUA_HELPERS + """
+local key = jk(ARGV[1])
+local state = redis.call('HGET', key, 'state')
+if not state then return '' end
+if state == 'paused' then
+  local back = redis.call('HGET', key, 'resume_state') or 'queued'
+  redis.call('HSET', key, 'state', back)
+  make_ready(ARGV[1], redis.call('HGET', key, 'priority') or '5')
+  event(ARGV[1], 'type', 'state', 'state', back)
+  logline(ARGV[1], ARGV[2], 'job resumed')
+end
+return state
+"""

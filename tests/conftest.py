@@ -74,16 +74,19 @@ def redis_client(redis_server) -> redis.Redis:
     client.close()
 
 
-def start_api(redis_url: str, log_dir: Path, **settings: str) -> tuple[Process, str]:
+def start_api(redis_url: str, log_dir: Path, host: str = "127.0.0.1",
+              cmd_prefix: list[str] = (), public_host: str | None = None,
+              **settings: str) -> tuple[Process, str]:
     """uvicorn serving tessera_service on a free port; settings become TESSERA_* variables.
-    Returns once /healthz answers."""
+    `cmd_prefix` wraps the command (e.g. ip netns exec NS); `public_host` is where this
+    process reaches it (default: host). Returns once /healthz answers."""
     port = free_port()
     env = clean_env(TESSERA_REDIS_URL=redis_url,
                     **{f"TESSERA_{k.upper()}": str(v) for k, v in settings.items()})
-    proc = Process(f"api-{port}", [sys.executable, "-m", "uvicorn", "--factory",
-                                   "tessera_service.app:create_app", "--host", "127.0.0.1",
+    proc = Process(f"api-{port}", [*cmd_prefix, sys.executable, "-m", "uvicorn", "--factory",
+                                   "tessera_service.app:create_app", "--host", host,
                                    "--port", str(port), "--log-level", "warning"], log_dir, env)
-    base = f"http://127.0.0.1:{port}"
+    base = f"http://{public_host or host}:{port}"
     deadline = time.monotonic() + STARTUP_TIMEOUT
     while True:
         assert proc.alive(), "the API exited at startup\n" + proc.log()
@@ -96,13 +99,18 @@ def start_api(redis_url: str, log_dir: Path, **settings: str) -> tuple[Process, 
         time.sleep(0.05)
 
 
-def start_worker(redis_url: str, name: str, log_dir: Path, heartbeat_ttl: float = 2.0) -> Process:
-    """A worker process; returns once its heartbeat is in Redis."""
-    proc = Process(name, [sys.executable, "-m", "tessera_worker", "--name", name,
+def start_worker(redis_url: str, name: str, log_dir: Path, heartbeat_ttl: float = 2.0,
+                 faults: str = "", tile_timeout: float = 60.0,
+                 memory_limit: int = 8 << 30, cmd_prefix: list[str] = (),
+                 watch_url: str | None = None) -> Process:
+    """A worker process; returns once its heartbeat is in Redis (seen through watch_url,
+    default redis_url). `faults`: the worker's fault-injection rules (TESSERA_WORKER_FAULTS)."""
+    proc = Process(name, [*cmd_prefix, sys.executable, "-m", "tessera_worker", "--name", name,
                           "--threads", "1", "--heartbeat-ttl", str(heartbeat_ttl),
-                          "--log-level", "DEBUG"],
-                   log_dir, clean_env(REDIS_URL=redis_url))
-    client = redis.Redis.from_url(redis_url)
+                          "--tile-timeout", str(tile_timeout),
+                          "--memory-limit", str(memory_limit), "--log-level", "DEBUG"],
+                   log_dir, clean_env(REDIS_URL=redis_url, TESSERA_WORKER_FAULTS=faults))
+    client = redis.Redis.from_url(watch_url or redis_url)
     deadline = time.monotonic() + STARTUP_TIMEOUT
     try:
         while not client.exists(protocol.worker_key(name)):

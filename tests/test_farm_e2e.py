@@ -35,8 +35,9 @@ def farm(redis_server, tmp_path_factory):
     with httpx.Client(base_url=base, timeout=60) as client:
         client.processes = [api_proc, *workers.values()]
         client.workers = workers
+        client.redis_url, client.log_dir = redis_server, logs
         yield client
-    for proc in [*workers.values(), api_proc]:
+    for proc in [*client.workers.values(), api_proc]:
         proc.stop()
 
 
@@ -86,6 +87,15 @@ def test_farm_image_equals_local_render(farm, redis_client, tmp_path):
     pixels = np.asarray(png.get_pixels(oiio.UINT8)).reshape(56, 72, 3)
     assert np.array_equal(pixels, images.tonemap_srgb8(expected))
 
+    # Translated once: the first worker to load the scene stored the renderer's blob,
+    # which the other workers load without parsing USD.
+    from tessera_renderer import scene_blob
+    version = f"v{scene_blob.BLOB_VERSION}.{scene_blob.TRANSLATOR_VERSION}"
+    spec = protocol.JobSpec.model_validate_json(redis_client.hget(protocol.job_key(job["id"]), "spec"))
+    blob = redis_client.get(protocol.translated_scene_key(spec.scene_hash, version))
+    assert blob and blob.startswith(scene_blob.MAGIC)
+    assert redis_client.pttl(protocol.translated_scene_key(spec.scene_hash, version)) > 0
+
     # The merged files are cached: the same bytes again, without re-merging.
     assert redis_client.exists(protocol.job_image_key(job["id"], "exr"))
     assert farm.get(f"/jobs/{job['id']}/image.exr").content == (tmp_path / "farm.exr").read_bytes()
@@ -130,23 +140,25 @@ def test_sigterm_lets_the_worker_finish_its_tile(farm, redis_server, redis_clien
         r = submit(farm, CORNELL, width=64, height=64, spp=384, seed=5, max_depth=16, tile_size=16)
         assert r.status_code == 201, r.text
         job_id = r.json()["id"]
+        queue = protocol.job_queue_key(job_id)
         deadline = time.monotonic() + 60
         while not (held := redis_client.xpending_range(
-                protocol.TILE_STREAM, protocol.WORKER_GROUP, min="-", max="+", count=10,
-                consumername="w-c")):
+                queue, protocol.WORKER_GROUP, min="-", max="+", count=10, consumername="w-c")):
             assert time.monotonic() < deadline, "w-c never held a tile\n" + worker.log()
             time.sleep(0.01)
         entry_id = held[0]["message_id"]
-        (_, fields), = redis_client.xrange(protocol.TILE_STREAM, entry_id, entry_id)
+        (_, fields), = redis_client.xrange(queue, entry_id, entry_id)
         task = protocol.TileTask.from_fields(fields)
         assert task.job_id == job_id
         worker.popen.send_signal(signal.SIGTERM)
         assert worker.popen.wait(timeout=30) == 0, worker.log()
-        assert f"job {job_id} tile {task.tile.index} rendered" in worker.log(200), worker.log()
-        assert redis_client.hexists(protocol.job_tiles_key(job_id), str(task.tile.index))
+        assert f"job {job_id} tile {task.tile.index} pass 0 rendered" in worker.log(200), worker.log()
+        assert redis_client.hexists(protocol.job_tiles_key(job_id), task.field)
         assert not redis_client.exists(protocol.worker_key("w-c"))
-        assert all(c["name"] != b"w-c" for c in
-                   redis_client.xinfo_consumers(protocol.TILE_STREAM, protocol.WORKER_GROUP))
+        assert not redis_client.sismember(protocol.WORKERS, "w-c")
+        if redis_client.exists(queue):
+            assert all(c["name"] != b"w-c" for c in
+                       redis_client.xinfo_consumers(queue, protocol.WORKER_GROUP))
         status = wait_for_job(farm, job_id, processes=farm.processes)
         assert status["state"] == "done", status
     finally:
@@ -161,11 +173,12 @@ def test_killed_worker_tile_is_taken_over(farm, redis_client, tmp_path):
     r = submit(farm, CORNELL, **form)
     assert r.status_code == 201, r.text
     job_id = r.json()["id"]
+    queue = protocol.job_queue_key(job_id)
 
     deadline = time.monotonic() + 60
     while True:
         status = farm.get(f"/jobs/{job_id}").json()
-        held = redis_client.xpending_range(protocol.TILE_STREAM, protocol.WORKER_GROUP,
+        held = redis_client.xpending_range(queue, protocol.WORKER_GROUP,
                                            min="-", max="+", count=10, consumername="w-a")
         if 0 < status["tiles_done"] < status["tiles_total"] and held:
             os.kill(victim.pid, signal.SIGKILL)
@@ -181,15 +194,18 @@ def test_killed_worker_tile_is_taken_over(farm, redis_client, tmp_path):
     assert status["tiles_done"] == 25
     assert_bit_identical(download_exr(farm, job_id, tmp_path / "farm.exr"), reference(form))
 
-    # Nothing is left pending, the dead worker is gone from the group and its heartbeat
-    # has expired.
+    # The done job's queue is gone, the dead worker's heartbeat has expired and the
+    # reapers forget it.
+    assert not redis_client.exists(queue)
     assert not redis_client.exists(protocol.worker_key("w-a"))
+    assert int(redis_client.hget(protocol.STATS, "reclaimed") or 0) >= 1
     deadline = time.monotonic() + 10
-    while (redis_client.xpending(protocol.TILE_STREAM, protocol.WORKER_GROUP)["pending"]
-           or any(c["name"] == b"w-a" for c in
-                  redis_client.xinfo_consumers(protocol.TILE_STREAM, protocol.WORKER_GROUP))):
-        assert time.monotonic() < deadline, "the dead worker's tile or name was left behind"
+    while redis_client.sismember(protocol.WORKERS, "w-a"):
+        assert time.monotonic() < deadline, "the dead worker's name was left behind"
         time.sleep(0.1)
+    # Restart it for the tests that follow.
+    farm.workers["w-a"] = start_worker(farm.redis_url, "w-a", farm.log_dir)
+    farm.processes[1] = farm.workers["w-a"]
 
 
 def test_embedded_serve_runs_a_whole_farm_and_stops_it(tmp_path):
@@ -253,3 +269,22 @@ def _running(pid: int) -> bool:
     except OSError:
         return False
     return state != "Z"
+
+
+@pytest.mark.parametrize("integrator", ["bdpt", "light"])
+def test_splatting_integrators_on_the_farm_equal_a_local_render(farm, tmp_path, integrator):
+    """Light paths splat onto other tiles' pixels: the farm sums every tile's splat layer
+    (exact integers) and normalises by all light paths, so the merged image equals the local
+    render bit for bit, however the two workers shared the tiles."""
+    from tessera.local import render_image
+
+    form = dict(width=40, height=24, spp=4, seed=5, max_depth=8, tile_size=16, integrator=integrator)
+    r = submit(farm, CORNELL, **form)
+    assert r.status_code == 201, r.text
+    status = wait_for_job(farm, r.json()["id"], processes=farm.processes)
+    assert status["state"] == "done", status
+    actual = download_exr(farm, status["id"], tmp_path / "farm.exr")
+    local = render_image(load_scene(str(CORNELL)), RenderSettings(**form), progress=False).rgba
+    images.write_exr(tmp_path / "local.exr", local)
+    assert_bit_identical(actual, images.read_exr(tmp_path / "local.exr"))
+    assert actual[..., :3].mean() > 0.01

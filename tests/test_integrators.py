@@ -111,14 +111,14 @@ def test_unknown_integrator_is_a_clear_error(cornell_path):
         scene.render_tile(0, 0, 4, 4, width=8, height=8, spp=1, integrator="light")
 
 
-def test_auto_chooses_bdpt_only_where_caustics_can_form(tmp_path, cornell_path):
-    from pxr import Gf, Sdf, UsdShade
+def test_auto_chooses_bdpt_only_for_caustics_that_path_tracing_cannot_find(tmp_path, cornell_path):
+    from pxr import Gf, Sdf, UsdLux, UsdShade
 
     from usd_fixtures import add_material, add_mesh, new_stage
 
-    assert load_scene(cornell_path).resolve_integrator("auto") == "path"  # rough diffuse walls
+    assert load_scene(cornell_path).resolve_integrator("auto") == "path"  # diffuse, area light
 
-    def scene_with(**inputs):
+    def scene_with(point_light=True, **inputs):
         path = tmp_path / f"auto_{len(list(tmp_path.iterdir()))}.usda"
         stage = new_stage(path)
         mat = add_material(stage, "/M", (0.5, 0.5, 0.5))
@@ -126,12 +126,59 @@ def test_auto_chooses_bdpt_only_where_caustics_can_form(tmp_path, cornell_path):
         for name, value in inputs.items():
             shader.CreateInput(name, Sdf.ValueTypeNames.Float).Set(value)
         add_mesh(stage, "/Q", [(0, 0, 0), (1, 0, 0), (1, 1, 0)], [3], [0, 1, 2], mat)
+        if point_light:
+            bulb = UsdLux.SphereLight.Define(stage, "/Bulb")
+            bulb.CreateTreatAsPointAttr(True)
+            bulb.AddTranslateOp().Set(Gf.Vec3d(0, 3, 0))
+        else:
+            UsdLux.RectLight.Define(stage, "/Panel").AddTranslateOp().Set(Gf.Vec3d(0, 3, 0))
         stage.GetRootLayer().Save()
         return load_scene(path)
 
-    assert scene_with(opacity=0.0).resolve_integrator("auto") == "bdpt"           # glass
-    assert scene_with(metallic=1.0, roughness=0.05).resolve_integrator("auto") == "bdpt"  # mirror
-    assert scene_with(metallic=1.0, roughness=0.8).resolve_integrator("auto") == "path"   # brushed
-    assert scene_with(roughness=0.05).resolve_integrator("auto") == "path"        # glossy plastic
+    assert scene_with(opacity=0.0).resolve_integrator("auto") == "bdpt"                  # glass + bulb
+    assert scene_with(metallic=1.0, roughness=0.05).resolve_integrator("auto") == "bdpt"  # mirror + bulb
+    assert scene_with(point_light=False, opacity=0.0).resolve_integrator("auto") == "path"  # glass + panel
+    assert scene_with(metallic=1.0, roughness=0.8).resolve_integrator("auto") == "path"   # brushed metal
+    assert scene_with(roughness=0.05).resolve_integrator("auto") == "path"               # glossy plastic
     assert scene_with(opacity=0.2, opacityThreshold=0.5).resolve_integrator("auto") == "path"  # cutout
     assert scene_with(opacity=0.0).resolve_integrator("whitted") == "whitted"
+
+
+def test_path_tracing_misses_a_point_light_caustic_that_bdpt_finds(tmp_path):
+    """Why `auto` picks bdpt there: a point light above a smooth mirror lights a Lambertian
+    ceiling only through the mirror (L S D E). Path tracing cannot sample that path."""
+    from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade
+
+    from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, new_stage
+
+    path = tmp_path / "caustic.usda"
+    stage = new_stage(path)
+    mirror = add_material(stage, "/Mirror", (0.9, 0.9, 0.9))
+    shader = UsdShade.Shader(stage.GetPrimAtPath("/Mirror/Surface"))
+    shader.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(1.0)
+    shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.0)
+    add_mesh(stage, "/Floor", [(-2, 0, -2), (-2, 0, 2), (2, 0, 2), (2, 0, -2)], [4], [0, 1, 2, 3], mirror)
+    # A white ceiling facing down at y = 2, and the bulb between: the ceiling's only light
+    # comes back from the mirror (a black plate shadows all of it from the bulb).
+    ceiling = add_mesh(stage, "/Ceiling", [(-2, 2, -2), (2, 2, -2), (2, 2, 2), (-2, 2, 2)], [4], [0, 1, 2, 3])
+    ceiling.CreateDisplayColorAttr([Gf.Vec3f(0.8, 0.8, 0.8)])
+    shield = add_mesh(stage, "/Shield", [(-0.5, 1.2, -0.5), (0.5, 1.2, -0.5), (0.5, 1.2, 0.5), (-0.5, 1.2, 0.5)],
+                      [4], [0, 1, 2, 3])
+    shield.CreateDisplayColorAttr([Gf.Vec3f(0, 0, 0)])
+    bulb = UsdLux.SphereLight.Define(stage, "/Bulb")
+    bulb.CreateTreatAsPointAttr(True)
+    bulb.CreateIntensityAttr(50.0)
+    bulb.AddTranslateOp().Set(Gf.Vec3d(0, 1, 0))
+    cam = add_camera(stage, "/Cam", (0, 0.5, 0), focal=20.0)
+    UsdGeom.Xformable(cam.GetPrim()).AddRotateXOp().Set(90.0)  # look up at the ceiling
+    add_render_settings(stage, cam, (16, 16))
+    stage.GetRootLayer().Save()
+    scene = load_scene(path)
+    assert scene.resolve_integrator("auto") == "bdpt"
+    W = H = 16
+    path_img = scene.render_tile(0, 0, W, H, width=W, height=H, spp=64, max_depth=8)
+    splats = new_splat_buffer(W, H)
+    bdpt_img = resolve_image(scene.render_tile(0, 0, W, H, width=W, height=H, spp=64, max_depth=8,
+                                               integrator="bdpt", splats=splats), splats, W * H * 64)
+    assert path_img[..., :3].max() == 0.0          # the caustic does not exist for path tracing
+    assert bdpt_img[..., :3].mean() > 0.05         # it does for bdpt

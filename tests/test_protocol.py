@@ -30,7 +30,8 @@ def test_tile_round_trip_is_bit_exact():
     rng = np.random.default_rng(1)
     rgba = rng.normal(size=(3, 5, 4)).astype(np.float32)
     rgba[0, 0] = [np.inf, -np.inf, np.nan, -0.0]
-    x0, y0, back = decode_tile(encode_tile(rect, rgba))
+    r = decode_tile(encode_tile(rect, rgba))
+    x0, y0, back = r.x0, r.y0, r.rgba
     assert (x0, y0, back.shape, back.dtype) == (16, 8, (3, 5, 4), np.float32)
     assert np.array_equal(back.view(np.uint32), rgba.view(np.uint32))
 
@@ -77,14 +78,14 @@ def test_task_fields_round_trip():
 
 def test_task_rejects_other_schema_version_and_bad_fields():
     raw = json.loads(_task().model_dump_json())
-    raw["schema_version"] = 2
+    raw["schema_version"] = 1
     with pytest.raises(ValidationError, match="schema_version"):
         TileTask.from_fields({"task": json.dumps(raw)})
     with pytest.raises(ValueError, match="no 'task'"):
         TileTask.from_fields({"other": "x"})
     with pytest.raises(ValidationError):
         TileTask.from_fields({"task": "{not json"})
-    raw["schema_version"] = 1
+    raw["schema_version"] = 2
     raw["settings"]["spp"] = 0
     with pytest.raises(ValidationError, match="spp"):
         TileTask.from_fields({"task": json.dumps(raw)})
@@ -97,10 +98,120 @@ def test_render_settings_limits():
         RenderSettings(width=0, height=8)
     s = RenderSettings(width=8, height=8)
     assert (s.spp, s.seed, s.max_depth, s.tile_size) == (64, 0, 64, 64)
+    assert not s.adaptive
+    with pytest.raises(ValidationError, match="min_spp"):
+        RenderSettings(width=8, height=8, target_error=0.01, min_spp=64, max_spp=32)
+    with pytest.raises(ValidationError, match="target_error"):
+        RenderSettings(width=8, height=8, target_error=0)
+
+
+def test_pass_schedule():
+    fixed = RenderSettings(width=8, height=8, spp=10)
+    assert protocol.pass_range(fixed, 0) == (0, 10) and protocol.pass_range(fixed, 1) is None
+    adaptive = RenderSettings(width=8, height=8, target_error=0.01, min_spp=16, max_spp=100)
+    ranges = []
+    p = 0
+    while (r := protocol.pass_range(adaptive, p)) is not None:
+        ranges.append(r)
+        p += 1
+    assert ranges == [(0, 16), (16, 16), (32, 32), (64, 36)]  # contiguous, capped at max_spp
+
+
+def test_result_v2_round_trip_with_variance_and_splat():
+    rect = TileRect(index=1, x0=4, y0=2, width=3, height=2)
+    rng = np.random.default_rng(2)
+    rgba = rng.random((2, 3, 4), dtype=np.float32)
+    var = rng.random((2, 3, 3), dtype=np.float32)
+    splat = rng.integers(0, 1 << 40, size=(5, 7, 3), dtype=np.int64)
+    data = encode_tile(rect, rgba, pass_index=2, sample_start=32, spp=32, variance=var,
+                       splat_rect=(0, 0, 7, 5), splat=splat, light_paths=12345)
+    r = decode_tile(data)
+    assert (r.pass_index, r.sample_start, r.spp, r.light_paths, r.splat_rect) == (2, 32, 32, 12345, (0, 0, 7, 5))
+    assert np.array_equal(r.rgba, rgba) and np.array_equal(r.variance, var)
+    assert r.splat.dtype == np.int64 and np.array_equal(r.splat, splat)
+    with pytest.raises(ValueError, match="bytes"):
+        decode_tile(data[:-4])
+    with pytest.raises(ValueError, match="variance"):
+        encode_tile(rect, rgba, variance=var[:1])
+
+
+def test_version_1_results_are_still_read():
+    import struct
+    rgba = np.arange(2 * 2 * 4, dtype=np.float32).reshape(2, 2, 4)
+    data = struct.pack("<4sIiiii", b"TSRT", 1, 8, 16, 2, 2) + rgba.tobytes()
+    r = decode_tile(data)
+    assert (r.x0, r.y0) == (8, 16) and np.array_equal(r.rgba, rgba) and r.variance is None
+
+
+def test_combine_passes_matches_the_pooled_statistics():
+    """Two passes combine to the mean and the unbiased variance of all their samples."""
+    rng = np.random.default_rng(3)
+    samples = rng.normal(1.0, 0.5, size=(40, 2, 2, 4))
+    def result(chunk, p, start):
+        return protocol.TileResult(0, 0, chunk.mean(0).astype(np.float32), p, start, len(chunk),
+                                   chunk[..., :3].var(0, ddof=1).astype(np.float32))
+    a, b = result(samples[:16], 0, 0), result(samples[16:], 1, 16)
+    mean, var, n = protocol.combine_passes([b, a])  # order does not matter
+    assert n == 40
+    assert np.allclose(mean, samples.mean(0), atol=1e-6)
+    assert np.allclose(var, samples[..., :3].var(0, ddof=1), rtol=1e-5)
+    # One pass is returned untouched (bit-identical to a single render).
+    assert protocol.combine_passes([a])[0] is a.rgba
+
+
+def test_noise_target_decision():
+    s = RenderSettings(width=8, height=8, target_error=0.01, min_spp=16, max_spp=64)
+    flat = np.ones((4, 4, 4), np.float32)
+    # Background (no variance at all) is finished after its first pass.
+    assert protocol.tile_finished(s, 0, flat, np.zeros((4, 4, 3), np.float32), 16)
+    # Luminance standard error / luminance = sqrt(sum(w^2) * 0.16 / 16) / 1 = 7.5 % > 1 %:
+    # go on ...
+    noisy = np.full((4, 4, 3), 0.16, np.float32)
+    w = np.array([0.2126, 0.7152, 0.0722])
+    assert protocol.tile_error(flat, noisy, 16) == pytest.approx(np.sqrt((w ** 2).sum() * 0.01))
+    assert not protocol.tile_finished(s, 0, flat, noisy, 16)
+    # ... until the last pass of the schedule (64 spp), whatever the noise.
+    assert protocol.tile_finished(s, 2, flat, noisy, 64)
+    assert protocol.tile_finished(s, 1, flat, noisy / 1e4, 32)
 
 
 def test_key_layout_is_namespaced():
-    keys = [protocol.TILE_STREAM, protocol.JOB_INDEX, protocol.scene_key("h"), protocol.job_key("j"),
-            protocol.job_tiles_key("j"), protocol.job_image_key("j", "exr"), protocol.worker_key("w")]
+    keys = [protocol.READY, protocol.ACTIVE, protocol.STATS, protocol.WORKERS, protocol.DEAD_LETTER,
+            protocol.JOB_INDEX, *protocol.job_keys("j"), protocol.preflight_key("h"),
+            protocol.translated_scene_key("h", "v1.1"), protocol.scene_key("h"), protocol.worker_key("w")]
     assert all(k.startswith(protocol.PREFIX + ":") for k in keys)
     assert len(set(keys)) == len(keys)
+
+
+def test_splat_scale_is_the_renderers():
+    """The farm normalises splats with protocol.SPLAT_SCALE; it must be the renderer's."""
+    from tessera_renderer import _core
+    assert protocol.SPLAT_SCALE == _core.SPLAT_SCALE
+
+
+def test_compressed_splat_layers_round_trip_and_merge_exactly():
+    rng = np.random.default_rng(1)
+    frame = np.zeros((30, 40, 3), np.int64)
+    frame[5:20, 7:33] = rng.integers(0, 1 << 40, size=(15, 26, 3))
+    rect, layer = protocol.splat_layer(frame)
+    assert rect == (7, 5, 26, 15)
+    tile = protocol.TileRect(index=0, x0=0, y0=0, width=8, height=4)
+    data = protocol.encode_tile(tile, np.zeros((4, 8, 4), np.float32), spp=2, splat_rect=rect, splat=layer,
+                                light_paths=64)
+    assert len(data) < layer.nbytes  # compressed
+    result = protocol.decode_tile(data)
+    assert result.light_paths == 64 and result.splat_rect == rect
+    total = np.zeros_like(frame)
+    protocol.add_splats(total, result.splat_rect, result.splat)
+    assert np.array_equal(total, frame)
+    # A corrupted splat section is an error, not garbage pixels.
+    with pytest.raises(ValueError):
+        protocol.decode_tile(data[:-5] + b"xxxxx")
+    # Nothing landed: an empty rectangle.
+    assert protocol.splat_layer(np.zeros((4, 4, 3), np.int64))[0] == (0, 0, 0, 0)
+
+
+def test_noise_target_is_refused_for_splatting_integrators():
+    with pytest.raises(ValueError, match="fixed spp"):
+        protocol.RenderSettings(width=8, height=8, target_error=0.05, integrator="bdpt")
+    assert protocol.RenderSettings(width=8, height=8, target_error=0.05, integrator="whitted").adaptive

@@ -116,7 +116,13 @@ def test_submit_uses_scene_resolution_and_creates_tiles(api, redis_client):
     assert redis_client.zscore(protocol.JOB_INDEX, job["id"]) is not None
     status = api.get(f"/jobs/{job['id']}").json()
     assert status["settings"] == {"width": 512, "height": 512, "spp": 4, "seed": 0,
-                                  "max_depth": 64, "tile_size": 100}
+                                  "max_depth": 64, "tile_size": 100, "target_error": None,
+                                  "min_spp": 16, "max_spp": 1024, "time_limit": None,
+                                  "integrator": "path"}
+    assert status["priority"] == protocol.DEFAULT_PRIORITY
+    # One queue entry per tile, and the job is ready to be served.
+    assert redis_client.xlen(protocol.job_queue_key(job["id"])) == 36
+    assert redis_client.zscore(protocol.READY, job["id"]) is not None
     assert status["tiles_done"] == 0 and status["scene_name"] == "cornell.usda"
     api.delete(f"/jobs/{job['id']}")
 

@@ -70,12 +70,20 @@ class Scene:
         return self._core.num_emitters
 
     def resolve_integrator(self, name: str) -> str:
-        """`auto` -> `bdpt` if some material can focus light into caustics (glass or other
-        transmission, or a smooth mirror-like lobe: metallic, or specular/clearcoat roughness
-        below AUTO_SMOOTH_ROUGHNESS), else `path`. A pure function of the scene, so every
-        worker resolves it the same way. Other names pass through."""
+        """`auto` -> `bdpt` when a delta light (point, or distant with angle 0) can shine
+        through or off a material that forms caustics (transmission, or a metal/clearcoat
+        smoother than AUTO_SMOOTH_ROUGHNESS): path tracing cannot find those paths at all.
+        Otherwise `path`, which measured more efficient per unit time even on a caustic
+        scene lit by an area light (docs/benchmarks/integrators.md). A pure function of the
+        scene, so every worker resolves it the same way. Other names pass through."""
         if name != "auto":
             return name
+        point = getattr(self.data, "point_lights", None)
+        distant = getattr(self.data, "distant_lights", None)
+        has_delta_light = (point is not None and len(point) > 0) or \
+            (distant is not None and len(distant) > 0 and bool(np.any(np.asarray(distant)[:, 3] == 0.0)))
+        if not has_delta_light:
+            return "path"
         params = getattr(self.data, "material_params", None) or {}
         flags = params.get("preview_surface")
         if flags is None:

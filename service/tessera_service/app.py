@@ -5,12 +5,14 @@ import logging
 from contextlib import asynccontextmanager
 
 import redis
-from fastapi import FastAPI, HTTPException, Request
+import redis.asyncio
+from fastapi import Depends, FastAPI, HTTPException, Request
 from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from .routers import jobs
-from .schemas import Health
+from .auth import require_token
+from .routers import farm, jobs
+from .schemas import Health, Problem
 from .settings import Settings
 from .store import JobStore
 
@@ -22,22 +24,30 @@ FORM_OVERHEAD = 1 << 20
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
-    store = JobStore.from_url(settings.redis_url)
+    store = JobStore.from_url(settings.redis_url, retention=settings.job_retention,
+                              scene_retention=settings.scene_retention)
+    aredis = redis.asyncio.Redis.from_url(settings.redis_url, socket_connect_timeout=5,
+                                          socket_timeout=30, health_check_interval=30)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
-        try:
-            store.ensure_group()
-        except redis.RedisError as e:  # not fatal: /healthz reports it, requests retry
-            log.warning("redis at %s is not reachable yet: %s", settings.redis_url, e)
+        if not store.ping():  # not fatal: /healthz reports it, requests retry
+            log.warning("redis at %s is not reachable yet", settings.redis_url)
         yield
         store.redis.close()
+        await aredis.aclose()
 
-    app = FastAPI(title="Tessera", version="0.1.0", lifespan=lifespan,
-                  description="Render farm: submit a USD scene, get an EXR.")
+    app = FastAPI(title="Tessera", version="0.2.0", lifespan=lifespan,
+                  description="Render farm: submit a USD scene, get an EXR. Every endpoint "
+                              "but /healthz needs `Authorization: Bearer <token>` when the "
+                              "server is configured with tokens (TESSERA_API_TOKENS).")
     app.state.settings = settings
     app.state.store = store
-    app.include_router(jobs.router)
+    app.state.aredis = aredis  # for the event streams
+    errors = {401: {"model": Problem, "description": "missing or invalid bearer token"},
+              503: {"model": Problem, "description": "the job store (redis) is unavailable"}}
+    app.include_router(jobs.router, dependencies=[Depends(require_token)], responses=errors)
+    app.include_router(farm.router, dependencies=[Depends(require_token)], responses=errors)
     app.add_middleware(UploadLimit, path="/jobs",
                        max_bytes=settings.max_upload_bytes + FORM_OVERHEAD,
                        file_limit=settings.max_upload_bytes)

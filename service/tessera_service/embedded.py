@@ -38,8 +38,14 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
     # Uvicorn handles SIGINT/SIGTERM while it runs and re-raises the signal once it has
     # stopped; this handler absorbs that, so that the workers and Redis are then stopped
     # in order. Outside of uvicorn's run a signal interrupts whatever we are waiting for.
+    from .auth import is_loopback
+
     phase = "starting"
     embedded = redis_url is None
+    if not is_loopback(host) and not Settings().api_tokens:
+        raise SystemExit(f"tessera serve: refusing to listen on {host} without authentication: "
+                         "set TESSERA_API_TOKENS (comma-separated bearer tokens), or bind to "
+                         "127.0.0.1")
 
     def on_signal(signum, frame):
         if phase != "running":
@@ -59,7 +65,7 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
                 for _ in range(workers):
                     procs.append(start_worker(redis_url, threads=worker_threads))
                 log.warning("started %d local worker(s)", workers)
-            app = create_app(Settings(redis_url=redis_url))
+            app = create_app(Settings(redis_url=redis_url))  # tokens etc. from the environment
             server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level=log_level))
             phase = "running"
             server.run()
@@ -80,20 +86,27 @@ class LocalRedis:
 
 
 @contextmanager
-def redis_server(workdir: str, port: int | None = None, timeout: float = 10.0):
-    """A throwaway redis-server on 127.0.0.1 (free port, no persistence) for the block."""
+def redis_server(workdir: str, port: int | None = None, timeout: float = 10.0, *,
+                 appendonly: bool = False, bind: str = "127.0.0.1", netns: str | None = None):
+    """A redis-server on `bind` (default: a free port on 127.0.0.1) for the block. Without
+    `appendonly` nothing is persisted; with it, an append-only file in workdir is fsynced
+    on every write (as deploy/redis.conf does), so a restart in the same workdir resumes
+    exactly. `netns`: run it inside that network namespace (ip netns exec)."""
     exe = shutil.which("redis-server")
     if exe is None:
         raise RuntimeError("redis-server is not installed (apt-get install redis-server), "
                            "or pass a Redis URL")
     port = port or free_port()
     logfile = os.path.join(workdir, "redis.log")
+    persistence = (["--appendonly", "yes", "--appendfsync", "always"] if appendonly
+                   else ["--appendonly", "no"])
+    prefix = ["ip", "netns", "exec", netns] if netns else []
     proc = subprocess.Popen(
-        [exe, "--port", str(port), "--bind", "127.0.0.1", "--save", "", "--appendonly", "no",
-         "--dir", workdir, "--logfile", logfile, "--daemonize", "no"],
+        [*prefix, exe, "--port", str(port), "--bind", bind, "--save", "", *persistence,
+         "--protected-mode", "no", "--dir", workdir, "--logfile", logfile, "--daemonize", "no"],
         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
         start_new_session=True, preexec_fn=_die_with_parent)
-    url = f"redis://127.0.0.1:{port}/0"
+    url = f"redis://{bind}:{port}/0"
     try:
         client = redis.Redis.from_url(url, socket_connect_timeout=1)
         deadline = time.monotonic() + timeout

@@ -5,52 +5,84 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-import OpenImageIO as oiio
 
 from tessera import images
-from tessera.protocol import JobSpec, decode_tile, tile_grid
+from tessera.protocol import add_splats, resolve_splats, JobSpec, TileResult, combine_passes, decode_tile, tile_grid
 
 
 class MergeError(Exception):
     """The stored tiles do not form the job's image (missing, misplaced or corrupt)."""
 
 
-def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes]) -> np.ndarray:
-    """Pastes every tile into a full float RGBA image; returns it as (h, w, 4) float32."""
+def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes], *, partial: bool = False) -> np.ndarray:
+    """Combines each tile's passes (protocol.combine_passes, as the local render does) and
+    pastes the tiles into a full float RGBA image; returns it as (h, w, 4) float32. With
+    `partial`, missing tiles stay black (a preview of a running job)."""
     s = spec.settings
     grid = tile_grid(s.width, s.height, s.tile_size)
-    full = oiio.ImageBuf(oiio.ImageSpec(s.width, s.height, 4, oiio.FLOAT))
-    seen = set()
+    passes: dict[int, list[TileResult]] = {}
     for key, data in tiles.items():
-        index = int(key)
+        field = key.decode() if isinstance(key, bytes) else str(key)
+        try:
+            index, pass_index = (int(v) for v in field.split(":"))
+        except ValueError:
+            raise MergeError(f"tile result field {field!r} is not 'tile:pass'") from None
         if not 0 <= index < len(grid):
             raise MergeError(f"tile index {index} is outside the job's grid of {len(grid)}")
         try:
-            x0, y0, rgba = decode_tile(data)
+            result = decode_tile(data)
+        except ValueError as e:
+            raise MergeError(f"tile {index} pass {pass_index}: {e}") from e
+        rect = grid[index]
+        h, w = result.rgba.shape[:2]
+        if (result.x0, result.y0, w, h) != (rect.x0, rect.y0, rect.width, rect.height):
+            raise MergeError(f"tile {index} covers ({result.x0}, {result.y0}, {w}x{h}), "
+                             f"expected ({rect.x0}, {rect.y0}, {rect.width}x{rect.height})")
+        if result.pass_index != pass_index:
+            raise MergeError(f"tile {index}: result of pass {result.pass_index} stored as "
+                             f"pass {pass_index}")
+        passes.setdefault(index, []).append(result)
+    if not partial and len(passes) != len(grid):
+        missing = sorted(set(range(len(grid))) - set(passes))
+        raise MergeError(f"{len(missing)} of {len(grid)} tiles are missing (first: {missing[:5]})")
+    full = np.zeros((s.height, s.width, 4), dtype=np.float32)
+    # Light-tracing splats from every result, summed exactly (integers) and normalised once
+    # by the light paths of all results (protocol.resolve_splats).
+    splats = None
+    light_paths = 0
+    for results in passes.values():
+        for r in results:
+            if r.splat is not None:
+                if splats is None:
+                    splats = np.zeros((s.height, s.width, 3), dtype=np.int64)
+                add_splats(splats, r.splat_rect, r.splat)
+                light_paths += r.light_paths
+    for index, results in passes.items():
+        rect = grid[index]
+        results.sort(key=lambda r: r.pass_index)
+        if [r.pass_index for r in results] != list(range(len(results))):
+            if not partial:
+                raise MergeError(f"tile {index} is missing a pass")
+            results = [r for i, r in enumerate(results) if r.pass_index == i]
+            if not results:
+                continue
+        try:
+            rgba, _, _ = combine_passes(results)
         except ValueError as e:
             raise MergeError(f"tile {index}: {e}") from e
-        rect = grid[index]
-        if (x0, y0, rgba.shape[1], rgba.shape[0]) != (rect.x0, rect.y0, rect.width, rect.height):
-            raise MergeError(f"tile {index} covers ({x0}, {y0}, {rgba.shape[1]}x{rgba.shape[0]}), "
-                             f"expected ({rect.x0}, {rect.y0}, {rect.width}x{rect.height})")
-        tile = oiio.ImageBuf(oiio.ImageSpec(rect.width, rect.height, 4, oiio.FLOAT))
-        if not tile.set_pixels(oiio.ROI(), np.ascontiguousarray(rgba)):
-            raise MergeError(f"tile {index}: {tile.geterror()}")
-        if not oiio.ImageBufAlgo.paste(full, rect.x0, rect.y0, 0, 0, tile):
-            raise MergeError(f"tile {index}: {full.geterror()}")
-        seen.add(index)
-    if len(seen) != len(grid):
-        missing = sorted(set(range(len(grid))) - seen)
-        raise MergeError(f"{len(missing)} of {len(grid)} tiles are missing (first: {missing[:5]})")
-    return np.asarray(full.get_pixels(oiio.FLOAT), dtype=np.float32).reshape(s.height, s.width, 4)
+        full[rect.y0:rect.y0 + rect.height, rect.x0:rect.x0 + rect.width] = rgba
+    return resolve_splats(full, splats, light_paths) if splats is not None else full
 
 
-def encode_images(rgba: np.ndarray, spec: JobSpec) -> tuple[bytes, bytes]:
+def encode_image(rgba: np.ndarray, spec: JobSpec, fmt: str) -> bytes:
     """The image as float EXR bytes (with the same header attributes as a local render)
-    and as a tonemapped sRGB PNG preview."""
+    or as a tonemapped sRGB PNG preview."""
     with tempfile.TemporaryDirectory(prefix="tessera-merge-") as tmp:
-        exr, png = Path(tmp, "image.exr"), Path(tmp, "preview.png")
-        images.write_exr(exr, rgba, images.render_metadata(spec.settings.spp, spec.settings.seed,
-                                                           spec.scene_name))
-        images.write_png_preview(png, rgba)
-        return exr.read_bytes(), png.read_bytes()
+        path = Path(tmp, f"image.{fmt}")
+        if fmt == "exr":
+            s = spec.settings
+            images.write_exr(path, rgba, images.render_metadata(
+                s.max_spp if s.adaptive else s.spp, s.seed, spec.scene_name))
+        else:
+            images.write_png_preview(path, rgba)
+        return path.read_bytes()

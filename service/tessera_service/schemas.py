@@ -14,6 +14,7 @@ class JobCreated(BaseModel):
     tiles_total: int
     width: int
     height: int
+    priority: int
     warnings: list[str] = Field(description="what the renderer will ignore or approximate")
 
 
@@ -22,17 +23,47 @@ class JobStatus(BaseModel):
     state: JobState
     scene_name: str
     settings: RenderSettings
-    tiles_done: int
+    priority: int = Field(description="0 (lowest) to 9; higher-priority jobs' tiles go first")
+    tiles_done: int = Field(description="tiles whose last pass is stored")
     tiles_total: int
+    passes_done: int = Field(description="tile passes stored (one per tile in fixed-spp mode)")
     created_at: datetime
     started_at: datetime | None = None
     finished_at: datetime | None = None
     elapsed_seconds: float = Field(description="from submission until finished (or now)")
-    render_seconds: float = Field(description="sum of the render times of the finished tiles")
+    render_seconds: float = Field(description="sum of the render times of the stored passes")
     warnings: list[str]
     error: str | None = None
+
+
+class JobList(BaseModel):
+    jobs: list[JobStatus]
+
+
+class JobLog(BaseModel):
+    id: str
+    lines: list[str] = Field(description="'<unix time> <message>', oldest first")
+
+
+class WorkerStatus(BaseModel):
+    name: str
+    host: str
+    pid: int
+    started_at: datetime
+    last_heartbeat: datetime
+    current: str | None = Field(description="'job/tile/pass' being rendered, if any")
+    tiles_done: int = Field(description="tile passes this worker stored")
+    failures: int = Field(description="failed render attempts on this worker")
+
+
+class WorkerList(BaseModel):
+    workers: list[WorkerStatus]
 
 
 class Health(BaseModel):
     status: str
     redis: bool
+
+
+class Problem(BaseModel):
+    detail: str

@@ -1,10 +1,12 @@
 """Service configuration, from the environment (prefix TESSERA_)."""
 from __future__ import annotations
 
-from pydantic import AliasChoices, Field
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic import AliasChoices, Field, field_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+from typing_extensions import Annotated
 
 MiB = 1 << 20
+DAY = 86400
 
 
 class Settings(BaseSettings):
@@ -14,6 +16,10 @@ class Settings(BaseSettings):
         default="redis://localhost:6379/0",
         validation_alias=AliasChoices("TESSERA_REDIS_URL", "REDIS_URL", "redis_url"),
         description="Redis holding the queue, scenes, jobs and results (also read from REDIS_URL)")
+    api_tokens: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description="bearer tokens accepted by the API, comma-separated; empty: no "
+                    "authentication (allowed only on a loopback address)")
     max_upload_bytes: int = Field(default=256 * MiB, ge=1, description="largest accepted scene file")
     preflight_timeout: float = Field(default=60.0, gt=0,
                                      description="seconds the scene inspection may take")
@@ -21,3 +27,17 @@ class Settings(BaseSettings):
         default=8192 * MiB, ge=0,
         description="address-space limit of the inspection process (0: no limit)")
     max_tiles: int = Field(default=1 << 16, ge=1, description="most tiles one job may have")
+    job_retention: float = Field(
+        default=7 * DAY, ge=0,
+        description="seconds a finished job (status, tiles, image, events, log) is kept (0: forever)")
+    scene_retention: float = Field(
+        default=7 * DAY, ge=0,
+        description="seconds an uploaded scene and its pre-flight result are kept after the "
+                    "last job that used it was submitted (0: forever)")
+
+    @field_validator("api_tokens", mode="before")
+    @classmethod
+    def _split_tokens(cls, value):
+        if isinstance(value, str):
+            return [t.strip() for t in value.split(",") if t.strip()]
+        return value

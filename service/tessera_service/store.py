@@ -1,5 +1,5 @@
-"""The service's Redis operations on scenes, jobs and their results (key layout and
-message schema: tessera.protocol)."""
+"""The service's Redis operations on scenes, jobs, workers and their results (key layout,
+message schema and state machine: tessera.protocol)."""
 from __future__ import annotations
 
 import json
@@ -9,18 +9,7 @@ from dataclasses import dataclass
 import redis
 
 from tessera import protocol
-from tessera.protocol import FINAL_STATES, JobSpec, TileTask
-
-# Cancels a job unless it already reached a final state. Returns the state before the call
-# ("" if there is no such job).
-_CANCEL_JOB = """
-local state = redis.call('HGET', KEYS[1], 'state')
-if not state then return '' end
-if state == 'queued' or state == 'running' then
-  redis.call('HSET', KEYS[1], 'state', 'cancelled', 'finished_at', ARGV[1])
-end
-return state
-"""
+from tessera.protocol import FINAL_STATES, JobSpec
 
 
 @dataclass
@@ -29,6 +18,7 @@ class Job:
     state: str
     tiles_total: int
     tiles_done: int
+    passes_done: int
     created_at: float
     started_at: float | None
     finished_at: float | None
@@ -41,15 +31,33 @@ class Job:
         return self.state in FINAL_STATES
 
 
+@dataclass
+class WorkerInfo:
+    name: str
+    host: str
+    pid: int
+    started_at: float
+    beat_at: float
+    current: str
+    tiles_done: int
+    failures: int
+
+
 class JobStore:
-    def __init__(self, client: redis.Redis):
+    def __init__(self, client: redis.Redis, *, retention: float = 7 * 86400,
+                 scene_retention: float = 7 * 86400):
         self.redis = client
-        self._cancel = client.register_script(_CANCEL_JOB)
+        self.retention = retention
+        self.scene_retention = scene_retention
+        self._make_ready = client.register_script(protocol.LUA_MAKE_READY)
+        self._cancel = client.register_script(protocol.LUA_CANCEL_JOB)
+        self._pause = client.register_script(protocol.LUA_PAUSE_JOB)
+        self._resume = client.register_script(protocol.LUA_RESUME_JOB)
 
     @classmethod
-    def from_url(cls, url: str) -> "JobStore":
+    def from_url(cls, url: str, **kwargs) -> "JobStore":
         return cls(redis.Redis.from_url(url, socket_connect_timeout=5, socket_timeout=30,
-                                        health_check_interval=30))
+                                        health_check_interval=30), **kwargs)
 
     def ping(self) -> bool:
         try:
@@ -57,86 +65,178 @@ class JobStore:
         except redis.RedisError:
             return False
 
-    def ensure_group(self) -> None:
-        """Creates the stream and the workers' group, so that tasks queued before any
-        worker starts are delivered."""
-        try:
-            self.redis.xgroup_create(protocol.TILE_STREAM, protocol.WORKER_GROUP,
-                                     id="0", mkstream=True)
-        except redis.ResponseError as e:
-            if "BUSYGROUP" not in str(e):
-                raise
-
+    # ------------------------------------------------------------------ scenes
     def put_scene(self, scene_hash: str, name: str, data: bytes) -> None:
-        """Stores a scene once per content hash."""
+        """Stores a scene once per content hash; every use extends its retention."""
         key = protocol.scene_key(scene_hash)
-        if self.redis.hexists(key, "data"):
-            return
-        with self.redis.pipeline(transaction=True) as pipe:
-            pipe.hsetnx(key, "name", name)
-            pipe.hsetnx(key, "data", data)
-            pipe.execute()
+        if not self.redis.hexists(key, "data"):
+            with self.redis.pipeline(transaction=True) as pipe:
+                pipe.hsetnx(key, "name", name)
+                pipe.hsetnx(key, "data", data)
+                pipe.execute()
+        self.touch_scene(scene_hash)
 
+    def touch_scene(self, scene_hash: str) -> bool:
+        """Extends a stored scene's retention; False if it is not stored."""
+        ttl = int(self.scene_retention) if self.scene_retention > 0 else None
+        key = protocol.scene_key(scene_hash)
+        return bool(self.redis.expire(key, ttl) if ttl else self.redis.exists(key))
+
+    def preflight(self, scene_hash: str) -> dict | None:
+        raw = self.redis.get(protocol.preflight_key(scene_hash))
+        return json.loads(raw) if raw else None
+
+    def remember_preflight(self, scene_hash: str, info: dict) -> None:
+        ttl = int(self.scene_retention) if self.scene_retention > 0 else None
+        self.redis.set(protocol.preflight_key(scene_hash), json.dumps(info), ex=ttl)
+
+    # ------------------------------------------------------------------ jobs
     def create_job(self, spec: JobSpec, warnings: list[str]) -> int:
-        """Creates the job and queues one task per tile, in one transaction: workers never
-        see a task whose job does not exist, nor a job with part of its tiles."""
-        self.ensure_group()
-        s = spec.settings
-        grid = protocol.tile_grid(s.width, s.height, s.tile_size)
+        """Creates the job, its queue with the first pass of every tile, and its place in
+        the schedule, in one transaction: workers never see a task whose job does not
+        exist, nor a job with part of its tiles."""
+        tasks = protocol.job_tasks(spec)
         now = time.time()
+        queue = protocol.job_queue_key(spec.job_id)
         with self.redis.pipeline(transaction=True) as pipe:
             pipe.hset(protocol.job_key(spec.job_id), mapping={
                 "spec": spec.model_dump_json(),
                 "state": "queued",
+                "priority": spec.priority,
                 "created_at": repr(now),
-                "tiles_total": len(grid),
+                "tiles_total": len(tasks),
+                "tiles_done": 0,
+                "passes_done": 0,
                 "render_seconds": 0,
+                "retention": int(self.retention),
                 "warnings": json.dumps(warnings),
             })
             pipe.zadd(protocol.JOB_INDEX, {spec.job_id: now})
-            for rect in grid:
-                task = TileTask(job_id=spec.job_id, scene_hash=spec.scene_hash,
-                                scene_name=spec.scene_name, settings=s, tile=rect)
-                pipe.xadd(protocol.TILE_STREAM, task.to_fields())
+            pipe.sadd(protocol.ACTIVE, spec.job_id)
+            pipe.xgroup_create(queue, protocol.WORKER_GROUP, id="0", mkstream=True)
+            for task in tasks:
+                pipe.xadd(queue, task.to_fields())
+            pipe.rpush(protocol.job_log_key(spec.job_id),
+                       f"{now!r} job queued: {len(tasks)} tiles, priority {spec.priority}")
+            for w in warnings:
+                pipe.rpush(protocol.job_log_key(spec.job_id), f"{now!r} warning: {w}")
+            pipe.xadd(protocol.job_events_key(spec.job_id), {"type": "state", "state": "queued"})
+            self._make_ready(args=[spec.job_id, spec.priority], client=pipe)
             pipe.execute()
-        return len(grid)
+        return len(tasks)
 
     def get(self, job_id: str) -> Job | None:
-        with self.redis.pipeline(transaction=True) as pipe:
-            pipe.hgetall(protocol.job_key(job_id))
-            pipe.hlen(protocol.job_tiles_key(job_id))
-            fields, tiles_done = pipe.execute()
-        if not fields:
-            return None
-        f = {k.decode(): v.decode() for k, v in fields.items()}
-        return Job(
-            spec=JobSpec.model_validate_json(f["spec"]),
-            state=f["state"],
-            tiles_total=int(f["tiles_total"]),
-            tiles_done=int(tiles_done),
-            created_at=float(f["created_at"]),
-            started_at=_float(f.get("started_at")),
-            finished_at=_float(f.get("finished_at")),
-            render_seconds=float(f.get("render_seconds") or 0.0),
-            warnings=json.loads(f.get("warnings") or "[]"),
-            error=f.get("error") or None,
-        )
+        fields = self.redis.hgetall(protocol.job_key(job_id))
+        return _job(fields) if fields else None
+
+    def list(self, state: str | None = None, limit: int = 100, offset: int = 0) -> list[Job]:
+        """Jobs newest first, optionally only those in `state`. Drops index entries of jobs
+        that have expired."""
+        out: list[Job] = []
+        start = 0
+        batch = 200
+        while len(out) < offset + limit:
+            ids = self.redis.zrevrange(protocol.JOB_INDEX, start, start + batch - 1)
+            if not ids:
+                break
+            start += batch
+            with self.redis.pipeline(transaction=False) as pipe:
+                for job_id in ids:
+                    pipe.hgetall(protocol.job_key(job_id.decode()))
+                rows = pipe.execute()
+            gone = [job_id for job_id, fields in zip(ids, rows) if not fields]
+            if gone:
+                self.redis.zrem(protocol.JOB_INDEX, *gone)
+                start -= len(gone)
+            for fields in rows:
+                if fields:
+                    job = _job(fields)
+                    if state is None or job.state == state:
+                        out.append(job)
+        return out[offset:offset + limit]
 
     def cancel(self, job_id: str) -> bool:
         """Cancels the job unless it is already final. False if there is no such job."""
-        return self._cancel(keys=[protocol.job_key(job_id)], args=[repr(time.time())]) != b""
+        return self._cancel(args=[job_id, repr(time.time())]) != b""
+
+    def pause(self, job_id: str) -> bool:
+        return self._pause(args=[job_id, repr(time.time())]) != b""
+
+    def resume(self, job_id: str) -> bool:
+        return self._resume(args=[job_id, repr(time.time())]) != b""
 
     def tiles(self, job_id: str) -> dict[bytes, bytes]:
         return self.redis.hgetall(protocol.job_tiles_key(job_id))
 
+    def log(self, job_id: str) -> list[str]:
+        return [line.decode(errors="replace")
+                for line in self.redis.lrange(protocol.job_log_key(job_id), 0, -1)]
+
     def cached_image(self, job_id: str, fmt: str) -> bytes | None:
         return self.redis.get(protocol.job_image_key(job_id, fmt))
 
-    def cache_images(self, job_id: str, exr: bytes, png: bytes) -> None:
-        with self.redis.pipeline(transaction=True) as pipe:
-            pipe.set(protocol.job_image_key(job_id, "exr"), exr)
-            pipe.set(protocol.job_image_key(job_id, "png"), png)
-            pipe.execute()
+    def cache_image(self, job_id: str, fmt: str, data: bytes) -> None:
+        """Caches a done job's image for as long as the job itself is kept."""
+        ttl = self.redis.pttl(protocol.job_key(job_id))
+        key = protocol.job_image_key(job_id, fmt)
+        if ttl and ttl > 0:
+            self.redis.set(key, data, px=ttl)
+        else:
+            self.redis.set(key, data)
+
+    # ------------------------------------------------------------------ farm state
+    def workers(self) -> list[WorkerInfo]:
+        names = sorted(n.decode() for n in self.redis.smembers(protocol.WORKERS))
+        with self.redis.pipeline(transaction=False) as pipe:
+            for name in names:
+                pipe.hgetall(protocol.worker_key(name))
+            rows = pipe.execute()
+        out = []
+        for name, fields in zip(names, rows):
+            if not fields:
+                continue  # its heartbeat expired: the reapers take care of it
+            f = {k.decode(): v.decode() for k, v in fields.items()}
+            out.append(WorkerInfo(name=name, host=f.get("host", ""), pid=int(f.get("pid", 0)),
+                                  started_at=float(f.get("started_at", 0)),
+                                  beat_at=float(f.get("beat_at", 0)),
+                                  current=f.get("current", ""),
+                                  tiles_done=int(f.get("tiles_done", 0)),
+                                  failures=int(f.get("failures", 0))))
+        return out
+
+    def stats(self) -> dict[str, float]:
+        return {k.decode(): float(v) for k, v in self.redis.hgetall(protocol.STATS).items()}
+
+    def queue_depths(self) -> dict[int, int]:
+        """Open tile passes (queued or being rendered) per priority, over active jobs."""
+        ids = [j.decode() for j in self.redis.smembers(protocol.ACTIVE)]
+        with self.redis.pipeline(transaction=False) as pipe:
+            for job_id in ids:
+                pipe.hget(protocol.job_key(job_id), "priority")
+                pipe.xlen(protocol.job_queue_key(job_id))
+            rows = pipe.execute()
+        depths = {p: 0 for p in range(protocol.MIN_PRIORITY, protocol.MAX_PRIORITY + 1)}
+        for priority, length in zip(rows[::2], rows[1::2]):
+            if priority is not None:
+                depths[int(priority)] = depths.get(int(priority), 0) + int(length)
+        return depths
+
+
+def _job(fields: dict[bytes, bytes]) -> Job:
+    f = {k.decode(): v.decode() for k, v in fields.items()}
+    return Job(
+        spec=JobSpec.model_validate_json(f["spec"]),
+        state=f["state"],
+        tiles_total=int(f["tiles_total"]),
+        tiles_done=int(f.get("tiles_done") or 0),
+        passes_done=int(f.get("passes_done") or 0),
+        created_at=float(f["created_at"]),
+        started_at=_float(f.get("started_at")),
+        finished_at=_float(f.get("finished_at")),
+        render_seconds=float(f.get("render_seconds") or 0.0),
+        warnings=json.loads(f.get("warnings") or "[]"),
+        error=f.get("error") or None,
+    )
 
 
 def _float(value: str | None) -> float | None:

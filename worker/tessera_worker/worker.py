@@ -1,83 +1,175 @@
-"""The render worker: takes tile tasks from the Redis stream, renders them, stores results.
+"""The render worker: takes tile tasks from the jobs' Redis streams, renders them in a
+child process, stores the results.
 
-Delivery is at-least-once. A worker stores a tile's result and only then acknowledges its
-stream entry; results are keyed by tile index, so a tile rendered twice is stored once.
-A worker that dies mid-tile leaves the entry pending under its name; its heartbeat key
-expires and another worker's reaper claims the entry and renders it. A slow tile on a live
-worker is never taken away, however long it runs.
+Scheduling: every open job has its own stream; the worker asks one Lua script for the next
+entry, which picks the highest-priority job and, among equal priorities, the job served
+least (see protocol.READY). Paused, cancelled and blocklisted jobs are skipped there.
+
+Delivery is at-least-once. A worker stores a pass's result and only then acknowledges its
+entry; results are keyed by (tile, pass) and written with HSETNX, so a pass rendered twice
+is stored once. A worker that dies mid-tile leaves the entry pending under its name; its
+heartbeat expires and another worker's reaper claims the entry. A slow tile on a live
+worker is never taken away.
+
+Crash isolation: the renderer runs in a child process (render_child.py) with an
+address-space limit and a per-tile time limit. A crash there fails that attempt only: the
+tile is queued again, and after max_attempts failures the job fails naming the tile and
+the error (the task goes to the dead-letter stream). A worker that fails one job
+BLOCKLIST_AFTER times stops taking its tiles. Exceeding the memory or time limit, or a
+scene that does not load, fails the job at once: those would fail the same way anywhere.
 """
 from __future__ import annotations
 
+import contextlib
+import fnmatch
 import logging
 import os
 import secrets
 import shutil
 import signal
 import socket
+import subprocess
+import sys
 import tempfile
 import threading
 import time
-from collections import OrderedDict
+from multiprocessing.connection import Connection
 from pathlib import PurePosixPath
 
 import redis
-from tessera_renderer import SceneError, load_scene
 
 from tessera import protocol
 from tessera.protocol import TileTask
 
+from .settings import WorkerSettings
+
 log = logging.getLogger("tessera.worker")
 
 HEARTBEAT_TTL = 5.0        # seconds a worker counts as alive after its last heartbeat
-BLOCK_MS = 1000            # how long one XREADGROUP waits for work
+IDLE_WAIT = 1.0            # longest wait for a wake-up token when there is no work
 REAP_INTERVAL = 2.0        # seconds between looks for tiles held by dead workers
 CLAIM_MIN_IDLE_MS = 1000   # two reapers do not both claim a tile claimed within this time
-SCENE_CACHE_SIZE = 4
+MAX_DEATH_DELIVERIES = 10  # a tile whose worker died this often is poisoned
+CHILD_START_TIMEOUT = 120.0
+CANCEL_POLL = 0.5          # seconds between looks at the job's state during a render
+SCENE_FILES = 8            # scene files kept on local disk (least recently used go)
 
-# Marks the job running on its first tile and says whether the tile still needs rendering.
-# Returns the job's state before the call, "" if the job does not exist, or "stored" if
-# this tile's result is already stored (a redelivery after a store whose ack was lost).
-_BEGIN_TILE = """
-local state = redis.call('HGET', KEYS[1], 'state')
-if not state then return '' end
-if state == 'done' or state == 'failed' or state == 'cancelled' then return state end
-if redis.call('HEXISTS', KEYS[2], ARGV[1]) == 1 then return 'stored' end
-if state == 'queued' then redis.call('HSET', KEYS[1], 'state', 'running') end
-redis.call('HSETNX', KEYS[1], 'started_at', ARGV[2])
-return state
+_PICK = protocol.LUA_HELPERS + f"""
+local me = ARGV[1]
+local cands = redis.call('ZRANGE', '{protocol.READY}', 0, 15)
+for _, id in ipairs(cands) do
+  local key = jk(id)
+  local state = redis.call('HGET', key, 'state')
+  if state ~= 'queued' and state ~= 'running' then
+    redis.call('ZREM', '{protocol.READY}', id)
+  elseif redis.call('SISMEMBER', key .. ':blocklist', me) == 0 then
+    local q = key .. ':queue'
+    local got = false
+    if redis.call('EXISTS', q) == 1 then
+      local r = redis.call('XREADGROUP', 'GROUP', '{protocol.WORKER_GROUP}', me, 'COUNT', 1,
+                          'STREAMS', q, '>')
+      if r and r[1] and #r[1][2] > 0 then got = r[1][2][1] end
+    end
+    if got then
+      redis.call('ZINCRBY', '{protocol.READY}', 1, id)
+      if state == 'queued' then
+        redis.call('HSET', key, 'state', 'running')
+        event(id, 'type', 'state', 'state', 'running')
+        logline(id, ARGV[2], 'job running')
+      end
+      redis.call('HSETNX', key, 'started_at', ARGV[2])
+      return {{id, got[1], got[2][2], redis.call('HGET', key, 'started_at')}}
+    end
+    -- Drained: whoever queues more work for it puts it back.
+    redis.call('ZREM', '{protocol.READY}', id)
+  end
+end
+return false
 """
 
-# Stores a tile result and, if it was the last one, marks the job done, in one step.
-# Returns 1 if this call completed the job, 0 if not, -1 if the job is gone, cancelled or
-# failed (the result is then dropped).
-_STORE_TILE = """
-local state = redis.call('HGET', KEYS[1], 'state')
-if (not state) or state == 'failed' or state == 'cancelled' then return -1 end
-if redis.call('HSETNX', KEYS[2], ARGV[1], ARGV[2]) == 1 then
-  redis.call('HINCRBYFLOAT', KEYS[1], 'render_seconds', ARGV[3])
+# ARGV: id, field, data, seconds, final, next_task, now, worker, entry, tile, pass, samples.
+# Returns 1 if this completed the job, 0 if not, -1 if the job is gone or final (dropped).
+_STORE = protocol.LUA_HELPERS + f"""
+local id = ARGV[1]
+local key = jk(id)
+local q = key .. ':queue'
+local state = redis.call('HGET', key, 'state')
+local ret = 0
+if (not state) or is_final(state) then
+  ret = -1
+elseif redis.call('HSETNX', key .. ':tiles', ARGV[2], ARGV[3]) == 1 then
+  redis.call('HINCRBYFLOAT', key, 'render_seconds', ARGV[4])
+  redis.call('HINCRBY', key, 'passes_done', 1)
+  redis.call('HINCRBY', '{protocol.STATS}', 'passes', 1)
+  redis.call('HINCRBYFLOAT', '{protocol.STATS}', 'render_seconds', ARGV[4])
+  if ARGV[5] == '1' then
+    local done = redis.call('HINCRBY', key, 'tiles_done', 1)
+    redis.call('HINCRBY', '{protocol.STATS}', 'tiles', 1)
+    event(id, 'type', 'tile', 'tile', ARGV[10], 'pass_index', ARGV[11], 'samples', ARGV[12],
+          'tiles_done', done)
+    if done >= tonumber(redis.call('HGET', key, 'tiles_total')) then
+      redis.call('XACK', q, '{protocol.WORKER_GROUP}', ARGV[9])
+      finish(id, 'done', ARGV[7], nil)
+      ret = 1
+    end
+  else
+    redis.call('XADD', q, '*', 'task', ARGV[6])
+    if state ~= 'paused' then make_ready(id, redis.call('HGET', key, 'priority') or '5') end
+    event(id, 'type', 'pass', 'tile', ARGV[10], 'pass_index', ARGV[11], 'samples', ARGV[12])
+  end
 end
-local stored = redis.call('HLEN', KEYS[2])
-local total = tonumber(redis.call('HGET', KEYS[1], 'tiles_total'))
-if state ~= 'done' and total and stored >= total then
-  redis.call('HSET', KEYS[1], 'state', 'done', 'finished_at', ARGV[4])
-  return 1
+if redis.call('EXISTS', q) == 1 then
+  redis.call('XACK', q, '{protocol.WORKER_GROUP}', ARGV[9])
+  redis.call('XDEL', q, ARGV[9])
 end
-return 0
+local wk = P .. 'worker:' .. ARGV[8]
+if ret >= 0 and redis.call('EXISTS', wk) == 1 then redis.call('HINCRBY', wk, 'tiles_done', 1) end
+return ret
 """
 
-# Fails a job unless it already reached a final state. Returns the state before the call.
-_FAIL_JOB = """
-local state = redis.call('HGET', KEYS[1], 'state')
-if not state then return '' end
-if state == 'queued' or state == 'running' then
-  redis.call('HSET', KEYS[1], 'state', 'failed', 'error', ARGV[1], 'finished_at', ARGV[2])
+# One failed attempt at a tile pass. ARGV: id, field, tile, entry, worker, error, now,
+# max_attempts, blocklist_after, task. Returns 'final', 'retry', 'blocklisted' or 'poisoned'.
+_FAIL_TILE = protocol.LUA_HELPERS + f"""
+local id = ARGV[1]
+local key = jk(id)
+local q = key .. ':queue'
+local state = redis.call('HGET', key, 'state')
+if redis.call('EXISTS', q) == 1 then
+  redis.call('XACK', q, '{protocol.WORKER_GROUP}', ARGV[4])
+  redis.call('XDEL', q, ARGV[4])
 end
-return state
+if (not state) or is_final(state) then return 'final' end
+local n = redis.call('HINCRBY', key .. ':failures', 'tile:' .. ARGV[2], 1)
+local wf = redis.call('HINCRBY', key .. ':failures', 'worker:' .. ARGV[5], 1)
+redis.call('HINCRBY', '{protocol.STATS}', 'failures', 1)
+local wk = P .. 'worker:' .. ARGV[5]
+if redis.call('EXISTS', wk) == 1 then redis.call('HINCRBY', wk, 'failures', 1) end
+event(id, 'type', 'failure', 'tile', ARGV[3], 'message', ARGV[6])
+logline(id, ARGV[7], 'tile ' .. ARGV[3] .. ' attempt ' .. n .. ' failed on worker ' .. ARGV[5]
+        .. ': ' .. ARGV[6])
+local result = 'retry'
+if wf >= tonumber(ARGV[9]) and redis.call('SADD', key .. ':blocklist', ARGV[5]) == 1 then
+  logline(id, ARGV[7], 'worker ' .. ARGV[5] .. ' is blocklisted for this job after ' .. wf
+          .. ' failures')
+  result = 'blocklisted'
+end
+if n >= tonumber(ARGV[8]) then
+  redis.call('XADD', '{protocol.DEAD_LETTER}', 'MAXLEN', '~', {protocol.DEAD_LETTER_MAXLEN}, '*',
+             'job', id, 'tile', ARGV[3], 'attempts', n, 'error', ARGV[6], 'task', ARGV[10])
+  redis.call('HINCRBY', '{protocol.STATS}', 'poisoned', 1)
+  finish(id, 'failed', ARGV[7], 'tile ' .. ARGV[3] .. ' failed ' .. n .. ' times; last error: '
+         .. ARGV[6])
+  return 'poisoned'
+end
+redis.call('XADD', q, '*', 'task', ARGV[10])
+if state ~= 'paused' then make_ready(id, redis.call('HGET', key, 'priority') or '5') end
+return result
 """
 
-# Removes a consumer from the group only if it holds no pending entries (DELCONSUMER
+# Removes a consumer from a queue's group only if it holds no pending entries (DELCONSUMER
 # would silently drop them). Returns 1 if removed.
 _DROP_IDLE_CONSUMER = """
+if redis.call('EXISTS', KEYS[1]) == 0 then return 0 end
 local pending = redis.call('XPENDING', KEYS[1], ARGV[1], '-', '+', 1, ARGV[2])
 if #pending > 0 then return 0 end
 redis.call('XGROUP', 'DELCONSUMER', KEYS[1], ARGV[1], ARGV[2])
@@ -85,17 +177,35 @@ return 1
 """
 
 
+class RenderFailed(Exception):
+    """A failed attempt at a tile. `fatal`: the job fails at once (retrying elsewhere
+    would fail the same way); otherwise the tile is queued again."""
+
+    def __init__(self, message: str, fatal: bool):
+        super().__init__(message)
+        self.fatal = fatal
+
+
+class Abandoned(Exception):
+    """The job ended (cancelled or failed elsewhere) while its tile rendered."""
+
+
 def default_worker_name() -> str:
     return f"{socket.gethostname()}-{os.getpid()}-{secrets.token_hex(3)}"
 
 
-def run_worker(redis_url: str, name: str | None = None, threads: int = 1,
+def run_worker(redis_url: str | None = None, name: str | None = None, threads: int | None = None,
                stop_event: threading.Event | None = None, *,
-               heartbeat_ttl: float = HEARTBEAT_TTL) -> None:
+               heartbeat_ttl: float | None = None, settings: WorkerSettings | None = None) -> None:
     """Runs a worker until stop_event is set or SIGTERM/SIGINT arrives (when called from
     the main thread). A stop request lets the current tile finish; a second signal kills
-    the process at once. `threads` is the renderer's thread count per tile."""
-    worker = Worker(redis_url, name=name, threads=threads, heartbeat_ttl=heartbeat_ttl)
+    the process at once. Arguments given here override `settings` (default: from the
+    environment)."""
+    settings = settings or WorkerSettings()
+    overrides = {k: v for k, v in dict(redis_url=redis_url, threads=threads,
+                                       heartbeat_ttl=heartbeat_ttl).items() if v is not None}
+    settings = settings.model_copy(update=overrides)
+    worker = Worker(settings, name=name)
     stop = stop_event if stop_event is not None else threading.Event()
     restore = _install_signal_handlers(stop) if threading.current_thread() is threading.main_thread() else None
     try:
@@ -126,23 +236,138 @@ def _install_signal_handlers(stop: threading.Event):
     return restore
 
 
+class RenderChild:
+    """The render process, started on first use and again after it dies."""
+
+    def __init__(self, memory_limit: int):
+        self.memory_limit = memory_limit
+        self.proc: subprocess.Popen | None = None
+        self.conn: Connection | None = None
+        self.serial = 0
+        self.blob_version: str | None = None  # the renderer's scene-blob version, if any
+        self._greeted = False
+
+    def start(self) -> None:
+        parent, child = socket.socketpair()
+        limit = self.memory_limit
+
+        def limits() -> None:  # between fork and exec: keep it minimal
+            import resource
+            if limit > 0:
+                resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+            resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+            _die_with_parent()
+
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "tessera_worker.render_child", "--fd", str(child.fileno())],
+            pass_fds=[child.fileno()], stdin=subprocess.DEVNULL, preexec_fn=limits)
+        child.close()
+        self.conn = Connection(parent.detach())
+        self._greeted = False
+
+    def ensure_started(self) -> None:
+        """Starts the child if needed and reads its greeting (which says whether the
+        renderer can load translated-scene blobs)."""
+        if self.proc is None or self.proc.poll() is not None:
+            self.start()
+        if self._greeted:
+            return
+        try:
+            ready = self.conn.poll(CHILD_START_TIMEOUT)
+            hello = self.conn.recv() if ready else None
+        except (EOFError, OSError):
+            hello = None
+        if not (isinstance(hello, tuple) and len(hello) == 2 and hello[0] == "hello"):
+            self.kill()
+            raise RenderFailed("the render process failed to start", fatal=False)
+        self.blob_version = hello[1]
+        self._greeted = True
+
+    def render(self, request: dict, timeout: float, abandoned) -> tuple:
+        """Sends one request and waits for its reply. Raises RenderFailed if the child dies
+        or exceeds `timeout`, Abandoned if abandoned() becomes true meanwhile (the child is
+        then killed, so that a cancelled job stops rendering at once). On any other error
+        the child is killed too: a reply must never be read for the wrong request."""
+        self.ensure_started()
+        self.serial += 1
+        request = {**request, "serial": self.serial}
+        try:
+            self.conn.send(request)
+            deadline = time.monotonic() + timeout
+            while not self.conn.poll(min(CANCEL_POLL, max(0.0, deadline - time.monotonic()))):
+                if self.proc.poll() is not None:
+                    break
+                if time.monotonic() >= deadline:
+                    self.kill()
+                    raise RenderFailed(f"exceeded the per-tile time limit of {timeout:g} s",
+                                       fatal=True)
+                if abandoned():
+                    self.kill()
+                    raise Abandoned()
+            reply = self.conn.recv()
+        except (EOFError, OSError):
+            code = self.proc.wait()
+            self.close()
+            if code < 0:
+                try:
+                    what = signal.Signals(-code).name
+                except ValueError:
+                    what = f"signal {-code}"
+            else:
+                what = f"exit code {code}"
+            raise RenderFailed(f"the renderer crashed ({what})", fatal=False) from None
+        except (RenderFailed, Abandoned):
+            raise
+        except BaseException:
+            self.kill()
+            raise
+        if reply[-1] != self.serial:
+            self.kill()
+            raise RenderFailed("the render process answered out of turn", fatal=False)
+        return reply[:-1]
+
+    def kill(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+        self.close()
+
+    def close(self) -> None:
+        if self.conn is not None:
+            self.conn.close()
+        self.conn = None
+        self.proc = None if self.proc is None or self.proc.poll() is not None else self.proc
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.conn.close()  # EOF: the child exits on its own
+            try:
+                self.proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.kill()
+        self.proc = self.conn = None
+
+
 class Worker:
-    def __init__(self, redis_url: str, name: str | None = None, threads: int = 1,
-                 heartbeat_ttl: float = HEARTBEAT_TTL):
+    def __init__(self, settings: WorkerSettings, name: str | None = None):
+        self.settings = settings
         self.name = name or default_worker_name()
-        self.threads = threads
-        self.heartbeat_ttl = heartbeat_ttl
-        self.redis = redis.Redis.from_url(redis_url, socket_connect_timeout=5,
-                                          socket_timeout=BLOCK_MS / 1000 + 10,
-                                          health_check_interval=30)
-        self._begin_tile = self.redis.register_script(_BEGIN_TILE)
-        self._store_tile = self.redis.register_script(_STORE_TILE)
-        self._fail_job = self.redis.register_script(_FAIL_JOB)
+        self.threads = settings.threads
+        self.heartbeat_ttl = settings.heartbeat_ttl
+        self.redis = redis.Redis.from_url(settings.redis_url, socket_connect_timeout=5,
+                                          socket_timeout=30, health_check_interval=30)
+        self._pick = self.redis.register_script(_PICK)
+        self._store_tile = self.redis.register_script(_STORE)
+        self._fail_tile = self.redis.register_script(_FAIL_TILE)
+        self._fail_job = self.redis.register_script(protocol.LUA_FAIL_JOB)
         self._drop_idle_consumer = self.redis.register_script(_DROP_IDLE_CONSUMER)
-        self._scenes: OrderedDict[tuple[str, str], object] = OrderedDict()
-        self._scene_paths: dict[tuple[str, str], str] = {}
+        self._faults = _parse_faults(settings.faults)
+        self._scene_files: dict[str, str] = {}
         self._tmpdir: str | None = None
+        self._child = RenderChild(settings.memory_limit)
+        self.current = ""
         self.tiles_rendered = 0
+        self.started_at = time.time()
 
     # ----------------------------------------------------------------- main loop
     def run(self, stop: threading.Event) -> None:
@@ -150,24 +375,26 @@ class Worker:
         heartbeat_stop = threading.Event()
         heartbeat = threading.Thread(target=self._heartbeat_loop, args=(heartbeat_stop,),
                                      name="tessera-heartbeat", daemon=True)
-        log.info("worker %s starting (renderer threads: %s)", self.name, self.threads)
+        log.info("worker %s starting (renderer threads: %s, memory limit: %s, tile time "
+                 "limit: %g s)", self.name, self.threads,
+                 _size(self.settings.memory_limit), self.settings.tile_timeout)
         try:
-            # Alive before joining the group: a consumer without a heartbeat is dead.
+            self._child.start()  # importing the renderer takes a while: do it up front
+            # Alive before taking work: a consumer without a heartbeat is dead.
             self._wait_for_redis(stop, self._beat)
             heartbeat.start()
-            self._wait_for_redis(stop, self._ensure_group)
             self._loop(stop)
         finally:
             heartbeat_stop.set()
             if heartbeat.is_alive():
                 heartbeat.join(timeout=5)
+            self._child.stop()
             self._leave()
             shutil.rmtree(self._tmpdir, ignore_errors=True)
             log.info("worker %s stopped after %d tiles", self.name, self.tiles_rendered)
 
     def _loop(self, stop: threading.Event) -> None:
         next_reap = 0.0
-        read_backlog = True  # our own pending entries first (after a lost connection)
         redis_down = False
         while not stop.is_set():
             try:
@@ -176,31 +403,25 @@ class Worker:
                     next_reap = time.monotonic() + REAP_INTERVAL
                 if stop.is_set():
                     break
-                reply = self.redis.xreadgroup(
-                    protocol.WORKER_GROUP, self.name,
-                    {protocol.TILE_STREAM: "0" if read_backlog else ">"},
-                    count=1, block=None if read_backlog else BLOCK_MS)
-                entries = reply[0][1] if reply else []
-                if read_backlog and not entries:
-                    read_backlog = False
-                for entry_id, fields in entries:
-                    self._process(entry_id, fields)
+                picked = self._pick(args=[self.name, repr(time.time())])
                 if redis_down:
                     log.info("redis is reachable again")
                     redis_down = False
-            except redis.ResponseError as e:
-                read_backlog = True
-                if "NOGROUP" in str(e):  # the stream or group was deleted under us
-                    self._wait_for_redis(stop, self._ensure_group)
+                if not picked:
+                    # Queuing work pushes wake-up tokens; without one, look again anyway
+                    # after IDLE_WAIT (and reap).
+                    self.redis.blpop([protocol.WAKE], timeout=IDLE_WAIT)
                     continue
-                # E.g. Redis out of memory: keep the tile pending and retry it later.
+                job_id, entry_id, raw, started_at = picked
+                self._process(_text(job_id), entry_id, {b"task": raw}, _float(started_at))
+            except redis.ResponseError as e:
+                # E.g. Redis out of memory: the tile stays pending and is retried later.
                 log.error("redis refused a command (%s); retrying", e)
                 stop.wait(1.0)
             except (redis.ConnectionError, redis.TimeoutError) as e:
                 if not redis_down:
                     log.warning("lost redis (%s); retrying", e)
                     redis_down = True
-                read_backlog = True
                 stop.wait(1.0)
 
     def _wait_for_redis(self, stop: threading.Event, action) -> None:
@@ -212,103 +433,242 @@ class Worker:
                 log.warning("cannot reach redis (%s); retrying", e)
                 stop.wait(1.0)
 
-    def _ensure_group(self) -> None:
-        try:
-            self.redis.xgroup_create(protocol.TILE_STREAM, protocol.WORKER_GROUP,
-                                     id="0", mkstream=True)
-        except redis.ResponseError as e:
-            if "BUSYGROUP" not in str(e):
-                raise
-
-    # ----------------------------------------------------------------- one tile
-    def _process(self, entry_id: bytes, fields: dict | None) -> None:
+    # ----------------------------------------------------------------- one tile pass
+    def _process(self, job_id: str, entry_id: bytes, fields: dict | None,
+                 started_at: float | None = None) -> None:
         """Handles one stream entry; acknowledges it unless Redis itself fails."""
+        queue = protocol.job_queue_key(job_id)
         if not fields:  # the entry was deleted from the stream while pending
-            self._ack(entry_id)
+            self._ack(queue, entry_id)
             return
         try:
             task = TileTask.from_fields(fields)
         except ValueError as e:  # includes pydantic's ValidationError
-            log.error("dropping malformed stream entry %s: %s", entry_id, e)
-            self._ack(entry_id)
+            log.error("dropping malformed stream entry %s of job %s: %s", entry_id, job_id, e)
+            self._ack(queue, entry_id)
             return
-
-        job_key = protocol.job_key(task.job_id)
-        tiles_key = protocol.job_tiles_key(task.job_id)
-        index = str(task.tile.index)
-        before = _text(self._begin_tile(keys=[job_key, tiles_key], args=[index, time.time()]))
-        if before not in ("queued", "running"):
-            log.debug("skipping tile %s of job %s (%s)", index, task.job_id, before or "no such job")
-            self._ack(entry_id)
+        tiles_key = protocol.job_tiles_key(job_id)
+        if self.redis.hexists(tiles_key, task.field):  # a redelivery after a lost ack
+            self._ack(queue, entry_id)
             return
-
+        window = protocol.pass_range(task.settings, task.pass_index)
+        if window is None:
+            log.error("dropping task for pass %d of tile %d past the job's last pass",
+                      task.pass_index, task.tile.index)
+            self._ack(queue, entry_id)
+            return
+        sample_start, spp = window
+        self.current = f"{job_id}/{task.tile.index}/{task.pass_index}"
         try:
-            scene = self._scene(task)
-            settings, rect = task.settings, task.tile
-            started = time.perf_counter()
-            rgba = scene.render_tile(rect.x0, rect.y0, rect.width, rect.height,
-                                     width=settings.width, height=settings.height,
-                                     spp=settings.spp, seed=settings.seed,
-                                     max_depth=settings.max_depth, threads=self.threads)
-            seconds = time.perf_counter() - started
-            data = protocol.encode_tile(rect, rgba)
-        except redis.RedisError:
-            raise
-        except Exception as e:  # SceneError, MemoryError, a renderer bug: fail the job
-            message = _describe(e, task)
-            log.error("job %s failed: %s", task.job_id, message)
-            self._fail_job(keys=[job_key], args=[message, time.time()])
-            self._ack(entry_id)
-            return
-
-        completed = self._store_tile(keys=[job_key, tiles_key],
-                                     args=[index, data, repr(seconds), time.time()])
-        self._ack(entry_id)
+            try:
+                rgba, variance, seconds, splat = self._render(task, sample_start, spp)
+            except Abandoned:
+                log.info("job %s ended while tile %d rendered; dropped it", job_id, task.tile.index)
+                self._ack(queue, entry_id)
+                return
+            except RenderFailed as e:
+                self._failed(task, entry_id, str(e), e.fatal)
+                return
+            final, data = self._result(task, rgba, variance, sample_start, spp, started_at, splat)
+        finally:
+            self.current = ""
+        completed = self._store_tile(args=[
+            job_id, task.field, data, repr(seconds), 1 if final else 0,
+            "" if final else task.next_pass().model_dump_json(), repr(time.time()), self.name,
+            entry_id, task.tile.index, task.pass_index, sample_start + spp])
         self.tiles_rendered += 1
-        log.debug("job %s tile %s rendered in %.3f s", task.job_id, index, seconds)
+        log.debug("job %s tile %s pass %d rendered in %.3f s", job_id, task.tile.index,
+                  task.pass_index, seconds)
         if completed == 1:
-            log.info("job %s done", task.job_id)
+            log.info("job %s done", job_id)
 
-    def _ack(self, entry_id: bytes) -> None:
+    def _render(self, task: TileTask, sample_start: int, spp: int):
+        s, rect = task.settings, task.tile
+        self._child.ensure_started()
+        scene = self._scene_source(task, self._child.blob_version)
+        request = dict(**scene, x0=rect.x0, y0=rect.y0,
+                       w=rect.width, h=rect.height, width=s.width, height=s.height, spp=spp,
+                       sample_start=sample_start, seed=s.seed, max_depth=s.max_depth,
+                       threads=self.threads, variance=s.adaptive, integrator=s.integrator,
+                       fault=self._fault_for(task))
+        job_key = protocol.job_key(task.job_id)
+
+        def abandoned() -> bool:
+            try:
+                state = _text(self.redis.hget(job_key, "state"))
+            except redis.RedisError:
+                return False  # cannot tell: keep rendering
+            return state in ("", "failed", "cancelled")
+
+        reply = self._child.render(request, self.settings.tile_timeout, abandoned)
+        if reply[0] == "ok":
+            if scene.get("blob_out"):
+                self._share_blob(task, scene["blob_out"])
+            return reply[1], reply[2], reply[3], reply[4]
+        _, kind, message = reply
+        if kind == "scene":
+            raise RenderFailed(f"cannot load scene {task.scene_name!r}: {message}", fatal=True)
+        if kind == "memory":
+            # The child may be left fragmented or in a bad state: start afresh.
+            self._child.kill()
+            raise RenderFailed(f"exceeded the worker's memory limit of "
+                               f"{_size(self.settings.memory_limit)} ({message})", fatal=True)
+        raise RenderFailed(message, fatal=False)
+
+    def _result(self, task: TileTask, rgba, variance, sample_start: int, spp: int,
+                started_at: float | None, splat=None) -> tuple[bool, bytes]:
+        """Encodes the pass and decides whether the tile needs another one."""
+        s, rect = task.settings, task.tile
+        splat_args = {}
+        if splat is not None:
+            splat_rect, layer, light_paths = splat
+            splat_args = dict(splat_rect=splat_rect, splat=layer, light_paths=light_paths)
+        data = protocol.encode_tile(rect, rgba, pass_index=task.pass_index,
+                                    sample_start=sample_start, spp=spp, variance=variance, **splat_args)
+        if not s.adaptive:
+            return True, data
+        earlier = []
+        if task.pass_index > 0:
+            fields = [protocol.result_field(rect.index, p) for p in range(task.pass_index)]
+            stored = self.redis.hmget(protocol.job_tiles_key(task.job_id), fields)
+            if any(d is None for d in stored):
+                # Cannot happen (a pass is queued only after the previous one is stored)
+                # unless the job's results expired; finish the tile with what it has.
+                return True, data
+            earlier = [protocol.decode_tile(d) for d in stored]
+        this = protocol.TileResult(rect.x0, rect.y0, rgba, task.pass_index, sample_start, spp,
+                                   variance)
+        mean, var, samples = protocol.combine_passes(earlier + [this])
+        final = protocol.tile_finished(s, task.pass_index, mean, var, samples)
+        if not final and s.time_limit is not None:
+            if started_at is None:
+                started_at = _float(self.redis.hget(protocol.job_key(task.job_id), "started_at"))
+            final = started_at is not None and time.time() - started_at >= s.time_limit
+        return final, data
+
+    def _failed(self, task: TileTask, entry_id: bytes, message: str, fatal: bool) -> None:
+        where = f"tile {task.tile.index} (pass {task.pass_index}) of {task.scene_name!r}"
+        if fatal:
+            error = message if message.startswith("cannot load scene") else f"{where}: {message}"
+            log.error("job %s failed: %s", task.job_id, error)
+            self._fail_job(args=[task.job_id, repr(time.time()), error])
+            self._ack(protocol.job_queue_key(task.job_id), entry_id)
+            return
+        log.warning("job %s: %s failed: %s", task.job_id, where, message)
+        outcome = _text(self._fail_tile(args=[
+            task.job_id, task.field, task.tile.index, entry_id, self.name, message,
+            repr(time.time()), task.max_attempts, protocol.BLOCKLIST_AFTER,
+            task.model_dump_json()]))
+        if outcome == "poisoned":
+            log.error("job %s failed: %s failed %d times", task.job_id, where, task.max_attempts)
+        elif outcome == "blocklisted":
+            log.warning("this worker is blocklisted for job %s", task.job_id)
+            self._fail_if_nobody_left(task.job_id, message)
+
+    def _fail_if_nobody_left(self, job_id: str, last_error: str) -> None:
+        """A job every live worker is blocklisted for would wait forever: fail it."""
+        blocked = {_text(n) for n in self.redis.smembers(protocol.job_blocklist_key(job_id))}
+        for name in self.redis.smembers(protocol.WORKERS):
+            name = _text(name)
+            if name not in blocked and self.redis.exists(protocol.worker_key(name)):
+                return
+        self._fail_job(args=[job_id, repr(time.time()),
+                             f"every live worker is blocklisted for this job; last error: "
+                             f"{last_error}"])
+
+    def _ack(self, queue: str, entry_id: bytes) -> None:
         # Entries are removed once acknowledged, so the stream holds only open work.
         with self.redis.pipeline(transaction=True) as pipe:
-            pipe.xack(protocol.TILE_STREAM, protocol.WORKER_GROUP, entry_id)
-            pipe.xdel(protocol.TILE_STREAM, entry_id)
+            pipe.xack(queue, protocol.WORKER_GROUP, entry_id)
+            pipe.xdel(queue, entry_id)
             pipe.execute()
 
-    def _scene(self, task: TileTask):
-        """The loaded scene for a task, from a small LRU cache keyed by content hash and
-        file suffix (the suffix tells USD the format)."""
+    def _scene_source(self, task: TileTask, blob_version: str | None) -> dict:
+        """Where the render process gets the task's scene: the translated blob another
+        worker stored in Redis (no USD parsing), else the scene file, translated here and
+        written as a blob (`blob_out`) that _share_blob then stores for the others."""
         suffix = PurePosixPath(task.scene_name).suffix.lower()
-        key = (task.scene_hash, suffix)
-        if key in self._scenes:
-            self._scenes.move_to_end(key)
-            return self._scenes[key]
+        source = {"scene_key": f"{task.scene_hash}{suffix}", "scene_path": None,
+                  "blob_path": None, "blob_out": None}
+        if blob_version is None:
+            source["scene_path"] = self._scene_file(task)
+            return source
+        name = f"{task.scene_hash}.{blob_version}.blob"
+        path = self._scene_files.get(name)
+        if path is not None and os.path.exists(path):
+            self._scene_files[name] = self._scene_files.pop(name)
+            source["blob_path"] = path
+            return source
+        blob = self.redis.get(protocol.translated_scene_key(task.scene_hash, blob_version))
+        if blob is not None:
+            source["blob_path"] = self._keep_file(name, blob)
+            return source
+        source["scene_path"] = self._scene_file(task)
+        source["blob_out"] = os.path.join(self._tmpdir, name)
+        return source
+
+    def _share_blob(self, task: TileTask, path: str) -> None:
+        """Stores a blob this worker translated, once (SET NX), for as long as the scene."""
+        if not os.path.exists(path):
+            return
+        name = os.path.basename(path)
+        self._remember_file(name, path)
+        blob_version = name[len(task.scene_hash) + 1:-len(".blob")]
+        ttl = self.redis.pttl(protocol.scene_key(task.scene_hash))
+        with open(path, "rb") as f:
+            data = f.read()
+        self.redis.set(protocol.translated_scene_key(task.scene_hash, blob_version), data,
+                       nx=True, px=ttl if ttl and ttl > 0 else None)
+
+    def _keep_file(self, name: str, data: bytes) -> str:
+        path = os.path.join(self._tmpdir, name)
+        tmp = path + ".part"
+        with open(tmp, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+        self._remember_file(name, path)
+        return path
+
+    def _remember_file(self, name: str, path: str) -> None:
+        self._scene_files[name] = path
+        while len(self._scene_files) > SCENE_FILES:
+            old = next(iter(self._scene_files))
+            with contextlib.suppress(OSError):
+                os.unlink(self._scene_files.pop(old))
+
+    def _scene_file(self, task: TileTask) -> str:
+        """A local file with the task's scene (named by hash; the suffix tells USD the
+        format)."""
+        suffix = PurePosixPath(task.scene_name).suffix.lower()
+        key = f"{task.scene_hash}{suffix}"
+        path = self._scene_files.get(key)
+        if path is not None and os.path.exists(path):
+            self._scene_files[key] = self._scene_files.pop(key)  # most recently used last
+            return path
         data = self.redis.hget(protocol.scene_key(task.scene_hash), "data")
         if data is None:
-            raise SceneError(f"scene {task.scene_hash} is missing from the store")
-        path = os.path.join(self._tmpdir, f"{task.scene_hash}{suffix}")
-        with open(path, "wb") as f:
-            f.write(data)
-        del data
-        try:
-            scene = load_scene(path)
-        except BaseException:
-            os.unlink(path)
-            raise
-        for warning in getattr(scene, "warnings", []):
-            log.debug("scene %s: %s", task.scene_name, warning)
-        self._scenes[key] = scene
-        self._scene_paths[key] = path
-        while len(self._scenes) > SCENE_CACHE_SIZE:
-            old, _ = self._scenes.popitem(last=False)
-            os.unlink(self._scene_paths.pop(old))
-        return scene
+            raise RenderFailed(f"cannot load scene {task.scene_name!r}: scene "
+                               f"{task.scene_hash} is missing from the store", fatal=True)
+        return self._keep_file(key, data)
+
+    def _fault_for(self, task: TileTask) -> str | None:
+        for kind, pattern, tile in self._faults:
+            if fnmatch.fnmatch(task.scene_name, pattern) and tile in (None, task.tile.index):
+                return kind
+        return None
 
     # ----------------------------------------------------------------- liveness
     def _beat(self) -> None:
-        self.redis.set(protocol.worker_key(self.name), f"{socket.gethostname()} pid {os.getpid()}",
-                       px=int(self.heartbeat_ttl * 1000))
+        key = protocol.worker_key(self.name)
+        with self.redis.pipeline(transaction=True) as pipe:
+            pipe.hset(key, mapping={"host": socket.gethostname(), "pid": os.getpid(),
+                                    "started_at": repr(self.started_at),
+                                    "beat_at": repr(time.time()), "current": self.current})
+            pipe.hsetnx(key, "tiles_done", 0)
+            pipe.hsetnx(key, "failures", 0)
+            pipe.pexpire(key, int(self.heartbeat_ttl * 1000))
+            pipe.sadd(protocol.WORKERS, self.name)
+            pipe.execute()
 
     def _heartbeat_loop(self, stop: threading.Event) -> None:
         interval = max(0.1, self.heartbeat_ttl / 5)
@@ -318,57 +678,113 @@ class Worker:
             except redis.RedisError as e:
                 log.debug("heartbeat failed: %s", e)
 
+    def _alive(self, name: str) -> bool:
+        return bool(self.redis.exists(protocol.worker_key(name)))
+
     def _reap(self, stop: threading.Event) -> None:
-        """Claims and renders the tiles held by consumers whose heartbeat has expired,
-        then removes those consumers from the group."""
-        try:
-            consumers = self.redis.xinfo_consumers(protocol.TILE_STREAM, protocol.WORKER_GROUP)
-        except redis.ResponseError as e:
-            if "NOGROUP" in str(e) or "no such key" in str(e):
-                return
-            raise
-        for consumer in consumers:
-            dead = _text(consumer["name"])
-            if dead == self.name or self.redis.exists(protocol.worker_key(dead)):
+        """Claims and renders the tiles held by workers whose heartbeat has expired, then
+        removes those workers from the queues' groups."""
+        for job_id in [_text(j) for j in self.redis.smembers(protocol.ACTIVE)]:
+            queue = protocol.job_queue_key(job_id)
+            try:
+                summary = self.redis.xpending(queue, protocol.WORKER_GROUP)
+            except redis.ResponseError:  # the queue ended (job finished) meanwhile
                 continue
-            if int(consumer.get("pending", 0)) > 0:
-                log.info("worker %s is gone; taking over its %s pending tile(s)",
-                         dead, consumer["pending"])
-                for pending in self.redis.xpending_range(
-                        protocol.TILE_STREAM, protocol.WORKER_GROUP, min="-", max="+",
-                        count=100, consumername=dead):
+            for consumer in summary.get("consumers") or []:
+                dead = _text(consumer["name"])
+                mine = dead == self.name
+                if not mine and self._alive(dead):
+                    continue
+                if mine:
+                    # The reaper runs between tiles, so an entry of ours is not being
+                    # rendered: Redis failed while it was being stored. Render it again.
+                    log.info("retrying %s tile(s) of job %s left pending by a redis error",
+                             consumer["pending"], job_id)
+                else:
+                    log.info("worker %s is gone; taking over its %s pending tile(s) of job %s",
+                             dead, consumer["pending"], job_id)
+                for pending in self.redis.xpending_range(queue, protocol.WORKER_GROUP, min="-",
+                                                         max="+", count=100, consumername=dead):
                     if stop.is_set():
                         return
                     # One at a time, so that a tile is not held while others render.
-                    claimed = self.redis.xclaim(protocol.TILE_STREAM, protocol.WORKER_GROUP,
-                                                self.name, CLAIM_MIN_IDLE_MS,
-                                                [pending["message_id"]])
+                    claimed = self.redis.xclaim(queue, protocol.WORKER_GROUP, self.name,
+                                                CLAIM_MIN_IDLE_MS, [pending["message_id"]])
                     for entry_id, fields in claimed:
-                        self._process(entry_id, fields)
-            if self._drop_idle_consumer(keys=[protocol.TILE_STREAM],
-                                        args=[protocol.WORKER_GROUP, dead]):
-                log.info("removed dead worker %s from the group", dead)
+                        if not mine:
+                            self.redis.hincrby(protocol.STATS, "reclaimed", 1)
+                        if pending["times_delivered"] >= MAX_DEATH_DELIVERIES:
+                            self._poison_by_deaths(job_id, entry_id, fields,
+                                                   pending["times_delivered"])
+                        else:
+                            self._process(job_id, entry_id, fields)
+                if not mine and self._drop_idle_consumer(keys=[queue],
+                                                         args=[protocol.WORKER_GROUP, dead]):
+                    log.info("removed dead worker %s from job %s's queue", dead, job_id)
+        for name in [_text(n) for n in self.redis.smembers(protocol.WORKERS)]:
+            if name != self.name and not self._alive(name):
+                self.redis.srem(protocol.WORKERS, name)
+
+    def _poison_by_deaths(self, job_id: str, entry_id: bytes, fields, deliveries: int) -> None:
+        try:
+            tile = TileTask.from_fields(fields or {}).tile.index
+        except ValueError:
+            tile = "?"
+        message = (f"tile {tile} was delivered {deliveries} times and the worker holding it "
+                   f"died each time")
+        self._fail_job(args=[job_id, repr(time.time()), message])
+        self._ack(protocol.job_queue_key(job_id), entry_id)
 
     def _leave(self) -> None:
-        """On a clean exit: stop counting as alive and leave the group if nothing is held."""
+        """On a clean exit: stop counting as alive."""
         try:
             self.redis.delete(protocol.worker_key(self.name))
-            self._drop_idle_consumer(keys=[protocol.TILE_STREAM],
-                                     args=[protocol.WORKER_GROUP, self.name])
+            self.redis.srem(protocol.WORKERS, self.name)
+            for job_id in [_text(j) for j in self.redis.smembers(protocol.ACTIVE)]:
+                self._drop_idle_consumer(keys=[protocol.job_queue_key(job_id)],
+                                         args=[protocol.WORKER_GROUP, self.name])
         except redis.RedisError as e:
             log.debug("could not leave cleanly: %s", e)
 
 
-def _describe(error: BaseException, task: TileTask) -> str:
-    if isinstance(error, SceneError):
-        return f"cannot load scene {task.scene_name!r}: {error}"
-    if isinstance(error, MemoryError):
-        return f"out of memory rendering tile {task.tile.index} of {task.scene_name!r}"
-    return (f"rendering tile {task.tile.index} of {task.scene_name!r} failed: "
-            f"{type(error).__name__}: {error}")
+def _parse_faults(spec: str) -> list[tuple[str, str, int | None]]:
+    faults = []
+    for item in filter(None, (s.strip() for s in spec.split(","))):
+        kind, _, rest = item.partition(":")
+        pattern, _, tile = rest.partition("#")
+        if kind not in ("segv", "abort", "hang", "oom", "exit") or not pattern:
+            raise ValueError(f"bad fault injection rule {item!r}: use KIND:GLOB[#TILE]")
+        faults.append((kind, pattern, int(tile) if tile else None))
+    return faults
+
+
+def _load_prctl():
+    try:
+        import ctypes
+        return ctypes.CDLL(None).prctl
+    except (OSError, AttributeError):
+        return None
+
+
+_prctl = _load_prctl()  # looked up here: the child after fork should only call it
+
+
+def _die_with_parent() -> None:
+    """In a child: get SIGKILL if the worker dies, so that no render outlives it (Linux)."""
+    if _prctl is not None:
+        _prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
+
+
+def _size(n: int) -> str:
+    return "none" if n <= 0 else f"{n / (1 << 30):g} GiB"
 
 
 def _text(value) -> str:
     if value is None:
         return ""
     return value.decode() if isinstance(value, bytes) else str(value)
+
+
+def _float(value) -> float | None:
+    text = _text(value)
+    return float(text) if text else None

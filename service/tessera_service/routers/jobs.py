@@ -1,30 +1,38 @@
-"""/jobs: submit a scene, follow the job, download the image, cancel."""
+"""/jobs: submit a scene, follow the job (status, events, log, preview), download the
+image, cancel, pause, resume."""
 from __future__ import annotations
 
 import hashlib
+import json
 import math
+import re
 import tempfile
+import threading
 import time
 import uuid
+from contextlib import contextmanager
+from dataclasses import asdict
 from datetime import datetime, timezone
 from pathlib import Path, PureWindowsPath
 from typing import Annotated
 
-from fastapi import APIRouter, File, Form, HTTPException, Request, Response, UploadFile
+from fastapi import APIRouter, File, Form, HTTPException, Query, Request, Response, UploadFile
 from fastapi.exceptions import RequestValidationError
+from fastapi.responses import StreamingResponse
 from pydantic import ValidationError
 
-from tessera.protocol import JobSpec, RenderSettings
+from tessera import protocol
+from tessera.protocol import FINAL_STATES, JobSpec, JobState, RenderSettings
 
-from ..merge import MergeError, encode_images, merge_tiles
-from ..preflight import PreflightBroken, PreflightRejected, inspect_scene
-from ..schemas import JobCreated, JobStatus
+from ..merge import MergeError, encode_image, merge_tiles
+from ..preflight import PreflightBroken, PreflightRejected, SceneInfo, inspect_scene
+from ..schemas import JobCreated, JobList, JobLog, JobStatus
 from ..settings import Settings
 from ..store import Job, JobStore
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
-SCENE_SUFFIXES = (".usda", ".usdc", ".usdz", ".usd")
+SCENE_SUFFIXES = (".usda", ".usdc", ".usdz", ".usd", ".zip")
 CHUNK = 1 << 20
 _DEFAULTS = {name: f.default for name, f in RenderSettings.model_fields.items()}
 
@@ -40,13 +48,24 @@ def upload_too_large(limit: int) -> HTTPException:
 def create_job(
     request: Request,
     response: Response,
-    file: Annotated[UploadFile, File(description="the scene: .usda, .usdc, .usdz or .usd")],
+    file: Annotated[UploadFile, File(
+        description="the scene: .usda, .usdc, .usdz or .usd, or a .zip bundle (root layer first)")],
     width: Annotated[int | None, Form(description="default: the scene's render settings, else 512")] = None,
     height: Annotated[int | None, Form(description="default: the scene's render settings, else 512")] = None,
     spp: Annotated[int, Form(description="samples per pixel")] = _DEFAULTS["spp"],
     seed: Annotated[int, Form()] = _DEFAULTS["seed"],
     max_depth: Annotated[int, Form(description="maximum path length")] = _DEFAULTS["max_depth"],
     tile_size: Annotated[int, Form(description="tile edge in pixels")] = _DEFAULTS["tile_size"],
+    target_error: Annotated[float | None, Form(
+        description="render to this relative noise (0.01 = 1 %) instead of a fixed spp")] = None,
+    min_spp: Annotated[int, Form(description="first pass (noise-target mode)")] = _DEFAULTS["min_spp"],
+    max_spp: Annotated[int, Form(description="most samples (noise-target mode)")] = _DEFAULTS["max_spp"],
+    time_limit: Annotated[float | None, Form(
+        description="seconds after start when no further passes begin (noise-target mode)")] = None,
+    priority: Annotated[int, Form(ge=protocol.MIN_PRIORITY, le=protocol.MAX_PRIORITY,
+                                  description="0-9; higher goes first")] = protocol.DEFAULT_PRIORITY,
+    integrator: Annotated[str, Form(description="path, bdpt, light, whitted, local or auto "
+                                                "(docs/integrators.md)")] = _DEFAULTS["integrator"],
 ) -> JobCreated:
     settings: Settings = request.app.state.settings
     store: JobStore = request.app.state.store
@@ -56,7 +75,9 @@ def create_job(
     if suffix not in SCENE_SUFFIXES:
         raise HTTPException(400, f"unsupported file type {suffix or '(no suffix)'!r} in {name!r}: "
                                  f"upload a {', '.join(SCENE_SUFFIXES)} file")
-    params = dict(spp=spp, seed=seed, max_depth=max_depth, tile_size=tile_size)
+    params = dict(spp=spp, seed=seed, max_depth=max_depth, tile_size=tile_size, integrator=integrator,
+                  target_error=target_error, min_spp=min_spp, max_spp=max_spp,
+                  time_limit=time_limit)
     # Check what can be checked before the (slow) inspection; resolution comes later.
     _render_settings(width=width if width is not None else 1,
                      height=height if height is not None else 1, **params)
@@ -64,13 +85,20 @@ def create_job(
     with tempfile.TemporaryDirectory(prefix="tessera-upload-") as tmp:
         path = Path(tmp, f"scene{suffix}")
         scene_hash = _save_upload(file, path, settings.max_upload_bytes)
-        try:
-            info = inspect_scene(str(path), timeout=settings.preflight_timeout,
-                                 memory_bytes=settings.preflight_memory_bytes)
-        except PreflightRejected as e:
-            raise HTTPException(422, f"the scene cannot be rendered: {e}") from None
-        except PreflightBroken as e:
-            raise HTTPException(500, str(e)) from None
+        # Concurrent uploads of one scene wait for a single inspection.
+        with _inspection_lock(scene_hash):
+            cached = store.preflight(scene_hash)
+            if cached is not None:  # this exact file was inspected before: skip the ~1 s child
+                info = SceneInfo(**cached)
+            else:
+                try:
+                    info = inspect_scene(str(path), timeout=settings.preflight_timeout,
+                                         memory_bytes=settings.preflight_memory_bytes)
+                except PreflightRejected as e:
+                    raise HTTPException(422, f"the scene cannot be rendered: {e}") from None
+                except PreflightBroken as e:
+                    raise HTTPException(500, str(e)) from None
+                store.remember_preflight(scene_hash, asdict(info))
         render = _render_settings(width=width if width is not None else info.width,
                                   height=height if height is not None else info.height, **params)
         tiles = math.ceil(render.width / render.tile_size) * math.ceil(render.height / render.tile_size)
@@ -78,13 +106,26 @@ def create_job(
             raise HTTPException(422, f"{render.width}x{render.height} in tiles of {render.tile_size} "
                                      f"makes {tiles} tiles, more than the limit of "
                                      f"{settings.max_tiles}: use a larger tile_size")
-        store.put_scene(scene_hash, name, path.read_bytes())
+        if not store.touch_scene(scene_hash):
+            store.put_scene(scene_hash, name, path.read_bytes())
 
-    spec = JobSpec(job_id=uuid.uuid4().hex, scene_hash=scene_hash, scene_name=name, settings=render)
+    spec = JobSpec(job_id=uuid.uuid4().hex, scene_hash=scene_hash, scene_name=name,
+                   settings=render, priority=priority)
     tiles_total = store.create_job(spec, info.warnings)
     response.headers["Location"] = f"/jobs/{spec.job_id}"
     return JobCreated(id=spec.job_id, state="queued", tiles_total=tiles_total,
-                      width=render.width, height=render.height, warnings=info.warnings)
+                      width=render.width, height=render.height, priority=priority,
+                      warnings=info.warnings)
+
+
+@router.get("", response_model=JobList)
+def list_jobs(request: Request,
+              state: Annotated[JobState | None, Query(description="only jobs in this state")] = None,
+              limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+              offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0) -> JobList:
+    """Jobs, newest first."""
+    store: JobStore = request.app.state.store
+    return JobList(jobs=[_status(j.spec.job_id, j) for j in store.list(state, limit, offset)])
 
 
 @router.get("/{job_id}", response_model=JobStatus, responses={404: {"description": "no such job"}})
@@ -94,11 +135,85 @@ def get_job(job_id: str, request: Request) -> JobStatus:
 
 @router.delete("/{job_id}", response_model=JobStatus, responses={404: {"description": "no such job"}})
 def cancel_job(job_id: str, request: Request) -> JobStatus:
-    """Cancels a queued or running job; a finished job is left as it is."""
+    """Cancels a queued, running or paused job: its open tiles are dropped at once and a
+    tile being rendered is abandoned. A finished job is left as it is."""
     store: JobStore = request.app.state.store
     if not store.cancel(job_id):
         raise _not_found(job_id)
     return _status(job_id, _job(request, job_id))
+
+
+@router.post("/{job_id}/pause", response_model=JobStatus,
+             responses={404: {"description": "no such job"}})
+def pause_job(job_id: str, request: Request) -> JobStatus:
+    """Stops handing out the job's tiles (tiles being rendered are still stored). A job
+    that is not queued or running is left as it is."""
+    if not request.app.state.store.pause(job_id):
+        raise _not_found(job_id)
+    return _status(job_id, _job(request, job_id))
+
+
+@router.post("/{job_id}/resume", response_model=JobStatus,
+             responses={404: {"description": "no such job"}})
+def resume_job(job_id: str, request: Request) -> JobStatus:
+    """Resumes a paused job; any other job is left as it is."""
+    if not request.app.state.store.resume(job_id):
+        raise _not_found(job_id)
+    return _status(job_id, _job(request, job_id))
+
+
+@router.get("/{job_id}/log", response_model=JobLog, responses={404: {"description": "no such job"}})
+def get_log(job_id: str, request: Request) -> JobLog:
+    """The job's log: state changes, warnings, failed attempts, blocklisted workers."""
+    _job(request, job_id)
+    return JobLog(id=job_id, lines=request.app.state.store.log(job_id))
+
+
+@router.get("/{job_id}/events", response_class=StreamingResponse,
+            responses={200: {"content": {"text/event-stream": {}},
+                             "description": "Server-Sent Events: `state`, `tile`, `pass` and "
+                                            "`failure` events whose data is a JSON JobEvent; "
+                                            "the stream ends after the job's final state"},
+                       404: {"description": "no such job"}})
+async def job_events(job_id: str, request: Request,
+                     after: Annotated[str | None, Query(
+                         pattern=r"^\d+(-\d+)?$",
+                         description="resume after this event id (or send Last-Event-ID)")] = None
+                     ) -> StreamingResponse:
+    # Async, on its own Redis client: a stream may stay open for hours, and must hold
+    # neither a worker thread nor a pooled connection of the synchronous routes.
+    aredis = request.app.state.aredis
+    job_key, events_key = protocol.job_key(job_id), protocol.job_events_key(job_id)
+    if not await aredis.exists(job_key):
+        raise _not_found(job_id)
+    cursor = after or request.headers.get("last-event-id") or "0"
+    if not _EVENT_ID.match(cursor):
+        cursor = "0"
+
+    async def stream():
+        nonlocal cursor
+        idle = 0
+        while not await request.is_disconnected():
+            reply = await aredis.xread({events_key: cursor}, count=100, block=1000)
+            events = reply[0][1] if reply else []
+            for event_id, raw in events:
+                cursor = event_id.decode()
+                fields = {k.decode(): v.decode() for k, v in raw.items()}
+                data = {k: _event_value(k, v) for k, v in fields.items()}
+                yield (f"id: {cursor}\nevent: {fields.get('type', 'message')}\n"
+                       f"data: {json.dumps(data)}\n\n")
+                if fields.get("type") == "state" and fields.get("state") in FINAL_STATES:
+                    return
+            if not events:
+                idle += 1
+                state = await aredis.hget(job_key, "state")
+                if state is None or (state.decode() in FINAL_STATES and idle > 1):
+                    return  # expired, or final with its last event already sent
+                if idle % 15 == 0:
+                    yield ": keep-alive\n\n"
+
+    return StreamingResponse(stream(), media_type="text/event-stream",
+                             headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
 
 
 @router.get("/{job_id}/image.exr", response_class=Response,
@@ -111,9 +226,19 @@ def get_image(job_id: str, request: Request) -> Response:
 
 
 @router.get("/{job_id}/preview.png", response_class=Response,
-            responses={200: {"content": {"image/png": {}}}, 404: {}, 409: {"description": "not done"}})
+            responses={200: {"content": {"image/png": {}}}, 404: {},
+                       409: {"description": "failed or cancelled"}})
 def get_preview(job_id: str, request: Request) -> Response:
-    """A tonemapped 8-bit sRGB preview of the image."""
+    """A tonemapped 8-bit sRGB preview: of the finished image, or while the job is queued,
+    running or paused, of what is rendered so far (missing tiles are black)."""
+    job = _job(request, job_id)
+    if job.state in ("queued", "running", "paused"):
+        try:
+            rgba = merge_tiles(job.spec, request.app.state.store.tiles(job_id), partial=True)
+        except MergeError as e:
+            raise HTTPException(500, f"cannot assemble the preview of job {job_id}: {e}") from None
+        data = encode_image(rgba, job.spec, "png")
+        return Response(data, media_type="image/png", headers={"Cache-Control": "no-store"})
     data = _image(request, job_id, "png")
     return Response(data, media_type="image/png",
                     headers={"Content-Disposition": f'inline; filename="{job_id}.png"'})
@@ -145,9 +270,8 @@ def _image(request: Request, job_id: str, fmt: str) -> bytes:
             rgba = merge_tiles(job.spec, store.tiles(job_id))
         except MergeError as e:
             raise HTTPException(500, f"cannot assemble the image of job {job_id}: {e}") from None
-        exr, png = encode_images(rgba, job.spec)
-        store.cache_images(job_id, exr, png)
-        data = exr if fmt == "exr" else png
+        data = encode_image(rgba, job.spec, fmt)
+        store.cache_image(job_id, fmt, data)
     return data
 
 
@@ -158,12 +282,36 @@ def _status(job_id: str, job: Job) -> JobStatus:
     end = job.finished_at if job.finished_at is not None else time.time()
     return JobStatus(
         id=job_id, state=job.state, scene_name=job.spec.scene_name, settings=job.spec.settings,
-        tiles_done=job.tiles_done, tiles_total=job.tiles_total,
+        priority=job.spec.priority, tiles_done=job.tiles_done, tiles_total=job.tiles_total,
+        passes_done=job.passes_done,
         created_at=when(job.created_at), started_at=when(job.started_at),
         finished_at=when(job.finished_at),
         elapsed_seconds=round(max(0.0, end - job.created_at), 3),
         render_seconds=round(job.render_seconds, 3),
         warnings=job.warnings, error=job.error)
+
+
+_locks_guard = threading.Lock()
+_locks: dict[str, threading.Lock] = {}
+
+
+@contextmanager
+def _inspection_lock(scene_hash: str):
+    with _locks_guard:
+        lock = _locks.setdefault(scene_hash, threading.Lock())
+    with lock:
+        yield
+    with _locks_guard:
+        if not lock.locked():
+            _locks.pop(scene_hash, None)
+
+
+_EVENT_ID = re.compile(r"^\d+(-\d+)?$")
+_INT_FIELDS = ("tile", "pass_index", "samples", "tiles_done")
+
+
+def _event_value(key: str, value: str):
+    return int(value) if key in _INT_FIELDS and value.lstrip("-").isdigit() else value
 
 
 def _render_settings(**values) -> RenderSettings:

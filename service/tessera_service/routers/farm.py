@@ -1,0 +1,66 @@
+"""/workers and /metrics: the state of the farm as a whole."""
+from __future__ import annotations
+
+from datetime import datetime, timezone
+
+from fastapi import APIRouter, Request, Response
+from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
+
+from ..schemas import WorkerList, WorkerStatus
+from ..store import JobStore
+
+router = APIRouter(tags=["farm"])
+
+
+@router.get("/workers", response_model=WorkerList)
+def list_workers(request: Request) -> WorkerList:
+    """Live workers (those whose heartbeat has not expired)."""
+    store: JobStore = request.app.state.store
+
+    def when(t: float) -> datetime:
+        return datetime.fromtimestamp(t, timezone.utc)
+
+    return WorkerList(workers=[
+        WorkerStatus(name=w.name, host=w.host, pid=w.pid, started_at=when(w.started_at),
+                     last_heartbeat=when(w.beat_at), current=w.current or None,
+                     tiles_done=w.tiles_done, failures=w.failures)
+        for w in store.workers()])
+
+
+class FarmCollector:
+    """Reads the farm's counters from Redis at scrape time, so that every API process
+    reports the same numbers (the counters live in Redis, written by the workers)."""
+
+    def __init__(self, store: JobStore):
+        self.store = store
+
+    def collect(self):
+        depth = GaugeMetricFamily("tessera_queue_depth",
+                                  "Open tile passes (queued or rendering) per job priority",
+                                  labels=["priority"])
+        for priority, n in sorted(self.store.queue_depths().items()):
+            depth.add_metric([str(priority)], n)
+        yield depth
+        stats = self.store.stats()
+        for name, key, doc in (
+                ("tessera_tiles", "tiles", "Tiles finished (all passes stored)"),
+                ("tessera_passes", "passes", "Tile passes stored"),
+                ("tessera_render_seconds", "render_seconds", "Seconds spent rendering stored passes"),
+                ("tessera_tile_failures", "failures", "Failed render attempts"),
+                ("tessera_tiles_poisoned", "poisoned", "Tiles that failed too often (job failed)"),
+                ("tessera_tiles_reclaimed", "reclaimed", "Tiles taken over from dead workers")):
+            yield CounterMetricFamily(name, doc, value=stats.get(key, 0.0))
+        workers = self.store.workers()
+        yield GaugeMetricFamily("tessera_workers", "Live workers", value=len(workers))
+        yield GaugeMetricFamily("tessera_workers_busy", "Workers rendering a tile",
+                                value=sum(1 for w in workers if w.current))
+
+
+@router.get("/metrics", response_class=Response,
+            responses={200: {"content": {"text/plain": {}},
+                             "description": "Prometheus text exposition format"}})
+def metrics(request: Request) -> Response:
+    registry = CollectorRegistry(auto_describe=False)
+    registry.register(FarmCollector(request.app.state.store))
+    return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)

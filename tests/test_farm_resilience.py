@@ -1,0 +1,267 @@
+"""The farm under faults and load, with real processes: workers SIGKILLed at random while
+ten jobs run; Redis (append-only), the API and all workers restarted mid-job; fifty jobs
+submitted at once; the `tessera submit` client. Every image must equal its local render
+bit for bit."""
+from __future__ import annotations
+
+import os
+import random
+import signal
+import statistics
+import subprocess
+import sys
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import ExitStack
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+import redis
+
+from conftest import (CORNELL, clean_env, start_api, start_worker, submit, wait_for_job)
+from tessera import images, protocol
+from tessera.local import render_image
+from tessera.protocol import RenderSettings
+from tessera_renderer import load_scene
+from tessera_service.embedded import free_port, redis_server as local_redis
+
+
+def local_reference(form: dict) -> np.ndarray:
+    settings = RenderSettings(**{k: v for k, v in form.items() if k != "priority"})
+    return render_image(load_scene(str(CORNELL)), settings, threads=0, progress=False).rgba
+
+
+def farm_image(client: httpx.Client, job_id: str, tmp_path: Path) -> np.ndarray:
+    r = client.get(f"/jobs/{job_id}/image.exr")
+    assert r.status_code == 200, r.text
+    path = tmp_path / f"{job_id}.exr"
+    path.write_bytes(r.content)
+    return images.read_exr(path)
+
+
+def assert_bit_identical(actual: np.ndarray, expected: np.ndarray, what: str = "") -> None:
+    assert actual.shape == expected.shape, what
+    differ = actual.view(np.uint32) != expected.view(np.uint32)
+    assert not differ.any(), f"{what}: {int(differ.sum())} of {differ.size} values differ"
+
+
+@pytest.fixture(scope="module")
+def farm(redis_server, tmp_path_factory):
+    logs = tmp_path_factory.mktemp("resilience")
+    api_proc, base = start_api(redis_server, logs)
+    workers = [start_worker(redis_server, f"c-{i}", logs) for i in range(3)]
+    with httpx.Client(base_url=base, timeout=60) as client:
+        client.api = api_proc
+        client.workers = workers
+        client.redis_url, client.log_dir = redis_server, logs
+        yield client
+    for proc in [*client.workers, api_proc]:
+        proc.stop()
+
+
+def test_chaos_random_worker_kills_while_ten_jobs_run(farm, redis_client, tmp_path):
+    """A random worker is SIGKILLed every few seconds and restarted; all ten jobs complete and
+    every image equals its local render."""
+    forms = [dict(width=48, height=48, spp=384, seed=seed, max_depth=16, tile_size=16)
+             for seed in range(10)]
+    ids = []
+    for form in forms:
+        r = submit(farm, CORNELL, **form)
+        assert r.status_code == 201, r.text
+        ids.append(r.json()["id"])
+    rng = random.Random(5)
+    kills = 0
+    orphans: list[int] = []  # render processes of killed workers
+    reclaimed_before = int(redis_client.hget(protocol.STATS, "reclaimed") or 0)
+    deadline = time.monotonic() + 240
+    while True:
+        states = [farm.get(f"/jobs/{job_id}").json()["state"] for job_id in ids]
+        if all(s in protocol.FINAL_STATES for s in states):
+            break
+        assert time.monotonic() < deadline, f"jobs not finished: {states}\n" + \
+            "\n".join(w.log() for w in farm.workers)
+        if kills < 6:
+            # Prefer a worker that is rendering right now, so that its tile is lost.
+            busy = {w["name"] for w in farm.get("/workers").json()["workers"] if w["current"]}
+            candidates = [i for i, w in enumerate(farm.workers) if w.name in busy] or [0, 1, 2]
+            i = rng.choice(candidates)
+            victim = farm.workers[i]
+            children = _children(victim.pid)
+            os.kill(victim.pid, signal.SIGKILL)
+            victim.popen.wait(timeout=10)
+            victim.stop()
+            orphans.extend(children)
+            kills += 1
+            farm.workers[i] = start_worker(farm.redis_url, f"c-{i}-{kills}", farm.log_dir)
+        time.sleep(1.5)
+    assert kills >= 3, "the jobs finished before the chaos really started"
+    assert all(s == "done" for s in states), states
+    for job_id, form in zip(ids, forms):
+        assert_bit_identical(farm_image(farm, job_id, tmp_path), local_reference(form),
+                             f"seed {form['seed']}")
+    assert int(redis_client.hget(protocol.STATS, "reclaimed") or 0) > reclaimed_before
+    # No render process outlived its killed worker (they die with their parent).
+    assert orphans
+    deadline = time.monotonic() + 10
+    while alive := [pid for pid in orphans if _running(pid)]:
+        assert time.monotonic() < deadline, f"render processes {alive} outlived their worker"
+        time.sleep(0.05)
+    for w in farm.workers:
+        assert w.alive(), w.log()
+
+
+def test_fifty_jobs_submitted_at_once(farm):
+    """Fifty concurrent submissions all succeed; GET /jobs/{id} stays responsive while they
+    run (latencies printed; the bound is generous, this is not a benchmark)."""
+    form = dict(width=16, height=16, spp=4, max_depth=8, tile_size=16)
+
+    def one(_):
+        with open(CORNELL, "rb") as f:
+            return httpx.post(f"{farm.base_url}/jobs", files={"file": (CORNELL.name, f)},
+                              data={k: str(v) for k, v in form.items()}, timeout=120)
+
+    probe = submit(farm, CORNELL, **form).json()["id"]
+    latencies: list[float] = []
+    stop = threading.Event()
+
+    def poll_status():
+        # Measured throughout: while the fifty uploads arrive and while they render.
+        with httpx.Client(base_url=farm.base_url, timeout=60) as client:
+            while not stop.is_set():
+                t = time.perf_counter()
+                assert client.get(f"/jobs/{probe}").status_code == 200
+                latencies.append(time.perf_counter() - t)
+                time.sleep(0.01)
+
+    poller = threading.Thread(target=poll_status, daemon=True)
+    poller.start()
+    try:
+        with ThreadPoolExecutor(max_workers=50) as pool:
+            responses = list(pool.map(one, range(50)))
+        assert [r.status_code for r in responses] == [201] * 50, \
+            [r.text for r in responses if r.status_code != 201]
+        ids = [r.json()["id"] for r in responses]
+        for job_id in ids:
+            assert wait_for_job(farm, job_id, timeout=180)["state"] == "done"
+    finally:
+        stop.set()
+        poller.join(timeout=60)
+    latencies.sort()
+    assert len(latencies) >= 5, latencies
+    p50, p95 = statistics.median(latencies), latencies[int(0.95 * (len(latencies) - 1))]
+    print(f"status latency under load: p50 {p50 * 1000:.1f} ms, p95 {p95 * 1000:.1f} ms, "
+          f"max {latencies[-1] * 1000:.1f} ms over {len(latencies)} requests")
+    assert latencies[-1] < 5.0, f"a status request took {latencies[-1]:.2f} s"
+    listed = farm.get("/jobs", params={"limit": 1000}).json()["jobs"]
+    assert set(ids) <= {j["id"] for j in listed}
+
+
+def test_submit_cli_waits_and_downloads_the_local_image(farm, tmp_path):
+    out = tmp_path / "farm.exr"
+    args = ["--res", "40x24", "--spp", "8", "--seed", "9", "--max-depth", "8", "--tile", "16"]
+    proc = subprocess.run([sys.executable, "-m", "tessera", "submit", str(CORNELL),
+                           "--server", str(farm.base_url), "--wait", "-o", str(out), *args],
+                          env=clean_env(), capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    job_id = proc.stdout.strip()
+    assert len(job_id) == 32 and f"wrote {out}" in proc.stderr
+    local = tmp_path / "local.exr"
+    proc = subprocess.run([sys.executable, "-m", "tessera", "render", str(CORNELL), "-o", str(local),
+                           "-q", "--threads", "1", *args],
+                          env=clean_env(), capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert_bit_identical(images.read_exr(out), images.read_exr(local))
+    # A refused job is a clear error, not a traceback.
+    bad = tmp_path / "bad.usda"
+    bad.write_text("#usda 1.0\n(((( nope")
+    proc = subprocess.run([sys.executable, "-m", "tessera", "submit", str(bad),
+                           "--server", str(farm.base_url)], env=clean_env(),
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "the server refused the job (422)" in proc.stderr
+    proc = subprocess.run([sys.executable, "-m", "tessera", "submit", str(CORNELL),
+                           "--server", f"http://127.0.0.1:{free_port()}"], env=clean_env(),
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "cannot talk to" in proc.stderr
+
+
+def test_restarting_redis_api_and_all_workers_loses_nothing(tmp_path):
+    """Redis with an fsynced append-only file is SIGKILLed and restarted mid-job, then the
+    API, then every worker: no accepted job and no finished tile is lost, and the images
+    equal the local render."""
+    form = dict(width=64, height=64, spp=128, seed=7, max_depth=16, tile_size=16)  # 16 tiles
+    data = tmp_path / "redis-data"
+    data.mkdir()
+    port = free_port()
+    with ExitStack() as stack:
+        first = stack.enter_context(local_redis(str(data), port=port, appendonly=True))
+        url = first.url
+        api, base = start_api(url, tmp_path)
+        stack.callback(lambda: api.stop())
+        workers = [start_worker(url, f"r-{i}", tmp_path) for i in range(2)]
+        stack.callback(lambda: [w.stop() for w in workers])
+        client = stack.enter_context(httpx.Client(base_url=base, timeout=60))
+        ids = []
+        for _ in range(3):
+            r = submit(client, CORNELL, **form)
+            assert r.status_code == 201, r.text
+            ids.append(r.json()["id"])
+        rc = redis.Redis.from_url(url)
+        deadline = time.monotonic() + 120
+        while sum(rc.hlen(protocol.job_tiles_key(j)) for j in ids) < 3:
+            assert time.monotonic() < deadline, "no tiles finished"
+            time.sleep(0.02)
+        stored = {j: set(rc.hkeys(protocol.job_tiles_key(j))) for j in ids}
+        rc.close()
+
+        # 1. Redis dies (SIGKILL, no chance to flush anything more) and comes back.
+        first.process.kill()
+        first.process.wait()
+        stack.enter_context(local_redis(str(data), port=port, appendonly=True))
+        rc = stack.enter_context(redis.Redis.from_url(url))
+        for job_id in ids:
+            assert rc.exists(protocol.job_key(job_id)), "an accepted job was lost"
+            assert stored[job_id] <= set(rc.hkeys(protocol.job_tiles_key(job_id))), \
+                "a finished tile was lost"
+
+        # 2. The API dies and a new one takes over.
+        os.kill(api.pid, signal.SIGKILL)
+        api.popen.wait()
+        api, base = start_api(url, tmp_path)
+        client = stack.enter_context(httpx.Client(base_url=base, timeout=60))
+        assert all(client.get(f"/jobs/{j}").status_code == 200 for j in ids)
+
+        # 3. Every worker dies mid-job; new ones finish (taking over the dead ones' tiles).
+        for w in workers:
+            os.kill(w.pid, signal.SIGKILL)
+            w.popen.wait()
+        workers[:] = [start_worker(url, f"r-new-{i}", tmp_path) for i in range(2)]
+        expected = local_reference(form)
+        for job_id in ids:
+            status = wait_for_job(client, job_id, timeout=180, processes=[api, *workers])
+            assert status["state"] == "done", status
+            assert status["tiles_done"] == 16
+            assert_bit_identical(farm_image(client, job_id, tmp_path), expected, job_id)
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                stat = Path("/proc", entry, "stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                out.append(int(entry))
+    return out
+
+
+def _running(pid: int) -> bool:
+    try:
+        state = Path("/proc", str(pid), "stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
