@@ -202,6 +202,24 @@ Camera LookDownAtOrigin(float h, uint32_t res = 4) {
     return Camera{{0, h, 0}, Vec3(1, 0, 0), Vec3(0, 0, -1), Vec3(0, -1, 0), 1e-4f, 1e-4f, res, res};
 }
 
+// Renders a whole image with any integrator and adds its splats, normalised as the merge
+// does (render.h): the final image.
+std::vector<float> RenderResolved(const Scene& scene, const Camera& cam, const RenderOptions& opt,
+                                  RenderStats* stats_out = nullptr) {
+    const uint32_t W = cam.width, H = cam.height;
+    std::vector<float> img(size_t(W) * H * 4);
+    std::vector<int64_t> splats(size_t(W) * H * 3, 0);
+    RenderStats st = RenderTile(scene, cam, opt, {0, 0, W, H}, img.data(), nullptr, splats.data());
+    EXPECT_EQ(st.rejected_splats, 0u);
+    EXPECT_EQ(st.nonfinite_samples, 0u);
+    if (st.light_paths)
+        for (size_t i = 0; i < size_t(W) * H; ++i)
+            for (int c = 0; c < 3; ++c)
+                img[4 * i + c] += float(double(splats[3 * i + c]) / kSplatScale * double(W * H) / double(st.light_paths));
+    if (stats_out) *stats_out = st;
+    return img;
+}
+
 double MeanChannel(const std::vector<float>& px, int c) {
     double sum = 0;
     for (size_t i = 0; i < px.size() / 4; ++i) sum += px[4 * i + c];
@@ -532,12 +550,9 @@ TEST(Camera, LensPathLightAndBidirectionalAgree) {
     for (int k = 0; k < 3; ++k) {
         RenderOptions opt{256, 7, 16, 2};
         opt.integrator = k == 0 ? Integrator::kPath : (k == 1 ? Integrator::kLight : Integrator::kBDPT);
-        std::vector<float> img(size_t(W) * H * 4);
-        std::vector<int64_t> splats(size_t(W) * H * 3, 0);
-        RenderStats st = RenderTile(scene, cam, opt, {0, 0, W, H}, img.data(), nullptr, splats.data());
+        auto img = RenderResolved(scene, cam, opt);
         double sum = 0;
-        for (size_t i = 0; i < size_t(W) * H; ++i) sum += img[4 * i + 1] + double(splats[3 * i + 1]) / kSplatScale *
-                                                                              (st.light_paths ? double(W * H) / double(st.light_paths) : 0.0);
+        for (size_t i = 0; i < size_t(W) * H; ++i) sum += img[4 * i + 1];
         mean[k] = sum / (W * H);
     }
     EXPECT_GT(mean[0], 0.05);
@@ -650,14 +665,9 @@ TEST(Dome, TexturedDomeIntegratorsAgree) {
     for (int k = 0; k < 3; ++k) {
         RenderOptions opt{512, 11, 16, 2};
         opt.integrator = k == 0 ? Integrator::kPath : (k == 1 ? Integrator::kLight : Integrator::kBDPT);
-        std::vector<float> img(size_t(W) * H * 4);
-        std::vector<int64_t> splats(size_t(W) * H * 3, 0);
-        RenderStats st = RenderTile(scene, cam, opt, {0, 0, W, H}, img.data(), nullptr, splats.data());
-        EXPECT_EQ(st.rejected_splats, 0u);
+        auto img = RenderResolved(scene, cam, opt);
         double sum = 0;
-        for (size_t i = 0; i < size_t(W) * H; ++i)
-            sum += img[4 * i] + (st.light_paths ? double(splats[3 * i]) / kSplatScale * double(W * H) / double(st.light_paths)
-                                                : 0.0);
+        for (size_t i = 0; i < size_t(W) * H; ++i) sum += img[4 * i + 0];
         mean[k] = sum / (W * H);
     }
     EXPECT_GT(mean[0], 0.05);
@@ -714,13 +724,9 @@ TEST(ShadingNormals, LambertianShadingFollowsTheShadingNormal) {
     for (Integrator integrator : {Integrator::kPath, Integrator::kLight, Integrator::kBDPT}) {
         RenderOptions opt{2048, 2, 1, 2};
         opt.integrator = integrator;
-        std::vector<float> img(size_t(W) * H * 4);
-        std::vector<int64_t> splats(size_t(W) * H * 3, 0);
-        RenderStats st = RenderTile(scene, oblique, opt, {0, 0, W, H}, img.data(), nullptr, splats.data());
+        auto img = RenderResolved(scene, oblique, opt);
         double sum = 0;
-        for (size_t i = 0; i < size_t(W) * H; ++i)
-            sum += img[4 * i] + (st.light_paths ? double(splats[3 * i]) / kSplatScale * double(W * H) / double(st.light_paths)
-                                                : 0.0);
+        for (size_t i = 0; i < size_t(W) * H; ++i) sum += img[4 * i + 0];
         EXPECT_NEAR(sum / (W * H), expected, 0.03 * expected) << "integrator " << int(integrator);
     }
 }
@@ -742,13 +748,9 @@ TEST(ShadingNormals, SmoothSpheresKeepPathLightAndBidirectionalInAgreement) {
     for (int k = 0; k < 3; ++k) {
         RenderOptions opt{512, 5, 16, 2};
         opt.integrator = k == 0 ? Integrator::kPath : (k == 1 ? Integrator::kLight : Integrator::kBDPT);
-        std::vector<float> img(size_t(W) * H * 4);
-        std::vector<int64_t> splats(size_t(W) * H * 3, 0);
-        RenderStats st = RenderTile(scene, cam, opt, {0, 0, W, H}, img.data(), nullptr, splats.data());
+        auto img = RenderResolved(scene, cam, opt);
         double sum = 0;
-        for (size_t i = 0; i < size_t(W) * H; ++i)
-            sum += img[4 * i] + (st.light_paths ? double(splats[3 * i]) / kSplatScale * double(W * H) / double(st.light_paths)
-                                                : 0.0);
+        for (size_t i = 0; i < size_t(W) * H; ++i) sum += img[4 * i + 0];
         mean[k] = sum / (W * H);
     }
     EXPECT_GT(mean[0], 0.05);
