@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import redis
 
+from tessera.process import die_with_parent
+
 log = logging.getLogger("tessera.serve")
 
 WORKER_COMMAND = [sys.executable, "-m", "tessera", "worker"]
@@ -105,7 +107,7 @@ def redis_server(workdir: str, port: int | None = None, timeout: float = 10.0, *
         [*prefix, exe, "--port", str(port), "--bind", bind, "--save", "", *persistence,
          "--protected-mode", "no", "--dir", workdir, "--logfile", logfile, "--daemonize", "no"],
         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
-        start_new_session=True, preexec_fn=_die_with_parent)
+        start_new_session=True, preexec_fn=die_with_parent)
     url = f"redis://{bind}:{port}/0"
     try:
         client = redis.Redis.from_url(url, socket_connect_timeout=1)
@@ -137,7 +139,7 @@ def start_worker(redis_url: str, threads: int = 1, name: str | None = None,
         cmd += ["--name", name]
     return subprocess.Popen(cmd, env={**os.environ, "REDIS_URL": redis_url},
                             stdin=subprocess.DEVNULL, start_new_session=True,
-                            preexec_fn=_die_with_parent)
+                            preexec_fn=die_with_parent)
 
 
 def stop_processes(procs: list[subprocess.Popen], timeout: float) -> None:
@@ -161,24 +163,6 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def _load_prctl():
-    if not sys.platform.startswith("linux"):
-        return None
-    try:
-        import ctypes
-        return ctypes.CDLL(None).prctl
-    except (OSError, AttributeError):
-        return None
-
-
-_prctl = _load_prctl()  # looked up here: the child after fork should only call it
-
-
-def _die_with_parent() -> None:
-    """In the child: get SIGTERM if the parent dies, so nothing is left running (Linux)."""
-    if _prctl is not None:
-        PR_SET_PDEATHSIG = 1
-        _prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM))
 
 
 def _tail(path: str, lines: int = 5) -> str:

@@ -39,6 +39,7 @@ from pathlib import PurePosixPath
 import redis
 
 from tessera import protocol
+from tessera.process import die_with_parent
 from tessera.protocol import TileTask
 
 from .settings import WorkerSettings
@@ -256,7 +257,7 @@ class RenderChild:
             if limit > 0:
                 resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
             resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
-            _die_with_parent()
+            die_with_parent(signal.SIGKILL)  # no render outlives its worker
 
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "tessera_worker.render_child", "--fd", str(child.fileno())],
@@ -758,21 +759,6 @@ def _parse_faults(spec: str) -> list[tuple[str, str, int | None]]:
     return faults
 
 
-def _load_prctl():
-    try:
-        import ctypes
-        return ctypes.CDLL(None).prctl
-    except (OSError, AttributeError):
-        return None
-
-
-_prctl = _load_prctl()  # looked up here: the child after fork should only call it
-
-
-def _die_with_parent() -> None:
-    """In a child: get SIGKILL if the worker dies, so that no render outlives it (Linux)."""
-    if _prctl is not None:
-        _prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
 
 
 def _size(n: int) -> str:
