@@ -118,3 +118,41 @@ def test_sample_ranges_compose_and_variance_matches_the_samples(cornell_path):
     singles = np.stack([scene.render_tile(5, 5, 6, 4, spp=1, sample_start=s, **kw) for s in range(8)])
     np.testing.assert_allclose(var, singles[..., :3].astype(np.float64).var(axis=0, ddof=1), rtol=1e-3, atol=1e-6)
     assert var.max() > 0
+
+
+def test_irradiance_from_a_rect_light_matches_the_form_factor(tmp_path):
+    """A RectLight (radiance L, w x d) parallel to a Lambertian floor at height h, straight
+    above the floor point the camera sees. For a point below the corner of an a x b
+    rectangle the differential form factor is
+        F = 1/(2 pi) [A/sqrt(1+A^2) atan(B/sqrt(1+A^2)) + B/sqrt(1+B^2) atan(A/sqrt(1+B^2))],
+    A = a/h, B = b/h; the centre is four such corners, E = 4 pi L F(w/2, d/2), and the floor
+    shows rho/pi E."""
+    from pxr import UsdGeom
+
+    w, d, h, L, rho = 2.0, 1.0, 1.5, 3.0, 0.6
+    stage = new_stage(tmp_path / "rect.usda")
+    ground = UsdGeom.Mesh.Define(stage, "/Ground")
+    ground.CreatePointsAttr([Gf.Vec3f(-50, 0, -50), Gf.Vec3f(-50, 0, 50), Gf.Vec3f(50, 0, 50), Gf.Vec3f(50, 0, -50)])
+    ground.CreateFaceVertexCountsAttr([4])
+    ground.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    ground.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    ground.CreateDisplayColorAttr([Gf.Vec3f(rho, rho, rho)])  # Lambertian (no material)
+    light = UsdLux.RectLight.Define(stage, "/Light")
+    light.AddTranslateOp().Set(Gf.Vec3d(0, h, 0))
+    light.AddRotateXOp().Set(-90.0)  # local -Z (its emitting side) to world -Y
+    light.CreateWidthAttr(w)
+    light.CreateHeightAttr(d)
+    light.CreateIntensityAttr(L)
+    cam = add_camera(stage, "/Cam", (0, 0.5, 0), focal=1000.0, haperture=1.0, vaperture=1.0)
+    UsdGeom.Xformable(cam.GetPrim()).AddRotateXOp().Set(-90.0)  # look straight down
+    add_render_settings(stage, cam, (4, 4))
+    stage.GetRootLayer().Save()
+
+    def corner(a, b):
+        A, B = a / h, b / h
+        return (A / math.sqrt(1 + A * A) * math.atan(B / math.sqrt(1 + A * A))
+                + B / math.sqrt(1 + B * B) * math.atan(A / math.sqrt(1 + B * B))) / (2 * math.pi)
+
+    irradiance = 4 * math.pi * L * corner(w / 2, d / 2)
+    img = load_scene(tmp_path / "rect.usda").render_tile(0, 0, 4, 4, spp=1024, max_depth=1)
+    np.testing.assert_allclose(img[..., :3].mean(), rho / math.pi * irradiance, rtol=0.01)
