@@ -291,7 +291,10 @@ def test_priority_first_then_fair_share(tmp_path):
         worker = None
         try:
             with httpx.Client(base_url=base, timeout=60) as client:
-                small = dict(width=32, height=32, spp=1, max_depth=4, tile_size=8)  # 16 tiles
+                # 16 tiles each. Enough samples that one tile takes milliseconds: the order is
+                # read from event ids (ms-seq), whose sequence numbers are per stream, so two
+                # tiles finishing within one millisecond could not be ordered.
+                small = dict(width=32, height=32, spp=64, max_depth=4, tile_size=8)
                 ids = {}
                 for name, priority in (("low", 1), ("fair-a", 5), ("fair-b", 5), ("high", 9)):
                     r = submit(client, CORNELL, priority=priority, **small)
