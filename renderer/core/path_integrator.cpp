@@ -5,6 +5,26 @@
 
 namespace tessera {
 
+Color SampleDirectLight(const Scene& scene, const SurfaceHit& hit, const BSDF& bsdf, const Frame& frame, Vec3 wo,
+                        PixelSampler& sampler, bool mis) {
+    const LightSampler& lights = scene.light_sampler();
+    float pmf = 0.f;
+    const uint32_t light = lights.Sample(sampler.Get1D(), &pmf);
+    const Vec2 u = sampler.Get2D();
+    LightSample ls;
+    if (!scene.SampleEmitter(light, hit.p, u, &ls)) return Color(0.f);
+    const float light_pdf = pmf * ls.pdf;
+    if (!(light_pdf > 0.f)) return Color(0.f);
+    const Vec3 wo_local = frame.ToLocal(wo), wi_local = frame.ToLocal(ls.wi);
+    if (!SidesAgree(wo, ls.wi, hit.ng, wo_local, wi_local)) return Color(0.f);
+    const Color f = bsdf.f(wo_local, wi_local) * std::abs(wi_local.z);
+    if (IsBlack(f) || scene.Occluded(OffsetRayOrigin(hit.p, hit.ng, ls.wi), ls.wi, ls.distance * (1.f - 1e-4f)))
+        return Color(0.f);
+    // A delta light cannot be hit by BSDF sampling: light sampling takes it all.
+    const float w = (mis && !ls.is_delta) ? PowerHeuristic(light_pdf, bsdf.PDF(wo_local, wi_local)) : 1.f;
+    return f * ls.radiance * (w / light_pdf);
+}
+
 PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const {
     PathSample result;
     Color L(0.f), beta(1.f);
@@ -47,25 +67,8 @@ PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler
         const Vec3 wo_local = frame.ToLocal(wo);
 
         // Next event estimation: one light chosen by power, one point on it.
-        if (!lights.empty() && bsdf.IsNonSpecular()) {
-            float pmf = 0.f;
-            uint32_t light = lights.Sample(sampler.Get1D(), &pmf);
-            Vec2 u = sampler.Get2D();
-            LightSample ls;
-            if (scene.SampleEmitter(light, hit.p, u, &ls)) {
-                const Vec3 wi_local = frame.ToLocal(ls.wi);
-                const Color f = SidesAgree(wo, ls.wi, hit.ng, wo_local, wi_local)
-                                    ? bsdf.f(wo_local, wi_local) * std::abs(wi_local.z)
-                                    : Color(0.f);
-                const float light_pdf = pmf * ls.pdf;
-                if (!IsBlack(f) && light_pdf > 0.f &&
-                    !scene.Occluded(OffsetRayOrigin(hit.p, hit.ng, ls.wi), ls.wi, ls.distance * (1.f - 1e-4f))) {
-                    // A delta light cannot be hit by BSDF sampling: light sampling takes it all.
-                    float w = ls.is_delta ? 1.f : PowerHeuristic(light_pdf, bsdf.PDF(wo_local, wi_local));
-                    L += beta * f * ls.radiance * (w / light_pdf);
-                }
-            }
-        }
+        if (!lights.empty() && bsdf.IsNonSpecular())
+            L += beta * SampleDirectLight(scene, hit, bsdf, frame, wo, sampler, /*mis=*/true);
 
         // BSDF sampling continues the path.
         const float uc = sampler.Get1D();

@@ -16,6 +16,12 @@ struct PathSample {
     float alpha = 0.f;  // 1 where the camera ray hit geometry
 };
 
+// One light sample at a surface: Le f |cos| / pdf through the BSDF's non-delta lobes, with
+// a shadow ray. With `mis`, weighted by the power heuristic against BSDF sampling of the
+// same direction (delta lights always get weight 1).
+Color SampleDirectLight(const Scene& scene, const SurfaceHit& hit, const BSDF& bsdf, const Frame& frame, Vec3 wo,
+                        PixelSampler& sampler, bool mis);
+
 class PathIntegrator {
 public:
     explicit PathIntegrator(int max_depth) : max_depth_(max_depth) {}

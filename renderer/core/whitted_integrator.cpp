@@ -29,20 +29,8 @@ PathSample WhittedIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& samp
 
         // Direct light through the non-delta lobes: light sampling alone (unweighted, as
         // emitters are never reached by BSDF sampling at such a vertex here).
-        if (!lights.empty() && bsdf.IsNonSpecular()) {
-            float pmf = 0.f;
-            uint32_t light = lights.Sample(sampler.Get1D(), &pmf);
-            LightSample ls;
-            if (scene.SampleEmitter(light, hit.p, sampler.Get2D(), &ls) && pmf * ls.pdf > 0.f) {
-                const Vec3 wi_local = frame.ToLocal(ls.wi);
-                const Color f = SidesAgree(wo, ls.wi, hit.ng, wo_local, wi_local)
-                                    ? bsdf.f(wo_local, wi_local) * std::abs(wi_local.z)
-                                    : Color(0.f);
-                if (!IsBlack(f) &&
-                    !scene.Occluded(OffsetRayOrigin(hit.p, hit.ng, ls.wi), ls.wi, ls.distance * (1.f - 1e-4f)))
-                    L += beta * f * ls.radiance / (pmf * ls.pdf);
-            }
-        }
+        if (!lights.empty() && bsdf.IsNonSpecular())
+            L += beta * SampleDirectLight(scene, hit, bsdf, frame, wo, sampler, /*mis=*/false);
 
         // Recursion along delta lobes only. Sampling the full BSDF and stopping on a
         // non-delta choice keeps the estimate of the delta part unbiased.
