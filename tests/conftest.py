@@ -142,3 +142,48 @@ def wait_for_job(client: httpx.Client, job_id: str, timeout: float = 60.0,
             f"job {job_id} not finished after {timeout} s: {status}\n"
             + "\n".join(p.log() for p in processes))
         time.sleep(0.05)
+
+
+# ------------------------------------------------------------------ shared test helpers
+def local_reference(form: dict):
+    """The image `tessera render` makes locally for these job settings."""
+    from tessera.local import render_image
+    from tessera.protocol import RenderSettings
+    from tessera_renderer import load_scene
+
+    settings = RenderSettings(**{k: v for k, v in form.items() if k != "priority"})
+    return render_image(load_scene(str(CORNELL)), settings, threads=0, progress=False).rgba
+
+
+def farm_image(client: httpx.Client, job_id: str, tmp_path: Path):
+    """Downloads a done job's EXR and reads it back."""
+    from tessera import images
+
+    r = client.get(f"/jobs/{job_id}/image.exr")
+    assert r.status_code == 200, r.text
+    path = tmp_path / f"{job_id}.exr"
+    path.write_bytes(r.content)
+    return images.read_exr(path)
+
+
+def child_pids(pid: int) -> list[int]:
+    """Processes whose parent is `pid` (from /proc)."""
+    out = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                stat = Path("/proc", entry, "stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                out.append(int(entry))
+    return out
+
+
+def is_running(pid: int) -> bool:
+    """True while `pid` exists and is not a zombie."""
+    try:
+        state = Path("/proc", str(pid), "stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"

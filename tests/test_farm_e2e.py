@@ -17,8 +17,8 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from conftest import (CORNELL, STARTUP_TIMEOUT, Process, clean_env, start_api, start_worker,
-                      submit, wait_for_job)
+from conftest import (CORNELL, STARTUP_TIMEOUT, Process, child_pids, clean_env, is_running, start_api,
+                      start_worker, submit, wait_for_job)
 from tessera import images, protocol
 from tessera.protocol import JobSpec, RenderSettings
 from tessera_renderer import load_scene
@@ -226,7 +226,7 @@ def test_embedded_serve_runs_a_whole_farm_and_stops_it(tmp_path):
                 pass
             assert time.monotonic() < deadline, serve.log()
             time.sleep(0.05)
-        children = _children(serve.pid)
+        children = child_pids(serve.pid)
         assert len(children) == 2, children  # redis-server and one worker
 
         with httpx.Client(base_url=base, timeout=60) as client:
@@ -238,7 +238,7 @@ def test_embedded_serve_runs_a_whole_farm_and_stops_it(tmp_path):
         serve.popen.send_signal(signal.SIGTERM)
         assert serve.popen.wait(timeout=30) == 0, serve.log()
         for pid in children:
-            assert not _running(pid), f"process {pid} outlived `tessera serve`"
+            assert not is_running(pid), f"process {pid} outlived `tessera serve`"
     finally:
         serve.stop()
 
@@ -250,25 +250,6 @@ def test_worker_does_not_import_the_service():
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
-def _children(pid: int) -> list[int]:
-    out = []
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                stat = Path("/proc", entry, "stat").read_text()
-            except OSError:
-                continue
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
-                out.append(int(entry))
-    return out
-
-
-def _running(pid: int) -> bool:
-    try:
-        state = Path("/proc", str(pid), "stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
 
 
 @pytest.mark.parametrize("integrator", ["bdpt", "light"])

@@ -20,12 +20,9 @@ import numpy as np
 import pytest
 import redis
 
-from conftest import (CORNELL, Process, clean_env, start_api, start_worker, submit,
-                      wait_for_job)
-from tessera import images, protocol
-from tessera.local import render_image
-from tessera.protocol import RenderSettings
-from tessera_renderer import load_scene
+from conftest import (CORNELL, clean_env, farm_image, local_reference, start_api, start_worker,
+                      submit, wait_for_job)
+from tessera import protocol
 from tessera_service.embedded import free_port, redis_server as local_redis
 
 COMMON_FAULTS = "segv:poison*.usda#1,hang:hang*.usda,oom:oom*.usda"
@@ -57,17 +54,6 @@ def scene_named(tmp_path: Path, name: str) -> Path:
     return path
 
 
-def local_reference(form: dict) -> np.ndarray:
-    settings = RenderSettings(**{k: v for k, v in form.items() if k != "priority"})
-    return render_image(load_scene(str(CORNELL)), settings, threads=0, progress=False).rgba
-
-
-def farm_image(client: httpx.Client, job_id: str, tmp_path: Path) -> np.ndarray:
-    r = client.get(f"/jobs/{job_id}/image.exr")
-    assert r.status_code == 200, r.text
-    path = tmp_path / f"{job_id}.exr"
-    path.write_bytes(r.content)
-    return images.read_exr(path)
 
 
 def assert_bit_identical(actual: np.ndarray, expected: np.ndarray) -> None:

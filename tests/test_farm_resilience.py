@@ -14,32 +14,18 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import ExitStack
-from pathlib import Path
 
 import httpx
 import numpy as np
 import pytest
 import redis
 
-from conftest import (CORNELL, clean_env, start_api, start_worker, submit, wait_for_job)
+from conftest import (CORNELL, child_pids, clean_env, farm_image, is_running, local_reference, start_api,
+                      start_worker, submit, wait_for_job)
 from tessera import images, protocol
-from tessera.local import render_image
-from tessera.protocol import RenderSettings
-from tessera_renderer import load_scene
 from tessera_service.embedded import free_port, redis_server as local_redis
 
 
-def local_reference(form: dict) -> np.ndarray:
-    settings = RenderSettings(**{k: v for k, v in form.items() if k != "priority"})
-    return render_image(load_scene(str(CORNELL)), settings, threads=0, progress=False).rgba
-
-
-def farm_image(client: httpx.Client, job_id: str, tmp_path: Path) -> np.ndarray:
-    r = client.get(f"/jobs/{job_id}/image.exr")
-    assert r.status_code == 200, r.text
-    path = tmp_path / f"{job_id}.exr"
-    path.write_bytes(r.content)
-    return images.read_exr(path)
 
 
 def assert_bit_identical(actual: np.ndarray, expected: np.ndarray, what: str = "") -> None:
@@ -89,7 +75,7 @@ def test_chaos_random_worker_kills_while_ten_jobs_run(farm, redis_client, tmp_pa
             candidates = [i for i, w in enumerate(farm.workers) if w.name in busy] or [0, 1, 2]
             i = rng.choice(candidates)
             victim = farm.workers[i]
-            children = _children(victim.pid)
+            children = child_pids(victim.pid)
             os.kill(victim.pid, signal.SIGKILL)
             victim.popen.wait(timeout=10)
             victim.stop()
@@ -106,7 +92,7 @@ def test_chaos_random_worker_kills_while_ten_jobs_run(farm, redis_client, tmp_pa
     # No render process outlived its killed worker (they die with their parent).
     assert orphans
     deadline = time.monotonic() + 10
-    while alive := [pid for pid in orphans if _running(pid)]:
+    while alive := [pid for pid in orphans if is_running(pid)]:
         assert time.monotonic() < deadline, f"render processes {alive} outlived their worker"
         time.sleep(0.05)
     for w in farm.workers:
@@ -246,22 +232,3 @@ def test_restarting_redis_api_and_all_workers_loses_nothing(tmp_path):
             assert_bit_identical(farm_image(client, job_id, tmp_path), expected, job_id)
 
 
-def _children(pid: int) -> list[int]:
-    out = []
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                stat = Path("/proc", entry, "stat").read_text()
-            except OSError:
-                continue
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
-                out.append(int(entry))
-    return out
-
-
-def _running(pid: int) -> bool:
-    try:
-        state = Path("/proc", str(pid), "stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
