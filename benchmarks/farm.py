@@ -27,7 +27,6 @@ import json
 import os
 import platform
 import signal
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -37,20 +36,7 @@ from pathlib import Path
 
 import httpx
 import redis
-
-REPO = Path(__file__).resolve().parents[1]
-CORNELL = REPO / "examples" / "cornell" / "cornell.usda"
-OUT = REPO / "docs" / "benchmarks"
-
-
-def summary(values: list[float]) -> dict:
-    return {"median": statistics.median(values), "min": min(values), "max": max(values),
-            "half_range": (max(values) - min(values)) / 2, "n": len(values), "values": values}
-
-
-def fmt(s: dict, unit: str = "", digits: int = 3) -> str:
-    return (f"{s['median']:.{digits}g}{unit} ± {s['half_range']:.2g}{unit} "
-            f"(n={s['n']}, range {s['min']:.{digits}g}–{s['max']:.{digits}g})")
+from common import CORNELL, OUT, fmt, summary
 
 
 class Farm:

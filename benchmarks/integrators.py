@@ -20,9 +20,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+from common import CORNELL, REPO, rel_mse
 
-REPO = Path(__file__).resolve().parents[1]
-CORNELL = REPO / "examples" / "cornell" / "cornell.usda"
 
 
 def caustic_scene(directory: Path) -> Path:
@@ -65,11 +64,6 @@ def render(scene, integrator: str, spp: int, seed: int, res: int) -> tuple[np.nd
                              max_depth=32, integrator=integrator, splats=splats)
     seconds = time.perf_counter() - start
     return resolve_image(rgba, splats, res * res * spp), seconds
-
-
-def rel_mse(img: np.ndarray, ref: np.ndarray) -> float:
-    x, r = img[..., :3].astype(np.float64), ref[..., :3].astype(np.float64)
-    return float(np.mean((x - r) ** 2 / (r * r + 1e-2)))
 
 
 def main() -> int:

@@ -18,13 +18,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+from common import rel_mse
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def rel_mse(img: np.ndarray, ref: np.ndarray) -> float:
-    x, r = img[..., :3].astype(np.float64), ref[..., :3].astype(np.float64)
-    return float(np.mean((x - r) ** 2 / (r * r + 1e-2)))
 
 
 def main() -> int:

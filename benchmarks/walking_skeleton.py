@@ -19,29 +19,14 @@ import argparse
 import json
 import os
 import platform
-import shutil
 import socket
-import statistics
 import subprocess
 import sys
 import tempfile
 import time
-from pathlib import Path
 
 import httpx
-
-REPO = Path(__file__).resolve().parents[1]
-CORNELL = REPO / "examples" / "cornell" / "cornell.usda"
-OUT = REPO / "docs" / "benchmarks"
-
-
-def summary(values: list[float]) -> dict:
-    return {"median": statistics.median(values), "min": min(values), "max": max(values),
-            "half_range": (max(values) - min(values)) / 2, "n": len(values), "values": values}
-
-
-def fmt(s: dict, unit: str = "", digits: int = 3) -> str:
-    return f"{s['median']:.{digits}g}{unit} ± {s['half_range']:.2g}{unit} (n={s['n']}, range {s['min']:.{digits}g}–{s['max']:.{digits}g})"
+from common import CORNELL, OUT, REPO, fmt, summary
 
 
 def clean_build_seconds() -> float:
