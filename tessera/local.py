@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from .protocol import (RenderSettings, TileRect, TileResult, combine_passes, pass_range,
-                       resolve_splats, tile_finished, tile_grid)
+from .protocol import (PassAccumulator, RenderSettings, TileRect, TileResult, combine_passes,
+                       image_finished, pass_range, resolve_splats, tile_finished, tile_grid)
 
 
 @dataclass
@@ -57,8 +57,8 @@ def render_image(scene, settings: RenderSettings, threads: int = 0, progress: bo
     rgba = np.zeros((settings.height, settings.width, 4), dtype=np.float32)
     tiles = tile_grid(settings.width, settings.height, settings.tile_size)
     integrator = scene.resolve_integrator(settings.integrator)
-    if integrator in ("light", "bdpt"):
-        return _render_splatting(scene, settings, integrator, tiles, threads, progress)
+    if settings.lockstep or integrator in ("light", "bdpt"):
+        return _render_lockstep(scene, settings, integrator, tiles, threads, progress)
     start = time.perf_counter()
     deadline = time.monotonic() + settings.time_limit if settings.time_limit else None
     samples = passes = 0
@@ -74,23 +74,56 @@ def render_image(scene, settings: RenderSettings, threads: int = 0, progress: bo
     return LocalRenderResult(rgba, seconds, samples, passes)
 
 
-def _render_splatting(scene, settings: RenderSettings, integrator: str, tiles, threads: int,
-                      progress: bool) -> LocalRenderResult:
-    """light / bdpt: one pass per tile, every tile's light paths splatting into one
-    full-frame buffer; the sum is exact, so this equals the farm's merge bit for bit."""
-    rgba = np.zeros((settings.height, settings.width, 4), dtype=np.float32)
-    splats = np.zeros((settings.height, settings.width, 3), dtype=np.int64)
-    light_paths = 0
+def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, threads: int,
+                     progress: bool) -> LocalRenderResult:
+    """The whole image pass after pass, as the farm schedules lockstep jobs and splatting
+    integrators: every tile's light paths splat into a full-frame integer buffer; after
+    each pass the pass's whole-image estimate goes into a PassAccumulator and
+    `image_finished` decides on another pass for every tile (fixed spp: one pass). Tiles'
+    passes combine with combine_passes and all splats are normalised once by all light
+    paths, exactly as the farm's merge does, so the images are equal bit for bit."""
+    height, width = settings.height, settings.width
+    splatting = integrator in ("light", "bdpt")
+    per_tile: list[list[TileResult]] = [[] for _ in tiles]
+    total_splats = np.zeros((height, width, 3), dtype=np.int64) if splatting else None
+    total_paths = samples = 0
+    acc = PassAccumulator()
     start = time.perf_counter()
-    with tqdm(total=settings.width * settings.height, unit="px", unit_scale=True, disable=not progress,
+    deadline = time.monotonic() + settings.time_limit if settings.time_limit else None
+    p = 0
+    with tqdm(total=width * height, unit="px", unit_scale=True, disable=not progress,
               desc=f"render ({integrator})", dynamic_ncols=True) as bar:
-        for t in tiles:
-            rgba[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = scene.render_tile(
-                t.x0, t.y0, t.width, t.height, width=settings.width, height=settings.height, spp=settings.spp,
-                seed=settings.seed, max_depth=settings.max_depth, threads=threads, integrator=integrator,
-                splats=splats)
-            light_paths += t.width * t.height * settings.spp
-            bar.update(t.width * t.height)
-    seconds = time.perf_counter() - start
-    image = resolve_splats(rgba, splats, light_paths)
-    return LocalRenderResult(image, seconds, settings.width * settings.height * settings.spp, len(tiles))
+        while True:
+            sample_start, spp = pass_range(settings, p)
+            bar.set_description(f"render ({integrator}, pass {p + 1})")
+            bar.reset()
+            pass_rgba = np.zeros((height, width, 4), dtype=np.float32)
+            pass_splats = np.zeros((height, width, 3), dtype=np.int64) if splatting else None
+            for t, results in zip(tiles, per_tile):
+                out = scene.render_tile(t.x0, t.y0, t.width, t.height, width=width, height=height,
+                                        spp=spp, seed=settings.seed, max_depth=settings.max_depth,
+                                        threads=threads, sample_start=sample_start,
+                                        return_variance=settings.adaptive, integrator=integrator,
+                                        splats=pass_splats)
+                rgba, variance = out if settings.adaptive else (out, None)
+                results.append(TileResult(t.x0, t.y0, rgba, p, sample_start, spp, variance))
+                pass_rgba[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = rgba
+                samples += t.width * t.height * spp
+                bar.update(t.width * t.height)
+            pass_paths = width * height * spp if splatting else 0  # one light path per sample
+            if splatting:
+                total_splats += pass_splats  # integers: exact, as the farm's sum of layers
+                total_paths += pass_paths
+            if not settings.adaptive:
+                break
+            # protocol.pass_image, from the same numbers the farm's barrier decodes.
+            image = resolve_splats(pass_rgba, pass_splats, pass_paths) if splatting else pass_rgba
+            acc = acc.add(image, spp)
+            if image_finished(settings, p, acc) or (deadline is not None and time.monotonic() >= deadline):
+                break
+            p += 1
+    rgba = np.zeros((height, width, 4), dtype=np.float32)
+    for t, results in zip(tiles, per_tile):
+        rgba[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = combine_passes(results)[0]
+    image = resolve_splats(rgba, total_splats, total_paths) if splatting else rgba
+    return LocalRenderResult(image, time.perf_counter() - start, samples, p + 1)

@@ -103,6 +103,11 @@ def job_failures_key(job_id: str) -> str:
     return f"{PREFIX}:job:{job_id}:failures"
 
 
+def job_passes_key(job_id: str) -> str:
+    """String: a lockstep job's PassAccumulator after its last decided pass."""
+    return f"{PREFIX}:job:{job_id}:passes"
+
+
 def job_blocklist_key(job_id: str) -> str:
     """Set: workers that no longer take this job's tiles."""
     return f"{PREFIX}:job:{job_id}:blocklist"
@@ -118,7 +123,7 @@ def job_keys(job_id: str) -> list[str]:
     """Every key of one job (for expiry and deletion)."""
     return [job_key(job_id), job_queue_key(job_id), job_tiles_key(job_id),
             job_events_key(job_id), job_log_key(job_id), job_failures_key(job_id),
-            job_blocklist_key(job_id), job_image_key(job_id, "exr"), job_image_key(job_id, "png")]
+            job_blocklist_key(job_id), job_passes_key(job_id), job_image_key(job_id, "exr"), job_image_key(job_id, "png")]
 
 
 def worker_key(worker_name: str) -> str:
@@ -167,16 +172,22 @@ class RenderSettings(BaseModel):
     def _spp_range(self) -> "RenderSettings":
         if self.target_error is not None and self.min_spp > self.max_spp:
             raise ValueError(f"min_spp ({self.min_spp}) is larger than max_spp ({self.max_spp})")
-        if self.target_error is not None and self.integrator in SPLATTING_INTEGRATORS:
-            # Their light paths land on every tile's pixels, so a tile's noise is not its
-            # own to judge: per-tile stopping would be wrong.
-            raise ValueError(f"target_error works with the path, whitted and local integrators, "
-                             f"not {self.integrator!r}: use a fixed spp")
         return self
 
     @property
     def adaptive(self) -> bool:
         return self.target_error is not None
+
+    @property
+    def lockstep(self) -> bool:
+        """Noise-target mode in which the whole image advances pass by pass together and
+        stops together (see `image_finished`). Splatting integrators need it: their light
+        paths land on every tile's pixels, so a tile's noise is not its own to judge, and
+        bdpt's MIS weights assume every pixel has as many camera samples as there are light
+        paths per pixel, which per-tile stopping would break. `auto` may resolve to bdpt,
+        and a farm cannot know before it loads the scene, so it is scheduled the same way
+        (local renders follow the same rule, so farm and local images stay identical)."""
+        return self.adaptive and self.integrator in SPLATTING_INTEGRATORS
 
 
 def pass_range(settings: RenderSettings, pass_index: int) -> tuple[int, int] | None:
@@ -221,6 +232,10 @@ class TileTask(BaseModel):
     pass_index: int = Field(default=0, ge=0)
     priority: int = Field(default=DEFAULT_PRIORITY, ge=MIN_PRIORITY, le=MAX_PRIORITY)
     max_attempts: int = Field(default=DEFAULT_MAX_ATTEMPTS, ge=1, le=100)
+    # A pass barrier of a lockstep job (RenderSettings.lockstep), queued once every tile's
+    # pass `pass_index` is stored: whoever takes it decides whether the image needs pass
+    # pass_index + 1 and queues it for every tile, or finishes the job. `tile` is unused.
+    decide: bool = False
 
     @property
     def field(self) -> str:
@@ -238,6 +253,17 @@ class TileTask(BaseModel):
 
     def next_pass(self) -> "TileTask":
         return self.model_copy(update={"pass_index": self.pass_index + 1})
+
+
+    def decide_task(self) -> "TileTask":
+        """The barrier that follows this lockstep pass."""
+        return self.model_copy(update={"decide": True})
+
+    def pass_tasks(self, pass_index: int) -> list["TileTask"]:
+        """Pass `pass_index` of every tile of this task's job."""
+        s = self.settings
+        return [self.model_copy(update={"tile": rect, "pass_index": pass_index, "decide": False})
+                for rect in tile_grid(s.width, s.height, s.tile_size)]
 
 
 def tile_grid(width: int, height: int, tile_size: int) -> list[TileRect]:
@@ -468,6 +494,87 @@ def tile_finished(settings: RenderSettings, pass_index: int, rgba: np.ndarray,
     return tile_error(rgba, variance, samples) <= settings.target_error
 
 
+# ------------------------------------------------------------------ lockstep passes
+# A lockstep job's error is judged on whole-image pass estimates (batch means): pass p's
+# image I_p (camera part of every tile + that pass's splats over its own light paths) is an
+# independent estimate with variance sigma^2 / n_p. With N = sum n_p and the weighted mean
+# M = sum n_p I_p / N, E[sum n_p (I_p - M)^2] = (K - 1) sigma^2, so
+#   Var(M) ~= (S2 - S1^2 / N) / ((K - 1) N),  S1 = sum n_p I_p,  S2 = sum n_p I_p^2,
+# per pixel on luminance. Owen-scrambled passes are not quite independent (their union is
+# better stratified than each), which makes this estimate conservative.
+
+def pass_image(width: int, height: int, results: list[TileResult]) -> np.ndarray:
+    """The full-frame RGBA estimate of one pass from all tiles' results of that pass."""
+    full = np.zeros((height, width, 4), dtype=np.float32)
+    splats = None
+    light_paths = 0
+    for r in results:
+        h, w = r.rgba.shape[:2]
+        full[r.y0:r.y0 + h, r.x0:r.x0 + w] = r.rgba
+        if r.splat is not None:
+            if splats is None:
+                splats = np.zeros((height, width, 3), dtype=np.int64)
+            add_splats(splats, r.splat_rect, r.splat)
+            light_paths += r.light_paths
+    return resolve_splats(full, splats, light_paths) if splats is not None else full
+
+
+@dataclass
+class PassAccumulator:
+    """Running sums over the passes of a lockstep job (see above); bytes round-trip so a
+    farm keeps it in Redis between barriers."""
+
+    passes: int = 0
+    samples: int = 0
+    s1: np.ndarray | None = None  # float64 (h, w): sum n_p lum(I_p)
+    s2: np.ndarray | None = None  # float64 (h, w): sum n_p lum(I_p)^2
+
+    def add(self, image: np.ndarray, spp: int) -> "PassAccumulator":
+        lum = image[..., :3].astype(np.float64) @ _LUMINANCE
+        s1 = spp * lum if self.s1 is None else self.s1 + spp * lum
+        s2 = spp * lum * lum if self.s2 is None else self.s2 + spp * lum * lum
+        return PassAccumulator(self.passes + 1, self.samples + spp, s1, s2)
+
+    def error(self) -> float | None:
+        """Relative noise of the image so far, as `tile_error` measures a tile; None before
+        two passes (one pass cannot estimate its own variance)."""
+        if self.passes < 2 or self.s1 is None:
+            return None
+        n = float(self.samples)
+        mean = self.s1 / n
+        sigma2 = np.maximum(self.s2 - self.s1 * mean, 0.0) / (self.passes - 1)
+        var_mean = sigma2 / n
+        floor = max(1e-4, 0.01 * float(np.mean(np.abs(mean))))
+        return float(np.sqrt(np.mean(var_mean / np.maximum(np.abs(mean), floor) ** 2)))
+
+    def to_bytes(self) -> bytes:
+        if self.s1 is None:
+            return struct.pack("<IQII", self.passes, self.samples, 0, 0)
+        h, w = self.s1.shape
+        return (struct.pack("<IQII", self.passes, self.samples, h, w)
+                + zlib.compress(np.stack([self.s1, self.s2]).tobytes(), 1))
+
+    @classmethod
+    def from_bytes(cls, data: bytes | None) -> "PassAccumulator":
+        if not data:
+            return cls()
+        passes, samples, h, w = struct.unpack_from("<IQII", data)
+        if h == 0:
+            return cls(passes, samples)
+        arrays = np.frombuffer(zlib.decompress(data[struct.calcsize("<IQII"):]),
+                               dtype=np.float64).reshape(2, h, w)
+        return cls(passes, samples, arrays[0].copy(), arrays[1].copy())
+
+
+def image_finished(settings: RenderSettings, pass_index: int, acc: PassAccumulator) -> bool:
+    """Whether a lockstep job needs no pass after `pass_index` (timing aside); `acc` holds
+    passes 0..pass_index."""
+    if pass_range(settings, pass_index + 1) is None:
+        return True
+    error = acc.error()
+    return error is not None and error <= settings.target_error
+
+
 # ------------------------------------------------------------------ events
 class JobEvent(BaseModel):
     """One entry of a job's event stream (also sent as SSE `data`)."""
@@ -528,7 +635,7 @@ local function finish(id, state, now, err)
   end
   local ttl = tonumber(redis.call('HGET', key, 'retention') or '0')
   if ttl and ttl > 0 then
-    for _, suffix in ipairs({{'', ':tiles', ':events', ':log', ':failures', ':blocklist'}}) do
+    for _, suffix in ipairs({{'', ':tiles', ':events', ':log', ':failures', ':blocklist', ':passes'}}) do
       redis.call('EXPIRE', key .. suffix, ttl)
     end
   end

@@ -268,6 +268,30 @@ def test_noise_target_passes_equal_the_local_render(farm, redis_client, tmp_path
     assert_bit_identical(farm_image(farm, job_id, tmp_path), local_reference(form))
 
 
+@pytest.mark.parametrize("integrator", ["bdpt", "light"])
+def test_lockstep_noise_target_equals_the_local_render(farm, redis_client, tmp_path, integrator):
+    """Splatting integrators reach a noise target pass by pass over the whole image: every
+    tile gets the same passes, the barrier stops before the full schedule, and the merged
+    image (camera parts and all passes' splats) equals the local render bit for bit."""
+    form = dict(width=32, height=32, seed=3, max_depth=6, tile_size=16, target_error=0.15,
+                min_spp=2, max_spp=256, integrator=integrator)
+    r = submit(farm, CORNELL, **form)
+    assert r.status_code == 201, r.text
+    job_id = r.json()["id"]
+    status = wait_for_job(farm, job_id, processes=farm.processes)
+    assert status["state"] == "done", status
+    assert status["tiles_done"] == status["tiles_total"] == 4
+    fields = {f.decode() for f in redis_client.hkeys(protocol.job_tiles_key(job_id))}
+    passes = status["passes_done"] // 4
+    assert status["passes_done"] == 4 * passes and passes >= 2, status
+    assert fields == {f"{t}:{p}" for t in range(4) for p in range(passes)}
+    assert passes < 8, "the target should stop it before max_spp (2..256 is 8 passes)"
+    acc = protocol.PassAccumulator.from_bytes(redis_client.get(protocol.job_passes_key(job_id)))
+    assert acc.passes == passes and acc.error() <= form["target_error"]
+    local = local_reference(form)
+    assert_bit_identical(farm_image(farm, job_id, tmp_path), local)
+
+
 # ------------------------------------------------------------------ priorities
 def test_priority_first_then_fair_share(tmp_path):
     """One worker, started after four jobs are queued: the priority-9 job is served first,

@@ -211,7 +211,57 @@ def test_compressed_splat_layers_round_trip_and_merge_exactly():
     assert protocol.splat_layer(np.zeros((4, 4, 3), np.int64))[0] == (0, 0, 0, 0)
 
 
-def test_noise_target_is_refused_for_splatting_integrators():
-    with pytest.raises(ValueError, match="fixed spp"):
-        protocol.RenderSettings(width=8, height=8, target_error=0.05, integrator="bdpt")
-    assert protocol.RenderSettings(width=8, height=8, target_error=0.05, integrator="whitted").adaptive
+def test_splatting_integrators_take_noise_targets_in_lockstep():
+    for name in ("light", "bdpt", "auto"):
+        s = protocol.RenderSettings(width=8, height=8, target_error=0.05, integrator=name)
+        assert s.adaptive and s.lockstep
+    for name in ("path", "whitted", "local"):
+        assert not protocol.RenderSettings(width=8, height=8, target_error=0.05,
+                                           integrator=name).lockstep
+    assert not protocol.RenderSettings(width=8, height=8, integrator="bdpt").lockstep
+
+
+def test_pass_accumulator_estimates_the_variance_of_the_mean():
+    """Batch means over passes of unequal size: the estimated standard error of the
+    weighted mean matches the true one (known sigma) within its own sampling error."""
+    rng = np.random.default_rng(7)
+    sigma, mu, counts = 0.3, 2.0, [16, 16, 32, 64]
+    acc = protocol.PassAccumulator()
+    for n in counts:  # each pass image: mean of n samples, per pixel, luminance mu
+        lum = mu + rng.normal(0.0, sigma / np.sqrt(n), size=(64, 64))
+        acc = acc.add(np.repeat(lum[..., None], 4, axis=2).astype(np.float32), n)
+        # The luminance of a grey pixel is its value: weights sum to 1.
+    true_rel = sigma / np.sqrt(sum(counts)) / mu
+    # 3 degrees of freedom per pixel, averaged over 4096 pixels: a few per cent.
+    assert acc.error() == pytest.approx(true_rel, rel=0.05)
+    again = protocol.PassAccumulator.from_bytes(acc.to_bytes())
+    assert again.passes == 4 and again.samples == sum(counts) and again.error() == acc.error()
+    assert protocol.PassAccumulator().error() is None
+    assert protocol.PassAccumulator().add(np.ones((2, 2, 4), np.float32), 4).error() is None
+
+
+def test_image_finished_follows_the_schedule_and_the_target():
+    s = protocol.RenderSettings(width=8, height=8, target_error=0.05, min_spp=4, max_spp=16,
+                                integrator="bdpt")
+    flat = np.ones((8, 8, 4), np.float32)
+    one = protocol.PassAccumulator().add(flat, 4)
+    assert not protocol.image_finished(s, 0, one)  # one pass cannot judge its noise
+    noiseless = one.add(flat, 4)
+    assert protocol.image_finished(s, 1, noiseless)
+    noisy = one.add(flat * 3, 4)
+    assert not protocol.image_finished(s, 1, noisy)
+    assert protocol.image_finished(s, 2, noisy.add(flat, 8))  # 16 = max_spp: the last pass
+
+
+def test_pass_tasks_cover_the_grid_and_the_barrier_is_marked():
+    spec = protocol.JobSpec(job_id="j", scene_hash="h", scene_name="s.usda",
+                            settings=protocol.RenderSettings(width=20, height=10, tile_size=8,
+                                                             target_error=0.1, integrator="light"))
+    first = protocol.job_tasks(spec)[3]
+    barrier = protocol.TileTask.from_fields(first.decide_task().to_fields())
+    assert barrier.decide and barrier.pass_index == 0
+    nxt = barrier.pass_tasks(1)
+    assert [t.tile for t in nxt] == protocol.tile_grid(20, 10, 8)
+    assert all(t.pass_index == 1 and not t.decide and t.job_id == "j" for t in nxt)
+
+

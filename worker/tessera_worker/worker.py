@@ -89,6 +89,8 @@ return false
 """
 
 # ARGV: id, field, data, seconds, final, next_task, now, worker, entry, tile, pass, samples.
+# final: '1' the tile is done; '0' queue next_task (its next pass); '2' a lockstep pass:
+# count it, and the tile that completes the pass queues next_task (the pass's barrier).
 # Returns 1 if this completed the job, 0 if not, -1 if the job is gone or final (dropped).
 _STORE = protocol.LUA_HELPERS + f"""
 local id = ARGV[1]
@@ -113,6 +115,13 @@ elseif redis.call('HSETNX', key .. ':tiles', ARGV[2], ARGV[3]) == 1 then
       finish(id, 'done', ARGV[7], nil)
       ret = 1
     end
+  elseif ARGV[5] == '2' then
+    event(id, 'type', 'pass', 'tile', ARGV[10], 'pass_index', ARGV[11], 'samples', ARGV[12])
+    local n = redis.call('HINCRBY', key, 'lockstep_tiles', 1)
+    if n % tonumber(redis.call('HGET', key, 'tiles_total')) == 0 then
+      redis.call('XADD', q, '*', 'task', ARGV[6])
+      if state ~= 'paused' then make_ready(id, redis.call('HGET', key, 'priority') or '5') end
+    end
   else
     redis.call('XADD', q, '*', 'task', ARGV[6])
     if state ~= 'paused' then make_ready(id, redis.call('HGET', key, 'priority') or '5') end
@@ -125,6 +134,42 @@ if redis.call('EXISTS', q) == 1 then
 end
 local wk = P .. 'worker:' .. ARGV[8]
 if ret >= 0 and redis.call('EXISTS', wk) == 1 then redis.call('HINCRBY', wk, 'tiles_done', 1) end
+return ret
+"""
+
+# A lockstep pass barrier's outcome. ARGV: id, pass, finished ('1'/'0'), now, entry,
+# accumulator bytes, then the next pass's tasks. Applied once per pass (redeliveries of the
+# barrier are dropped). Returns 1 if this completed the job, 0 if it queued the next pass,
+# -1 if dropped.
+_DECIDE = protocol.LUA_HELPERS + f"""
+local id = ARGV[1]
+local key = jk(id)
+local q = key .. ':queue'
+local state = redis.call('HGET', key, 'state')
+local ret = -1
+if state and not is_final(state)
+   and tonumber(redis.call('HGET', key, 'decided_pass') or '-1') < tonumber(ARGV[2]) then
+  redis.call('HSET', key, 'decided_pass', ARGV[2])
+  redis.call('SET', key .. ':passes', ARGV[6])
+  if ARGV[3] == '1' then
+    local total = redis.call('HGET', key, 'tiles_total')
+    redis.call('HSET', key, 'tiles_done', total)
+    redis.call('HINCRBY', '{protocol.STATS}', 'tiles', tonumber(total))
+    event(id, 'type', 'tile', 'tile', -1, 'pass_index', ARGV[2], 'tiles_done', total)
+    redis.call('XACK', q, '{protocol.WORKER_GROUP}', ARGV[5])
+    finish(id, 'done', ARGV[4], nil)
+    ret = 1
+  else
+    for i = 7, #ARGV do redis.call('XADD', q, '*', 'task', ARGV[i]) end
+    if state ~= 'paused' then make_ready(id, redis.call('HGET', key, 'priority') or '5') end
+    logline(id, ARGV[4], 'pass ' .. ARGV[2] .. ' of every tile done; next pass queued')
+    ret = 0
+  end
+end
+if redis.call('EXISTS', q) == 1 then
+  redis.call('XACK', q, '{protocol.WORKER_GROUP}', ARGV[5])
+  redis.call('XDEL', q, ARGV[5])
+end
 return ret
 """
 
@@ -360,6 +405,7 @@ class Worker:
         self._pick = self.redis.register_script(_PICK)
         self._store_tile = self.redis.register_script(_STORE)
         self._fail_tile = self.redis.register_script(_FAIL_TILE)
+        self._decide_pass = self.redis.register_script(_DECIDE)
         self._fail_job = self.redis.register_script(protocol.LUA_FAIL_JOB)
         self._drop_idle_consumer = self.redis.register_script(_DROP_IDLE_CONSUMER)
         self._faults = _parse_faults(settings.faults)
@@ -448,6 +494,9 @@ class Worker:
             log.error("dropping malformed stream entry %s of job %s: %s", entry_id, job_id, e)
             self._ack(queue, entry_id)
             return
+        if task.decide:
+            self._decide(task, entry_id, started_at)
+            return
         tiles_key = protocol.job_tiles_key(job_id)
         if self.redis.hexists(tiles_key, task.field):  # a redelivery after a lost ack
             self._ack(queue, entry_id)
@@ -473,9 +522,12 @@ class Worker:
             final, data = self._result(task, rgba, variance, sample_start, spp, started_at, splat)
         finally:
             self.current = ""
+        if task.settings.lockstep:
+            mode, follow = 2, task.decide_task().model_dump_json()
+        else:
+            mode, follow = (1, "") if final else (0, task.next_pass().model_dump_json())
         completed = self._store_tile(args=[
-            job_id, task.field, data, repr(seconds), 1 if final else 0,
-            "" if final else task.next_pass().model_dump_json(), repr(time.time()), self.name,
+            job_id, task.field, data, repr(seconds), mode, follow, repr(time.time()), self.name,
             entry_id, task.tile.index, task.pass_index, sample_start + spp])
         self.tiles_rendered += 1
         log.debug("job %s tile %s pass %d rendered in %.3f s", job_id, task.tile.index,
@@ -526,8 +578,8 @@ class Worker:
             splat_args = dict(splat_rect=splat_rect, splat=layer, light_paths=light_paths)
         data = protocol.encode_tile(rect, rgba, pass_index=task.pass_index,
                                     sample_start=sample_start, spp=spp, variance=variance, **splat_args)
-        if not s.adaptive:
-            return True, data
+        if not s.adaptive or s.lockstep:
+            return True, data  # lockstep: the pass barrier decides (_decide)
         earlier = []
         if task.pass_index > 0:
             fields = [protocol.result_field(rect.index, p) for p in range(task.pass_index)]
@@ -546,6 +598,54 @@ class Worker:
                 started_at = _float(self.redis.hget(protocol.job_key(task.job_id), "started_at"))
             final = started_at is not None and time.time() - started_at >= s.time_limit
         return final, data
+
+    def _decide(self, task: TileTask, entry_id: bytes, started_at: float | None) -> None:
+        """A lockstep pass barrier: adds the pass's whole-image estimate to the job's
+        accumulator and queues the next pass for every tile, or finishes the job. Tiles are
+        read one at a time, so memory stays at a few full frames."""
+        job_id, s, p = task.job_id, task.settings, task.pass_index
+        key = protocol.job_key(job_id)
+        decided = _text(self.redis.hget(key, "decided_pass"))
+        if decided and int(decided) >= p:  # a redelivery
+            self._ack(protocol.job_queue_key(job_id), entry_id)
+            return
+        acc = protocol.PassAccumulator.from_bytes(self.redis.get(protocol.job_passes_key(job_id)))
+        if acc.passes != p:
+            self._fail_job(args=[job_id, repr(time.time()),
+                                 f"pass barrier {p} found {acc.passes} passes accumulated"])
+            self._ack(protocol.job_queue_key(job_id), entry_id)
+            return
+        grid = protocol.tile_grid(s.width, s.height, s.tile_size)
+        tiles_key = protocol.job_tiles_key(job_id)
+        results = []
+        for rect in grid:
+            data = self.redis.hget(tiles_key, protocol.result_field(rect.index, p))
+            if data is None:  # expired or the job was deleted under us
+                log.warning("job %s: pass %d of tile %d is gone; barrier dropped", job_id, p,
+                            rect.index)
+                self._ack(protocol.job_queue_key(job_id), entry_id)
+                return
+            try:
+                results.append(protocol.decode_tile(data))
+            except ValueError as e:  # corrupt: the job cannot be merged either
+                self._fail_job(args=[job_id, repr(time.time()),
+                                     f"tile {rect.index} pass {p}: unreadable result: {e}"])
+                self._ack(protocol.job_queue_key(job_id), entry_id)
+                return
+        acc = acc.add(protocol.pass_image(s.width, s.height, results), results[0].spp)
+        del results
+        finished = protocol.image_finished(s, p, acc)
+        if not finished and s.time_limit is not None:
+            if started_at is None:
+                started_at = _float(self.redis.hget(key, "started_at"))
+            finished = started_at is not None and time.time() - started_at >= s.time_limit
+        error = acc.error()
+        log.info("job %s: pass %d done, image noise %s; %s", job_id, p,
+                 "unknown" if error is None else f"{error:.3%}", "finished" if finished else "next pass")
+        tasks = [] if finished else [t.model_dump_json() for t in task.pass_tasks(p + 1)]
+        if self._decide_pass(args=[job_id, p, 1 if finished else 0, repr(time.time()), entry_id,
+                                   acc.to_bytes(), *tasks]) == 1:
+            log.info("job %s done", job_id)
 
     def _failed(self, task: TileTask, entry_id: bytes, message: str, fatal: bool) -> None:
         where = f"tile {task.tile.index} (pass {task.pass_index}) of {task.scene_name!r}"
