@@ -124,7 +124,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
     headers = {"Authorization": f"Bearer {token}"} if token else {}
     form = {k: v for k, v in dict(spp=args.spp, seed=args.seed, max_depth=args.max_depth,
                                   tile_size=args.tile, priority=args.priority, integrator=args.integrator,
-                                  **_noise_target(args)).items() if v is not None}
+                                  max_attempts=args.max_attempts, **_noise_target(args)).items() if v is not None}
     if args.res:
         form["width"], form["height"] = args.res
     try:
@@ -249,6 +249,8 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--max-depth", type=_positive)
     m.add_argument("--tile", type=_positive, help="tile size in pixels")
     m.add_argument("--priority", type=int, help="0-9, higher first (default 5)")
+    m.add_argument("--max-attempts", type=_positive,
+                   help="failed attempts at one tile before the job fails (default 3)")
     m.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     _add_noise_target_options(m)
     _add_integrator_option(m)

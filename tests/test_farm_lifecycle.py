@@ -91,6 +91,13 @@ def test_segfaulting_tile_is_retried_then_poisons_only_its_job(farm, redis_clien
     assert any(f[b"job"].decode() == poison.json()["id"] and f[b"tile"] == b"1" for _, f in dead)
     log = farm.get(f"/jobs/{poison.json()['id']}/log").json()["lines"]
     assert sum("tile 1 attempt" in line and "SIGSEGV" in line for line in log) == 3, log
+    # The job may set its own budget of attempts.
+    once = submit(farm, scene_named(tmp_path, "poison.usda"), max_attempts=1, **small)
+    assert once.status_code == 201, once.text
+    status = wait_for_job(farm, once.json()["id"], processes=farm.processes)
+    assert status["state"] == "failed" and status["error"].startswith("tile 1 failed 1 times"), status
+    bad = submit(farm, CORNELL, max_attempts=0, **small)
+    assert bad.status_code == 422 and "max_attempts" in bad.text
 
 
 def test_time_limit_fails_the_job_and_a_slow_tile_is_never_stolen(farm, redis_client, tmp_path):

@@ -138,3 +138,21 @@ def test_workers_on_other_hosts_one_host_dies(hosts, tmp_path):
     finally:
         for p in reversed(processes):
             p.stop()
+
+
+def test_api_without_tokens_answers_only_on_loopback(hosts, redis_server, tmp_path):
+    """However it is launched (here a bare `uvicorn --host 0.0.0.0`, not `tessera serve`,
+    which would refuse), an API without tokens refuses requests that arrive on a
+    non-loopback address (this namespace's end of the veth link) and answers on loopback."""
+    names, addrs = hosts
+    here = addrs["client->hub"].rsplit(".", 1)[0] + ".1"  # the root namespace's end
+    api, base = start_api(redis_server, tmp_path, host="0.0.0.0", public_host="127.0.0.1")
+    try:
+        port = base.rsplit(":", 1)[1]
+        assert httpx.get(f"{base}/jobs", timeout=10).status_code == 200
+        r = httpx.get(f"http://{here}:{port}/jobs", timeout=10)
+        assert r.status_code == 403, r.text
+        assert "TESSERA_API_TOKENS" in r.json()["detail"] and here in r.json()["detail"]
+        assert httpx.get(f"http://{here}:{port}/healthz", timeout=10).status_code == 200
+    finally:
+        api.stop()

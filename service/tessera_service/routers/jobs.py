@@ -66,6 +66,9 @@ def create_job(
                                   description="0-9; higher goes first")] = protocol.DEFAULT_PRIORITY,
     integrator: Annotated[str, Form(description="path, bdpt, light, whitted, local or auto "
                                                 "(docs/integrators.md)")] = _DEFAULTS["integrator"],
+    max_attempts: Annotated[int, Form(ge=1, le=100, description=(
+        "failed deliveries of one tile pass (errors, crashes, dead workers) before the job "
+        "fails naming the tile"))] = protocol.DEFAULT_MAX_ATTEMPTS,
 ) -> JobCreated:
     settings: Settings = request.app.state.settings
     store: JobStore = request.app.state.store
@@ -110,7 +113,7 @@ def create_job(
             store.put_scene(scene_hash, name, path.read_bytes())
 
     spec = JobSpec(job_id=uuid.uuid4().hex, scene_hash=scene_hash, scene_name=name,
-                   settings=render, priority=priority)
+                   settings=render, priority=priority, max_attempts=max_attempts)
     tiles_total = store.create_job(spec, info.warnings)
     response.headers["Location"] = f"/jobs/{spec.job_id}"
     return JobCreated(id=spec.job_id, state="queued", tiles_total=tiles_total,
