@@ -62,7 +62,8 @@ def cmd_render(args: argparse.Namespace) -> int:
         return 3
     output.parent.mkdir(parents=True, exist_ok=True)
     write_exr(output, result.rgba, render_metadata(
-        settings.max_spp if settings.adaptive else settings.spp, settings.seed, scene_path.name))
+        settings.max_spp if settings.adaptive else settings.spp, settings.seed, scene_path.name),
+        variance=result.variance, spp=result.spp)
     preview = output.with_suffix(".png")
     write_png_preview(preview, result.rgba)
     if settings.adaptive:
