@@ -1,13 +1,14 @@
 #!/usr/bin/env bash
 # Sets everything up (scripts/setup.sh), then runs the whole test suite: the C++ unit
-# tests (GoogleTest through ctest) and the Python tests (pytest; they start their own
+# tests (GoogleTest through ctest, then again built with ASan + UBSan by
+# scripts/test-sanitize.sh) and the Python tests (pytest; they start their own
 # redis-server, API and worker processes). Exits non-zero if any test fails.
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 bash "$ROOT/scripts/setup.sh" || { echo "[test] set-up failed"; exit 1; }
 VENV=${TESSERA_VENV:-$ROOT/.venv}
 
-build_dir=$(ls -td "$ROOT"/build/*/ 2>/dev/null | head -n 1)
+build_dir=$(ls -td "$ROOT"/build/*/ 2>/dev/null | grep -v '/sanitize/$' | head -n 1)
 status=0
 if [ -z "$build_dir" ] || [ ! -f "$build_dir/CTestTestfile.cmake" ]; then
   echo "[test] no C++ build directory with tests under build/"; status=1
@@ -15,6 +16,9 @@ else
   echo "[test] C++ tests ($build_dir)"
   ctest --test-dir "$build_dir" --output-on-failure || status=1
 fi
+
+echo "[test] C++ tests under ASan + UBSan"
+bash "$ROOT/scripts/test-sanitize.sh" || status=1
 
 echo "[test] Python tests"
 cd "$ROOT"

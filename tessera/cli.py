@@ -62,7 +62,8 @@ def cmd_render(args: argparse.Namespace) -> int:
         return 3
     output.parent.mkdir(parents=True, exist_ok=True)
     write_exr(output, result.rgba, render_metadata(
-        settings.max_spp if settings.adaptive else settings.spp, settings.seed, scene_path.name))
+        settings.max_spp if settings.adaptive else settings.spp, settings.seed, scene_path.name),
+        variance=result.variance, spp=result.spp)
     preview = output.with_suffix(".png")
     write_png_preview(preview, result.rgba)
     if settings.adaptive:
@@ -200,6 +201,33 @@ def _detail(response) -> str:
         return response.text[:200]
 
 
+def cmd_compare(args: argparse.Namespace) -> int:
+    """Exit 0: TEST and REFERENCE agree within their noise; 1: they differ; 2: usage error."""
+    from .compare import CompareError, compare_files, heatmap
+    from .images import write_png
+
+    try:
+        comparison = compare_files(args.test, args.reference, alpha=args.alpha, method=args.method,
+                                   flip=not args.no_flip)
+    except CompareError as exc:
+        print(f"tessera compare: {exc}", file=sys.stderr)
+        return 2
+    report = comparison.report
+    print(report.summary())
+    try:
+        if args.report:
+            Path(args.report).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.report).write_text(report.model_dump_json(indent=2) + "\n")
+        heatmap_path = Path(args.heatmap) if args.heatmap else Path(args.test).with_suffix(".compare.png")
+        heatmap_path.parent.mkdir(parents=True, exist_ok=True)
+        write_png(heatmap_path, heatmap(comparison))
+    except OSError as exc:
+        print(f"tessera compare: {exc}", file=sys.stderr)
+        return 2
+    print(f"heatmap: {heatmap_path}" + (f", report: {args.report}" if args.report else ""), file=sys.stderr)
+    return 1 if report.differs else 0
+
+
 def cmd_serve(args: argparse.Namespace) -> int:
     from tessera_service.embedded import serve
 
@@ -255,6 +283,22 @@ def build_parser() -> argparse.ArgumentParser:
     _add_noise_target_options(m)
     _add_integrator_option(m)
     m.set_defaults(func=cmd_submit)
+
+    c = sub.add_parser("compare", help="do two renders differ beyond their noise? "
+                                       "(exit 0 same, 1 differs, 2 usage error)",
+                       description="Per-pixel Welch t-tests (and 4x4, 16x16 and whole-image "
+                                   "blocks) between two EXRs written by `tessera render`, which "
+                                   "carry per-pixel variance; see docs/accuracy.md.")
+    c.add_argument("test", help="EXR to check")
+    c.add_argument("reference", help="EXR to check against")
+    c.add_argument("--alpha", type=float, default=0.01,
+                   help="false-alarm rate when both renderers agree (default 0.01)")
+    c.add_argument("--method", choices=("bh", "bonferroni"), default="bh",
+                   help="multiple-comparison correction: Benjamini-Hochberg (default) or Bonferroni")
+    c.add_argument("--report", help="write the JSON report here")
+    c.add_argument("--heatmap", help="difference heatmap PNG (default: TEST with .compare.png)")
+    c.add_argument("--no-flip", action="store_true", help="skip the FLIP metric")
+    c.set_defaults(func=cmd_compare)
 
     s = sub.add_parser("serve", help="run the HTTP API; without REDIS_URL also a private Redis and local workers")
     s.add_argument("--host", default="127.0.0.1")

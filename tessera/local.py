@@ -22,6 +22,11 @@ class LocalRenderResult:
     seconds: float
     samples: int
     passes: int = 0
+    # The per-pixel noise estimate (images.VARIANCE_CHANNELS / SPP_CHANNEL): float32
+    # (h, w, 3) per-sample variance and float32 (h, w) samples per pixel. None for the
+    # splatting integrators (light, bdpt), whose splats carry no per-pixel variance.
+    variance: np.ndarray | None = None
+    spp: np.ndarray | None = None
 
     @property
     def samples_per_second(self) -> float:
@@ -32,13 +37,21 @@ def render_tile_passes(scene, settings: RenderSettings, rect: TileRect, threads:
                        deadline: float | None = None, integrator: str = "path") -> tuple[np.ndarray, int, int]:
     """One tile, pass after pass as the farm renders it, combined as the farm combines it.
     Returns (rgba, samples, passes). `deadline` (time.monotonic()) plays the time_limit."""
+    mean, _, samples, passes = _tile_passes(scene, settings, rect, threads, deadline, integrator, False)
+    return mean, samples, passes
+
+
+def _tile_passes(scene, settings: RenderSettings, rect: TileRect, threads: int, deadline: float | None,
+                 integrator: str, with_variance: bool):
+    """render_tile_passes, also returning the tile's per-sample variance (requested from
+    the renderer in fixed-spp mode too when `with_variance`; the mean does not change)."""
     results: list[TileResult] = []
     while True:
         p = len(results)
         sample_start, spp = pass_range(settings, p)
         kwargs = dict(width=settings.width, height=settings.height, spp=spp, seed=settings.seed,
                       max_depth=settings.max_depth, threads=threads, integrator=integrator)
-        if settings.adaptive:
+        if settings.adaptive or with_variance:
             rgba, variance = scene.render_tile(rect.x0, rect.y0, rect.width, rect.height,
                                                sample_start=sample_start, return_variance=True,
                                                **kwargs)
@@ -49,12 +62,14 @@ def render_tile_passes(scene, settings: RenderSettings, rect: TileRect, threads:
         mean, var, samples = combine_passes(results)
         if not settings.adaptive or tile_finished(settings, p, mean, var, samples) or (
                 deadline is not None and time.monotonic() >= deadline):
-            return mean, samples, len(results)
+            return mean, var, samples, len(results)
 
 
 def render_image(scene, settings: RenderSettings, threads: int = 0, progress: bool = True) -> LocalRenderResult:
     """Renders all tiles of `settings` with `scene` (a tessera_renderer.Scene)."""
     rgba = np.zeros((settings.height, settings.width, 4), dtype=np.float32)
+    variance = np.zeros((settings.height, settings.width, 3), dtype=np.float32)
+    spp = np.zeros((settings.height, settings.width), dtype=np.float32)
     tiles = tile_grid(settings.width, settings.height, settings.tile_size)
     integrator = scene.resolve_integrator(settings.integrator)
     if settings.lockstep or integrator in ("light", "bdpt"):
@@ -65,13 +80,15 @@ def render_image(scene, settings: RenderSettings, threads: int = 0, progress: bo
     with tqdm(total=settings.width * settings.height, unit="px", unit_scale=True, disable=not progress,
               desc="render", dynamic_ncols=True) as bar:
         for t in tiles:
-            tile, n, p = render_tile_passes(scene, settings, t, threads, deadline, integrator)
+            tile, var, n, p = _tile_passes(scene, settings, t, threads, deadline, integrator, True)
             rgba[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = tile
+            variance[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = var
+            spp[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = n
             samples += n * t.width * t.height
             passes += p
             bar.update(t.width * t.height)
     seconds = time.perf_counter() - start
-    return LocalRenderResult(rgba, seconds, samples, passes)
+    return LocalRenderResult(rgba, seconds, samples, passes, variance, spp)
 
 
 def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, threads: int,

@@ -282,7 +282,7 @@ def preflight(bundle: Bundle) -> None:
         try:
             layer = Sdf.Layer.FindOrOpen(identifier)
         except Tf.ErrorException as exc:
-            problems.append(f"cannot read USD file {where}: {_first_line(str(exc))}")
+            problems.append(f"cannot read USD file {where}: {_error_text(exc)}")
             continue
         if layer is None:
             problems.append(f"cannot read USD file {where}")
@@ -374,7 +374,7 @@ def open_stage(bundle: Bundle):
     try:
         stage = Usd.Stage.Open(str(bundle.root_layer), Ar.DefaultResolverContext([]), Usd.Stage.LoadAll)
     except Tf.ErrorException as exc:
-        raise SceneError(f"cannot read USD file {bundle.root_layer.name}: {_first_line(str(exc))}") from None
+        raise SceneError(f"cannot read USD file {bundle.root_layer.name}: {_error_text(exc)}") from None
     if stage is None:
         raise SceneError(f"cannot read USD file {bundle.root_layer.name}")
     root = os.path.realpath(str(bundle.root))
@@ -411,6 +411,15 @@ def _rel(path: str, root: Path) -> str:
             "[" + path.split("[", 1)[1] if "[" in path else "")
     except ValueError:
         return path
+
+
+def _error_text(exc: Exception) -> str:
+    """The first lines of a USD error. Its text quotes the file, and str() of it raises
+    UnicodeDecodeError when the file holds bytes that are not UTF-8."""
+    try:
+        return _first_line(str(exc))
+    except UnicodeDecodeError:
+        return "the file is corrupt or not UTF-8 text (undecodable bytes in USD's error message)"
 
 
 def _first_line(text: str) -> str:

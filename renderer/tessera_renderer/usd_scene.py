@@ -1119,6 +1119,11 @@ def _camera_from_prim(prim, xform_cache, time, warn) -> CameraDesc:
     if not all(math.isfinite(v) and v > 0 for v in (focal, hap, vap)):
         raise SceneError(f"{path}: focalLength and apertures must be positive "
                          f"(got {focal}, {hap}, {vap})")
+    # The core takes tan(half angle) = aperture / (2 focalLength) as a float32: it must be
+    # neither 0 nor infinite there (e.g. focalLength 1e-45 passes the check above).
+    if not all(1e-30 < ap / (2.0 * focal) < 1e30 for ap in (hap, vap)):
+        raise SceneError(f"{path}: the field of view is degenerate (apertures {hap}, {vap} over "
+                         f"focalLength {focal})")
     if cam.GetProjectionAttr().Get(time) == UsdGeom.Tokens.orthographic:
         warn(f"{path}: orthographic projection is not supported yet; rendered as perspective")
     if (cam.GetHorizontalApertureOffsetAttr().Get(time) or 0.0) or (cam.GetVerticalApertureOffsetAttr().Get(time) or 0.0):

@@ -11,7 +11,7 @@ from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from .auth import require_token
-from .routers import farm, jobs
+from .routers import compare, farm, jobs
 from .schemas import Health, Problem
 from .settings import Settings
 from .store import JobStore
@@ -48,6 +48,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
               503: {"model": Problem, "description": "the job store (redis) is unavailable"}}
     app.include_router(jobs.router, dependencies=[Depends(require_token)], responses=errors)
     app.include_router(farm.router, dependencies=[Depends(require_token)], responses=errors)
+    app.include_router(compare.router, dependencies=[Depends(require_token)], responses=errors)
     app.add_middleware(UploadLimit, path="/jobs",
                        max_bytes=settings.max_upload_bytes + FORM_OVERHEAD,
                        file_limit=settings.max_upload_bytes)
