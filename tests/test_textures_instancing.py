@@ -365,3 +365,13 @@ def test_real_instancing_scene_instances_equal_flattened(tmp_path):
     b, vb = inst.render_tile(0, 0, 64, 40, width=64, height=40, spp=spp, seed=2, return_variance=True)
     assert block_z(a, va, b, vb, spp) < 5.0
     assert np.isclose(a[..., :3], b[..., :3], rtol=0.02, atol=2e-3).all(axis=-1).mean() > 0.95
+
+
+def test_normal_map_without_the_spec_scale_and_bias_warns(tmp_path):
+    write_image(tmp_path / "n.exr", np.tile(np.array([0.5, 0.5, 1.0], np.float32), (2, 2, 1)))
+    bare = textured_floor(tmp_path, "bare", "./n.exr", input_name="normal")
+    assert any("normal maps without scale" in w for w in load_scene(bare).warnings)
+    proper = textured_floor(tmp_path, "proper", "./n.exr", input_name="normal", tex_inputs={
+        "scale": (Sdf.ValueTypeNames.Float4, Gf.Vec4f(2, 2, 2, 1)),
+        "bias": (Sdf.ValueTypeNames.Float4, Gf.Vec4f(-1, -1, -1, 0))})
+    assert not any("normal maps without scale" in w for w in load_scene(proper).warnings)

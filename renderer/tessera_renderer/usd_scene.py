@@ -631,6 +631,11 @@ class _Translator:
                 values[name] = value
             if tex is not None:
                 textures[name] = self.materials.add_texture(tex)
+                if name == "normal" and tex["scale"][:3] == [1.0, 1.0, 1.0] and tex["bias"][:3] == [0.0, 0.0, 0.0]:
+                    # Read as authored (the spec's rule), which tilts every normal: say so.
+                    self._count_note("normal maps without scale (2, 2, 2) and bias (-1, -1, -1) are read as "
+                                     "authored (values in [0, 1] tilt every normal); the UsdPreviewSurface spec "
+                                     "asks the file to set them")
         values["diffuseColor"] = self._clamped_albedo(values["diffuseColor"], path)
         values["emissiveColor"] = _non_negative(values["emissiveColor"])
         return {"values": values, "textures": textures, "preview": True}
