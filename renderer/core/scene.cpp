@@ -67,6 +67,7 @@ Scene::Scene(const SceneDesc& desc)
             // Textures drive UsdPreviewSurface inputs; a plain Lambertian has none to drive.
             if (t >= 0 && !materials_[m].preview) materials_[m].textures[slot] = -1;
         }
+        material_has_textures_.push_back(materials_[m].textures != NoTextures());
         // Cutout by the material's own opacity, or possibly by its opacity texture (then
         // decided per hit in IsCutoutHit).
         const auto& pv = materials_[m].preview;
@@ -602,9 +603,10 @@ const Material& Scene::MaterialAt(const SurfaceHit& hit) const {
 
 BSDF Scene::BSDFAt(const SurfaceHit& hit, TransportMode mode) const {
     if (hit.geom_id != kTriangleGeometry) return BSDF();
-    const Material& m = MaterialOf(hit.mesh, hit.prim_id);
+    const uint32_t mi = meshes_[hit.mesh].material[hit.prim_id];
+    const Material& m = materials_[mi];
     if (!m.preview) return BSDF(DiffuseBSDF(m.albedo));
-    if (m.textures == NoTextures()) return MakePreviewSurfaceBSDF(*m.preview, mode);
+    if (!material_has_textures_[mi]) return MakePreviewSurfaceBSDF(*m.preview, mode);
     MaterialParams p = *m.preview;  // a copy on the stack, textured inputs evaluated at st
     ApplyTextures(m, hit.st, &p);
     return MakePreviewSurfaceBSDF(p, mode);

@@ -285,6 +285,7 @@ private:
     std::vector<Instance> instances_;
     TextureSet textures_;
     std::vector<uint8_t> material_is_cutout_;
+    std::vector<uint8_t> material_has_textures_;  // some slot other than -1: evaluate per hit
     bool has_cutouts_ = false;
     std::vector<Material> materials_;
     std::vector<SphereLight> spheres_;
