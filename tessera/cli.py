@@ -53,7 +53,9 @@ def cmd_render(args: argparse.Namespace) -> int:
         print(f"warning: {w}", file=sys.stderr)
     samples = (f"noise target {settings.target_error:.2%} ({settings.min_spp}-{settings.max_spp} spp)"
                if settings.adaptive else f"{settings.spp} spp")
-    print(f"{scene_path.name}: {scene.num_triangles} triangles, {scene.num_emitters} emitters; "
+    instanced = (f" ({scene.num_instances} instances, {scene.num_stored_triangles} triangles stored)"
+                 if scene.num_instances else "")
+    print(f"{scene_path.name}: {scene.num_triangles} triangles{instanced}, {scene.num_emitters} emitters; "
           f"{width}x{height}, {samples}, seed {settings.seed}", file=sys.stderr)
     try:
         result = render_image(scene, settings, threads=args.threads, progress=not args.quiet)

@@ -76,13 +76,28 @@ def test_real_scene_translates_and_renders(folder, rel, triangles, checks):
     assert np.isfinite(img).all()
 
 
-def test_nested_instance_bindings_give_the_colours_the_file_states():
+def _world_triangles(d):
+    """(centroids, material rows) of every triangle, flattened or placed by instances."""
+    cs, ms = [d.positions[d.indices].mean(axis=1)], [d.triangle_material]
+    for k, m in zip(d.instances, d.instance_transforms):
+        proto = d.prototypes[k]
+        c = proto["positions"][proto["indices"]].mean(axis=1)
+        cs.append(c @ m[:3, :3] + m[3, :3])
+        ms.append(proto["triangle_material"])
+    return np.concatenate(cs), np.concatenate(ms)
+
+
+@pytest.mark.parametrize("instancing", ["flatten", "instances"])
+def test_nested_instance_bindings_give_the_colours_the_file_states(instancing):
     """ni_ni_material_binding_resolution.usda's header: columns OuterInstanceA / Inner /
-    OuterInstanceB are Cyan Cyan Cyan / Green Green Red / Green Green Red, top to bottom."""
+    OuterInstanceB are Cyan Cyan Cyan / Green Green Red / Green Green Red, top to bottom.
+    With instances, bindings from outside a prototype (strongerThanDescendants included)
+    must still reach its prims."""
     path = SCENES / "openusd_testenv/testUsdImagingGLInstancingWithMaterials/ni_ni_material_binding_resolution.usda"
-    d = load_scene(path).data
-    c = d.positions[d.indices].mean(axis=1)
-    albedo = d.albedo[d.triangle_material]
+    d = load_scene(path, instancing=instancing).data
+    assert (len(d.instances) > 0) == (instancing == "instances")
+    c, rows = _world_triangles(d)
+    albedo = d.albedo[rows]
     names = {(0.0, 0.7, 0.7): "Cyan", (0.0, 1.0, 0.0): "Green", (1.0, 0.0, 0.0): "Red"}
     col = np.digitize(c[:, 0], np.linspace(c[:, 0].min(), c[:, 0].max(), 4)[1:-1])
     row = 2 - np.digitize(c[:, 1], np.linspace(c[:, 1].min(), c[:, 1].max(), 4)[1:-1])  # 0 = top

@@ -1,5 +1,6 @@
 #include "scene.h"
 
+#include <atomic>
 #include <limits>
 #include <stdexcept>
 #include <string>
@@ -22,52 +23,57 @@ bool IsNonNegativeFinite(Color c) {
 
 }  // namespace
 
+namespace {
+std::atomic<int64_t> g_embree_bytes{0};
+// Embree reports every allocation and release; returning true lets it proceed.
+bool MonitorEmbreeMemory(void*, ssize_t bytes, bool) {
+    g_embree_bytes.fetch_add(int64_t(bytes), std::memory_order_relaxed);
+    return true;
+}
+}  // namespace
+
 RTCDevice EmbreeDevice() {
     static RTCDevice device = [] {
         RTCDevice d = rtcNewDevice("verbose=0");
         if (!d) throw std::runtime_error("cannot create the Embree device");
+        rtcSetDeviceMemoryMonitorFunction(d, MonitorEmbreeMemory, nullptr);
         return d;
     }();
     return device;
 }
 
+int64_t EmbreeMemoryBytes() {
+    EmbreeDevice();
+    return g_embree_bytes.load(std::memory_order_relaxed);
+}
+
 Scene::Scene(const SceneDesc& desc)
-    : triangle_material_(desc.triangle_material),
-      shading_normals_(desc.shading_normals),
-      materials_(desc.materials),
+    : materials_(desc.materials),
       spheres_(desc.sphere_lights),
       points_(desc.point_lights),
       distants_(desc.distant_lights),
       dome_radiance_(desc.dome_radiance) {
-    if (desc.positions.size() % 3 != 0) throw std::invalid_argument("positions must hold 3 floats per vertex");
-    if (desc.indices.size() % 3 != 0) throw std::invalid_argument("indices must hold 3 per triangle");
-    const size_t num_vertices = desc.positions.size() / 3;
-    num_triangles_ = desc.indices.size() / 3;
-    if (triangle_material_.size() != num_triangles_)
-        throw std::invalid_argument("triangle_material must have one entry per triangle");
-    if (num_vertices > 0xFFFFFFFFull) throw std::invalid_argument("too many vertices");
-    if (!shading_normals_.empty() && shading_normals_.size() != 9 * num_triangles_)
-        throw std::invalid_argument("shading_normals must hold 3 normals per triangle");
-    for (size_t i = 0; i < desc.positions.size(); ++i)
-        if (!std::isfinite(desc.positions[i]))
-            throw std::invalid_argument("vertex " + std::to_string(i / 3) + " has a non-finite coordinate");
-    for (size_t i = 0; i < desc.indices.size(); ++i)
-        if (desc.indices[i] >= num_vertices)
-            throw std::invalid_argument("triangle " + std::to_string(i / 3) + " indexes vertex " +
-                                        std::to_string(desc.indices[i]) + " of " + std::to_string(num_vertices));
-    for (size_t t = 0; t < num_triangles_; ++t)
-        if (triangle_material_[t] >= materials_.size())
-            throw std::invalid_argument("triangle " + std::to_string(t) + " has material " +
-                                        std::to_string(triangle_material_[t]) + " of " +
-                                        std::to_string(materials_.size()));
+    textures_ = TextureSet(desc.images, desc.textures);
     for (size_t m = 0; m < materials_.size(); ++m) {
         if (!IsNonNegativeFinite(materials_[m].albedo) || !IsNonNegativeFinite(materials_[m].emission) ||
             MaxComponent(materials_[m].albedo) > 1.f)
             throw std::invalid_argument("material " + std::to_string(m) +
                                         ": albedo must be in [0, 1] and emission finite and >= 0");
-        // Cutout by the material's own opacity (textured opacity will refine this per hit).
+        for (int slot = 0; slot < kNumTextureSlots; ++slot) {
+            const int32_t t = materials_[m].textures[slot];
+            if (t < -1 || t >= int64_t(textures_.size()))
+                throw std::invalid_argument("material " + std::to_string(m) + " refers to texture " +
+                                            std::to_string(t) + " of " + std::to_string(textures_.size()));
+            // Textures drive UsdPreviewSurface inputs; a plain Lambertian has none to drive.
+            if (t >= 0 && !materials_[m].preview) materials_[m].textures[slot] = -1;
+        }
+        material_has_textures_.push_back(materials_[m].textures != NoTextures());
+        // Cutout by the material's own opacity, or possibly by its opacity texture (then
+        // decided per hit in IsCutoutHit).
         const auto& pv = materials_[m].preview;
-        material_is_cutout_.push_back(pv && IsCutout(*pv, pv->opacity));
+        const bool textured_opacity = materials_[m].textures[kSlotOpacity] >= 0;
+        material_is_cutout_.push_back(pv && (textured_opacity ? pv->opacity_threshold > 0.f
+                                                              : IsCutout(*pv, pv->opacity)));
         has_cutouts_ = has_cutouts_ || material_is_cutout_.back();
     }
     for (size_t s = 0; s < spheres_.size(); ++s)
@@ -113,24 +119,14 @@ Scene::Scene(const SceneDesc& desc)
     rtcSetSceneFlags(scene_, RTC_SCENE_FLAG_ROBUST);
     rtcSetSceneBuildQuality(scene_, RTC_BUILD_QUALITY_HIGH);
 
-    {
-        RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
-        // Embree may read 16 bytes from the last vertex, hence one vertex of padding.
-        auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                                               3 * sizeof(float), num_vertices + 1));
-        auto* ib = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                                                  3 * sizeof(uint32_t), num_triangles_));
-        CheckDevice(device, "allocating triangle buffers");
-        std::copy(desc.positions.begin(), desc.positions.end(), vb);
-        vb[3 * num_vertices] = vb[3 * num_vertices + 1] = vb[3 * num_vertices + 2] = 0.f;
-        std::copy(desc.indices.begin(), desc.indices.end(), ib);
-        positions_ = vb;
-        indices_ = ib;
-        rtcCommitGeometry(geom);
-        uint32_t id = rtcAttachGeometry(scene_, geom);
-        rtcReleaseGeometry(geom);
-        if (id != kTriangleGeometry) throw std::logic_error("unexpected triangle geometry id");
-    }
+    // The world mesh is geometry 0 of the top-level BVH (present even when empty, so the
+    // geometry ids stay fixed); each prototype gets its own BVH, instanced below.
+    if (desc.positions.size() % 3 != 0) throw std::invalid_argument("positions must hold 3 floats per vertex");
+    if (desc.indices.size() % 3 != 0) throw std::invalid_argument("indices must hold 3 per triangle");
+    meshes_.resize(1 + desc.prototypes.size());
+    BuildMesh(&meshes_[0], desc.positions.data(), desc.positions.size() / 3, desc.indices.data(),
+              desc.indices.size() / 3, desc.triangle_material, desc.shading_normals, desc.uvs, scene_,
+              kTriangleGeometry, "");
     if (!spheres_.empty()) {
         RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_SPHERE_POINT);
         auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4,
@@ -143,9 +139,61 @@ Scene::Scene(const SceneDesc& desc)
             vb[4 * s + 3] = spheres_[s].radius;
         }
         rtcCommitGeometry(geom);
-        uint32_t id = rtcAttachGeometry(scene_, geom);
+        rtcAttachGeometryByID(scene_, geom, kSphereGeometry);
         rtcReleaseGeometry(geom);
-        if (id != kSphereGeometry) throw std::logic_error("unexpected sphere geometry id");
+    }
+    for (size_t k = 0; k < desc.prototypes.size(); ++k) {
+        const MeshDesc& pd = desc.prototypes[k];
+        const std::string what = "prototype " + std::to_string(k) + ": ";
+        if (pd.positions.size() % 3 != 0 || pd.indices.size() % 3 != 0)
+            throw std::invalid_argument(what + "positions and indices must hold 3 values per vertex / triangle");
+        Mesh& mesh = meshes_[1 + k];
+        mesh.scene = rtcNewScene(device);
+        rtcSetSceneFlags(mesh.scene, RTC_SCENE_FLAG_ROBUST);
+        rtcSetSceneBuildQuality(mesh.scene, RTC_BUILD_QUALITY_HIGH);
+        BuildMesh(&mesh, pd.positions.data(), pd.positions.size() / 3, pd.indices.data(), pd.indices.size() / 3,
+                  pd.triangle_material, pd.shading_normals, pd.uvs, mesh.scene, 0, what);
+        rtcCommitScene(mesh.scene);
+        CheckDevice(device, "building a prototype BVH");
+    }
+    const size_t num_instances = desc.instance_prototype.size();
+    if (desc.instance_transforms.size() != 12 * num_instances)
+        throw std::invalid_argument("instance_transforms must hold one 3x4 matrix per instance");
+    instances_.resize(num_instances);
+    num_triangles_ = meshes_[0].num_triangles;
+    for (size_t i = 0; i < num_instances; ++i) {
+        const uint32_t proto = desc.instance_prototype[i];
+        if (proto >= desc.prototypes.size())
+            throw std::invalid_argument("instance " + std::to_string(i) + " refers to prototype " +
+                                        std::to_string(proto) + " of " + std::to_string(desc.prototypes.size()));
+        Instance& inst = instances_[i];
+        inst.mesh = 1 + proto;
+        std::copy(desc.instance_transforms.begin() + 12 * i, desc.instance_transforms.begin() + 12 * (i + 1), inst.m);
+        const float* m = inst.m;
+        bool finite = true;
+        for (int j = 0; j < 12; ++j) finite = finite && std::isfinite(m[j]);
+        // Inverse transpose of the 3x3 part = cofactor matrix / determinant.
+        const double c00 = double(m[5]) * m[10] - double(m[6]) * m[9], c01 = double(m[6]) * m[8] - double(m[4]) * m[10],
+                     c02 = double(m[4]) * m[9] - double(m[5]) * m[8];
+        const double c10 = double(m[2]) * m[9] - double(m[1]) * m[10], c11 = double(m[0]) * m[10] - double(m[2]) * m[8],
+                     c12 = double(m[1]) * m[8] - double(m[0]) * m[9];
+        const double c20 = double(m[1]) * m[6] - double(m[2]) * m[5], c21 = double(m[2]) * m[4] - double(m[0]) * m[6],
+                     c22 = double(m[0]) * m[5] - double(m[1]) * m[4];
+        const double det = double(m[0]) * c00 + double(m[1]) * c01 + double(m[2]) * c02;
+        if (!finite || !(std::abs(det) > 1e-30) || !std::isfinite(det))
+            throw std::invalid_argument("instance " + std::to_string(i) +
+                                        " has a non-finite or singular transform");
+        const double cof[9] = {c00, c01, c02, c10, c11, c12, c20, c21, c22};
+        for (int j = 0; j < 9; ++j) inst.n[j] = float(cof[j] / det);
+        inst.orientation = det < 0.0 ? -1.f : 1.f;
+        RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_INSTANCE);
+        rtcSetGeometryInstancedScene(geom, meshes_[inst.mesh].scene);
+        rtcSetGeometryTransform(geom, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, inst.m);
+        rtcCommitGeometry(geom);
+        rtcAttachGeometryByID(scene_, geom, kFirstInstanceGeometry + uint32_t(i));
+        rtcReleaseGeometry(geom);
+        CheckDevice(device, "creating instances");
+        num_triangles_ += meshes_[inst.mesh].num_triangles;
     }
     rtcCommitScene(scene_);
     CheckDevice(device, "building the BVH");
@@ -165,15 +213,49 @@ Scene::Scene(const SceneDesc& desc)
 
     // Emitters, each weighted by its emitted power Phi = pi * A * L (per side).
     std::vector<double> power;
-    triangle_emitter_.assign(num_triangles_, kNoEmitter);
-    for (uint32_t t = 0; t < num_triangles_; ++t) {
-        const Material& m = materials_[triangle_material_[t]];
-        if (IsBlack(m.emission)) continue;
-        float area = 0.5f * Length(Cross(Vertex(t, 1) - Vertex(t, 0), Vertex(t, 2) - Vertex(t, 0)));
-        if (!(area > 0.f)) continue;  // degenerate: never hit, never sampled
-        triangle_emitter_[t] = int32_t(emitters_.size());
-        emitters_.push_back({LightKind::kTriangle, t, area, 0.f});
-        power.push_back(double(Luminance(m.emission)) * area * kPi * (m.two_sided_emission ? 2.0 : 1.0));
+    // Textured emission: light selection weighs the triangle by the texture's mean (the
+    // image average, not the average over the triangle's st footprint: a cheap estimate
+    // that only affects variance, never the expectation).
+    std::vector<Color> emission_estimate(materials_.size());
+    for (size_t m = 0; m < materials_.size(); ++m) {
+        const int32_t t = materials_[m].textures[kSlotEmissiveColor];
+        emission_estimate[m] = t >= 0 ? textures_.MeanColor(uint32_t(t)) : materials_[m].emission;
+    }
+    auto add_triangle_emitter = [&](uint32_t mesh, uint32_t prim, uint32_t instance) {
+        Vec3 p[3];
+        TriangleVertices(mesh, prim, instance, p);
+        // A prototype triangle that is not degenerate locally stays an emitter in every
+        // instance (the emitter base + local index mapping needs all of them); the clamp
+        // only guards a transform that shrinks it below float range.
+        const float area = std::max(1e-30f, 0.5f * Length(Cross(p[1] - p[0], p[2] - p[0])));
+        const uint32_t mi = meshes_[mesh].material[prim];
+        emitters_.push_back({LightKind::kTriangle, prim, area, 0.f, mesh, instance});
+        power.push_back(double(Luminance(emission_estimate[mi])) * area * kPi *
+                        (materials_[mi].two_sided_emission ? 2.0 : 1.0));
+    };
+    for (size_t k = 0; k < meshes_.size(); ++k) {
+        Mesh& mesh = meshes_[k];
+        mesh.emitter.assign(mesh.num_triangles, kNoEmitter);
+        for (uint32_t t = 0; t < mesh.num_triangles; ++t) {
+            if (IsBlack(emission_estimate[mesh.material[t]])) continue;
+            Vec3 p[3];
+            TriangleVertices(uint32_t(k), t, kNoInstance, p);
+            if (!(Length(Cross(p[1] - p[0], p[2] - p[0])) > 0.f)) continue;  // degenerate: never hit, never sampled
+            if (k == 0) {
+                mesh.emitter[t] = int32_t(emitters_.size());
+                add_triangle_emitter(0, t, kNoInstance);
+            } else {
+                mesh.emitter[t] = int32_t(mesh.num_emissive++);
+            }
+        }
+    }
+    // Every instance of a prototype with emissive triangles is a light of its own.
+    for (uint32_t i = 0; i < instances_.size(); ++i) {
+        const Mesh& mesh = meshes_[instances_[i].mesh];
+        if (mesh.num_emissive == 0) continue;
+        instances_[i].emitter_base = int32_t(emitters_.size());
+        for (uint32_t t = 0; t < mesh.num_triangles; ++t)
+            if (mesh.emitter[t] >= 0) add_triangle_emitter(instances_[i].mesh, t, i);
     }
     sphere_emitter_.assign(spheres_.size(), kNoEmitter);
     for (uint32_t s = 0; s < spheres_.size(); ++s) {
@@ -223,18 +305,186 @@ Scene::Scene(const SceneDesc& desc)
 
 Scene::~Scene() {
     if (scene_) rtcReleaseScene(scene_);
+    for (Mesh& m : meshes_)
+        if (m.scene) rtcReleaseScene(m.scene);
 }
 
-Vec3 Scene::Vertex(uint32_t tri, int corner) const {
-    const float* p = positions_ + 3 * size_t(indices_[3 * size_t(tri) + corner]);
+size_t Scene::num_stored_triangles() const {
+    size_t n = 0;
+    for (const Mesh& m : meshes_) n += m.num_triangles;
+    return n;
+}
+
+void Scene::BuildMesh(Mesh* mesh, const float* positions, size_t num_vertices, const uint32_t* indices,
+                      size_t num_triangles, const std::vector<uint32_t>& material, const std::vector<float>& normals,
+                      const std::vector<float>& uvs, RTCScene target, uint32_t geom_id, const std::string& what) {
+    if (material.size() != num_triangles)
+        throw std::invalid_argument(what + "triangle_material must have one entry per triangle");
+    if (num_vertices > 0xFFFFFFFFull) throw std::invalid_argument(what + "too many vertices");
+    if (!normals.empty() && normals.size() != 9 * num_triangles)
+        throw std::invalid_argument(what + "shading_normals must hold 3 normals per triangle");
+    if (!uvs.empty() && uvs.size() != 6 * num_triangles)
+        throw std::invalid_argument(what + "uvs must hold 3 st pairs per triangle");
+    for (size_t i = 0; i < 3 * num_vertices; ++i)
+        if (!std::isfinite(positions[i]))
+            throw std::invalid_argument(what + "vertex " + std::to_string(i / 3) + " has a non-finite coordinate");
+    for (size_t i = 0; i < 3 * num_triangles; ++i)
+        if (indices[i] >= num_vertices)
+            throw std::invalid_argument(what + "triangle " + std::to_string(i / 3) + " indexes vertex " +
+                                        std::to_string(indices[i]) + " of " + std::to_string(num_vertices));
+    for (size_t t = 0; t < num_triangles; ++t)
+        if (material[t] >= materials_.size())
+            throw std::invalid_argument(what + "triangle " + std::to_string(t) + " has material " +
+                                        std::to_string(material[t]) + " of " + std::to_string(materials_.size()));
+    // The core would look textures up at NaN st; the translation replaces them, so this
+    // is a caller's bug, reported with the triangle.
+    for (size_t i = 0; i < uvs.size(); ++i)
+        if (!std::isfinite(uvs[i]))
+            throw std::invalid_argument(what + "triangle " + std::to_string(i / 6) + " has a non-finite st");
+    mesh->material = material;
+    mesh->normals = normals;
+    mesh->uvs = uvs;
+    mesh->num_triangles = num_triangles;
+    RTCDevice device = EmbreeDevice();
+    RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    // Embree may read 16 bytes from the last vertex, hence one vertex of padding.
+    auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                           3 * sizeof(float), num_vertices + 1));
+    auto* ib = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                                              3 * sizeof(uint32_t), num_triangles));
+    CheckDevice(device, "allocating triangle buffers");
+    std::copy(positions, positions + 3 * num_vertices, vb);
+    vb[3 * num_vertices] = vb[3 * num_vertices + 1] = vb[3 * num_vertices + 2] = 0.f;
+    std::copy(indices, indices + 3 * num_triangles, ib);
+    mesh->positions = vb;
+    mesh->indices = ib;
+    rtcCommitGeometry(geom);
+    rtcAttachGeometryByID(target, geom, geom_id);
+    rtcReleaseGeometry(geom);
+    CheckDevice(device, "attaching triangles");
+}
+
+namespace {
+
+inline Vec3 LocalVertex(const float* positions, const uint32_t* indices, uint32_t tri, int corner) {
+    const float* p = positions + 3 * size_t(indices[3 * size_t(tri) + corner]);
     return {p[0], p[1], p[2]};
+}
+inline Vec3 TransformPoint(const float* m, Vec3 p) {
+    return {m[0] * p.x + m[1] * p.y + m[2] * p.z + m[3], m[4] * p.x + m[5] * p.y + m[6] * p.z + m[7],
+            m[8] * p.x + m[9] * p.y + m[10] * p.z + m[11]};
+}
+inline Vec3 TransformVector(const float* m, Vec3 v) {  // m: row-major 3x4
+    return {m[0] * v.x + m[1] * v.y + m[2] * v.z, m[4] * v.x + m[5] * v.y + m[6] * v.z,
+            m[8] * v.x + m[9] * v.y + m[10] * v.z};
+}
+inline Vec3 TransformNormal(const float* n, Vec3 v) {  // n: row-major 3x3
+    return {n[0] * v.x + n[1] * v.y + n[2] * v.z, n[3] * v.x + n[4] * v.y + n[5] * v.z,
+            n[6] * v.x + n[7] * v.y + n[8] * v.z};
+}
+
+}  // namespace
+
+float Scene::TriangleVertices(uint32_t mesh, uint32_t prim, uint32_t instance, Vec3 p[3]) const {
+    const Mesh& m = meshes_[mesh];
+    for (int c = 0; c < 3; ++c) {
+        p[c] = LocalVertex(m.positions, m.indices, prim, c);
+        if (instance != kNoInstance) p[c] = TransformPoint(instances_[instance].m, p[c]);
+    }
+    // A mirroring instance transform reverses the winding of the transformed corners; the
+    // flattened copy reverses its corner order instead, so the side a triangle faces is
+    // the same either way: Cross(p1 - p0, p2 - p0) times this sign.
+    return instance != kNoInstance ? instances_[instance].orientation : 1.f;
+}
+
+Vec2 Scene::TriangleST(const Mesh& mesh, uint32_t prim, float b1, float b2) const {
+    if (mesh.uvs.empty()) return {};
+    const float* uv = &mesh.uvs[6 * size_t(prim)];
+    const float b0 = 1.f - b1 - b2;
+    return {uv[0] * b0 + uv[2] * b1 + uv[4] * b2, uv[1] * b0 + uv[3] * b1 + uv[5] * b2};
+}
+
+Color Scene::TriangleEmission(uint32_t mesh, uint32_t prim, float b1, float b2) const {
+    const Material& m = MaterialOf(mesh, prim);
+    const int32_t t = m.textures[kSlotEmissiveColor];
+    if (t < 0) return m.emission;
+    const Color c = textures_.EvaluateColor(uint32_t(t), TriangleST(meshes_[mesh], prim, b1, b2));
+    return {std::max(0.f, c.x), std::max(0.f, c.y), std::max(0.f, c.z)};
+}
+
+void Scene::ApplyTextures(const Material& m, Vec2 st, MaterialParams* p) const {
+    auto color = [&](TextureSlot slot, Color* out) {
+        if (m.textures[slot] >= 0) *out = textures_.EvaluateColor(uint32_t(m.textures[slot]), st);
+    };
+    auto scalar = [&](TextureSlot slot, float* out) {
+        if (m.textures[slot] >= 0) *out = textures_.EvaluateFloat(uint32_t(m.textures[slot]), st);
+    };
+    // Out-of-range values (a texture scaled past 1, say) are sanitised by
+    // MakePreviewSurfaceBSDF like constant inputs are.
+    color(kSlotDiffuseColor, &p->diffuse_color);
+    color(kSlotEmissiveColor, &p->emissive_color);
+    color(kSlotSpecularColor, &p->specular_color);
+    scalar(kSlotMetallic, &p->metallic);
+    scalar(kSlotRoughness, &p->roughness);
+    scalar(kSlotClearcoat, &p->clearcoat);
+    scalar(kSlotClearcoatRoughness, &p->clearcoat_roughness);
+    scalar(kSlotOpacity, &p->opacity);
+    scalar(kSlotIor, &p->ior);
+}
+
+void Scene::ApplyNormalMap(SurfaceHit* hit) const {
+    if (hit->geom_id != kTriangleGeometry) return;
+    const Material& mat = MaterialOf(hit->mesh, hit->prim_id);
+    const int32_t tex = mat.textures[kSlotNormal];
+    const Mesh& mesh = meshes_[hit->mesh];
+    if (tex < 0 || mesh.uvs.empty()) return;  // no st: no tangent frame, the map cannot apply
+    // Tangent frame from the st parameterisation: dp/ds and dp/dt of the triangle (they do
+    // not depend on the corner order, so flattened and instanced copies agree).
+    const uint32_t prim = hit->prim_id;
+    Vec3 p[3];
+    for (int c = 0; c < 3; ++c) p[c] = LocalVertex(mesh.positions, mesh.indices, prim, c);
+    const float* uv = &mesh.uvs[6 * size_t(prim)];
+    const Vec3 e1 = p[1] - p[0], e2 = p[2] - p[0];
+    const float du1 = uv[2] - uv[0], dv1 = uv[3] - uv[1], du2 = uv[4] - uv[0], dv2 = uv[5] - uv[1];
+    const float det = du1 * dv2 - du2 * dv1;
+    if (!(std::abs(det) > 1e-20f)) return;  // degenerate st: no frame
+    Vec3 dpds = (e1 * dv2 - e2 * dv1) / det, dpdt = (e2 * du1 - e1 * du2) / det;
+    if (hit->instance != kNoInstance) {
+        dpds = TransformVector(instances_[hit->instance].m, dpds);
+        dpdt = TransformVector(instances_[hit->instance].m, dpdt);
+    }
+    const Vec3 n = hit->ns;
+    Vec3 t = dpds - n * Dot(n, dpds);
+    const float tl = Length(t);
+    if (!(tl > 0.f) || !std::isfinite(tl)) return;
+    t = t / tl;
+    Vec3 b = Cross(n, t);
+    if (Dot(b, dpdt) < 0.f) b = -b;  // mirrored st: keep the map's +y along +t
+    const Color m = textures_.EvaluateColor(uint32_t(tex), hit->st);
+    const Vec3 mapped = t * m.x + b * m.y + n * m.z;
+    const float len = Length(mapped);
+    // A normal that turns below the geometric surface cannot shade it (SidesAgree would
+    // reject most scattering); keep the unperturbed shading normal there.
+    if (!(len > 0.f) || !std::isfinite(len) || !(Dot(mapped, hit->ng) > 1e-4f * len)) return;
+    hit->ns = mapped / len;
 }
 
 bool Scene::IsCutoutHit(const SurfaceHit& hit) const {
-    return hit.geom_id == kTriangleGeometry && material_is_cutout_[triangle_material_[hit.prim_id]];
+    if (hit.geom_id != kTriangleGeometry) return false;
+    const uint32_t mi = meshes_[hit.mesh].material[hit.prim_id];
+    if (!material_is_cutout_[mi]) return false;
+    const Material& m = materials_[mi];
+    const int32_t t = m.textures[kSlotOpacity];
+    return t < 0 || IsCutout(*m.preview, textures_.EvaluateFloat(uint32_t(t), hit.st));
 }
 
 bool Scene::Intersect(const Ray& ray, SurfaceHit* hit, float t_min, float t_max) const {
+    if (!IntersectSurface(ray, hit, t_min, t_max)) return false;
+    ApplyNormalMap(hit);
+    return true;
+}
+
+bool Scene::IntersectSurface(const Ray& ray, SurfaceHit* hit, float t_min, float t_max) const {
     if (!has_cutouts_) return IntersectClosest(ray, t_min, t_max, hit);
     // Step through cutout surfaces. Each step restarts just past the previous hit, so a
     // ray crosses at most as many cutout layers as lie along it.
@@ -268,36 +518,64 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceH
     rtcIntersect1(scene_, &context, &rh);
     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
     hit->t = rh.ray.tfar;
-    hit->geom_id = rh.hit.geomID;
     hit->prim_id = rh.hit.primID;
-    if (rh.hit.geomID == kTriangleGeometry) {
-        // Recompute the hit point from barycentrics: smaller error than o + t d far away.
-        Vec3 p0 = Vertex(rh.hit.primID, 0), p1 = Vertex(rh.hit.primID, 1), p2 = Vertex(rh.hit.primID, 2);
-        float u = rh.hit.u, v = rh.hit.v;
-        hit->p = p0 * (1.f - u - v) + p1 * u + p2 * v;
-        hit->ng = Normalize(Cross(p1 - p0, p2 - p0));
-        hit->ns = hit->ng;
-        if (!shading_normals_.empty()) {
-            const float* n = &shading_normals_[9 * size_t(rh.hit.primID)];
-            Vec3 ns = Vec3(n[0], n[1], n[2]) * (1.f - u - v) + Vec3(n[3], n[4], n[5]) * u + Vec3(n[6], n[7], n[8]) * v;
-            float len = Length(ns);
-            // Degenerate or non-finite authored normals fall back to the facet's.
-            if (len > 1e-6f && std::isfinite(len)) hit->ns = Dot(ns, hit->ng) >= 0.f ? ns / len : -ns / len;
-        }
-    } else {
+    hit->b1 = rh.hit.u;
+    hit->b2 = rh.hit.v;
+    const uint32_t inst = rh.hit.instID[0];
+    if (inst == RTC_INVALID_GEOMETRY_ID && rh.hit.geomID == kSphereGeometry) {
         const SphereLight& s = spheres_[rh.hit.primID];
         Vec3 p = ray.o + ray.d * rh.ray.tfar;
+        hit->geom_id = kSphereGeometry;
+        hit->mesh = 0;
+        hit->instance = kNoInstance;
         hit->ng = Normalize(p - s.center);
         hit->ns = hit->ng;
         hit->p = s.center + hit->ng * s.radius;
+        hit->st = {};
+        return true;
     }
+    hit->geom_id = kTriangleGeometry;
+    hit->instance = inst == RTC_INVALID_GEOMETRY_ID ? kNoInstance : inst - kFirstInstanceGeometry;
+    hit->mesh = hit->instance == kNoInstance ? 0 : instances_[hit->instance].mesh;
+    const Mesh& mesh = meshes_[hit->mesh];
+    const uint32_t prim = rh.hit.primID;
+    // Recompute the hit point from barycentrics: smaller error than o + t d far away.
+    const Vec3 p0 = LocalVertex(mesh.positions, mesh.indices, prim, 0),
+               p1 = LocalVertex(mesh.positions, mesh.indices, prim, 1),
+               p2 = LocalVertex(mesh.positions, mesh.indices, prim, 2);
+    const float u = rh.hit.u, v = rh.hit.v;
+    Vec3 p = p0 * (1.f - u - v) + p1 * u + p2 * v;
+    Vec3 ng = Cross(p1 - p0, p2 - p0);
+    Vec3 ns(0.f);
+    if (!mesh.normals.empty()) {
+        const float* n = &mesh.normals[9 * size_t(prim)];
+        ns = Vec3(n[0], n[1], n[2]) * (1.f - u - v) + Vec3(n[3], n[4], n[5]) * u + Vec3(n[6], n[7], n[8]) * v;
+    }
+    if (hit->instance != kNoInstance) {
+        // Points by the transform, normals by its inverse transpose. With a mirroring
+        // transform the inverse transpose keeps the normal on the side the flattened copy
+        // (whose winding is reversed) faces.
+        const Instance& in = instances_[hit->instance];
+        p = TransformPoint(in.m, p);
+        ng = TransformNormal(in.n, ng);
+        ns = TransformNormal(in.n, ns);
+    }
+    hit->p = p;
+    hit->ng = Normalize(ng);
+    hit->ns = hit->ng;
+    if (!mesh.normals.empty()) {
+        float len = Length(ns);
+        // Degenerate or non-finite authored normals fall back to the facet's.
+        if (len > 1e-6f && std::isfinite(len)) hit->ns = Dot(ns, hit->ng) >= 0.f ? ns / len : -ns / len;
+    }
+    hit->st = TriangleST(mesh, prim, u, v);
     return true;
 }
 
 bool Scene::Occluded(Vec3 origin, Vec3 dir, float t_far) const {
     if (has_cutouts_) {
         SurfaceHit hit;
-        return Intersect({origin, dir}, &hit) && hit.t < t_far;
+        return IntersectSurface({origin, dir}, &hit, 0.f, t_far) && hit.t < t_far;
     }
     RTCIntersectContext context;
     rtcInitIntersectContext(&context);
@@ -320,26 +598,34 @@ bool Scene::Occluded(Vec3 origin, Vec3 dir, float t_far) const {
 
 const Material& Scene::MaterialAt(const SurfaceHit& hit) const {
     static const Material kLightSurface{Color(0.f), Color(0.f), false, std::nullopt};
-    return hit.geom_id == kTriangleGeometry ? materials_[triangle_material_[hit.prim_id]] : kLightSurface;
+    return hit.geom_id == kTriangleGeometry ? MaterialOf(hit.mesh, hit.prim_id) : kLightSurface;
 }
 
 BSDF Scene::BSDFAt(const SurfaceHit& hit, TransportMode mode) const {
     if (hit.geom_id != kTriangleGeometry) return BSDF();
-    const Material& m = materials_[triangle_material_[hit.prim_id]];
-    if (m.preview) return MakePreviewSurfaceBSDF(*m.preview, mode);
-    return BSDF(DiffuseBSDF(m.albedo));
+    const uint32_t mi = meshes_[hit.mesh].material[hit.prim_id];
+    const Material& m = materials_[mi];
+    if (!m.preview) return BSDF(DiffuseBSDF(m.albedo));
+    if (!material_has_textures_[mi]) return MakePreviewSurfaceBSDF(*m.preview, mode);
+    MaterialParams p = *m.preview;  // a copy on the stack, textured inputs evaluated at st
+    ApplyTextures(m, hit.st, &p);
+    return MakePreviewSurfaceBSDF(p, mode);
 }
 
 int32_t Scene::EmitterAt(const SurfaceHit& hit) const {
-    return hit.geom_id == kTriangleGeometry ? triangle_emitter_[hit.prim_id] : sphere_emitter_[hit.prim_id];
+    if (hit.geom_id != kTriangleGeometry) return sphere_emitter_[hit.prim_id];
+    const int32_t local = meshes_[hit.mesh].emitter[hit.prim_id];
+    if (hit.instance == kNoInstance || local < 0) return local;
+    return instances_[hit.instance].emitter_base + local;
 }
 
 Color Scene::Emitted(int32_t emitter, const SurfaceHit& hit, Vec3 wo) const {
     if (emitter < 0) return Color(0.f);
     const Emitter& e = emitters_[emitter];
     if (e.kind == LightKind::kSphere) return spheres_[e.index].radiance;
-    const Material& m = materials_[triangle_material_[e.index]];
-    return (m.two_sided_emission || Dot(hit.ng, wo) > 0.f) ? m.emission : Color(0.f);
+    const Material& m = MaterialOf(e.mesh, e.index);
+    if (!m.two_sided_emission && !(Dot(hit.ng, wo) > 0.f)) return Color(0.f);
+    return TriangleEmission(e.mesh, e.index, hit.b1, hit.b2);
 }
 
 bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) const {
@@ -407,22 +693,24 @@ bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) 
         return out->distance > 0.f;
     }
     Vec3 b = SampleUniformTriangle(u);
-    Vec3 p0 = Vertex(e.index, 0), p1 = Vertex(e.index, 1), p2 = Vertex(e.index, 2);
+    Vec3 tri[3];
+    const float orientation = TriangleVertices(e.mesh, e.index, e.instance, tri);
+    const Vec3 p0 = tri[0], p1 = tri[1], p2 = tri[2];
     Vec3 p = p0 * b.x + p1 * b.y + p2 * b.z;
-    Vec3 ng = Normalize(Cross(p1 - p0, p2 - p0));
+    Vec3 ng = Normalize(Cross(p1 - p0, p2 - p0)) * orientation;
     Vec3 to_light = p - ref;
     float d2 = LengthSquared(to_light);
     if (!(d2 > 0.f)) return false;
     float d = std::sqrt(d2);
     Vec3 wi = to_light / d;
     float cos_light = Dot(ng, -wi);
-    const Material& m = materials_[triangle_material_[e.index]];
+    const Material& m = MaterialOf(e.mesh, e.index);
     if (!m.two_sided_emission && cos_light <= 0.f) return false;
     cos_light = std::abs(cos_light);
     if (cos_light < 1e-7f) return false;
     out->wi = wi;
     out->distance = d;
-    out->radiance = m.emission;
+    out->radiance = TriangleEmission(e.mesh, e.index, b.y, b.z);
     out->pdf = d2 / (cos_light * e.area);  // area measure 1/A converted to solid angle
     out->n = ng;
     return true;
@@ -433,10 +721,13 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
     out->on_surface = false;
     switch (e.kind) {
         case LightKind::kTriangle: {
-            const Material& m = materials_[triangle_material_[e.index]];
-            Vec3 p0 = Vertex(e.index, 0), p1 = Vertex(e.index, 1), p2 = Vertex(e.index, 2);
+            const Material& m = MaterialOf(e.mesh, e.index);
+            Vec3 tri[3];
+            const float orientation = TriangleVertices(e.mesh, e.index, e.instance, tri);
+            const Vec3 p0 = tri[0], p1 = tri[1], p2 = tri[2];
             Vec3 b = SampleUniformTriangle(u_pos);
-            Vec3 n = Normalize(Cross(p1 - p0, p2 - p0));
+            Vec3 n = Normalize(Cross(p1 - p0, p2 - p0)) * orientation;
+            const Color Le = TriangleEmission(e.mesh, e.index, b.y, b.z);
             float sides = 1.f;
             if (m.two_sided_emission) {
                 sides = 2.f;
@@ -446,9 +737,9 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
             out->n = n;
             out->wo = Normalize(Frame::FromZ(n).FromLocal(SampleCosineHemisphere(u_dir)));
             // Le cos / ((1/A) (cos/pi) (1/sides)) = Le pi A sides
-            out->beta = m.emission * (kPi * e.area * sides);
+            out->beta = Le * (kPi * e.area * sides);
             out->on_surface = true;
-            out->Le = m.emission;
+            out->Le = Le;
             out->pdf_pos = 1.f / e.area;
             out->pdf_dir = std::abs(Dot(out->wo, n)) * kInvPi / sides;
             out->infinite = out->delta_light = false;
@@ -524,7 +815,7 @@ float Scene::EmissionPdfDirection(uint32_t emitter, Vec3 n, Vec3 w) const {
         case LightKind::kSphere:
             return std::max(0.f, Dot(n, w)) * kInvPi;
         case LightKind::kTriangle: {
-            const Material& m = materials_[triangle_material_[e.index]];
+            const Material& m = MaterialOf(e.mesh, e.index);
             if (m.two_sided_emission) return std::abs(Dot(n, w)) * kInvPi * 0.5f;
             return std::max(0.f, Dot(n, w)) * kInvPi;
         }

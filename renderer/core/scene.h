@@ -5,17 +5,41 @@
 
 #include <embree3/rtcore.h>
 
+#include <array>
 #include <cstdint>
 #include <limits>
 #include <optional>
+#include <string>
 #include <vector>
 
 #include "bsdf.h"
 #include "distribution_2d.h"
 #include "light_sampler.h"
 #include "math.h"
+#include "texture.h"
 
 namespace tessera {
+
+// The UsdPreviewSurface inputs an image texture can drive (UsdUVTexture outputs bound to
+// them). occlusion is not among them: a path tracer computes occlusion itself.
+enum TextureSlot : uint8_t {
+    kSlotDiffuseColor,
+    kSlotEmissiveColor,
+    kSlotSpecularColor,
+    kSlotMetallic,
+    kSlotRoughness,
+    kSlotClearcoat,
+    kSlotClearcoatRoughness,
+    kSlotOpacity,
+    kSlotIor,
+    kSlotNormal,
+    kNumTextureSlots
+};
+constexpr std::array<int32_t, kNumTextureSlots> NoTextures() {
+    std::array<int32_t, kNumTextureSlots> a{};
+    for (auto& x : a) x = -1;
+    return a;
+}
 
 struct Material {
     Color albedo;              // Lambertian reflectance, each channel in [0, 1]
@@ -24,6 +48,8 @@ struct Material {
     // A UsdPreviewSurface; without it the surface is a pure Lambertian of `albedo` (which
     // UsdPreviewSurface cannot express: its Fresnel lobe never vanishes).
     std::optional<MaterialParams> preview;
+    // Texture index per TextureSlot (-1: the constant above). Only preview materials use them.
+    std::array<int32_t, kNumTextureSlots> textures = NoTextures();
 };
 
 struct SphereLight {
@@ -47,12 +73,31 @@ struct DistantLight {
     Color radiance;
 };
 
+// A triangle mesh as flat arrays: the world's, or an instancing prototype's (in its own space).
+struct MeshDesc {
+    std::vector<float> positions;            // 3 floats per vertex
+    std::vector<uint32_t> indices;           // 3 vertex indices per triangle
+    std::vector<uint32_t> triangle_material; // one material index per triangle
+    std::vector<float> shading_normals;      // optional: 9 floats per triangle (3 corner normals)
+    std::vector<float> uvs;                  // optional: 6 floats per triangle (3 corner st)
+};
+
 // Input to Scene. Plain arrays, as the USD translation produces them.
 struct SceneDesc {
     std::vector<float> positions;            // 3 floats per vertex, world space
     std::vector<uint32_t> indices;           // 3 vertex indices per triangle
     std::vector<uint32_t> triangle_material; // one material index per triangle
     std::vector<float> shading_normals;      // optional: 9 floats per triangle (3 corner normals)
+    std::vector<float> uvs;                  // optional: 6 floats per triangle (3 corner st)
+    // Image textures (Material::textures index `textures`).
+    std::vector<Image> images;
+    std::vector<TextureDesc> textures;
+    // Instancing: prototypes are built once into their own BVH; instance i places
+    // prototype instance_prototype[i] with instance_transforms[12 i ..], a row-major 3x4
+    // matrix (world = M (p, 1)). Instances never copy triangles.
+    std::vector<MeshDesc> prototypes;
+    std::vector<uint32_t> instance_prototype;
+    std::vector<float> instance_transforms;
     std::vector<Material> materials;
     std::vector<SphereLight> sphere_lights;
     std::vector<PointLight> point_lights;
@@ -66,12 +111,20 @@ struct SceneDesc {
     float dome_world_to_light[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
 };
 
+inline constexpr uint32_t kNoInstance = 0xFFFFFFFFu;
+
 struct SurfaceHit {
     float t = 0.f;
     Vec3 p;
-    Vec3 ng;  // unit geometric normal, as wound (not flipped toward the ray)
-    Vec3 ns;  // unit shading normal (interpolated authored normals, else ng), on ng's side
-    uint32_t geom_id = 0, prim_id = 0;
+    Vec3 ng;  // unit geometric normal, as wound (not flipped toward the ray), world space
+    // Unit shading normal (interpolated authored normals, else ng; then the normal map, if
+    // any), on ng's side, world space.
+    Vec3 ns;
+    uint32_t geom_id = 0, prim_id = 0;  // geom_id: Scene::kTriangleGeometry for every triangle
+    uint32_t mesh = 0;                  // 0: the world mesh; 1 + k: prototype k
+    uint32_t instance = kNoInstance;    // the instance a prototype triangle was hit through
+    float b1 = 0.f, b2 = 0.f;           // barycentrics of corners 1 and 2 (Embree's u, v)
+    Vec2 st;                            // interpolated texture coordinates (0 without uvs)
 };
 
 // Shading normals bend the BSDF's frame away from the geometry. Two rules keep that
@@ -168,28 +221,71 @@ public:
 
     size_t num_triangles() const { return num_triangles_; }
     size_t num_emitters() const { return emitters_.size(); }
+    size_t num_instances() const { return instances_.size(); }
+    // Triangles stored (world mesh + one copy of each prototype), not counting instancing.
+    size_t num_stored_triangles() const;
 
 private:
     enum class LightKind : uint8_t { kTriangle, kSphere, kPoint, kDistant, kDome };
     struct Emitter {
         LightKind kind = LightKind::kTriangle;
-        uint32_t index = 0;  // into triangles, spheres, point or distant lights
-        float area = 0.f;    // triangle and sphere
+        uint32_t index = 0;  // into triangles (of `mesh`), spheres, point or distant lights
+        float area = 0.f;    // triangle (world space) and sphere
         float one_minus_cos = 0.f;  // distant cone
+        uint32_t mesh = 0;               // triangle: its mesh
+        uint32_t instance = kNoInstance; // triangle of a prototype: the instance placing it
     };
+    // One flat mesh: the world's (mesh 0, in scene_) or a prototype's (own BVH, own space).
+    struct Mesh {
+        RTCScene scene = nullptr;           // prototypes only
+        const float* positions = nullptr;   // owned by Embree's buffers
+        const uint32_t* indices = nullptr;
+        size_t num_triangles = 0;
+        std::vector<uint32_t> material;
+        std::vector<float> normals;  // 9 per triangle, or empty
+        std::vector<float> uvs;      // 6 per triangle, or empty
+        // World mesh: the emitter of each triangle. Prototype: each triangle's index among
+        // the prototype's emissive triangles (an instance adds its emitter base).
+        std::vector<int32_t> emitter;
+        uint32_t num_emissive = 0;
+    };
+    struct Instance {
+        uint32_t mesh = 0;
+        float m[12];  // row-major 3x4 object-to-world
+        float n[9];   // row-major inverse transpose of m's 3x3: transforms normals
+        float orientation = 1.f;  // -1 for a mirroring transform
+        int32_t emitter_base = -1;
+    };
+    static constexpr uint32_t kFirstInstanceGeometry = 2;
+
     Color EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const;
-    Vec3 Vertex(uint32_t tri, int corner) const;
+    void BuildMesh(Mesh* mesh, const float* positions, size_t num_vertices, const uint32_t* indices,
+                   size_t num_triangles, const std::vector<uint32_t>& material, const std::vector<float>& normals,
+                   const std::vector<float>& uvs, RTCScene target, uint32_t geom_id, const std::string& what);
+    // World-space corners of triangle `prim` of `mesh` (through `instance` if any).
+    // Returns the sign that makes orientation * Cross(p1 - p0, p2 - p0) the facing normal.
+    float TriangleVertices(uint32_t mesh, uint32_t prim, uint32_t instance, Vec3 p[3]) const;
+    Vec2 TriangleST(const Mesh& mesh, uint32_t prim, float b1, float b2) const;
+    const Material& MaterialOf(uint32_t mesh, uint32_t prim) const {
+        return materials_[meshes_[mesh].material[prim]];
+    }
+    // Emitted radiance of a triangle's material at barycentrics (b1, b2), before sidedness.
+    Color TriangleEmission(uint32_t mesh, uint32_t prim, float b1, float b2) const;
+    void ApplyTextures(const Material& m, Vec2 st, MaterialParams* p) const;
+    void ApplyNormalMap(SurfaceHit* hit) const;
 
     RTCScene scene_ = nullptr;
-    const float* positions_ = nullptr;  // owned by Embree's buffers
-    const uint32_t* indices_ = nullptr;
     size_t num_triangles_ = 0;
     bool IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceHit* hit) const;
+    // Intersect without the normal map (shadow rays through cutouts need no shading).
+    bool IntersectSurface(const Ray& ray, SurfaceHit* hit, float t_min, float t_max) const;
     bool IsCutoutHit(const SurfaceHit& hit) const;
 
-    std::vector<uint32_t> triangle_material_;
-    std::vector<float> shading_normals_;
+    std::vector<Mesh> meshes_;
+    std::vector<Instance> instances_;
+    TextureSet textures_;
     std::vector<uint8_t> material_is_cutout_;
+    std::vector<uint8_t> material_has_textures_;  // some slot other than -1: evaluate per hit
     bool has_cutouts_ = false;
     std::vector<Material> materials_;
     std::vector<SphereLight> spheres_;
@@ -209,7 +305,7 @@ private:
     float scene_radius_ = 1.f;  // bounding sphere: the power of lights at infinity
     std::vector<Emitter> emitters_;
     std::vector<uint32_t> environment_lights_;  // emitter indices of distant cones and the dome
-    std::vector<int32_t> triangle_emitter_, sphere_emitter_;
+    std::vector<int32_t> sphere_emitter_;
     LightSampler light_sampler_;
 };
 
@@ -224,5 +320,7 @@ void Scene::ForEachEnvironmentLight(Vec3 dir, Visit&& visit) const {
 
 // The process-wide Embree device (created on first use, thread-safe).
 RTCDevice EmbreeDevice();
+// Bytes the Embree device holds now (its memory monitor's running sum): BVHs and buffers.
+int64_t EmbreeMemoryBytes();
 
 }  // namespace tessera

@@ -26,6 +26,127 @@ template <typename T>
 using InVector = nb::ndarray<const T, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
 
 using CornerNormals = nb::ndarray<const float, nb::shape<-1, 3, 3>, nb::c_contig, nb::device::cpu>;
+using CornerUVs = nb::ndarray<const float, nb::shape<-1, 3, 2>, nb::c_contig, nb::device::cpu>;
+using AnyImage = nb::ndarray<const float, nb::ndim<3>, nb::c_contig, nb::device::cpu>;
+using Matrices = nb::ndarray<const float, nb::shape<-1, 4, 4>, nb::c_contig, nb::device::cpu>;
+
+// Columns of the texture table (one row per texture), see the Scene docstring.
+constexpr size_t kTextureColumns = 22;
+
+// Everything the texture and instancing tables add to a Scene (keyword arguments).
+struct Extras {
+    std::optional<CornerUVs> uvs;
+    std::optional<nb::list> images;
+    std::optional<InVector<bool>> image_srgb;
+    std::optional<InArray<float, kTextureColumns>> texture_table;
+    std::optional<InArray<int32_t, 100>> texture_tiles;
+    std::optional<InArray<int32_t, kNumTextureSlots>> material_textures;
+    std::optional<nb::list> prototypes;
+    std::optional<InVector<uint32_t>> instance_prototype;
+    std::optional<Matrices> instance_transforms;
+};
+
+WrapMode ToWrap(float v) {
+    switch (int(v)) {
+        case 1: return WrapMode::kClamp;
+        case 2: return WrapMode::kMirror;
+        case 3: return WrapMode::kBlack;
+        default: return WrapMode::kRepeat;
+    }
+}
+
+void AddExtras(SceneDesc* d, const Extras& x) {
+    const size_t n_tri = d->indices.size() / 3;
+    if (x.uvs) {
+        if (x.uvs->shape(0) != n_tri) throw std::invalid_argument("uvs must have shape (triangles, 3, 2)");
+        d->uvs.assign(x.uvs->data(), x.uvs->data() + x.uvs->size());
+    }
+    if (x.images) {
+        const size_t n = x.images->size();
+        if (!x.image_srgb || x.image_srgb->shape(0) != n)
+            throw std::invalid_argument("image_srgb needs one flag per image");
+        for (size_t i = 0; i < n; ++i) {
+            AnyImage a = nb::cast<AnyImage>((*x.images)[i]);
+            Image im;
+            im.height = uint32_t(a.shape(0));
+            im.width = uint32_t(a.shape(1));
+            im.channels = uint32_t(a.shape(2));
+            im.texels.assign(a.data(), a.data() + a.size());
+            im.srgb = (*x.image_srgb)(i);
+            d->images.push_back(std::move(im));
+        }
+    }
+    if (x.texture_table) {
+        const auto& t = *x.texture_table;
+        const size_t n = t.shape(0);
+        if (x.texture_tiles && x.texture_tiles->shape(0) != n)
+            throw std::invalid_argument("texture_tiles needs one row per texture");
+        for (size_t k = 0; k < n; ++k) {
+            TextureDesc td;
+            td.image = int32_t(t(k, 0));
+            if (t(k, 1) != 0.f) {
+                if (!x.texture_tiles) throw std::invalid_argument("a UDIM texture needs texture_tiles");
+                td.udim_tiles.assign(&(*x.texture_tiles)(k, 0), &(*x.texture_tiles)(k, 0) + 100);
+            }
+            td.wrap_s = ToWrap(t(k, 2));
+            td.wrap_t = ToWrap(t(k, 3));
+            for (int c = 0; c < 4; ++c) {
+                td.scale[c] = t(k, 4 + c);
+                td.bias[c] = t(k, 8 + c);
+                td.fallback[c] = t(k, 12 + c);
+            }
+            const int out = int(t(k, 16));
+            if (out < 0 || out > 4) throw std::invalid_argument("texture output must be 0..4 (r, g, b, a, rgb)");
+            td.output = TextureOutput(out);
+            td.st_scale[0] = t(k, 17);
+            td.st_scale[1] = t(k, 18);
+            td.st_rotation_degrees = t(k, 19);
+            td.st_translation[0] = t(k, 20);
+            td.st_translation[1] = t(k, 21);
+            d->textures.push_back(std::move(td));
+        }
+    }
+    if (x.material_textures) {
+        if (x.material_textures->shape(0) != d->materials.size())
+            throw std::invalid_argument("material_textures needs one row per material");
+        for (size_t m = 0; m < d->materials.size(); ++m)
+            for (int s = 0; s < kNumTextureSlots; ++s) d->materials[m].textures[s] = (*x.material_textures)(m, s);
+    }
+    if (x.prototypes) {
+        for (size_t k = 0; k < x.prototypes->size(); ++k) {
+            nb::tuple item = nb::cast<nb::tuple>((*x.prototypes)[k]);
+            if (item.size() != 5)
+                throw std::invalid_argument("a prototype is (positions, indices, triangle_material, normals, uvs)");
+            MeshDesc mesh;
+            auto pos = nb::cast<InArray<float, 3>>(item[0]);
+            auto idx = nb::cast<InArray<uint32_t, 3>>(item[1]);
+            auto mat = nb::cast<InVector<uint32_t>>(item[2]);
+            mesh.positions.assign(pos.data(), pos.data() + pos.size());
+            mesh.indices.assign(idx.data(), idx.data() + idx.size());
+            mesh.triangle_material.assign(mat.data(), mat.data() + mat.size());
+            if (!item[3].is_none()) {
+                auto n = nb::cast<CornerNormals>(item[3]);
+                mesh.shading_normals.assign(n.data(), n.data() + n.size());
+            }
+            if (!item[4].is_none()) {
+                auto uv = nb::cast<CornerUVs>(item[4]);
+                mesh.uvs.assign(uv.data(), uv.data() + uv.size());
+            }
+            d->prototypes.push_back(std::move(mesh));
+        }
+    }
+    if (x.instance_prototype) {
+        const size_t n = x.instance_prototype->shape(0);
+        if (!x.instance_transforms || x.instance_transforms->shape(0) != n)
+            throw std::invalid_argument("instance_transforms needs one 4x4 matrix per instance");
+        d->instance_prototype.assign(x.instance_prototype->data(), x.instance_prototype->data() + n);
+        d->instance_transforms.resize(12 * n);
+        // USD matrices act on row vectors (p' = p M): transpose into row-major 3x4.
+        for (size_t i = 0; i < n; ++i)
+            for (int r = 0; r < 3; ++r)
+                for (int c = 0; c < 4; ++c) d->instance_transforms[12 * i + 4 * r + c] = (*x.instance_transforms)(i, c, r);
+    }
+}
 using DomeImage = nb::ndarray<const float, nb::shape<-1, -1, 3>, nb::c_contig, nb::device::cpu>;
 using SplatArray = nb::ndarray<int64_t, nb::shape<-1, -1, 3>, nb::c_contig, nb::device::cpu>;
 
@@ -135,17 +256,28 @@ NB_MODULE(_core, m) {
                InArray<float, 7> distant_lights, std::array<float, 3> dome_radiance,
                std::optional<InArray<float, 14>> preview_params, std::optional<InVector<bool>> preview_mask,
                std::optional<DomeImage> dome_texture, std::optional<InArray<float, 3>> dome_world_to_light,
-               std::optional<CornerNormals> shading_normals) {
+               std::optional<CornerNormals> shading_normals, std::optional<CornerUVs> uvs,
+               std::optional<nb::list> images, std::optional<InVector<bool>> image_srgb,
+               std::optional<InArray<float, kTextureColumns>> texture_table,
+               std::optional<InArray<int32_t, 100>> texture_tiles,
+               std::optional<InArray<int32_t, kNumTextureSlots>> material_textures,
+               std::optional<nb::list> prototypes, std::optional<InVector<uint32_t>> instance_prototype,
+               std::optional<Matrices> instance_transforms) {
                 SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
                                           sphere_lights, point_lights, distant_lights, dome_radiance, preview_params,
                                           preview_mask, dome_texture, dome_world_to_light, shading_normals);
+                AddExtras(&desc, Extras{uvs, images, image_srgb, texture_table, texture_tiles, material_textures,
+                                        prototypes, instance_prototype, instance_transforms});
                 nb::gil_scoped_release release;
                 new (self) Scene(desc);
             },
             "positions"_a, "indices"_a, "triangle_material"_a, "albedo"_a, "emission"_a, "two_sided_emission"_a,
             "sphere_lights"_a, "point_lights"_a, "distant_lights"_a, "dome_radiance"_a,
             "preview_params"_a = nb::none(), "preview_mask"_a = nb::none(), "dome_texture"_a = nb::none(),
-            "dome_world_to_light"_a = nb::none(), "shading_normals"_a = nb::none(),
+            "dome_world_to_light"_a = nb::none(), "shading_normals"_a = nb::none(), "uvs"_a = nb::none(),
+            "images"_a = nb::none(), "image_srgb"_a = nb::none(), "texture_table"_a = nb::none(),
+            "texture_tiles"_a = nb::none(), "material_textures"_a = nb::none(), "prototypes"_a = nb::none(),
+            "instance_prototype"_a = nb::none(), "instance_transforms"_a = nb::none(),
             "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
             "(x, y, z, r, g, b intensity W/sr); distant_lights (dx, dy, dz travel direction, half angle in "
             "radians, r, g, b radiance, or irradiance when the half angle is 0); dome_radiance (r, g, b); "
@@ -153,9 +285,24 @@ NB_MODULE(_core, m) {
             "opacity_threshold, use_specular_workflow, 3 unused) for the materials where preview_mask is set: "
             "those are UsdPreviewSurfaces, the others pure Lambertian. dome_texture: float32 (h, w, 3) lat-long "
             "(OpenEXR convention) multiplied by dome_radiance; dome_world_to_light: its 3x3 rotation; "
-            "shading_normals: float32 (triangles, 3, 3) world-space corner normals.")
+            "shading_normals: float32 (triangles, 3, 3) world-space corner normals. uvs: float32 (triangles, 3, "
+            "2) corner st. images: list of float32 (h, w, channels 1-4) arrays, rows top to bottom, with "
+            "image_srgb (bool per image: decode sRGB colour channels). texture_table: float32 (textures, 22): "
+            "image index (-1 none), udim (0/1: use texture_tiles row, 100 image indices for tiles 1001..1100), "
+            "wrapS, wrapT (0 repeat, 1 clamp, 2 mirror, 3 black), scale[4], bias[4], fallback[4], output (0 r, "
+            "1 g, 2 b, 3 a, 4 rgb), UsdTransform2d scale[2], rotation (degrees), translation[2]. "
+            "material_textures: int32 (materials, 10) texture per input (diffuseColor, emissiveColor, "
+            "specularColor, metallic, roughness, clearcoat, clearcoatRoughness, opacity, ior, normal), -1 none. "
+            "prototypes: list of (positions, indices, triangle_material, normals or None, uvs or None) in "
+            "prototype space; instance_prototype uint32 (N,) and instance_transforms float32 (N, 4, 4) (USD "
+            "row-vector convention) place them without copying triangles.")
         .def_prop_ro("num_triangles", &Scene::num_triangles)
-        .def_prop_ro("num_emitters", &Scene::num_emitters);
+        .def_prop_ro("num_emitters", &Scene::num_emitters)
+        .def_prop_ro("num_instances", &Scene::num_instances)
+        .def_prop_ro("num_stored_triangles", &Scene::num_stored_triangles);
+
+    m.def("embree_memory_bytes", &EmbreeMemoryBytes,
+          "Bytes Embree holds right now (BVHs and geometry buffers), from its device memory monitor.");
 
     nb::class_<Camera>(m, "Camera")
         .def(

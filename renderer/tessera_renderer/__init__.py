@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +37,11 @@ class Scene:
             point = getattr(data, "point_lights", None)
             distant = getattr(data, "distant_lights", None)
             dome = getattr(data, "dome_light", None)
+            textures = _texture_tables(data)
+            extras = {**textures, **_instance_tables(data, with_uvs=bool(textures))}
+            uvs = getattr(data, "uvs", None)
+            if uvs is not None and len(uvs) and extras.get("texture_table") is not None:
+                extras["uvs"] = np.ascontiguousarray(uvs, dtype=np.float32).reshape(-1, 3, 2)
             self._core = _core.Scene(data.positions.reshape(-1, 3), data.indices.reshape(-1, 3),
                                      data.triangle_material, data.albedo.reshape(-1, 3),
                                      data.emission.reshape(-1, 3), data.two_sided_emission,
@@ -45,7 +51,7 @@ class Scene:
                                      *_preview_table(getattr(data, "material_params", None),
                                                      len(data.albedo.reshape(-1, 3))),
                                      *_dome_texture(dome),
-                                     _corner_normals(getattr(data, "shading_normals", None)))
+                                     _corner_normals(getattr(data, "shading_normals", None)), **extras)
         except ValueError as exc:
             raise SceneError(f"invalid scene: {exc}") from None
 
@@ -68,6 +74,15 @@ class Scene:
     @property
     def num_emitters(self) -> int:
         return self._core.num_emitters
+
+    @property
+    def num_instances(self) -> int:
+        return self._core.num_instances
+
+    @property
+    def num_stored_triangles(self) -> int:
+        """Triangles held in memory: the world mesh plus one copy of each prototype."""
+        return self._core.num_stored_triangles
 
     def resolve_integrator(self, name: str) -> str:
         """`auto` -> `bdpt` when a delta light (point, or distant with angle 0) can shine
@@ -97,6 +112,8 @@ class Scene:
         coat_roughness = np.asarray(params["clearcoat_roughness"], np.float32).reshape(-1)
         used = np.zeros(len(preview), bool)
         used[np.unique(self.data.triangle_material)] = True
+        for proto in getattr(self.data, "prototypes", None) or []:
+            used[np.unique(proto["triangle_material"])] = True
         transmits = (opacity < 1.0) & (threshold <= 0.0)
         smooth = ((roughness < AUTO_SMOOTH_ROUGHNESS) & (metallic > 0.0)) | \
                  ((clearcoat > 0.0) & (coat_roughness < AUTO_SMOOTH_ROUGHNESS))
@@ -156,6 +173,125 @@ def _preview_table(params: dict | None, rows: int):
     return table, np.asarray(params["preview_surface"], bool).reshape(rows)
 
 
+# Order of the core's texture slots (renderer/core/scene.h TextureSlot).
+TEXTURE_SLOTS = ("diffuseColor", "emissiveColor", "specularColor", "metallic", "roughness", "clearcoat",
+                 "clearcoatRoughness", "opacity", "ior", "normal")
+_WRAP_CODES = {"repeat": 0, "useMetadata": 0, "clamp": 1, "mirror": 2, "black": 3}
+_OUTPUT_CODES = {"r": 0, "g": 1, "b": 2, "a": 3, "rgb": 4}
+
+
+def _load_image(path: str) -> np.ndarray | None:
+    """float32 (h, w, channels <= 4) texels of an image file, rows top to bottom, or None.
+    Read here, once per scene, with OpenImageIO (already the translation's image reader),
+    so the C++ core never parses image files."""
+    import OpenImageIO as oiio
+
+    buf = oiio.ImageBuf(str(path))
+    if buf.has_error:
+        oiio.geterror()
+        return None
+    pixels = buf.get_pixels(oiio.FLOAT)
+    if pixels is None or buf.has_error:
+        return None
+    pixels = np.asarray(pixels, dtype=np.float32)
+    if pixels.ndim == 2:
+        pixels = pixels[:, :, None]
+    return np.ascontiguousarray(pixels[:, :, :4])
+
+
+def _udim_tiles(tex: dict) -> list[tuple[int, str]]:
+    """(tile index 0..99, file) of a UDIM texture's tiles (1001 + u + 10 v)."""
+    import glob
+    import re
+
+    pattern = tex["file"]
+    files = tex.get("udim_files") or sorted(glob.glob(pattern.replace("<UDIM>", "1[0-9][0-9][0-9]")))
+    head, _, tail = os.path.basename(pattern).partition("<UDIM>")
+    rx = re.compile(re.escape(head) + r"(1\d\d\d)" + re.escape(tail) + "$")
+    tiles = []
+    for f in files:
+        m = rx.match(os.path.basename(f))
+        if m and 0 <= int(m.group(1)) - 1001 < 100:
+            tiles.append((int(m.group(1)) - 1001, f))
+    return tiles
+
+
+def _texture_tables(data) -> dict:
+    """The core's texture arguments for SceneData.textures / material_textures: each image
+    file decoded once (shared by every texture reading it), a parameter row per texture,
+    UDIM tile maps, and a texture index per (material, input). An image that cannot be read
+    leaves its texture on the fallback, with a warning."""
+    textures = getattr(data, "textures", None) or []
+    bindings = getattr(data, "material_textures", None) or {}
+    rows = len(np.asarray(data.albedo).reshape(-1, 3))
+    if not textures or not bindings or rows == 0:
+        return {}
+    images: list[np.ndarray] = []
+    srgb: list[bool] = []
+    index: dict[tuple[str, bool], int] = {}
+
+    def image(path: str, is_srgb: bool) -> int:
+        key = (str(path), is_srgb)
+        if key not in index:
+            pixels = _load_image(path)
+            if pixels is None:
+                data.warnings.append(f"texture {path!r} cannot be read; its textures use their fallback")
+                log.warning("texture %s cannot be read; using the fallback", path)
+                index[key] = -1
+            else:
+                index[key] = len(images)
+                images.append(pixels)
+                srgb.append(is_srgb)
+        return index[key]
+
+    table = np.zeros((len(textures), 22), np.float32)
+    tiles = np.full((len(textures), 100), -1, np.int32)
+    for k, tex in enumerate(textures):
+        is_srgb = str(tex.get("color_space", "raw")).lower() == "srgb"
+        if tex.get("udim") or "<UDIM>" in str(tex["file"]):
+            table[k, 0], table[k, 1] = -1, 1
+            for tile, f in _udim_tiles(tex):
+                tiles[k, tile] = image(f, is_srgb)
+        else:
+            table[k, 0] = image(tex["file"], is_srgb)
+        table[k, 2] = _WRAP_CODES.get(tex.get("wrap_s", "useMetadata"), 0)
+        table[k, 3] = _WRAP_CODES.get(tex.get("wrap_t", "useMetadata"), 0)
+        table[k, 4:8] = tex.get("scale", (1, 1, 1, 1))
+        table[k, 8:12] = tex.get("bias", (0, 0, 0, 0))
+        table[k, 12:16] = tex.get("fallback", (0, 0, 0, 1))
+        table[k, 16] = _OUTPUT_CODES.get(tex.get("channel", "rgb"), 4)
+        xf = tex.get("transform2d") or {}
+        table[k, 17:19] = xf.get("scale", (1.0, 1.0))
+        table[k, 19] = xf.get("rotation", 0.0)
+        table[k, 20:22] = xf.get("translation", (0.0, 0.0))
+    slots = np.full((rows, len(TEXTURE_SLOTS)), -1, np.int32)
+    for (m, name), t in bindings.items():
+        if name in TEXTURE_SLOTS and 0 <= m < rows:
+            slots[m, TEXTURE_SLOTS.index(name)] = t
+    return {"images": images, "image_srgb": np.array(srgb, bool), "texture_table": table,
+            "texture_tiles": tiles, "material_textures": slots}
+
+
+def _instance_tables(data, with_uvs: bool) -> dict:
+    """The core's instancing arguments: prototypes (flat arrays in their own space) and one
+    transform per instance. Empty when the scene was flattened."""
+    instances = getattr(data, "instances", None)
+    if instances is None or len(instances) == 0:
+        return {}
+    protos = []
+    for p in data.prototypes:
+        normals = p.get("shading_normals")
+        uvs = p.get("uvs") if with_uvs else None
+        protos.append((np.ascontiguousarray(p["positions"], np.float32).reshape(-1, 3),
+                       np.ascontiguousarray(p["indices"], np.uint32).reshape(-1, 3),
+                       np.ascontiguousarray(p["triangle_material"], np.uint32).reshape(-1),
+                       None if normals is None else np.ascontiguousarray(normals, np.float32).reshape(-1, 3, 3),
+                       None if uvs is None else np.ascontiguousarray(uvs, np.float32).reshape(-1, 3, 2)))
+    return {"prototypes": protos,
+            "instance_prototype": np.ascontiguousarray(instances, np.uint32).reshape(-1),
+            "instance_transforms": np.ascontiguousarray(data.instance_transforms, np.float32).reshape(-1, 4, 4)}
+
+
 def _corner_normals(normals) -> np.ndarray | None:
     if normals is None or len(normals) == 0:
         return None
@@ -189,10 +325,12 @@ def _rows(table, columns: int) -> np.ndarray:
 
 
 def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path | None = None,
-               instancing: str = "flatten", default_light: bool = False) -> Scene:
+               instancing: str = "auto", default_light: bool = False) -> Scene:
     """Reads a bundle (.usda/.usdc/.usd, .usdz or .zip) through the sandbox and builds it.
     For a loose layer, `root` (default: its directory) is the bundle every asset must stay
-    in. Raises SceneError for bad input."""
+    in. `instancing`: "auto" (default: Embree instances, one BVH per prototype, unless
+    lights sit inside native-instance prototypes), "instances" or "flatten" (every
+    instance copied). Raises SceneError for bad input."""
     path = Path(path)
     if not path.is_file():
         raise SceneError(f"scene file not found: {path}")

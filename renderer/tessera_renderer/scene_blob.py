@@ -38,7 +38,9 @@ from .usd_scene import CameraDesc, SceneData, SceneError
 MAGIC = b"TSSCENE\0"
 BLOB_VERSION = 1
 # Bumped whenever translation output changes for the same input.
-TRANSLATOR_VERSION = 2  # 2: camera lens and clipping range
+# 2: camera lens and clipping range; 3: sRGB only for 8-bit colour images on colour
+# inputs, NaN st replaced, and instancing "auto" (Embree instances) by default.
+TRANSLATOR_VERSION = 3
 _ALIGN = 64
 _PROTO_FIELDS = ("positions", "indices", "triangle_material", "shading_normals", "uvs")
 
@@ -49,7 +51,7 @@ def cache_key(scene_hash: str) -> str:
 
 
 def translate_to_blob(path: str | Path, frame: float | None = None, *, root: str | Path | None = None,
-                      instancing: str = "flatten", default_light: bool = False) -> bytes:
+                      instancing: str = "auto", default_light: bool = False) -> bytes:
     """Sandboxes, pre-flights and translates a bundle; returns the blob. SceneError for
     bad input."""
     from .usd_scene import translate_stage

@@ -17,6 +17,7 @@ Conventions (documented in docs/scene-translation.md):
 """
 from __future__ import annotations
 
+import json
 import math
 from collections import Counter
 from dataclasses import dataclass, field
@@ -154,7 +155,8 @@ class _MaterialTable:
         self._tex_index: dict[Any, int] = {}
 
     def add_texture(self, tex: dict) -> int:
-        key = tuple((k, tuple(v) if isinstance(v, (list, tuple)) else v) for k, v in sorted(tex.items()))
+        # JSON text as the key: values include lists and the UsdTransform2d dict.
+        key = json.dumps(tex, sort_keys=True, default=str)
         if key not in self._tex_index:
             self._tex_index[key] = len(self.textures)
             self.textures.append(tex)
@@ -194,6 +196,10 @@ class _Translator:
         self.instance_xforms: list[np.ndarray] = []
         self.triangles = 0
         self.instanced_triangles = 0
+        # Lights met inside native-instance prototypes: flattening renders them (instance
+        # proxies are walked as top-level prims), instancing cannot; "auto" then flattens.
+        self.native_prototype_lights = 0
+        self._in_native_prototype = False
         self.prims = 0
         self.cameras: list = []
         self.unsupported: Counter = Counter()
@@ -253,6 +259,7 @@ class _Translator:
                     prim.IsA(UsdLux.NonboundableLightBase):
                 if not top_level:
                     self._count_note("lights inside instance prototypes are not supported; skipped")
+                    self.native_prototype_lights += int(self._in_native_prototype)
                 else:
                     self.add_light(prim, type_name)
             elif prim.IsA(UsdGeom.Camera):
@@ -275,6 +282,11 @@ class _Translator:
                            chunk.material[keep],
                            chunk.normals[keep] if chunk.normals is not None else None,
                            chunk.uvs[keep] if chunk.uvs is not None else None)
+        if chunk.uvs is not None and not np.isfinite(chunk.uvs).all():
+            bad = ~np.isfinite(chunk.uvs).all(axis=(1, 2))
+            self.warn(f"{path}: {int(bad.sum())} triangles with NaN/Inf texture coordinates; their st set to 0")
+            uvs = np.where(np.isfinite(chunk.uvs), chunk.uvs, 0.0).astype(chunk.uvs.dtype)
+            chunk = _Chunk(chunk.points, chunk.tris, chunk.material, chunk.normals, uvs)
         if chunk.normals is not None:
             n = _normalized(chunk.normals)
             bad = ~np.isfinite(n).all(axis=(1, 2))
@@ -462,12 +474,42 @@ class _Translator:
         self.prototypes.append({"chunks": chunks, "triangles": sum(len(c.tris) for c in chunks)})
         return self._proto_index[key]
 
+    def native_key(self, prim) -> str:
+        """Prototype key of a native instance: its USD prototype and the materials its
+        gprims resolve to. Bindings authored on the instance or its ancestors (possibly
+        strongerThanDescendants) reach the prototype's prims, so instances of one USD
+        prototype bound differently become different prototypes here."""
+        from pxr import Usd, UsdGeom, UsdShade
+
+        def material(p) -> str:
+            m = UsdShade.MaterialBindingAPI(p).ComputeBoundMaterial()[0]
+            if not m:
+                return ""
+            # A material inside the instance is an instance proxy: name it by its prototype
+            # prim, which every instance shares (as material_row's cache does).
+            mp = m.GetPrim()
+            return str(mp.GetPrimInPrototype().GetPath() if mp.IsInstanceProxy() else mp.GetPath())
+
+        sig = []
+        for p in Usd.PrimRange(prim, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
+            if p.IsA(UsdGeom.Gprim):
+                sig.append(material(p))
+                for subset in UsdShade.MaterialBindingAPI(p).GetMaterialBindSubsets():
+                    sig.append(material(subset.GetPrim()))
+        return f"native:{prim.GetPrototype().GetPath()}:{'|'.join(sig)}"
+
     def add_native_instance(self, prim) -> None:
         from pxr import Usd
 
-        proto = prim.GetPrototype()
-        rng = Usd.PrimRange(proto, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate))
-        idx = self.prototype(f"native:{proto.GetPath()}", rng, None)
+        # Walked through this instance's proxies (not the bare prototype prims), so that
+        # material bindings from outside the prototype resolve as USD resolves them;
+        # geometry is still read once per prototype prim (the geometry cache).
+        rng = Usd.PrimRange(prim, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate))
+        self._in_native_prototype = True
+        try:
+            idx = self.prototype(self.native_key(prim), rng, np.linalg.inv(self.world_matrix(prim)))
+        finally:
+            self._in_native_prototype = False
         self.instances.append(np.array([idx], np.uint32))
         self.instance_xforms.append(self.world_matrix(prim)[None])
         self.instanced_triangles += self.prototypes[idx]["triangles"]
@@ -512,7 +554,7 @@ class _Translator:
             rng = Usd.PrimRange(proto_prim, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate))
             # A prototype that is itself a native instance shares that instance's prototype
             # (its own transform is in the instance transforms): translate it once.
-            key = f"native:{proto_prim.GetPrototype().GetPath()}" if proto_prim.IsInstance() else str(target)
+            key = self.native_key(proto_prim) if proto_prim.IsInstance() else str(target)
             idx = self.prototype(key, rng, root_inv)
             mats = xforms[sel] @ world
             n = int(sel.sum())
@@ -589,6 +631,11 @@ class _Translator:
                 values[name] = value
             if tex is not None:
                 textures[name] = self.materials.add_texture(tex)
+                if name == "normal" and tex["scale"][:3] == [1.0, 1.0, 1.0] and tex["bias"][:3] == [0.0, 0.0, 0.0]:
+                    # Read as authored (the spec's rule), which tilts every normal: say so.
+                    self._count_note("normal maps without scale (2, 2, 2) and bias (-1, -1, -1) are read as "
+                                     "authored (values in [0, 1] tilt every normal); the UsdPreviewSurface spec "
+                                     "asks the file to set them")
         values["diffuseColor"] = self._clamped_albedo(values["diffuseColor"], path)
         values["emissiveColor"] = _non_negative(values["emissiveColor"])
         return {"values": values, "textures": textures, "preview": True}
@@ -658,13 +705,15 @@ class _Translator:
         if info is None:
             self.warn(f"{where}: texture {asset.path!r} cannot be read; using its fallback")
             return value, None
-        w, h, bits = info
+        w, h, bits, channels = info
         if w * h > self.limits.texture_pixels:
             raise SceneError(f"{where}: texture {asset.path!r} is {w}x{h}, more than the limit of "
                              f"{self.limits.texture_pixels} pixels")
         if color_space == "auto":
-            # 8-bit images are sRGB-encoded by convention; anything deeper is linear data.
-            color_space = "sRGB" if bits <= 8 else "raw"
+            # 8-bit colour images (3 or 4 channels) feeding a colour input are sRGB-encoded
+            # by convention; deeper images, grey images and data (roughness, normals, ...)
+            # are linear.
+            color_space = "sRGB" if bits <= 8 and channels >= 3 and input_name in _COLOR_INPUTS else "raw"
         tex = {"file": str(file_path), "wrap_s": _wrap(_input_value(tex_shader, "wrapS", t)),
                "wrap_t": _wrap(_input_value(tex_shader, "wrapT", t)),
                "scale": list(_vec4(_input_value(tex_shader, "scale", t), self.tex_defaults["scale"])),
@@ -968,8 +1017,8 @@ def _wrap(value) -> str:
     return v if v in ("black", "clamp", "repeat", "mirror") else "useMetadata"
 
 
-def _texture_info(path) -> tuple[int, int, int] | None:
-    """(width, height, bits per channel) from the image header, without decoding pixels.
+def _texture_info(path) -> tuple[int, int, int, int] | None:
+    """(width, height, bits per channel, channels) from the image header, without decoding pixels.
     UDIM sets report their largest tile."""
     import glob
 
@@ -988,7 +1037,7 @@ def _texture_info(path) -> tuple[int, int, int] | None:
         inp.close()
         bits = {oiio.UINT8: 8, oiio.INT8: 8}.get(spec.format.basetype, 16)
         if best is None or spec.width * spec.height > best[0] * best[1]:
-            best = (spec.width, spec.height, bits)
+            best = (spec.width, spec.height, bits, spec.nchannels)
     return best
 
 
@@ -1185,9 +1234,10 @@ def _unit(v: np.ndarray) -> np.ndarray:
 def translate_stage(path: str, frame: float | None = None, *, bundle=None, instancing: str = "flatten",
                     default_light: bool = False, root: str | None = None) -> SceneData:
     """Opens a USD file through the bundle sandbox and translates it. `instancing` is
-    "flatten" (every instance copied into the flat arrays; what the core renders today)
-    or "instances" (prototypes + instance transforms, prototypes kept out of the flat
-    arrays). Raises SceneError with a readable message."""
+    "flatten" (every instance copied into the flat arrays), "instances" (prototypes +
+    instance transforms, prototypes kept out of the flat arrays; the core builds one BVH
+    per prototype) or "auto" (instances, unless lights sit inside native-instance
+    prototypes: only flattening renders those). Raises SceneError with a readable message."""
     from . import bundle as bundle_mod
 
     if bundle is None:
@@ -1206,8 +1256,20 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
 
     from .bundle import DEFAULT_LIMITS
 
-    if instancing not in ("flatten", "instances"):
-        raise ValueError(f"instancing must be 'flatten' or 'instances', not {instancing!r}")
+    if instancing not in ("flatten", "instances", "auto"):
+        raise ValueError(f"instancing must be 'flatten', 'instances' or 'auto', not {instancing!r}")
+    if instancing == "auto":
+        # Instances render the same as flattening (tests/test_textures_instancing.py) with
+        # one exception: lights inside native-instance prototypes, which only flattening
+        # keeps. Such scenes are translated again, flattened.
+        data = translate_opened_stage(stage, frame, bundle=bundle, instancing="instances",
+                                      default_light=default_light, limits=limits)
+        if not getattr(data, "_native_prototype_lights", 0):
+            return data
+        flat = translate_opened_stage(stage, frame, bundle=bundle, instancing="flatten",
+                                      default_light=default_light, limits=limits)
+        flat.warnings.append("lights inside native instances: the scene was flattened so that they render")
+        return flat
     limits = limits or (bundle.limits if bundle is not None else DEFAULT_LIMITS)
     warnings: list[str] = []
     warn = warnings.append
@@ -1304,6 +1366,7 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
                      distant_lights=distant, point_lights=point, dome_light=dome,
                      prototypes=prototypes, instances=instances, instance_transforms=instance_xforms,
                      meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)), up_axis=str(up_axis))
+    data._native_prototype_lights = tr.native_prototype_lights
     return data
 
 

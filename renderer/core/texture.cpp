@@ -1,0 +1,220 @@
+#include "texture.h"
+
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+namespace tessera {
+
+namespace {
+
+bool AllFinite(const RGBA& v) {
+    return std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]) && std::isfinite(v[3]);
+}
+
+// Integer texel index under a wrap mode; -1 means "outside" (black mode only).
+inline int64_t WrapIndex(int64_t i, int64_t n, WrapMode mode) {
+    switch (mode) {
+        case WrapMode::kRepeat:
+            return ((i % n) + n) % n;
+        case WrapMode::kClamp:
+            return std::clamp<int64_t>(i, 0, n - 1);
+        case WrapMode::kMirror: {
+            int64_t k = ((i % (2 * n)) + 2 * n) % (2 * n);
+            return k < n ? k : 2 * n - 1 - k;
+        }
+        case WrapMode::kBlack:
+            return (i < 0 || i >= n) ? -1 : i;
+    }
+    return 0;
+}
+
+// Brings a coordinate into a small range before it is scaled to texels, so that huge st
+// values never overflow the integer conversion. Each mode's result is unchanged by this:
+// repeat has period 1, mirror period 2, and clamp/black see nothing beyond [0, 1].
+inline float ReduceCoordinate(float s, WrapMode mode) {
+    switch (mode) {
+        case WrapMode::kRepeat:
+            return s - std::floor(s);
+        case WrapMode::kMirror:
+            return s - 2.f * std::floor(0.5f * s);
+        case WrapMode::kClamp:
+        case WrapMode::kBlack:
+            return std::clamp(s, -1.f, 2.f);
+    }
+    return s;
+}
+
+inline float Pick(const RGBA& v, TextureOutput out) {
+    switch (out) {
+        case TextureOutput::kR: return v[0];
+        case TextureOutput::kG: return v[1];
+        case TextureOutput::kB: return v[2];
+        case TextureOutput::kA: return v[3];
+        case TextureOutput::kRGB: return v[0];
+    }
+    return v[0];
+}
+
+inline Color ToColor(const RGBA& v, TextureOutput out) {
+    if (out == TextureOutput::kRGB) return Color(v[0], v[1], v[2]);
+    return Color(Pick(v, out));
+}
+
+}  // namespace
+
+float SrgbToLinear(float c) {
+    if (!(c > 0.f)) return 0.f;
+    if (c <= 0.04045f) return c / 12.92f;
+    return std::pow((c + 0.055f) / 1.055f, 2.4f);
+}
+
+TextureSet::TextureSet(std::vector<Image> images, std::vector<TextureDesc> textures) : images_(std::move(images)) {
+    for (size_t i = 0; i < images_.size(); ++i) {
+        Image& im = images_[i];
+        const std::string name = "texture image " + std::to_string(i);
+        if (im.width == 0 || im.height == 0 || im.channels < 1 || im.channels > 4)
+            throw std::invalid_argument(name + ": needs a positive size and 1 to 4 channels");
+        if (im.texels.size() != size_t(im.width) * im.height * im.channels)
+            throw std::invalid_argument(name + ": holds " + std::to_string(im.texels.size()) + " values, not " +
+                                        "width * height * channels");
+        // Non-finite texels (corrupt float images) would poison every pixel that sees them.
+        for (float& v : im.texels)
+            if (!std::isfinite(v)) v = 0.f;
+        if (im.srgb) {
+            const uint32_t colour = im.channels == 2 ? 1 : std::min<uint32_t>(im.channels, 3);
+            for (size_t k = 0; k < im.texels.size(); k += im.channels)
+                for (uint32_t c = 0; c < colour; ++c) im.texels[k + c] = SrgbToLinear(im.texels[k + c]);
+            im.srgb = false;  // decoded
+        }
+    }
+    auto check_image = [&](int32_t index, size_t t) {
+        if (index < -1 || index >= int64_t(images_.size()))
+            throw std::invalid_argument("texture " + std::to_string(t) + " refers to image " + std::to_string(index) +
+                                        " of " + std::to_string(images_.size()));
+    };
+    textures_.reserve(textures.size());
+    for (size_t t = 0; t < textures.size(); ++t) {
+        Prepared p;
+        p.desc = std::move(textures[t]);
+        const TextureDesc& d = p.desc;
+        check_image(d.image, t);
+        if (!d.udim_tiles.empty() && d.udim_tiles.size() != 100)
+            throw std::invalid_argument("texture " + std::to_string(t) + ": udim_tiles must hold 100 entries");
+        for (int32_t tile : d.udim_tiles) check_image(tile, t);
+        if (!AllFinite(d.scale) || !AllFinite(d.bias) || !AllFinite(d.fallback) || !std::isfinite(d.st_scale[0]) ||
+            !std::isfinite(d.st_scale[1]) || !std::isfinite(d.st_rotation_degrees) ||
+            !std::isfinite(d.st_translation[0]) || !std::isfinite(d.st_translation[1]))
+            throw std::invalid_argument("texture " + std::to_string(t) + " has a non-finite parameter");
+        const float rad = d.st_rotation_degrees * (kPi / 180.f);
+        const float c = std::cos(rad), s = std::sin(rad);
+        p.m[0] = c * d.st_scale[0];
+        p.m[1] = -s * d.st_scale[1];
+        p.m[2] = s * d.st_scale[0];
+        p.m[3] = c * d.st_scale[1];
+        p.m[4] = d.st_translation[0];
+        p.m[5] = d.st_translation[1];
+        p.has_transform = !(p.m[0] == 1.f && p.m[1] == 0.f && p.m[2] == 0.f && p.m[3] == 1.f && p.m[4] == 0.f &&
+                            p.m[5] == 0.f);
+        textures_.push_back(std::move(p));
+    }
+}
+
+RGBA TextureSet::Texel(const Image& im, int64_t x, int64_t y) const {
+    const float* p = &im.texels[(size_t(y) * im.width + size_t(x)) * im.channels];
+    switch (im.channels) {
+        case 1: return {p[0], p[0], p[0], 1.f};
+        case 2: return {p[0], p[0], p[0], p[1]};
+        case 3: return {p[0], p[1], p[2], 1.f};
+        default: return {p[0], p[1], p[2], p[3]};
+    }
+}
+
+RGBA TextureSet::Bilinear(const Image& im, float s, float t, WrapMode ws, WrapMode wt) const {
+    s = ReduceCoordinate(s, ws);
+    t = ReduceCoordinate(t, wt);
+    // Texel centres at half-integers; image rows run top to bottom while t runs upward.
+    const float x = s * float(im.width) - 0.5f, y = (1.f - t) * float(im.height) - 0.5f;
+    const float fx0 = std::floor(x), fy0 = std::floor(y);
+    const float ax = x - fx0, ay = y - fy0;
+    const int64_t x0 = int64_t(fx0), y0 = int64_t(fy0);
+    const int64_t xs[2] = {WrapIndex(x0, im.width, ws), WrapIndex(x0 + 1, im.width, ws)};
+    const int64_t ys[2] = {WrapIndex(y0, im.height, wt), WrapIndex(y0 + 1, im.height, wt)};
+    const float wx[2] = {1.f - ax, ax}, wy[2] = {1.f - ay, ay};
+    RGBA out{0.f, 0.f, 0.f, 0.f};
+    for (int j = 0; j < 2; ++j) {
+        if (ys[j] < 0) continue;  // black border
+        for (int i = 0; i < 2; ++i) {
+            if (xs[i] < 0) continue;
+            const float w = wx[i] * wy[j];
+            if (w == 0.f) continue;
+            const RGBA v = Texel(im, xs[i], ys[j]);
+            for (int c = 0; c < 4; ++c) out[c] += w * v[c];
+        }
+    }
+    return out;
+}
+
+RGBA TextureSet::EvaluateRGBA(uint32_t texture, Vec2 st) const {
+    const Prepared& p = textures_[texture];
+    const TextureDesc& d = p.desc;
+    if (!std::isfinite(st.x) || !std::isfinite(st.y)) return d.fallback;
+    float s = st.x, t = st.y;
+    if (p.has_transform) {
+        s = p.m[0] * st.x + p.m[1] * st.y + p.m[4];
+        t = p.m[2] * st.x + p.m[3] * st.y + p.m[5];
+        if (!std::isfinite(s) || !std::isfinite(t)) return d.fallback;
+    }
+    RGBA v;
+    if (!d.udim_tiles.empty()) {
+        // UDIM: tile 1001 + u + 10 v covers [u, u+1) x [v, v+1); filtering stays in the tile.
+        const float fu = std::floor(s), fv = std::floor(t);
+        if (fu < 0.f || fu > 9.f || fv < 0.f || fv > 9.f) return d.fallback;
+        const int32_t image = d.udim_tiles[size_t(fv) * 10 + size_t(fu)];
+        if (image < 0) return d.fallback;
+        v = Bilinear(images_[image], s - fu, t - fv, WrapMode::kClamp, WrapMode::kClamp);
+    } else {
+        if (d.image < 0) return d.fallback;
+        v = Bilinear(images_[d.image], s, t, d.wrap_s, d.wrap_t);
+    }
+    for (int c = 0; c < 4; ++c) v[c] = v[c] * d.scale[c] + d.bias[c];
+    return v;
+}
+
+Color TextureSet::EvaluateColor(uint32_t texture, Vec2 st) const {
+    return ToColor(EvaluateRGBA(texture, st), textures_[texture].desc.output);
+}
+
+float TextureSet::EvaluateFloat(uint32_t texture, Vec2 st) const {
+    return Pick(EvaluateRGBA(texture, st), textures_[texture].desc.output);
+}
+
+Color TextureSet::MeanColor(uint32_t texture) const {
+    const TextureDesc& d = textures_[texture].desc;
+    std::vector<int32_t> used;
+    if (!d.udim_tiles.empty()) {
+        for (int32_t i : d.udim_tiles)
+            if (i >= 0) used.push_back(i);
+    } else if (d.image >= 0) {
+        used.push_back(d.image);
+    }
+    if (used.empty()) return ToColor(d.fallback, d.output);
+    // Negative outputs (scale/bias can produce them) emit nothing, so they do not cancel
+    // positive texels here either.
+    double sum[4] = {0, 0, 0, 0};
+    size_t count = 0;
+    for (int32_t i : used) {
+        const Image& im = images_[i];
+        for (uint32_t y = 0; y < im.height; ++y)
+            for (uint32_t x = 0; x < im.width; ++x) {
+                const RGBA v = Texel(im, x, y);
+                for (int c = 0; c < 4; ++c) sum[c] += std::max(0.f, v[c] * d.scale[c] + d.bias[c]);
+            }
+        count += size_t(im.width) * im.height;
+    }
+    RGBA mean;
+    for (int c = 0; c < 4; ++c) mean[c] = float(sum[c] / double(count));
+    return ToColor(mean, d.output);
+}
+
+}  // namespace tessera

@@ -1,0 +1,81 @@
+// Image textures for UsdUVTexture: linear float images, bilinear lookups with the
+// schema's wrap modes, scale/bias/fallback, channel outputs, UsdTransform2d and UDIM tiles.
+//
+// Images arrive decoded (Python reads files with OpenImageIO, inside the bundle sandbox,
+// and hands over float texels), so the core never parses untrusted image files. The one
+// colour-space step that belongs to texture semantics, sRGB decoding, happens here when a
+// TextureSet is built, on the colour channels only (alpha is always linear).
+//
+// Conventions (UsdPreviewSurface spec): st (0, 0) is the image's lower-left corner, texel
+// centres sit at half-integers, and `fallback` is returned unscaled wherever there is no
+// image data (missing UDIM tile, non-finite st). Channels missing from an image follow
+// Storm's swizzle: grey -> (g, g, g, 1), grey+alpha -> (g, g, g, a), rgb -> (r, g, b, 1).
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "math.h"
+
+namespace tessera {
+
+using RGBA = std::array<float, 4>;
+
+enum class WrapMode : uint8_t { kRepeat, kClamp, kMirror, kBlack };
+enum class TextureOutput : uint8_t { kR, kG, kB, kA, kRGB };
+
+// The sRGB transfer function's inverse (IEC 61966-2-1), for one encoded value in [0, 1].
+float SrgbToLinear(float encoded);
+
+struct Image {
+    uint32_t width = 0, height = 0, channels = 0;  // channels 1..4
+    std::vector<float> texels;                    // rows top to bottom, channels interleaved
+    bool srgb = false;                            // colour channels are sRGB-encoded
+};
+
+struct TextureDesc {
+    int32_t image = -1;               // the image, for a texture without UDIM tiles
+    std::vector<int32_t> udim_tiles;  // empty, or 100 image indices (-1: missing) for tiles 1001..1100
+    WrapMode wrap_s = WrapMode::kRepeat, wrap_t = WrapMode::kRepeat;
+    RGBA scale{1.f, 1.f, 1.f, 1.f}, bias{0.f, 0.f, 0.f, 0.f}, fallback{0.f, 0.f, 0.f, 1.f};
+    TextureOutput output = TextureOutput::kRGB;
+    // UsdTransform2d on the st input: st' = R(rotation) (st * scale) + translation.
+    float st_scale[2] = {1.f, 1.f};
+    float st_rotation_degrees = 0.f;
+    float st_translation[2] = {0.f, 0.f};
+};
+
+class TextureSet {
+public:
+    TextureSet() = default;
+    // Validates (image sizes, texel counts, finite parameters, image indices in range) and
+    // throws std::invalid_argument naming the problem. Decodes sRGB images in place.
+    TextureSet(std::vector<Image> images, std::vector<TextureDesc> textures);
+
+    size_t size() const { return textures_.size(); }
+    bool empty() const { return textures_.empty(); }
+
+    // The texture's output at st (scale and bias applied), as a colour: a scalar output is
+    // replicated to three channels. Non-finite st gives the fallback.
+    Color EvaluateColor(uint32_t texture, Vec2 st) const;
+    float EvaluateFloat(uint32_t texture, Vec2 st) const;
+    // All four channels after scale and bias (fallback where there is no data).
+    RGBA EvaluateRGBA(uint32_t texture, Vec2 st) const;
+    // The texture's output averaged over its image(s) (every texel equally, scale and bias
+    // applied): what light selection uses as a textured emitter's mean radiance.
+    Color MeanColor(uint32_t texture) const;
+
+private:
+    struct Prepared {
+        TextureDesc desc;
+        float m[6];  // st' = (m0 s + m1 t + m4, m2 s + m3 t + m5)
+        bool has_transform = false;
+    };
+    RGBA Bilinear(const Image& image, float s, float t, WrapMode ws, WrapMode wt) const;
+    RGBA Texel(const Image& image, int64_t x, int64_t y) const;  // in range
+    std::vector<Image> images_;
+    std::vector<Prepared> textures_;
+};
+
+}  // namespace tessera

@@ -1,0 +1,91 @@
+// Scene-building and rendering helpers shared by the C++ render tests.
+#pragma once
+
+#include <gtest/gtest.h>
+
+#include <vector>
+
+#include "render.h"
+#include "scene.h"
+#include "splat_film.h"
+
+namespace tessera_test {
+
+using namespace tessera;
+
+inline uint32_t AddMaterial(SceneDesc& d, Color albedo, Color emission, bool two_sided = false) {
+    d.materials.push_back({albedo, emission, two_sided});
+    return uint32_t(d.materials.size() - 1);
+}
+
+// Quad a-b-c-d (counter-clockwise seen from its front, where the normal points).
+inline void AddQuad(SceneDesc& d, Vec3 a, Vec3 b, Vec3 c, Vec3 e, uint32_t material) {
+    uint32_t base = uint32_t(d.positions.size() / 3);
+    for (Vec3 p : {a, b, c, e}) d.positions.insert(d.positions.end(), {p.x, p.y, p.z});
+    d.indices.insert(d.indices.end(), {base, base + 1, base + 2, base, base + 2, base + 3});
+    d.triangle_material.insert(d.triangle_material.end(), {material, material});
+}
+
+// Axis-aligned box [lo, hi], faces wound to face inward.
+inline void AddInwardBox(SceneDesc& d, Vec3 lo, Vec3 hi, uint32_t material) {
+    Vec3 p[8];
+    for (int i = 0; i < 8; ++i) p[i] = Vec3(i & 1 ? hi.x : lo.x, i & 2 ? hi.y : lo.y, i & 4 ? hi.z : lo.z);
+    AddQuad(d, p[0], p[1], p[3], p[2], material);  // z = lo, normal +z
+    AddQuad(d, p[4], p[6], p[7], p[5], material);  // z = hi, normal -z
+    AddQuad(d, p[0], p[4], p[5], p[1], material);  // y = lo, normal +y
+    AddQuad(d, p[2], p[3], p[7], p[6], material);  // y = hi, normal -y
+    AddQuad(d, p[0], p[2], p[6], p[4], material);  // x = lo, normal +x
+    AddQuad(d, p[1], p[5], p[7], p[3], material);  // x = hi, normal -x
+}
+
+inline Camera LookDownMinusZ(Vec3 origin, uint32_t w, uint32_t h, float tan_half = 0.5f) {
+    return Camera{origin, Vec3(1, 0, 0), Vec3(0, 1, 0), Vec3(0, 0, -1), tan_half, tan_half * h / w, w, h};
+}
+
+inline std::vector<float> Render(const Scene& s, const Camera& c, RenderOptions o, TileRect t) {
+    std::vector<float> out(size_t(t.width) * t.height * 4);
+    RenderStats stats = RenderTile(s, c, o, t, out.data());
+    EXPECT_EQ(stats.nonfinite_samples, 0u);
+    return out;
+}
+
+// A large Lambertian floor (y = 0, facing +y) seen straight down from height h by a narrow
+// camera, so every pixel sees a point near the origin.
+inline SceneDesc FloorScene(float albedo, float half_size = 1000.f) {
+    SceneDesc d;
+    uint32_t m = AddMaterial(d, Color(albedo), Color(0.f));
+    const float s = half_size;
+    AddQuad(d, {-s, 0, -s}, {-s, 0, s}, {s, 0, s}, {s, 0, -s}, m);
+    return d;
+}
+
+inline Camera LookDownAtOrigin(float h, uint32_t res = 4) {
+    // Camera looking along -y with up = -z: a tiny field of view around the origin.
+    return Camera{{0, h, 0}, Vec3(1, 0, 0), Vec3(0, 0, -1), Vec3(0, -1, 0), 1e-4f, 1e-4f, res, res};
+}
+
+// Renders a whole image with any integrator and adds its splats, normalised as the merge
+// does (render.h): the final image.
+inline std::vector<float> RenderResolved(const Scene& scene, const Camera& cam, const RenderOptions& opt,
+                                  RenderStats* stats_out = nullptr) {
+    const uint32_t W = cam.width, H = cam.height;
+    std::vector<float> img(size_t(W) * H * 4);
+    std::vector<int64_t> splats(size_t(W) * H * 3, 0);
+    RenderStats st = RenderTile(scene, cam, opt, {0, 0, W, H}, img.data(), nullptr, splats.data());
+    EXPECT_EQ(st.rejected_splats, 0u);
+    EXPECT_EQ(st.nonfinite_samples, 0u);
+    if (st.light_paths)
+        for (size_t i = 0; i < size_t(W) * H; ++i)
+            for (int c = 0; c < 3; ++c)
+                img[4 * i + c] += float(double(splats[3 * i + c]) / kSplatScale * double(W * H) / double(st.light_paths));
+    if (stats_out) *stats_out = st;
+    return img;
+}
+
+inline double MeanChannel(const std::vector<float>& px, int c) {
+    double sum = 0;
+    for (size_t i = 0; i < px.size() / 4; ++i) sum += px[4 * i + c];
+    return sum / double(px.size() / 4);
+}
+
+}  // namespace tessera_test

@@ -1,0 +1,216 @@
+// TextureSet against values worked out by hand from the UsdUVTexture spec: texel centres
+// at half-integers, st (0, 0) at the lower-left, wrap modes, scale/bias/fallback, channel
+// outputs, sRGB, UsdTransform2d, UDIM tiles.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include "texture.h"
+
+using namespace tessera;
+
+namespace {
+
+Image Grey(uint32_t w, uint32_t h, std::vector<float> v, bool srgb = false) {
+    Image im;
+    im.width = w;
+    im.height = h;
+    im.channels = 1;
+    im.texels = std::move(v);
+    im.srgb = srgb;
+    return im;
+}
+
+TextureDesc Tex(int32_t image, WrapMode s = WrapMode::kRepeat, WrapMode t = WrapMode::kRepeat) {
+    TextureDesc d;
+    d.image = image;
+    d.wrap_s = s;
+    d.wrap_t = t;
+    d.output = TextureOutput::kR;
+    return d;
+}
+
+// One row of two texels, 0.2 and 1.0, under every wrap mode.
+float Row(WrapMode mode, float s) {
+    TextureSet set({Grey(2, 1, {0.2f, 1.0f})}, {Tex(0, mode, WrapMode::kClamp)});
+    return set.EvaluateFloat(0, {s, 0.5f});
+}
+
+}  // namespace
+
+TEST(Texture, SrgbDecodeOfKnownValues) {
+    EXPECT_FLOAT_EQ(SrgbToLinear(0.f), 0.f);
+    EXPECT_FLOAT_EQ(SrgbToLinear(1.f), 1.f);
+    // 8-bit 128: ((128/255 + 0.055) / 1.055)^2.4 = 0.215861
+    EXPECT_NEAR(SrgbToLinear(128.f / 255.f), 0.215861f, 1e-5f);
+    // the linear segment: 10/255 / 12.92
+    EXPECT_NEAR(SrgbToLinear(10.f / 255.f), 0.0030353f, 1e-6f);
+}
+
+TEST(Texture, TexelCentresAreExactAndBilinearBetweenThem) {
+    EXPECT_FLOAT_EQ(Row(WrapMode::kClamp, 0.25f), 0.2f);
+    EXPECT_FLOAT_EQ(Row(WrapMode::kClamp, 0.75f), 1.0f);
+    EXPECT_FLOAT_EQ(Row(WrapMode::kClamp, 0.5f), 0.6f);
+    EXPECT_FLOAT_EQ(Row(WrapMode::kClamp, 0.375f), 0.4f);
+}
+
+TEST(Texture, WrapModesOutsideTheUnitSquare) {
+    // s = 0: halfway between texel -1 and texel 0.
+    EXPECT_NEAR(Row(WrapMode::kRepeat, 0.f), 0.6f, 1e-6f);  // texel -1 is texel 1 (1.0)
+    EXPECT_NEAR(Row(WrapMode::kClamp, 0.f), 0.2f, 1e-6f);
+    EXPECT_NEAR(Row(WrapMode::kMirror, 0.f), 0.2f, 1e-6f);  // texel -1 mirrors texel 0
+    EXPECT_NEAR(Row(WrapMode::kBlack, 0.f), 0.1f, 1e-6f);   // texel -1 is black
+    // s = -0.25: the centre of texel -1.
+    EXPECT_NEAR(Row(WrapMode::kRepeat, -0.25f), 1.0f, 1e-6f);
+    EXPECT_NEAR(Row(WrapMode::kClamp, -0.25f), 0.2f, 1e-6f);
+    EXPECT_NEAR(Row(WrapMode::kMirror, -0.25f), 0.2f, 1e-6f);
+    EXPECT_NEAR(Row(WrapMode::kBlack, -0.25f), 0.0f, 1e-6f);
+    // s = 1.75: the centre of texel 3 (repeat: texel 1; mirror: 3 -> 0; clamp: 1).
+    EXPECT_NEAR(Row(WrapMode::kRepeat, 1.75f), 1.0f, 1e-6f);
+    EXPECT_NEAR(Row(WrapMode::kMirror, 1.75f), 0.2f, 1e-6f);
+    EXPECT_NEAR(Row(WrapMode::kClamp, 1.75f), 1.0f, 1e-6f);
+    EXPECT_NEAR(Row(WrapMode::kBlack, 1.75f), 0.0f, 1e-6f);
+    // Huge coordinates neither overflow nor lose the mode (repeat: period 1).
+    EXPECT_NEAR(Row(WrapMode::kRepeat, 1000.25f), 0.2f, 1e-3f);
+    EXPECT_NEAR(Row(WrapMode::kClamp, 1e30f), 1.0f, 1e-6f);
+    EXPECT_NEAR(Row(WrapMode::kBlack, -1e30f), 0.0f, 1e-6f);
+}
+
+TEST(Texture, TRunsUpFromTheBottomRow) {
+    // Rows are stored top to bottom: top 0.9, bottom 0.1.
+    TextureSet set({Grey(1, 2, {0.9f, 0.1f})}, {Tex(0, WrapMode::kClamp, WrapMode::kClamp)});
+    EXPECT_FLOAT_EQ(set.EvaluateFloat(0, {0.5f, 0.25f}), 0.1f);
+    EXPECT_FLOAT_EQ(set.EvaluateFloat(0, {0.5f, 0.75f}), 0.9f);
+}
+
+TEST(Texture, ScaleBiasOutputsAndFallback) {
+    Image im;
+    im.width = im.height = 1;
+    im.channels = 4;
+    im.texels = {0.1f, 0.2f, 0.3f, 0.4f};
+    TextureDesc d = Tex(0);
+    d.scale = {2.f, 2.f, 2.f, 3.f};
+    d.bias = {-1.f, -1.f, -1.f, 0.5f};
+    d.fallback = {7.f, 8.f, 9.f, 10.f};
+    std::vector<TextureDesc> ds;
+    for (TextureOutput out : {TextureOutput::kR, TextureOutput::kG, TextureOutput::kB, TextureOutput::kA,
+                              TextureOutput::kRGB}) {
+        d.output = out;
+        ds.push_back(d);
+    }
+    TextureSet set({im}, ds);
+    EXPECT_NEAR(set.EvaluateFloat(0, {0.3f, 0.6f}), -0.8f, 1e-6f);
+    EXPECT_NEAR(set.EvaluateFloat(1, {0.3f, 0.6f}), -0.6f, 1e-6f);
+    EXPECT_NEAR(set.EvaluateFloat(2, {0.3f, 0.6f}), -0.4f, 1e-6f);
+    EXPECT_NEAR(set.EvaluateFloat(3, {0.3f, 0.6f}), 1.7f, 1e-6f);
+    Color rgb = set.EvaluateColor(4, {0.3f, 0.6f});
+    EXPECT_NEAR(rgb.x, -0.8f, 1e-6f);
+    EXPECT_NEAR(rgb.z, -0.4f, 1e-6f);
+    Color a = set.EvaluateColor(3, {0.3f, 0.6f});  // a scalar output replicates
+    EXPECT_NEAR(a.y, 1.7f, 1e-6f);
+    // Non-finite st: the fallback, unscaled.
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    EXPECT_EQ(set.EvaluateFloat(3, {nan, 0.5f}), 10.f);
+    EXPECT_EQ(set.EvaluateColor(4, {0.5f, std::numeric_limits<float>::infinity()}).y, 8.f);
+}
+
+TEST(Texture, MissingChannelsFollowTheGreyAndAlphaRules) {
+    Image grey = Grey(1, 1, {0.3f});
+    Image grey_alpha = Grey(1, 1, {0.3f, 0.6f});
+    grey_alpha.channels = 2;
+    Image rgb = Grey(1, 1, {0.1f, 0.2f, 0.3f});
+    rgb.channels = 3;
+    TextureDesc d = Tex(0);
+    d.output = TextureOutput::kA;
+    TextureDesc g = Tex(0);
+    g.output = TextureOutput::kRGB;
+    TextureSet set({grey, grey_alpha, rgb}, {d, g, [&] { auto x = d; x.image = 1; return x; }(),
+                                             [&] { auto x = d; x.image = 2; return x; }()});
+    EXPECT_EQ(set.EvaluateFloat(0, {0.5f, 0.5f}), 1.f);  // no alpha: opaque
+    Color c = set.EvaluateColor(1, {0.5f, 0.5f});
+    EXPECT_FLOAT_EQ(c.x, 0.3f);
+    EXPECT_FLOAT_EQ(c.z, 0.3f);
+    EXPECT_FLOAT_EQ(set.EvaluateFloat(2, {0.5f, 0.5f}), 0.6f);
+    EXPECT_EQ(set.EvaluateFloat(3, {0.5f, 0.5f}), 1.f);
+}
+
+TEST(Texture, SrgbImagesDecodeColourButNotAlpha) {
+    Image im = Grey(1, 1, {128.f / 255.f, 1.f, 0.f, 0.5f}, true);
+    im.channels = 4;
+    TextureDesc rgb = Tex(0);
+    rgb.output = TextureOutput::kRGB;
+    TextureDesc a = Tex(0);
+    a.output = TextureOutput::kA;
+    TextureSet set({im}, {rgb, a});
+    EXPECT_NEAR(set.EvaluateColor(0, {0.5f, 0.5f}).x, 0.215861f, 1e-5f);
+    EXPECT_FLOAT_EQ(set.EvaluateColor(0, {0.5f, 0.5f}).y, 1.f);
+    EXPECT_FLOAT_EQ(set.EvaluateFloat(1, {0.5f, 0.5f}), 0.5f);
+}
+
+TEST(Texture, Transform2dScalesRotatesThenTranslates) {
+    // A 4x4 ramp, so every st gives a different value.
+    std::vector<float> v;
+    for (int i = 0; i < 16; ++i) v.push_back(float(i) / 15.f);
+    TextureDesc plain = Tex(0);
+    TextureDesc xf = Tex(0);
+    xf.st_scale[0] = 2.f;
+    xf.st_scale[1] = 1.f;
+    xf.st_rotation_degrees = 90.f;
+    xf.st_translation[0] = 0.1f;
+    xf.st_translation[1] = 0.05f;
+    TextureSet set({Grey(4, 4, v)}, {plain, xf});
+    for (Vec2 st : {Vec2{0.1f, 0.2f}, Vec2{0.33f, 0.71f}, Vec2{0.9f, 0.45f}}) {
+        // By hand: (s, t) * (2, 1) = (2s, t); rotated 90 deg CCW: (-t, 2s); + (0.1, 0.05).
+        Vec2 expected{-st.y + 0.1f, 2.f * st.x + 0.05f};
+        EXPECT_NEAR(set.EvaluateFloat(1, st), set.EvaluateFloat(0, expected), 1e-5f) << st.x << " " << st.y;
+    }
+    // Negative control: without the transform the values differ.
+    EXPECT_GT(std::abs(set.EvaluateFloat(0, {0.1f, 0.2f}) - set.EvaluateFloat(1, {0.1f, 0.2f})), 0.05f);
+}
+
+TEST(Texture, UdimTilesAndMissingTilesUseTheFallback) {
+    TextureDesc d = Tex(-1);
+    d.udim_tiles.assign(100, -1);
+    d.udim_tiles[0] = 0;   // 1001: u in [0, 1), v in [0, 1)
+    d.udim_tiles[1] = 1;   // 1002: u in [1, 2)
+    d.udim_tiles[10] = 2;  // 1011: v in [1, 2)
+    d.fallback = {0.5f, 0.5f, 0.5f, 0.5f};
+    TextureSet set({Grey(2, 2, {0.3f, 0.3f, 0.3f, 0.3f}), Grey(1, 1, {0.7f}), Grey(1, 1, {0.9f})}, {d});
+    EXPECT_FLOAT_EQ(set.EvaluateFloat(0, {0.5f, 0.5f}), 0.3f);
+    EXPECT_FLOAT_EQ(set.EvaluateFloat(0, {1.5f, 0.5f}), 0.7f);
+    EXPECT_FLOAT_EQ(set.EvaluateFloat(0, {0.2f, 1.7f}), 0.9f);
+    EXPECT_FLOAT_EQ(set.EvaluateFloat(0, {2.5f, 0.5f}), 0.5f);   // tile 1003 missing
+    EXPECT_FLOAT_EQ(set.EvaluateFloat(0, {-0.5f, 0.5f}), 0.5f);  // left of the UDIM range
+    EXPECT_FLOAT_EQ(set.EvaluateFloat(0, {10.5f, 0.5f}), 0.5f);  // right of it
+}
+
+TEST(Texture, MeanColorIsTheImageAverageOfNonNegativeOutputs) {
+    TextureDesc d = Tex(0);
+    d.scale = {2.f, 2.f, 2.f, 1.f};
+    d.bias = {-0.5f, -0.5f, -0.5f, 0.f};
+    // 2 * {0, 0.5, 1, 0.75} - 0.5 = {-0.5 -> 0, 0.5, 1.5, 1.0}: mean 0.75
+    TextureSet set({Grey(2, 2, {0.f, 0.5f, 1.f, 0.75f})}, {d});
+    EXPECT_NEAR(set.MeanColor(0).x, 0.75f, 1e-6f);
+}
+
+TEST(Texture, RejectsBadInputWithAClearError) {
+    EXPECT_THROW(TextureSet({Grey(2, 2, {0.f})}, {}), std::invalid_argument);  // too few texels
+    Image five = Grey(1, 1, {0, 0, 0, 0, 0});
+    five.channels = 5;
+    EXPECT_THROW(TextureSet({five}, {}), std::invalid_argument);
+    EXPECT_THROW(TextureSet({Grey(1, 1, {0.f})}, {Tex(3)}), std::invalid_argument);  // image out of range
+    TextureDesc nan = Tex(0);
+    nan.scale[1] = std::numeric_limits<float>::quiet_NaN();
+    EXPECT_THROW(TextureSet({Grey(1, 1, {0.f})}, {nan}), std::invalid_argument);
+    try {
+        TextureSet({Grey(1, 1, {0.f})}, {Tex(7)});
+        ADD_FAILURE() << "an image index out of range was accepted";
+    } catch (const std::invalid_argument& e) {
+        EXPECT_NE(std::string(e.what()).find("image 7"), std::string::npos) << e.what();
+    }
+    // Non-finite texels are zeroed, not propagated.
+    TextureSet set({Grey(1, 1, {std::numeric_limits<float>::infinity()})}, {Tex(0)});
+    EXPECT_EQ(set.EvaluateFloat(0, {0.5f, 0.5f}), 0.f);
+}
