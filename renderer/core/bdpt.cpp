@@ -23,6 +23,7 @@ struct Vertex {
     int32_t emitter = -1;      // light vertices; surface vertices that emit
     bool importance = false;   // on a light subpath: BSDFs transport importance
     Vec3 p, ng;                // ng is zero off surfaces (pinhole, points, infinity)
+    float p_error = 0.f;       // surfaces: SurfaceHit::p_error (OffsetRayOrigin)
     Vec3 ns;                   // shading normal (surfaces; = ng on lights)
     Vec3 wo;                   // surfaces: toward the previous vertex of the subpath
     Vec3 dir;                  // lights at infinity: the direction the light travels
@@ -157,6 +158,7 @@ public:
             v = Vertex{};
             v.type = VertexType::kSurface;
             v.p = hit.p;
+            v.p_error = hit.p_error;
             v.ng = hit.ng;
             v.ns = hit.ns;
             v.importance = mode == TransportMode::Importance;
@@ -186,7 +188,7 @@ public:
             if (v.importance) beta *= ImportanceShadingCorrection(v.wo, wi, v.ns, v.ng);
             if (bs->is_transmission) eta_scale *= bs->eta * bs->eta;
             prev.pdf_rev = ConvertDensity(pdf_rev, v, prev);
-            ray = {OffsetRayOrigin(hit.p, hit.ng, wi), wi};
+            ray = {OffsetRayOrigin(hit.p, hit.p_error, hit.ng, wi), wi};
             // Russian roulette past the third vertex (throughput only: see the header).
             if (n >= 3) {
                 float q = std::min(1.f, MaxComponent(beta) * eta_scale);
@@ -224,6 +226,7 @@ public:
         v.type = VertexType::kLight;
         v.emitter = int32_t(light);
         v.p = es.p;
+        v.p_error = es.p_error;
         v.ng = es.on_surface ? es.n : Vec3(0.f);
         v.ns = v.ng;
         v.infinite = es.infinite;
@@ -231,7 +234,7 @@ public:
         v.dir = es.wo;
         v.beta = es.Le / (pmf * es.pdf_pos);
         v.pdf_fwd = pmf * es.pdf_pos;
-        Ray ray{es.on_surface ? OffsetRayOrigin(es.p, es.n, es.wo) : es.p, es.wo};
+        Ray ray{es.on_surface ? OffsetRayOrigin(es.p, es.p_error, es.n, es.wo) : es.p, es.wo};
         int n = 1 + RandomWalk(ray, es.beta / pmf, es.pdf_dir, max_depth_, TransportMode::Importance, sampler, path + 1);
         if (es.infinite) {
             // From infinity: the first hit's density is the disk's, projected; the origin's
@@ -313,7 +316,7 @@ public:
             Vec3 wc;
             float importance;
             Vec3 lens;
-            if (!ConnectToCamera(scene_, camera_, qs.p, qs.ng, sampler.Get2D(), px, py, &wc, &importance, &lens))
+            if (!ConnectToCamera(scene_, camera_, qs.p, qs.p_error, qs.ng, sampler.Get2D(), px, py, &wc, &importance, &lens))
                 return Color(0.f);
             *sampled = Vertex{};
             sampled->type = VertexType::kCamera;
@@ -341,7 +344,7 @@ public:
             sampled->pdf_fwd = PdfLightOrigin(*sampled, pt);
             Color f = F(pt, *sampled) * std::abs(Dot(ls.wi, pt.ns));
             if (IsBlack(f) || IsBlack(sampled->beta)) return Color(0.f);
-            if (scene_.Occluded(OffsetRayOrigin(pt.p, pt.ng, ls.wi), ls.wi, ls.distance * (1.f - 1e-4f)))
+            if (scene_.Occluded(OffsetRayOrigin(pt.p, pt.p_error, pt.ng, ls.wi), ls.wi, ls.distance * (1.f - 1e-4f)))
                 return Color(0.f);
             return pt.beta * f * sampled->beta;
         }
@@ -359,7 +362,7 @@ public:
         // but both ends here are surfaces).
         float g = std::abs(Dot(qs.ns, w)) * std::abs(Dot(pt.ns, w)) / d2;
         if (!(g > 0.f)) return Color(0.f);
-        if (scene_.Occluded(OffsetRayOrigin(qs.p, qs.ng, w), w, dist * (1.f - 1e-4f))) return Color(0.f);
+        if (scene_.Occluded(OffsetRayOrigin(qs.p, qs.p_error, qs.ng, w), w, dist * (1.f - 1e-4f))) return Color(0.f);
         return L * g;
     }
 

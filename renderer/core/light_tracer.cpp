@@ -5,7 +5,7 @@
 
 namespace tessera {
 
-bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, Vec3 ng, Vec2 u_lens, float* px, float* py,
+bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, float p_error, Vec3 ng, Vec2 u_lens, float* px, float* py,
                      Vec3* wc, float* importance_over_d2, Vec3* lens_point) {
     const Vec3 lens = camera.LensPoint(u_lens);
     Vec3 to_camera = lens - p;
@@ -16,7 +16,7 @@ bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, Vec3 ng, 
     if (!camera.Project(lens, -*wc, px, py, &cos_camera)) return false;
     const float depth = d * cos_camera;
     if (depth < camera.near || depth > camera.far) return false;
-    if (scene.Occluded(OffsetRayOrigin(p, ng, *wc), *wc, d * (1.f - 1e-4f))) return false;
+    if (scene.Occluded(OffsetRayOrigin(p, p_error, ng, *wc), *wc, d * (1.f - 1e-4f))) return false;
     *importance_over_d2 = 1.f / (camera.ImagePlaneArea() * cos_camera * cos_camera * cos_camera * d2);
     if (lens_point) *lens_point = lens;
     return true;
@@ -34,7 +34,7 @@ void LightTracer::Trace(const Scene& scene, const Camera& camera, PixelSampler& 
     if (!scene.SampleEmission(light, u_pos, u_dir, u_side, &es) || !(pmf > 0.f)) return;
     Color beta = es.beta / pmf;
     float eta_scale = 1.f;
-    Ray ray{es.on_surface ? OffsetRayOrigin(es.p, es.n, es.wo) : es.p, es.wo};
+    Ray ray{es.on_surface ? OffsetRayOrigin(es.p, es.p_error, es.n, es.wo) : es.p, es.wo};
 
     for (int depth = 1; depth <= max_depth_; ++depth) {
         SurfaceHit hit;
@@ -51,7 +51,7 @@ void LightTracer::Trace(const Scene& scene, const Camera& camera, PixelSampler& 
         Vec3 wc;
         const Vec2 u_lens = sampler.Get2D();
         if (bsdf.IsNonSpecular() &&
-            ConnectToCamera(scene, camera, hit.p, hit.ng, u_lens, &px, &py, &wc, &importance)) {
+            ConnectToCamera(scene, camera, hit.p, hit.p_error, hit.ng, u_lens, &px, &py, &wc, &importance)) {
             const Vec3 wc_local = frame.ToLocal(wc);
             Color contribution(0.f);
             if (SidesAgree(wo, wc, hit.ng, wo_local, wc_local))
@@ -68,7 +68,7 @@ void LightTracer::Trace(const Scene& scene, const Camera& camera, PixelSampler& 
         if (!SidesAgree(wo, wi, hit.ng, wo_local, bs->wi)) break;
         beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf * ImportanceShadingCorrection(wo, wi, hit.ns, hit.ng));
         if (bs->is_transmission) eta_scale *= bs->eta * bs->eta;
-        ray = {OffsetRayOrigin(hit.p, hit.ng, wi), wi};
+        ray = {OffsetRayOrigin(hit.p, hit.p_error, hit.ng, wi), wi};
         if (depth >= 3) {
             float q = std::min(1.f, MaxComponent(beta) * eta_scale);
             if (sampler.Get1D() >= q) break;

@@ -15,12 +15,13 @@
 
 namespace tessera {
 
-// Connects point p (geometric normal ng, for the ray offset) to the camera: false if the
+// Connects point p (within p_error of its surface, geometric normal ng: for the ray
+// offset) to the camera: false if the
 // camera cannot see p (outside the image, beyond the clipping range, occluded). Writes the
 // raster position, the unit direction to the camera and the importance estimate
 // We cos_camera / (d^2 pdf_lens) = 1 / (A cos^3 theta_camera d^2) (the lens area cancels).
 // With a thin lens, u_lens picks the lens point the connection goes to; *lens_point gets it.
-bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, Vec3 ng, Vec2 u_lens, float* px, float* py,
+bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, float p_error, Vec3 ng, Vec2 u_lens, float* px, float* py,
                      Vec3* wc, float* importance_over_d2, Vec3* lens_point = nullptr);
 
 struct LightTraceStats {

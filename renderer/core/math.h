@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 
 namespace tessera {
 
@@ -71,9 +72,38 @@ struct Ray {
 
 // Moves a ray origin off a surface along its normal, scaled with the coordinates'
 // magnitude because float rounding error in a hit point grows with it.
-inline Vec3 OffsetRayOrigin(Vec3 p, Vec3 n, Vec3 w) {
-    float eps = 1e-5f * (1.f + MaxAbsComponent(p));
-    return p + n * (Dot(w, n) >= 0.f ? eps : -eps);
+// gamma_n = n u / (1 - n u), u = 2^-24: the relative error bound of n chained float
+// operations (Higham 2002; pbrt-v4 6.8.1).
+inline constexpr float Gamma(int n) {
+    constexpr float u = std::numeric_limits<float>::epsilon() * 0.5f;
+    return (float(n) * u) / (1.f - float(n) * u);
+}
+
+// The origin of a ray leaving a surface point p toward w, where p is known to lie within
+// p_error (absolute, per axis) of the true surface with normal n: p is pushed along n past
+// the error box's extent along n, so the origin is certainly on w's side of the surface
+// (no self-intersection), then one ulp further per axis so that rounding the sum cannot
+// pull it back. The offset scales with the surface's own coordinates (p_error), not with
+// |p|: a hit near the origin on a huge triangle is offset by that triangle's error, and a
+// hit 1e5 from the origin by a few float32 ulps there, not by a fixed fraction of |p|.
+inline Vec3 OffsetRayOrigin(Vec3 p, float p_error, Vec3 n, Vec3 w) {
+    const float side = Dot(w, n) < 0.f ? -1.f : 1.f;
+    const float d = side * p_error * (std::abs(n.x) + std::abs(n.y) + std::abs(n.z));
+    const float inf = std::numeric_limits<float>::infinity();
+    auto push = [&](float c, float nc) {
+        const float away = nc * side;  // which way this axis moves off the surface
+        c += nc * d;
+        return away > 0.f ? std::nextafter(c, inf) : (away < 0.f ? std::nextafter(c, -inf) : c);
+    };
+    return {push(p.x, n.x), push(p.y, n.y), push(p.z, n.z)};
+}
+
+// The error bound of p = b0 p0 + b1 p1 + b2 p2 (barycentric interpolation in float): the
+// interpolated point lies within this of the triangle's plane, however inaccurate the
+// barycentrics themselves are (pbrt-v4 6.8.4).
+inline float BarycentricPointError(Vec3 p0, Vec3 p1, Vec3 p2, float b0, float b1, float b2) {
+    auto abs3 = [](Vec3 v) { return Vec3(std::abs(v.x), std::abs(v.y), std::abs(v.z)); };
+    return Gamma(7) * MaxAbsComponent(abs3(p0 * b0) + abs3(p1 * b1) + abs3(p2 * b2));
 }
 
 }  // namespace tessera

@@ -374,6 +374,19 @@ inline Vec3 TransformPoint(const float* m, Vec3 p) {
     return {m[0] * p.x + m[1] * p.y + m[2] * p.z + m[3], m[4] * p.x + m[5] * p.y + m[6] * p.z + m[7],
             m[8] * p.x + m[9] * p.y + m[10] * p.z + m[11]};
 }
+// The error bound of TransformPoint(m, p) for p known within p_error per axis: the
+// propagated error plus the rounding of the 3 products and 3 sums per row (pbrt-v4 6.8.6).
+inline float TransformedPointError(const float* m, Vec3 p, float p_error) {
+    float bound = 0.f;
+    for (int r = 0; r < 3; ++r) {
+        const float* row = m + 4 * r;
+        const float abs_row = std::abs(row[0]) + std::abs(row[1]) + std::abs(row[2]);
+        const float magnitude = std::abs(row[0] * p.x) + std::abs(row[1] * p.y) + std::abs(row[2] * p.z) +
+                                std::abs(row[3]);
+        bound = std::max(bound, (1.f + Gamma(3)) * abs_row * p_error + Gamma(3) * magnitude);
+    }
+    return bound;
+}
 inline Vec3 TransformVector(const float* m, Vec3 v) {  // m: row-major 3x4
     return {m[0] * v.x + m[1] * v.y + m[2] * v.z, m[4] * v.x + m[5] * v.y + m[6] * v.z,
             m[8] * v.x + m[9] * v.y + m[10] * v.z};
@@ -531,6 +544,7 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceH
         hit->ng = Normalize(p - s.center);
         hit->ns = hit->ng;
         hit->p = s.center + hit->ng * s.radius;
+        hit->p_error = Gamma(5) * (MaxAbsComponent(s.center) + s.radius);
         hit->st = {};
         return true;
     }
@@ -545,6 +559,7 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceH
                p2 = LocalVertex(mesh.positions, mesh.indices, prim, 2);
     const float u = rh.hit.u, v = rh.hit.v;
     Vec3 p = p0 * (1.f - u - v) + p1 * u + p2 * v;
+    float p_error = BarycentricPointError(p0, p1, p2, 1.f - u - v, u, v);
     Vec3 ng = Cross(p1 - p0, p2 - p0);
     Vec3 ns(0.f);
     if (!mesh.normals.empty()) {
@@ -556,11 +571,13 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceH
         // transform the inverse transpose keeps the normal on the side the flattened copy
         // (whose winding is reversed) faces.
         const Instance& in = instances_[hit->instance];
+        p_error = TransformedPointError(in.m, p, p_error);
         p = TransformPoint(in.m, p);
         ng = TransformNormal(in.n, ng);
         ns = TransformNormal(in.n, ns);
     }
     hit->p = p;
+    hit->p_error = p_error;
     hit->ng = Normalize(ng);
     hit->ns = hit->ng;
     if (!mesh.normals.empty()) {
@@ -734,6 +751,9 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
                 if (u_side < 0.5f) n = -n;
             }
             out->p = p0 * b.x + p1 * b.y + p2 * b.z;
+            out->p_error = BarycentricPointError(p0, p1, p2, b.x, b.y, b.z);
+            if (e.instance != kNoInstance)  // the corners carry the transform's rounding
+                out->p_error += Gamma(3) * std::max(MaxAbsComponent(p0), std::max(MaxAbsComponent(p1), MaxAbsComponent(p2)));
             out->n = n;
             out->wo = Normalize(Frame::FromZ(n).FromLocal(SampleCosineHemisphere(u_dir)));
             // Le cos / ((1/A) (cos/pi) (1/sides)) = Le pi A sides
@@ -750,6 +770,7 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
             float z = 1.f - 2.f * u_pos.x, r = std::sqrt(std::max(0.f, 1.f - z * z)), phi = 2.f * kPi * u_pos.y;
             Vec3 n(r * std::cos(phi), r * std::sin(phi), z);
             out->p = s.center + n * s.radius;
+            out->p_error = Gamma(5) * (MaxAbsComponent(s.center) + s.radius);
             out->n = n;
             out->wo = Normalize(Frame::FromZ(n).FromLocal(SampleCosineHemisphere(u_dir)));
             out->beta = s.radiance * (kPi * e.area);

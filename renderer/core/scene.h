@@ -116,6 +116,7 @@ inline constexpr uint32_t kNoInstance = 0xFFFFFFFFu;
 struct SurfaceHit {
     float t = 0.f;
     Vec3 p;
+    float p_error = 0.f;  // |p - the true surface point| per axis is at most this (OffsetRayOrigin)
     Vec3 ng;  // unit geometric normal, as wound (not flipped toward the ray), world space
     // Unit shading normal (interpolated authored normals, else ng; then the normal map, if
     // any), on ng's side, world space.
@@ -153,6 +154,7 @@ struct LightSample {
 // Le |cos| / (pdf_position pdf_direction), not yet divided by the light's selection pmf.
 struct EmissionSample {
     Vec3 p;
+    float p_error = 0.f;      // as SurfaceHit::p_error (surface samples)
     Vec3 wo;     // unit direction the light travels
     Color beta;
     bool on_surface = false;  // p lies on a surface (offset the ray); not for points and infinite lights

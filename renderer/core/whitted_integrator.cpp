@@ -41,7 +41,7 @@ PathSample WhittedIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& samp
         const Vec3 wi = Normalize(frame.FromLocal(bs->wi));
         if (!SidesAgree(wo, wi, hit.ng, wo_local, bs->wi)) break;
         beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf);
-        ray = {OffsetRayOrigin(hit.p, hit.ng, wi), wi};
+        ray = {OffsetRayOrigin(hit.p, hit.p_error, hit.ng, wi), wi};
         if (depth >= 4) {  // long mirror chains: roulette keeps them finite without bias
             float q = std::min(1.f, MaxComponent(beta));
             if (sampler.Get1D() >= q) break;
