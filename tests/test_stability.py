@@ -322,17 +322,12 @@ def test_thin_wall_lets_no_light_through(thickness):
     np.testing.assert_allclose(v, 1.0, rtol=1e-4)
 
 
-# Known bug (reported, not fixed here): bdpt lets light into a closed box, a few pixels of
-# 1e-7 at unit scale and 0.1-2 at 1e3 from the origin; it appears at max_depth 2, in the
-# camera part (s = 2, t = 2 connections: a light vertex on the outside and a camera
-# vertex inside, near a shared edge where rounding puts one on the wrong side). path and
-# light see black.
-BDPT_LEAK = pytest.mark.xfail(strict=True, reason="bdpt connections leak light through box edges")
-
-
+# This caught a leak: bdpt let 1e-7 (unit scale) to 2 (1e3 from the origin) into the box
+# through s = 2, t = 2 connections between an outside vertex and an inside one that
+# rounding had put just past the neighbouring face's plane, near a shared edge. bdpt.cpp
+# now drops connections whose sidedness is within the two hit points' error bounds.
 @pytest.mark.parametrize("placement", [dict(), dict(offset=1e3), dict(scale=1e-3)], ids=_placement_id)
-@pytest.mark.parametrize("integrator", [pytest.param(i, marks=[BDPT_LEAK] if i == "bdpt" else [])
-                                        for i in INTEGRATORS])
+@pytest.mark.parametrize("integrator", INTEGRATORS)
 def test_watertight_box_with_the_lights_outside_is_black_inside(placement, integrator):
     """A closed box of shared-vertex triangles; a distant light and a bright sphere light
     outside. Seen from inside, the integrator sees exactly black."""

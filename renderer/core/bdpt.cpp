@@ -354,6 +354,16 @@ public:
         Vec3 d = pt.p - qs.p;
         float d2 = LengthSquared(d);
         if (!(d2 > 0.f)) return Color(0.f);
+        // Each end must lie on a side of the other's surface that rounding cannot flip. A hit
+        // point near an edge of a closed mesh can be rounded (by up to its p_error) past the
+        // neighbouring face's plane; a vertex on that face's other side would then seem to
+        // face it, and the unoccluded segment between them would carry light through the
+        // edge. Such connections have |cos| ~ 1e-7 and are dropped.
+        const float slack = qs.p_error + pt.p_error;
+        auto undecided = [&](Vec3 n) {
+            return std::abs(Dot(d, n)) <= slack * (std::abs(n.x) + std::abs(n.y) + std::abs(n.z));
+        };
+        if (undecided(qs.ng) || undecided(pt.ng)) return Color(0.f);
         float dist = std::sqrt(d2);
         Vec3 w = d / dist;  // from qs to pt
         Color L = qs.beta * F(qs, pt) * F(pt, qs) * pt.beta;
