@@ -12,9 +12,8 @@ from starlette.types import Message
 from tessera.compare import ALPHA, CompareError, CompareReport, compare_files
 
 from ..settings import Settings
-from .jobs import upload_too_large
+from .jobs import _save_upload, upload_too_large
 
-CHUNK = 1 << 20
 FILES = 2
 FORM_OVERHEAD = 1 << 20
 
@@ -76,7 +75,7 @@ def compare(
         paths = []
         for role, upload in (("test", test), ("reference", reference)):
             path = Path(tmp, f"{role}.exr")
-            _save(upload, path, settings.max_upload_bytes)
+            _save_upload(upload, path, settings.max_upload_bytes)
             paths.append(path)
         try:
             return compare_files(*paths, alpha=alpha, method=method, flip=flip).report
@@ -85,13 +84,3 @@ def compare(
             message = str(exc).replace(str(paths[0]), test.filename or "test") \
                               .replace(str(paths[1]), reference.filename or "reference")
             raise HTTPException(422, message) from None
-
-
-def _save(upload: UploadFile, path: Path, limit: int) -> None:
-    size = 0
-    with open(path, "wb") as out:
-        while chunk := upload.file.read(CHUNK):
-            size += len(chunk)
-            if size > limit:
-                raise upload_too_large(limit)
-            out.write(chunk)
