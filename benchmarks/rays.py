@@ -146,7 +146,16 @@ def main() -> int:
                      f"({r0['primary_rays']} camera) | {fmt(s['renderer_mrays'])} | {fmt(s['raw_mrays'])} "
                      f"| {fmt(s['ratio'])} |")
         print(lines[-1], flush=True)
-    lines += ["", "Raw Embree by ray kind (Mrays/s, same runs):", "",
+    lines += ["", "How: the renderer's rays are the Embree queries the integrator made (RenderStats counters, "
+              "per thread), over the wall time of the render call. Raw Embree casts the same numbers of "
+              "rays with `_core.trace_rays`: a bare rtcIntersect1 / rtcOccluded1 loop over the same BVH on "
+              "2 threads. It casts one jittered camera ray per pixel sample, the other closest-hit rays "
+              "as bounce rays from area-uniform surface points (cosine hemisphere, random side), and the "
+              "shadow rays as segments between random surface points. The raw rays are synthetic, so "
+              "their mix of hits and misses is close to the renderer's but not identical. The ratio is "
+              "the share of Embree's ceiling the renderer keeps; the rest of its time goes to shading, "
+              "BSDF and light sampling, the sampler and bookkeeping.",
+              "", "Raw Embree by ray kind (Mrays/s, same runs):", "",
               "| scene | camera (coherent) | bounce (incoherent) | shadow (incoherent segments) |",
               "|---|---|---|---|"]
     for name, s in out["scenes"].items():
