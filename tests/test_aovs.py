@@ -202,3 +202,22 @@ def test_unknown_aov_is_a_clear_error(cornell_path):
     with pytest.raises(ValueError, match="unknown AOV 'nrm'"):
         RenderSettings(width=4, height=4, aovs="albedo,nrm")
     assert RenderSettings(width=4, height=4, aovs="depth, albedo,depth").aovs == ["albedo", "depth"]
+
+
+def test_normal_is_the_authored_shading_normal(tmp_path):
+    """With authored normals (tilted, constant) the N layer is the shading normal, not the
+    facet's: the floor is flat, its normals lean 30 degrees toward +X."""
+    path = tmp_path / "tilted.usda"
+    stage = new_stage(path)
+    ground = add_mesh(stage, "/Ground", FLOOR, [4], [0, 1, 2, 3])
+    ground.CreateDisplayColorAttr([Gf.Vec3f(0.5, 0.5, 0.5)])
+    n = (math.sin(math.radians(30)), math.cos(math.radians(30)), 0.0)
+    ground.CreateNormalsAttr([Gf.Vec3f(*n)] * 4)
+    ground.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    UsdLux.DomeLight.Define(stage, "/Sky")
+    cam = add_camera(stage, "/Cam", (0, 2, 0), focal=10.0, haperture=20.0, vaperture=20.0)
+    UsdGeom.Xformable(cam.GetPrim()).AddRotateXOp().Set(-90.0)
+    add_render_settings(stage, cam, (8, 8))
+    stage.GetRootLayer().Save()
+    _, aov = load_scene(path).render_tile(0, 0, 8, 8, spp=2, aovs=["normal"])
+    np.testing.assert_allclose(aov["normal"], np.broadcast_to(n, (8, 8, 3)), atol=1e-5)
