@@ -221,3 +221,35 @@ def test_normal_is_the_authored_shading_normal(tmp_path):
     stage.GetRootLayer().Save()
     _, aov = load_scene(path).render_tile(0, 0, 8, 8, spp=2, aovs=["normal"])
     np.testing.assert_allclose(aov["normal"], np.broadcast_to(n, (8, 8, 3)), atol=1e-5)
+
+
+def test_albedo_through_glass_is_the_transmittance(tmp_path):
+    """A Lambertian floor (albedo a) under a smooth glass pane (ior 1.5), seen straight down:
+    each sample refracts (probability 1 - F, albedo a: the radiance scaling 1/eta^2 is left
+    out) or reflects into the empty sky (probability F, albedo 0), F = ((n-1)/(n+1))^2 =
+    0.04 at normal incidence. The mean is (1 - F) a, within the binomial noise."""
+    a, n = 0.6, 1.5
+    path = tmp_path / "pane.usda"
+    stage = new_stage(path)
+    ground = add_mesh(stage, "/Ground", FLOOR, [4], [0, 1, 2, 3])
+    ground.CreateDisplayColorAttr([Gf.Vec3f(a, a, a)])
+    mat = add_material(stage, "/Glass", (0.0, 0.0, 0.0))
+    shader = UsdShade.Shader(stage.GetPrimAtPath("/Glass/Surface"))
+    shader.CreateInput("opacity", Sdf.ValueTypeNames.Float).Set(0.0)
+    shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.0)
+    shader.CreateInput("ior", Sdf.ValueTypeNames.Float).Set(n)
+    add_mesh(stage, "/Pane", [(-5, 1, -5), (-5, 1, 5), (5, 1, 5), (5, 1, -5)], [4], [0, 1, 2, 3], mat)
+    UsdLux.DomeLight.Define(stage, "/Sky")
+    cam = add_camera(stage, "/Cam", (0, 3, 0), focal=100.0, haperture=10.0, vaperture=10.0)
+    UsdGeom.Xformable(cam.GetPrim()).AddRotateXOp().Set(-90.0)
+    add_render_settings(stage, cam, (8, 8))
+    stage.GetRootLayer().Save()
+    spp = 64
+    _, aov = load_scene(path).render_tile(0, 0, 8, 8, spp=spp, aovs=["albedo"], sampler="independent")
+    F = ((n - 1) / (n + 1)) ** 2  # within 1e-4 of the Fresnel term over this 6-degree view
+    samples = 64 * spp
+    se = a * math.sqrt(F * (1 - F) / samples)
+    mean = float(aov["albedo"].mean())
+    assert abs(mean - (1 - F) * a) < 5 * se + 1e-4 * a, (mean, (1 - F) * a, se)
+    # With the radiance scaling left in, the mean would be (1 - F) a / n^2: far outside.
+    assert abs(mean - (1 - F) * a / n ** 2) > 100 * se

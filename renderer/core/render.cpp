@@ -88,6 +88,9 @@ AOVSample SampleAOVs(const Scene& scene, const Camera& camera, Ray ray, float t_
         const Vec3 wi = Normalize(frame.FromLocal(bs->wi));
         if (!SidesAgree(wo, wi, hit.ng, wo_local, bs->wi)) break;
         beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf);
+        // Without refraction's radiance scaling (1/eta^2 per crossing): the albedo seen
+        // through one glass surface is its transmittance.
+        if (bs->is_transmission) beta *= bs->eta * bs->eta;
         ray = {OffsetRayOrigin(hit.p, hit.ng, wi), wi};
     }
     return out;

@@ -54,7 +54,8 @@ struct RenderStats {
 //   albedo (3 floats): the directional albedo rho(wo) = integral of f |cos| of the first
 //     surface that is not purely specular, one BSDF sample per pixel sample (exact for a
 //     Lambertian: its reflectance). Ideal mirror / glass vertices before it are followed
-//     by sampling their delta lobes, their throughput multiplying the albedo. Background 0.
+//     by sampling their delta lobes, their throughput (without refraction's 1/eta^2
+//     radiance scaling) multiplying the albedo. Background 0.
 //   normal (3 floats): the first hit's world-space shading normal, turned toward the
 //     camera ray's side of the surface. Background 0.
 //   depth (1 float): the first hit's camera-space z (distance along the view axis, the
