@@ -25,6 +25,16 @@ def _positive(text: str) -> int:
     return value
 
 
+def _exr_layers(result) -> dict:
+    """The AOVs asked for, plus the noise estimate `tessera compare` needs (variance, spp)
+    whenever the integrator gives one."""
+    layers = dict(result.aovs)
+    if result.variance is not None:
+        layers.setdefault("variance", result.variance)
+        layers.setdefault("spp", result.spp)
+    return layers
+
+
 def cmd_render(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
@@ -45,7 +55,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     try:
         settings = RenderSettings(width=width, height=height, spp=args.spp, seed=args.seed,
                                   max_depth=args.max_depth, tile_size=args.tile,
-                                  integrator=args.integrator, **_noise_target(args))
+                                  integrator=args.integrator, aovs=args.aovs or [],
+                                  **_noise_target(args))
     except ValidationError as exc:
         print(f"tessera render: invalid settings: {exc}", file=sys.stderr)
         return 2
@@ -65,7 +76,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     output.parent.mkdir(parents=True, exist_ok=True)
     write_exr(output, result.rgba, render_metadata(
         settings.max_spp if settings.adaptive else settings.spp, settings.seed, scene_path.name),
-        variance=result.variance, spp=result.spp)
+        aovs=_exr_layers(result))
     preview = output.with_suffix(".png")
     write_png_preview(preview, result.rgba)
     if settings.adaptive:
@@ -90,6 +101,12 @@ def _add_integrator_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--integrator", default="path",
                         choices=("path", "bdpt", "light", "whitted", "local", "auto"),
                         help="light transport method (default path; see docs/integrators.md)")
+
+
+def _add_aov_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--aovs", default=None, metavar="LIST",
+                        help="extra EXR layers, comma-separated: albedo, normal, depth, spp, variance, "
+                             "or all (default none; see docs/aovs.md)")
 
 
 def _add_noise_target_options(parser: argparse.ArgumentParser) -> None:
@@ -127,7 +144,8 @@ def cmd_submit(args: argparse.Namespace) -> int:
     headers = {"Authorization": f"Bearer {token}"} if token else {}
     form = {k: v for k, v in dict(spp=args.spp, seed=args.seed, max_depth=args.max_depth,
                                   tile_size=args.tile, priority=args.priority, integrator=args.integrator,
-                                  max_attempts=args.max_attempts, **_noise_target(args)).items() if v is not None}
+                                  max_attempts=args.max_attempts, aovs=args.aovs,
+                                  **_noise_target(args)).items() if v is not None}
     if args.res:
         form["width"], form["height"] = args.res
     try:
@@ -257,6 +275,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     _add_noise_target_options(r)
     _add_integrator_option(r)
+    _add_aov_option(r)
     r.set_defaults(func=cmd_render)
 
     from tessera_worker.settings import add_worker_options
@@ -284,6 +303,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     _add_noise_target_options(m)
     _add_integrator_option(m)
+    _add_aov_option(m)
     m.set_defaults(func=cmd_submit)
 
     c = sub.add_parser("compare", help="do two renders differ beyond their noise? "

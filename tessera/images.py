@@ -4,45 +4,66 @@ Used by the local render and by the service's merger, so both write identical fi
 """
 from __future__ import annotations
 
-from pathlib import Path
-
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
 
-# The per-pixel noise estimate in Tessera's EXRs, named here and nowhere else (other layers,
-# such as AOVs, bring their own names). variance.R/G/B: the unbiased sample variance of one
-# sample of the pixel (divide by spp for the variance of the pixel's mean); spp: the
-# pixel's sample count. `tessera compare` needs both.
-VARIANCE_CHANNELS = ("variance.R", "variance.G", "variance.B")
-SPP_CHANNEL = "spp"
+# EXR channel names of each AOV (OpenEXR layer naming: "layer.channel"; docs/aovs.md).
+# variance and spp are also the per-pixel noise estimate `tessera compare` reads:
+# variance.R/G/B the unbiased sample variance of one sample of the pixel (divide by spp for
+# the variance of the pixel's mean), spp the pixel's sample count.
+AOV_EXR_CHANNELS = {
+    "albedo": ("albedo.R", "albedo.G", "albedo.B"),
+    "normal": ("N.X", "N.Y", "N.Z"),
+    "depth": ("Z",),
+    "spp": ("spp",),
+    "variance": ("variance.R", "variance.G", "variance.B"),
+}
+VARIANCE_CHANNELS = AOV_EXR_CHANNELS["variance"]
+SPP_CHANNEL = AOV_EXR_CHANNELS["spp"][0]
 
 
-def write_exr(path: str | Path, rgba: np.ndarray, metadata: dict[str, str] | None = None, *,
-              variance: np.ndarray | None = None, spp: np.ndarray | None = None) -> None:
-    """Writes float32 linear RGBA (h, w, 4) as a float EXR (zip compression, lossless);
-    with `variance` (h, w, 3) and `spp` (h, w) also the VARIANCE_CHANNELS and SPP_CHANNEL."""
+def write_exr(path: str | Path, rgba: np.ndarray, metadata: dict[str, str] | None = None,
+              aovs: dict[str, np.ndarray] | None = None) -> None:
+    """Writes float32 linear RGBA (h, w, 4) as a float EXR (zip compression, lossless),
+    with each AOV (name -> (h, w[, c])) as extra channels named by AOV_EXR_CHANNELS."""
     rgba = np.ascontiguousarray(rgba, dtype=np.float32)
     h, w, c = rgba.shape
-    names = ["R", "G", "B", "A"][:c]
+    names = list(("R", "G", "B", "A")[:c])
     layers = [rgba]
-    if (variance is None) != (spp is None):
-        raise ValueError("variance and spp are written together")
-    if variance is not None:
-        variance = np.asarray(variance, dtype=np.float32)
-        spp = np.broadcast_to(np.asarray(spp, dtype=np.float32), (h, w))
-        if variance.shape != (h, w, 3):
-            raise ValueError(f"variance has shape {variance.shape}, expected {(h, w, 3)}")
-        names += [*VARIANCE_CHANNELS, SPP_CHANNEL]
-        layers += [variance, spp[:, :, None]]
-    pixels = np.ascontiguousarray(np.concatenate(layers, axis=2)) if len(layers) > 1 else rgba
+    for name, layer in (aovs or {}).items():
+        if name not in AOV_EXR_CHANNELS:
+            raise ValueError(f"unknown AOV {name!r} (known: {', '.join(AOV_EXR_CHANNELS)})")
+        channels = AOV_EXR_CHANNELS[name]
+        layer = np.asarray(layer, dtype=np.float32)
+        if layer.size != h * w * len(channels) or layer.shape[:2] != (h, w):
+            raise ValueError(f"AOV {name} has shape {layer.shape}, expected {(h, w, len(channels))}")
+        names += channels
+        layers.append(layer.reshape(h, w, len(channels)))
+    pixels = np.ascontiguousarray(np.concatenate(layers, axis=2))
     spec = oiio.ImageSpec(w, h, len(names), oiio.FLOAT)
     spec.channelnames = tuple(names)
+    if "Z" in names:
+        spec.z_channel = names.index("Z")
     spec.attribute("compression", "zip")
     for key, value in (metadata or {}).items():
         spec.attribute(key, str(value))
     _write(path, spec, pixels)
+
+
+def read_exr_channels(path: str | Path) -> dict[str, np.ndarray]:
+    """Every channel of an image by name: {name: float32 (h, w)}."""
+    pixels, names = _read_all(path)
+    return {name: pixels[:, :, i] for i, name in enumerate(names)}
+
+
+def read_exr_aovs(path: str | Path) -> dict[str, np.ndarray]:
+    """The AOVs present in an EXR written by write_exr: {name: float32 (h, w, c)}."""
+    channels = read_exr_channels(path)
+    return {name: np.stack([channels[c] for c in names], axis=2)
+            for name, names in AOV_EXR_CHANNELS.items() if all(c in channels for c in names)}
 
 
 def render_metadata(spp: int, seed: int, scene_name: str) -> dict[str, str]:
@@ -52,6 +73,12 @@ def render_metadata(spp: int, seed: int, scene_name: str) -> dict[str, str]:
 
 def read_exr(path: str | Path) -> np.ndarray:
     """Reads an image as float32 (h, w, c), channels ordered R, G, B, A by name."""
+    pixels, names = _read_all(path)
+    order = [names.index(n) for n in ("R", "G", "B", "A") if n in names]
+    return pixels[:, :, order]
+
+
+def _read_all(path: str | Path) -> tuple[np.ndarray, list[str]]:
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise OSError(f"cannot open {path}: {oiio.geterror()}")
@@ -63,9 +90,7 @@ def read_exr(path: str | Path) -> np.ndarray:
         names = list(spec.channelnames)
     finally:
         inp.close()
-    pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
-    order = [names.index(n) for n in ("R", "G", "B", "A") if n in names]
-    return pixels[:, :, order]
+    return np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels), names
 
 
 @dataclass

@@ -7,13 +7,14 @@ with the same settings (in noise-target mode too, unless a time_limit cuts passe
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from tqdm import tqdm
 
-from .protocol import (PassAccumulator, RenderSettings, TileRect, TileResult, combine_passes,
-                       image_finished, pass_range, resolve_splats, tile_finished, tile_grid)
+from .protocol import (AOV_CHANNELS, PassAccumulator, RenderSettings, TileRect, TileResult,
+                       combine_aovs, combine_passes, image_finished, new_aov_frame, pass_range,
+                       resolve_splats, tile_finished, tile_grid)
 
 
 @dataclass
@@ -27,6 +28,7 @@ class LocalRenderResult:
     # splatting integrators (light, bdpt), whose splats carry no per-pixel variance.
     variance: np.ndarray | None = None
     spp: np.ndarray | None = None
+    aovs: dict[str, np.ndarray] = field(default_factory=dict)  # settings.aovs, full frame
 
     @property
     def samples_per_second(self) -> float:
@@ -34,34 +36,59 @@ class LocalRenderResult:
 
 
 def render_tile_passes(scene, settings: RenderSettings, rect: TileRect, threads: int = 0,
-                       deadline: float | None = None, integrator: str = "path") -> tuple[np.ndarray, int, int]:
+                       deadline: float | None = None, integrator: str = "path",
+                       aovs_out: dict | None = None) -> tuple[np.ndarray, int, int]:
     """One tile, pass after pass as the farm renders it, combined as the farm combines it.
-    Returns (rgba, samples, passes). `deadline` (time.monotonic()) plays the time_limit."""
-    mean, _, samples, passes = _tile_passes(scene, settings, rect, threads, deadline, integrator, False)
+    Returns (rgba, samples, passes). `deadline` (time.monotonic()) plays the time_limit.
+    With settings.aovs, their combined tile layers go into `aovs_out` (name -> array)."""
+    mean, _, samples, passes = _tile_passes(scene, settings, rect, threads, deadline, integrator,
+                                            False, aovs_out)
     return mean, samples, passes
 
 
+def _render_pass(scene, settings: RenderSettings, rect: TileRect, p: int, threads: int, integrator: str,
+                 want_variance: bool, splats: np.ndarray | None = None) -> TileResult:
+    """Pass p of one tile as a worker renders it: RGBA, variance and AOVs if asked for."""
+    sample_start, spp = pass_range(settings, p)
+    core_aovs = [a for a in settings.aovs if a in AOV_CHANNELS]
+    want_variance = want_variance or "variance" in settings.aovs
+    out = scene.render_tile(rect.x0, rect.y0, rect.width, rect.height, width=settings.width,
+                            height=settings.height, spp=spp, seed=settings.seed,
+                            max_depth=settings.max_depth, threads=threads, sample_start=sample_start,
+                            return_variance=want_variance, integrator=integrator, splats=splats,
+                            aovs=core_aovs)
+    layers, variance = None, None
+    if core_aovs:
+        rgba, layers = out
+        variance = layers.pop("variance", None)
+    elif want_variance:
+        rgba, variance = out
+    else:
+        rgba = out
+    return TileResult(rect.x0, rect.y0, rgba, p, sample_start, spp, variance, aovs=layers)
+
+
+def _tile_aovs(settings: RenderSettings, results: list[TileResult], variance) -> dict:
+    layers = combine_aovs(results) if any(a in AOV_CHANNELS for a in settings.aovs) else {}
+    if "variance" in settings.aovs:
+        layers["variance"] = variance
+    return layers
+
+
 def _tile_passes(scene, settings: RenderSettings, rect: TileRect, threads: int, deadline: float | None,
-                 integrator: str, with_variance: bool):
+                 integrator: str, with_variance: bool, aovs_out: dict | None = None):
     """render_tile_passes, also returning the tile's per-sample variance (requested from
     the renderer in fixed-spp mode too when `with_variance`; the mean does not change)."""
     results: list[TileResult] = []
     while True:
         p = len(results)
-        sample_start, spp = pass_range(settings, p)
-        kwargs = dict(width=settings.width, height=settings.height, spp=spp, seed=settings.seed,
-                      max_depth=settings.max_depth, threads=threads, integrator=integrator)
-        if settings.adaptive or with_variance:
-            rgba, variance = scene.render_tile(rect.x0, rect.y0, rect.width, rect.height,
-                                               sample_start=sample_start, return_variance=True,
-                                               **kwargs)
-        else:
-            rgba, variance = scene.render_tile(rect.x0, rect.y0, rect.width, rect.height,
-                                               **kwargs), None
-        results.append(TileResult(rect.x0, rect.y0, rgba, p, sample_start, spp, variance))
+        results.append(_render_pass(scene, settings, rect, p, threads, integrator,
+                                    settings.adaptive or with_variance))
         mean, var, samples = combine_passes(results)
         if not settings.adaptive or tile_finished(settings, p, mean, var, samples) or (
                 deadline is not None and time.monotonic() >= deadline):
+            if aovs_out is not None:
+                aovs_out.update(_tile_aovs(settings, results, var))
             return mean, var, samples, len(results)
 
 
@@ -77,18 +104,30 @@ def render_image(scene, settings: RenderSettings, threads: int = 0, progress: bo
     start = time.perf_counter()
     deadline = time.monotonic() + settings.time_limit if settings.time_limit else None
     samples = passes = 0
+    aovs = new_aov_frame(settings)
     with tqdm(total=settings.width * settings.height, unit="px", unit_scale=True, disable=not progress,
               desc="render", dynamic_ncols=True) as bar:
         for t in tiles:
-            tile, var, n, p = _tile_passes(scene, settings, t, threads, deadline, integrator, True)
+            layers: dict = {}
+            tile, var, n, p = _tile_passes(scene, settings, t, threads, deadline, integrator, True, layers)
             rgba[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = tile
             variance[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = var
             spp[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = n
+            paste_aovs(aovs, layers, t)
             samples += n * t.width * t.height
             passes += p
             bar.update(t.width * t.height)
     seconds = time.perf_counter() - start
-    return LocalRenderResult(rgba, seconds, samples, passes, variance, spp)
+    return LocalRenderResult(rgba, seconds, samples, passes, variance, spp, aovs)
+
+
+def paste_aovs(frame: dict[str, np.ndarray], layers: dict[str, np.ndarray], rect: TileRect) -> None:
+    """Copies a tile's AOV layers into the full-frame buffers of new_aov_frame."""
+    for name, buf in frame.items():
+        if name not in layers or layers[name] is None:
+            raise ValueError(f"tile {rect.index} has no {name} AOV")
+        buf[rect.y0:rect.y0 + rect.height, rect.x0:rect.x0 + rect.width] = \
+            np.asarray(layers[name], np.float32).reshape(rect.height, rect.width, -1)
 
 
 def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, threads: int,
@@ -111,20 +150,16 @@ def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, th
     with tqdm(total=width * height, unit="px", unit_scale=True, disable=not progress,
               desc=f"render ({integrator})", dynamic_ncols=True) as bar:
         while True:
-            sample_start, spp = pass_range(settings, p)
+            spp = pass_range(settings, p)[1]
             bar.set_description(f"render ({integrator}, pass {p + 1})")
             bar.reset()
             pass_rgba = np.zeros((height, width, 4), dtype=np.float32)
             pass_splats = np.zeros((height, width, 3), dtype=np.int64) if splatting else None
             for t, results in zip(tiles, per_tile):
-                out = scene.render_tile(t.x0, t.y0, t.width, t.height, width=width, height=height,
-                                        spp=spp, seed=settings.seed, max_depth=settings.max_depth,
-                                        threads=threads, sample_start=sample_start,
-                                        return_variance=settings.adaptive, integrator=integrator,
-                                        splats=pass_splats)
-                rgba, variance = out if settings.adaptive else (out, None)
-                results.append(TileResult(t.x0, t.y0, rgba, p, sample_start, spp, variance))
-                pass_rgba[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = rgba
+                result = _render_pass(scene, settings, t, p, threads, integrator, settings.adaptive,
+                                      pass_splats)
+                results.append(result)
+                pass_rgba[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = result.rgba
                 samples += t.width * t.height * spp
                 bar.update(t.width * t.height)
             pass_paths = width * height * spp if splatting else 0  # one light path per sample
@@ -140,7 +175,10 @@ def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, th
                 break
             p += 1
     rgba = np.zeros((height, width, 4), dtype=np.float32)
+    aovs = new_aov_frame(settings)
     for t, results in zip(tiles, per_tile):
-        rgba[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = combine_passes(results)[0]
+        mean, var, _ = combine_passes(results)
+        rgba[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = mean
+        paste_aovs(aovs, _tile_aovs(settings, results, var), t)
     image = resolve_splats(rgba, total_splats, total_paths) if splatting else rgba
-    return LocalRenderResult(image, time.perf_counter() - start, samples, p + 1)
+    return LocalRenderResult(image, time.perf_counter() - start, samples, p + 1, aovs=aovs)

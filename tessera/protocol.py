@@ -18,9 +18,14 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, Field, model_validator
+from pydantic import BaseModel, Field, field_validator, model_validator
 
 SCHEMA_VERSION = 2
+
+# Per-pixel outputs besides RGBA (docs/aovs.md), in canonical order, with their channel
+# count in tile results. "variance" is the per-channel sample variance (FLAG_VARIANCE).
+AOV_NAMES = ("albedo", "normal", "depth", "spp", "variance")
+AOV_CHANNELS = {"albedo": 3, "normal": 3, "depth": 1, "spp": 1}  # the FLAG_AOVS section
 
 # Redis key layout. Everything Tessera stores lives under this prefix.
 PREFIX = "tessera"
@@ -167,6 +172,27 @@ class RenderSettings(BaseModel):
                     "(noise-target mode; makes the image depend on timing)")
     integrator: Literal["path", "bdpt", "light", "whitted", "local", "auto"] = Field(
         default="path", description="light transport method (docs/integrators.md)")
+    # Added within schema 2: optional with an empty default, so earlier messages stay valid.
+    aovs: list[Literal["albedo", "normal", "depth", "spp", "variance"]] = Field(
+        default_factory=list,
+        description="extra per-pixel outputs written as EXR layers beside RGBA "
+                    "(docs/aovs.md): albedo, normal, depth, spp, variance")
+
+    @field_validator("aovs", mode="before")
+    @classmethod
+    def _aov_list(cls, value):
+        """Accepts a list or a comma-separated string; "all" means every AOV. Stored
+        without duplicates in the canonical order of AOV_NAMES."""
+        if isinstance(value, str):
+            value = [v.strip() for v in value.split(",") if v.strip()]
+        if value is None:
+            return []
+        if "all" in value:
+            return list(AOV_NAMES)
+        unknown = [v for v in value if v not in AOV_NAMES]
+        if unknown:
+            raise ValueError(f"unknown AOV {unknown[0]!r} (known: {', '.join(AOV_NAMES)}, all)")
+        return [name for name in AOV_NAMES if name in value]
 
     @model_validator(mode="after")
     def _spp_range(self) -> "RenderSettings":
@@ -294,6 +320,12 @@ def job_tasks(spec: JobSpec) -> list[TileTask]:
 #       the full frame (the bounding box of where the pass's light paths landed). Summed
 #       over all results (exact, order-free) and normalised by the job's total light_paths
 #       (film.resolve_image).
+#   aovs if FLAG_AOVS (version 3 only): a u32 mask (bit i: the i-th of AOV_CHANNELS'
+#       names: albedo, normal, depth, spp), then each present AOV as float32 (h, w, c)
+#       in that order (see docs/aovs.md for their meaning)
+# Version 3 is version 2 plus FLAG_AOVS; it is written only for results that carry AOVs,
+# so that results without them stay readable by version-2 readers, and a version-2 reader
+# refuses a version-3 result ("unknown format") instead of misreading it.
 # Version 1 (header without the pass fields, rgba only) is still read.
 _HEADER_V1 = struct.Struct("<4sIiiii")          # magic, version, x0, y0, width, height
 _HEADER = struct.Struct("<4sIiiiiIIIIQ")         # ... pass_index, sample_start, spp, flags, light_paths
@@ -302,6 +334,8 @@ _TILE_MAGIC = b"TSRT"
 FLAG_VARIANCE = 1
 FLAG_SPLAT = 2         # splat section stored raw
 FLAG_SPLAT_ZLIB = 4    # splat section's int64 bytes zlib-compressed (u32 length first)
+FLAG_AOVS = 8          # AOV section (version 3)
+RESULT_VERSION_AOVS = 3
 
 # Integrators whose light paths splat onto the whole frame (and `auto`, which may be one).
 SPLATTING_INTEGRATORS = ("light", "bdpt", "auto")
@@ -322,12 +356,14 @@ class TileResult:
     splat_rect: tuple[int, int, int, int] | None = None
     splat: np.ndarray | None = None     # int64 (h, w, 3), fixed point
     light_paths: int = 0
+    aovs: dict[str, np.ndarray] | None = None  # name -> float32 (h, w, c) (AOV_CHANNELS)
 
 
 def encode_tile(rect: TileRect, rgba: np.ndarray, *, pass_index: int = 0, sample_start: int = 0,
                 spp: int = 0, variance: np.ndarray | None = None,
                 splat_rect: tuple[int, int, int, int] | None = None,
-                splat: np.ndarray | None = None, light_paths: int = 0) -> bytes:
+                splat: np.ndarray | None = None, light_paths: int = 0,
+                aovs: dict[str, np.ndarray] | None = None) -> bytes:
     rgba = np.ascontiguousarray(rgba, dtype=np.float32)
     if rgba.shape != (rect.height, rect.width, 4):
         raise ValueError(f"tile {rect.index}: pixels have shape {rgba.shape}, "
@@ -341,6 +377,25 @@ def encode_tile(rect: TileRect, rgba: np.ndarray, *, pass_index: int = 0, sample
                              f"expected {(rect.height, rect.width, 3)}")
         flags |= FLAG_VARIANCE
         parts.append(variance.tobytes())
+    version = SCHEMA_VERSION
+    if aovs:
+        unknown = set(aovs) - set(AOV_CHANNELS)
+        if unknown:
+            raise ValueError(f"tile {rect.index}: unknown AOV {sorted(unknown)[0]!r}")
+        mask = 0
+        sections = []
+        for bit, (name, channels) in enumerate(AOV_CHANNELS.items()):
+            if name not in aovs:
+                continue
+            layer = np.ascontiguousarray(aovs[name], dtype=np.float32)
+            if layer.shape[:2] != (rect.height, rect.width) or layer.size != rect.height * rect.width * channels:
+                raise ValueError(f"tile {rect.index}: AOV {name} has shape {layer.shape}, "
+                                 f"expected {(rect.height, rect.width, channels)}")
+            mask |= 1 << bit
+            sections.append(layer.tobytes())
+        flags |= FLAG_AOVS
+        version = RESULT_VERSION_AOVS
+        parts += [struct.pack("<I", mask)] + sections
     if splat is not None:
         if splat_rect is None:
             raise ValueError("a splat layer needs its rectangle")
@@ -351,7 +406,7 @@ def encode_tile(rect: TileRect, rgba: np.ndarray, *, pass_index: int = 0, sample
         packed = zlib.compress(splat.tobytes(), 1)
         flags |= FLAG_SPLAT | FLAG_SPLAT_ZLIB
         parts += [_SPLAT_RECT.pack(*splat_rect), struct.pack("<I", len(packed)), packed]
-    header = _HEADER.pack(_TILE_MAGIC, SCHEMA_VERSION, rect.x0, rect.y0, rect.width, rect.height,
+    header = _HEADER.pack(_TILE_MAGIC, version, rect.x0, rect.y0, rect.width, rect.height,
                           pass_index, sample_start, spp, flags, light_paths)
     return header + b"".join(parts)
 
@@ -360,7 +415,7 @@ def decode_tile(data: bytes) -> TileResult:
     if len(data) < _HEADER_V1.size:
         raise ValueError("tile result is truncated")
     magic, version, x0, y0, w, h = _HEADER_V1.unpack_from(data)
-    if magic != _TILE_MAGIC or version not in (1, 2):
+    if magic != _TILE_MAGIC or version not in (1, 2, RESULT_VERSION_AOVS):
         raise ValueError(f"tile result has unknown format {magic!r} v{version}")
     if w < 1 or h < 1 or w > 1 << 16 or h > 1 << 16:
         raise ValueError(f"tile result has impossible size {w}x{h}")
@@ -372,9 +427,24 @@ def decode_tile(data: bytes) -> TileResult:
     if len(data) < _HEADER.size:
         raise ValueError("tile result is truncated")
     *_, pass_index, sample_start, spp, flags, light_paths = _HEADER.unpack_from(data)
+    known = FLAG_VARIANCE | FLAG_SPLAT | FLAG_SPLAT_ZLIB | (FLAG_AOVS if version >= RESULT_VERSION_AOVS else 0)
+    if flags & ~known:
+        raise ValueError(f"tile result v{version} has unknown flags {flags & ~known:#x}")
     expected = _HEADER.size + w * h * 16 + (w * h * 12 if flags & FLAG_VARIANCE else 0)
     offset = _HEADER.size
     result = TileResult(x0, y0, None, pass_index, sample_start, spp, light_paths=light_paths)
+    aov_layout: list[tuple[str, int, int]] = []  # (name, channels, offset)
+    if flags & FLAG_AOVS:
+        if len(data) < expected + 4:
+            raise ValueError("tile result is truncated")
+        (mask,) = struct.unpack_from("<I", data, expected)
+        if mask >> len(AOV_CHANNELS):
+            raise ValueError(f"tile result has unknown AOVs (mask {mask:#x})")
+        expected += 4
+        for bit, (name, channels) in enumerate(AOV_CHANNELS.items()):
+            if mask & (1 << bit):
+                aov_layout.append((name, channels, expected))
+                expected += w * h * channels * 4
     if flags & FLAG_SPLAT:
         if len(data) < expected + _SPLAT_RECT.size:
             raise ValueError("tile result is truncated")
@@ -397,6 +467,9 @@ def decode_tile(data: bytes) -> TileResult:
     if flags & FLAG_VARIANCE:
         result.variance = _floats(data, offset, (h, w, 3))
         offset += w * h * 12
+    if aov_layout:
+        result.aovs = {name: _floats(data, at, (h, w, c)) for name, c, at in aov_layout}
+        offset = aov_layout[-1][2] + w * h * aov_layout[-1][1] * 4
     if flags & FLAG_SPLAT:
         sx, sy, sw, sh = result.splat_rect
         if flags & FLAG_SPLAT_ZLIB:
@@ -471,6 +544,45 @@ def combine_passes(passes: list[TileResult]) -> tuple[np.ndarray, np.ndarray | N
                  for n, p in zip(counts, passes))
         variance = (m2 / (total - 1)).astype(np.float32)
     return mean.astype(np.float32), variance, total
+
+
+def combine_aovs(passes: list[TileResult]) -> dict[str, np.ndarray]:
+    """Combines the AOVs of one tile's passes (docs/aovs.md): albedo and normal as the
+    sample-count-weighted mean; spp as the sum; depth as the mean over the samples that hit
+    something, each pass weighted by its hit count spp * alpha (+inf where none hit). One
+    pass is returned as it is. Every pass must carry the same AOVs."""
+    passes = sorted(passes, key=lambda p: p.pass_index)
+    names = set(passes[0].aovs or {})
+    if any(set(p.aovs or {}) != names for p in passes):
+        raise ValueError("passes of one tile carry different AOVs")
+    if len(passes) == 1 or not names:
+        return dict(passes[0].aovs or {})
+    counts = [p.spp for p in passes]
+    if min(counts) < 1:
+        raise ValueError("cannot combine passes without sample counts")
+    total = sum(counts)
+    out = {}
+    for name in names:
+        layers = [p.aovs[name].astype(np.float64).reshape(*p.rgba.shape[:2], -1) for p in passes]
+        if name == "spp":
+            out[name] = sum(layers).astype(np.float32)
+        elif name == "depth":
+            hits = [n * p.rgba[..., 3:4].astype(np.float64) for n, p in zip(counts, passes)]
+            weight = sum(hits)
+            num = sum(k * np.where(k > 0, d, 0.0) for k, d in zip(hits, layers))  # no 0 * inf
+            with np.errstate(invalid="ignore", divide="ignore"):
+                out[name] = np.where(weight > 0, num / np.where(weight > 0, weight, 1.0),
+                                     np.inf).astype(np.float32)
+        else:
+            out[name] = (sum(n * a for n, a in zip(counts, layers)) / total).astype(np.float32)
+    return out
+
+
+def new_aov_frame(settings: RenderSettings) -> dict[str, np.ndarray]:
+    """Full-frame float32 buffers for the job's AOVs (AOV layers are (h, w, c))."""
+    channels = dict(AOV_CHANNELS, variance=3)
+    return {name: np.zeros((settings.height, settings.width, channels[name]), np.float32)
+            for name in settings.aovs}
 
 
 def tile_error(rgba: np.ndarray, variance: np.ndarray, samples: int) -> float:

@@ -102,7 +102,7 @@ def test_a_nan_pixel_compares_different(renders, tmp_path):
     image = images.read_render(renders["seed1"])
     image.rgba[10, 20, 1] = np.nan
     bad = tmp_path / "nan.exr"
-    images.write_exr(bad, image.rgba, variance=image.variance, spp=image.spp)
+    images.write_exr(bad, image.rgba, aovs={"variance": image.variance, "spp": image.spp})
     rc, report = _compare(tmp_path, bad, renders["reference"])
     assert rc == 1
     assert report["nonfinite_pixels"] == 1 and report["first_difference"] == [20, 10]
@@ -110,7 +110,7 @@ def test_a_nan_pixel_compares_different(renders, tmp_path):
     # An infinite variance is caught the same way.
     image = images.read_render(renders["seed1"])
     image.variance[3, 4, 0] = np.inf
-    images.write_exr(bad, image.rgba, variance=image.variance, spp=image.spp)
+    images.write_exr(bad, image.rgba, aovs={"variance": image.variance, "spp": image.spp})
     rc, report = _compare(tmp_path, renders["reference"], bad)
     assert rc == 1 and report["nonfinite_pixels"] == 1
 

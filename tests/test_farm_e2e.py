@@ -269,3 +269,29 @@ def test_splatting_integrators_on_the_farm_equal_a_local_render(farm, tmp_path, 
     images.write_exr(tmp_path / "local.exr", local)
     assert_bit_identical(actual, images.read_exr(tmp_path / "local.exr"))
     assert actual[..., :3].mean() > 0.01
+
+
+@pytest.mark.parametrize("form", [
+    dict(width=40, height=24, spp=4, seed=5, max_depth=8, tile_size=16),
+    dict(width=40, height=24, seed=5, max_depth=8, tile_size=16, target_error=0.2, min_spp=2, max_spp=8),
+    dict(width=40, height=24, spp=2, seed=5, max_depth=8, tile_size=16, integrator="bdpt"),
+], ids=["fixed", "noise-target", "bdpt"])
+def test_farm_aovs_equal_a_local_render(farm, tmp_path, form):
+    """Tile results carry the AOVs; the merge combines passes (protocol.combine_aovs) and
+    pastes tiles as the local render does, so every EXR channel equals the local one."""
+    from tessera.local import render_image
+
+    r = submit(farm, CORNELL, aovs="all", **form)
+    assert r.status_code == 201, r.text
+    status = wait_for_job(farm, r.json()["id"], processes=farm.processes)
+    assert status["state"] == "done", status
+    download_exr(farm, status["id"], tmp_path / "farm.exr")
+    local = render_image(load_scene(str(CORNELL)), RenderSettings(aovs="all", **form), progress=False)
+    images.write_exr(tmp_path / "local.exr", local.rgba, aovs=local.aovs)
+    farm_channels = images.read_exr_channels(tmp_path / "farm.exr")
+    local_channels = images.read_exr_channels(tmp_path / "local.exr")
+    assert set(farm_channels) == set(local_channels) and "N.Y" in farm_channels and "Z" in farm_channels
+    for name, values in local_channels.items():
+        assert_bit_identical(farm_channels[name], values)
+    if "target_error" in form:
+        assert len(np.unique(farm_channels["spp"])) > 1  # tiles stopped at different passes

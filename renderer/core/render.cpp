@@ -7,11 +7,14 @@
 
 #include <algorithm>
 #include <atomic>
+#include <limits>
 #include <mutex>
 #include <stdexcept>
 
 #include "bdpt.h"
+#include "bsdf.h"
 #include "light_tracer.h"
+#include "ray_counters.h"
 #include "path_integrator.h"
 #include "splat_film.h"
 #include "whitted_integrator.h"
@@ -49,10 +52,54 @@ PathSample DirectlyVisibleLight(const Scene& scene, const Ray& ray, float t_min,
     return result;
 }
 
+// One sample of the AOVs along a camera ray (definitions in render.h).
+struct AOVSample {
+    Color albedo;
+    Vec3 normal;
+    float depth = 0.f;
+    bool hit = false;
+};
+
+AOVSample SampleAOVs(const Scene& scene, const Camera& camera, Ray ray, float t_min, float t_max, int max_depth,
+                     PixelSampler& sampler) {
+    AOVSample out;
+    Color beta(1.f);
+    for (int depth = 0; depth <= max_depth; ++depth) {
+        SurfaceHit hit;
+        if (!(depth == 0 ? scene.Intersect(ray, &hit, t_min, t_max) : scene.Intersect(ray, &hit))) break;
+        const Vec3 wo = -ray.d;
+        if (depth == 0) {
+            out.hit = true;
+            out.depth = Dot(hit.p - camera.origin, camera.forward);
+            out.normal = Dot(hit.ng, wo) >= 0.f ? hit.ns : -hit.ns;
+        }
+        const BSDF bsdf = scene.BSDFAt(hit, TransportMode::Radiance);
+        if (bsdf.Flags() == kBSDFUnset) break;
+        const Frame frame = Frame::FromZ(hit.ns);
+        const Vec3 wo_local = frame.ToLocal(wo);
+        const float uc = sampler.Get1D();
+        const std::optional<BSDFSample> bs = bsdf.Sample_f(wo_local, uc, sampler.Get2D());
+        if (bsdf.IsNonSpecular()) {
+            // f |cos| / pdf of one BSDF sample: an unbiased estimate of rho(wo).
+            if (bs && bs->pdf > 0.f) out.albedo = beta * bs->f * (std::abs(bs->wi.z) / bs->pdf);
+            break;
+        }
+        if (!bs || !(bs->pdf > 0.f) || IsBlack(bs->f)) break;
+        const Vec3 wi = Normalize(frame.FromLocal(bs->wi));
+        if (!SidesAgree(wo, wi, hit.ng, wo_local, bs->wi)) break;
+        beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf);
+        // Without refraction's radiance scaling (1/eta^2 per crossing): the albedo seen
+        // through one glass surface is its transmittance.
+        if (bs->is_transmission) beta *= bs->eta * bs->eta;
+        ray = {OffsetRayOrigin(hit.p, hit.p_error, hit.ng, wi), wi};
+    }
+    return out;
+}
+
 }  // namespace
 
 RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOptions& options, TileRect tile,
-                       float* rgba, float* variance, int64_t* splats) {
+                       float* rgba, float* variance, int64_t* splats, const AOVBuffers& aovs) {
     if (tile.width == 0 || tile.height == 0) return {};
     if (uint64_t(tile.x0) + tile.width > camera.width || uint64_t(tile.y0) + tile.height > camera.height)
         throw std::invalid_argument("tile lies outside the image");
@@ -71,7 +118,8 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
     const WhittedIntegrator whitted(options.max_depth);
     const LightTracer light_tracer(options.max_depth);
     SplatFilm film(splats, camera.width, camera.height);
-    std::atomic<uint64_t> nonfinite{0}, rejected_splats{0};
+    std::atomic<uint64_t> nonfinite{0}, rejected_splats{0}, closest_rays{0}, shadow_rays{0};
+    const bool want_aovs = aovs.any();
     std::mutex first_mutex;
     RenderStats stats;
     const uint32_t n_pixels = tile.width * tile.height;
@@ -79,6 +127,8 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
     auto render_range = [&](const tbb::blocked_range<uint32_t>& range) {
         ScopedFlushDenormals ftz;
         LightTraceStats light_stats;
+        const RayCounters rays_before = tls_ray_counters;
+        RayCounters aov_rays;  // traced for the AOVs: not the integrators' rays
         for (uint32_t i = range.begin(); i != range.end(); ++i) {
             const uint32_t x = tile.x0 + i % tile.width, y = tile.y0 + i / tile.width;
             const uint64_t pixel_index = uint64_t(y) * camera.width + x;
@@ -86,6 +136,8 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
             // the same order, whatever thread runs it.
             double sum_r = 0, sum_g = 0, sum_b = 0, sum_a = 0;
             double sq_r = 0, sq_g = 0, sq_b = 0;
+            double aov_albedo[3] = {0, 0, 0}, aov_normal[3] = {0, 0, 0}, aov_depth = 0;
+            uint32_t aov_hits = 0;
             for (uint32_t s = options.sample_start; s < options.sample_start + options.spp; ++s) {
                 PixelSampler sampler(options.seed, pixel_index, s, /*stream=*/0, options.sampler);
                 Vec2 jitter = sampler.Get2D();
@@ -95,6 +147,22 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                                              camera.HasLens() ? sampler.Get2D() : Vec2{0.5f, 0.5f});
                 float t_min, t_max;
                 camera.ClipRange(ray.d, &t_min, &t_max);
+                if (want_aovs) {
+                    // Its own sample stream, so the image is the same with or without AOVs.
+                    const RayCounters before = tls_ray_counters;
+                    PixelSampler aov_sampler(options.seed, pixel_index, s, /*stream=*/2, options.sampler);
+                    const AOVSample a = SampleAOVs(scene, camera, ray, t_min, t_max, options.max_depth, aov_sampler);
+                    aov_rays.closest += tls_ray_counters.closest - before.closest;
+                    aov_rays.shadow += tls_ray_counters.shadow - before.shadow;
+                    for (int c = 0; c < 3; ++c) {
+                        aov_albedo[c] += a.albedo[c];
+                        aov_normal[c] += a.normal[c];
+                    }
+                    if (a.hit) {
+                        aov_depth += a.depth;
+                        ++aov_hits;
+                    }
+                }
                 PathSample ps;
                 if (light_tracing) {
                     ps = DirectlyVisibleLight(scene, ray, t_min, t_max);
@@ -142,8 +210,21 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                 v[1] = float(var(sum_g, sq_g));
                 v[2] = float(var(sum_b, sq_b));
             }
+            if (want_aovs) {
+                for (int c = 0; c < 3; ++c) {
+                    if (aovs.albedo) aovs.albedo[3 * size_t(i) + c] = float(aov_albedo[c] * inv);
+                    if (aovs.normal) aovs.normal[3 * size_t(i) + c] = float(aov_normal[c] * inv);
+                }
+                if (aovs.depth)
+                    aovs.depth[i] = aov_hits ? float(aov_depth / aov_hits) : std::numeric_limits<float>::infinity();
+                if (aovs.samples) aovs.samples[i] = float(options.spp);
+            }
         }
         if (light_stats.rejected_splats) rejected_splats.fetch_add(light_stats.rejected_splats);
+        closest_rays.fetch_add(tls_ray_counters.closest - rays_before.closest - aov_rays.closest,
+                               std::memory_order_relaxed);
+        shadow_rays.fetch_add(tls_ray_counters.shadow - rays_before.shadow - aov_rays.shadow,
+                              std::memory_order_relaxed);
     };
 
     const int threads = options.threads > 0 ? options.threads : tbb::this_task_arena::max_concurrency();
@@ -154,6 +235,8 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
     stats.nonfinite_samples = nonfinite.load();
     stats.light_paths = (light_tracing || bidirectional) ? stats.samples : 0;
     stats.rejected_splats = rejected_splats.load();
+    stats.closest_rays = closest_rays.load();
+    stats.shadow_rays = shadow_rays.load();
     return stats;
 }
 

@@ -42,6 +42,33 @@ struct RenderStats {
     int64_t first_nonfinite_pixel_x = -1, first_nonfinite_pixel_y = -1, first_nonfinite_sample = -1;
     uint64_t light_paths = 0;      // light subpaths traced (one per pixel sample for kLight)
     uint64_t rejected_splats = 0;  // splats that were not finite and >= 0: a bug if > 0
+    // Rays the integrators traced (Scene::Intersect / Scene::Occluded calls, counted per
+    // thread): closest-hit rays and shadow (any-hit) rays. AOV rays are not included.
+    uint64_t closest_rays = 0, shadow_rays = 0;
+};
+
+// Optional per-pixel outputs besides the colour ("arbitrary output variables"), for
+// denoisers and comparisons. Each pointer, if not null, receives tile.height * tile.width
+// pixels, row-major; null outputs cost nothing. Per sample (the camera ray of the sample,
+// clipped to the camera's range; a sample whose ray escapes counts as background):
+//   albedo (3 floats): the directional albedo rho(wo) = integral of f |cos| of the first
+//     surface that is not purely specular, one BSDF sample per pixel sample (exact for a
+//     Lambertian: its reflectance). Ideal mirror / glass vertices before it are followed
+//     by sampling their delta lobes, their throughput (without refraction's 1/eta^2
+//     radiance scaling) multiplying the albedo. Background 0.
+//   normal (3 floats): the first hit's world-space shading normal, turned toward the
+//     camera ray's side of the surface. Background 0.
+//   depth (1 float): the first hit's camera-space z (distance along the view axis, the
+//     quantity the clipping range limits; not the Euclidean distance).
+// Pixel values: albedo and normal are the mean over all samples; depth is the mean over
+// the samples that hit something (the rgba alpha is that fraction), +inf if none did.
+//   samples (1 float): the number of samples averaged into the pixel (= spp).
+struct AOVBuffers {
+    float* albedo = nullptr;
+    float* normal = nullptr;
+    float* depth = nullptr;
+    float* samples = nullptr;
+    bool any() const { return albedo || normal || depth || samples; }
 };
 
 // Writes tile.height * tile.width * 4 floats (RGBA, row-major) to `rgba`: the mean of
@@ -54,6 +81,7 @@ struct RenderStats {
 // then holds only the light that reaches the camera unscattered. The final image is
 // rgba + splats * pixel_count / (kSplatScale * total light paths of all tiles).
 RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOptions& options, TileRect tile,
-                       float* rgba, float* variance = nullptr, int64_t* splats = nullptr);
+                       float* rgba, float* variance = nullptr, int64_t* splats = nullptr,
+                       const AOVBuffers& aovs = {});
 
 }  // namespace tessera

@@ -5,6 +5,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "ray_counters.h"
 #include "sampling.h"
 
 namespace tessera {
@@ -528,6 +529,7 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceH
     rh.ray.flags = 0;
     rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    ++tls_ray_counters.closest;
     rtcIntersect1(scene_, &context, &rh);
     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
     hit->t = rh.ray.tfar;
@@ -609,6 +611,7 @@ bool Scene::Occluded(Vec3 origin, Vec3 dir, float t_far) const {
     ray.mask = 0xFFFFFFFFu;
     ray.id = 0;
     ray.flags = 0;
+    ++tls_ray_counters.shadow;
     rtcOccluded1(scene_, &context, &ray);
     return ray.tfar < 0.f;  // Embree sets tfar = -inf on a hit
 }

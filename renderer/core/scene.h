@@ -222,6 +222,7 @@ public:
     bool has_environment() const { return !environment_lights_.empty(); }
 
     size_t num_triangles() const { return num_triangles_; }
+    RTCScene embree_scene() const { return scene_; }  // for raw-Embree benchmarks
     size_t num_emitters() const { return emitters_.size(); }
     size_t num_instances() const { return instances_.size(); }
     // Triangles stored (world mesh + one copy of each prototype), not counting instancing.

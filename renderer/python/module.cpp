@@ -5,8 +5,15 @@
 #include <nanobind/stl/array.h>
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/string.h>
+#include <nanobind/stl/vector.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+#include <xmmintrin.h>
 
 #include <array>
+#include <atomic>
+#include <chrono>
 #include <limits>
 #include <memory>
 
@@ -331,11 +338,14 @@ NB_MODULE(_core, m) {
         .def_ro("width", &Camera::width)
         .def_ro("height", &Camera::height);
 
+    m.attr("AOV_NAMES") = nb::make_tuple("albedo", "normal", "depth", "spp");
+
     m.def(
         "render_tile",
         [](const Scene& scene, const Camera& camera, uint32_t x0, uint32_t y0, uint32_t width, uint32_t height,
            uint32_t spp, uint32_t seed, int max_depth, int threads, uint32_t sample_start, bool with_variance,
-           const std::string& integrator, std::optional<SplatArray> splats, const std::string& sampler) {
+           const std::string& integrator, std::optional<SplatArray> splats, const std::string& sampler,
+           const std::vector<std::string>& aovs) {
             RenderOptions options{.spp = spp, .seed = seed, .max_depth = max_depth, .threads = threads,
                                   .sample_start = sample_start, .integrator = ParseIntegrator(integrator),
                                   .sampler = ParseSampler(sampler)};
@@ -349,11 +359,30 @@ NB_MODULE(_core, m) {
             auto pixels = std::make_unique<float[]>(n * 4);
             std::unique_ptr<float[]> variance;
             if (with_variance) variance = std::make_unique<float[]>(n * 3);
+            std::unique_ptr<float[]> albedo, normal, depth, samples;
+            AOVBuffers aov;
+            for (const std::string& name : aovs) {
+                if (name == "albedo") {
+                    if (!albedo) albedo = std::make_unique<float[]>(n * 3);
+                    aov.albedo = albedo.get();
+                } else if (name == "normal") {
+                    if (!normal) normal = std::make_unique<float[]>(n * 3);
+                    aov.normal = normal.get();
+                } else if (name == "depth") {
+                    if (!depth) depth = std::make_unique<float[]>(n);
+                    aov.depth = depth.get();
+                } else if (name == "spp") {
+                    if (!samples) samples = std::make_unique<float[]>(n);
+                    aov.samples = samples.get();
+                } else {
+                    throw std::invalid_argument("unknown AOV '" + name + "' (known: albedo, normal, depth, spp)");
+                }
+            }
             RenderStats stats;
             {
                 nb::gil_scoped_release release;
                 stats = RenderTile(scene, camera, options, TileRect{x0, y0, width, height}, pixels.get(),
-                                   variance.get(), splat_data);
+                                   variance.get(), splat_data, aov);
             }
             nb::dict info;
             info["samples"] = stats.samples;
@@ -362,15 +391,78 @@ NB_MODULE(_core, m) {
                                                      stats.first_nonfinite_sample);
             info["light_paths"] = stats.light_paths;
             info["rejected_splats"] = stats.rejected_splats;
+            info["closest_rays"] = stats.closest_rays;
+            info["shadow_rays"] = stats.shadow_rays;
             if (with_variance) info["variance"] = ToNumpy(std::move(variance), {height, width, 3});
+            if (albedo) info["albedo"] = ToNumpy(std::move(albedo), {height, width, 3});
+            if (normal) info["normal"] = ToNumpy(std::move(normal), {height, width, 3});
+            if (depth) info["depth"] = ToNumpy(std::move(depth), {height, width});
+            if (samples) info["spp"] = ToNumpy(std::move(samples), {height, width});
             return nb::make_tuple(ToNumpy(std::move(pixels), {height, width, 4}), info);
         },
         "scene"_a, "camera"_a, "x0"_a, "y0"_a, "width"_a, "height"_a, "spp"_a, "seed"_a = 0, "max_depth"_a = 64,
         "threads"_a = 0, "sample_start"_a = 0, "with_variance"_a = false, "integrator"_a = "path",
-        "splats"_a = nb::none(), "sampler"_a = "sobol",
+        "splats"_a = nb::none(), "sampler"_a = "sobol", "aovs"_a = std::vector<std::string>{},
         "Renders samples [sample_start, sample_start + spp) of a tile; returns (rgba float32 [h, w, 4] mean, "
         "stats dict). With with_variance, stats['variance'] is float32 [h, w, 3]: the per-channel sample "
         "variance. integrator: 'path', 'light', 'bdpt', 'local' or 'whitted'; 'light' and 'bdpt' add its camera connections to `splats`, an int64 "
         "(height, width, 3) full-frame fixed-point buffer (scale 2^24) owned by the caller. sampler: 'sobol' "
-        "(padded Owen-scrambled Sobol, default) or 'independent'.");
+        "(padded Owen-scrambled Sobol, default) or 'independent'. aovs: names from AOV_NAMES; each adds "
+        "stats[name] (albedo, normal float32 [h, w, 3]; depth, spp float32 [h, w]; see render.h). "
+        "stats['closest_rays'] / stats['shadow_rays']: Embree queries the integrator made.");
+
+    m.def(
+        "trace_rays",
+        [](const Scene& scene, nb::ndarray<const float, nb::shape<-1, 3>, nb::c_contig, nb::device::cpu> origins,
+           nb::ndarray<const float, nb::shape<-1, 3>, nb::c_contig, nb::device::cpu> directions,
+           nb::ndarray<const float, nb::shape<-1>, nb::c_contig, nb::device::cpu> t_far, bool occluded,
+           int threads) {
+            const size_t n = origins.shape(0);
+            if (directions.shape(0) != n || t_far.shape(0) != n)
+                throw std::invalid_argument("origins, directions and t_far need one row per ray");
+            const float* o = origins.data();
+            const float* d = directions.data();
+            const float* tf = t_far.data();
+            RTCScene rtc = scene.embree_scene();
+            std::atomic<uint64_t> hits{0};
+            double seconds = 0.0;
+            {
+                nb::gil_scoped_release release;
+                tbb::task_arena arena(threads > 0 ? threads : tbb::this_task_arena::max_concurrency());
+                const auto start = std::chrono::steady_clock::now();
+                arena.execute([&] {
+                    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 256), [&](const tbb::blocked_range<size_t>& r) {
+                        const unsigned int saved = _mm_getcsr();
+                        _mm_setcsr(saved | 0x8040u);
+                        uint64_t local_hits = 0;
+                        RTCIntersectContext context;
+                        rtcInitIntersectContext(&context);
+                        for (size_t i = r.begin(); i != r.end(); ++i) {
+                            if (occluded) {
+                                RTCRay ray{o[3 * i], o[3 * i + 1], o[3 * i + 2], 0.f,
+                                           d[3 * i], d[3 * i + 1], d[3 * i + 2], 0.f, tf[i], 0xFFFFFFFFu, 0, 0};
+                                rtcOccluded1(rtc, &context, &ray);
+                                local_hits += ray.tfar < 0.f;
+                            } else {
+                                RTCRayHit rh;
+                                rh.ray = RTCRay{o[3 * i], o[3 * i + 1], o[3 * i + 2], 0.f,
+                                                d[3 * i], d[3 * i + 1], d[3 * i + 2], 0.f, tf[i], 0xFFFFFFFFu, 0, 0};
+                                rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+                                rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+                                rtcIntersect1(rtc, &context, &rh);
+                                local_hits += rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+                            }
+                        }
+                        hits.fetch_add(local_hits, std::memory_order_relaxed);
+                        _mm_setcsr(saved);
+                    });
+                });
+                seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+            }
+            return nb::make_tuple(hits.load(), seconds);
+        },
+        "scene"_a, "origins"_a, "directions"_a, "t_far"_a, "occluded"_a = false, "threads"_a = 0,
+        "Raw Embree: casts the given rays (float32 (n, 3) origins and unit directions, (n,) t_far, t_near 0) "
+        "through the scene's BVH with rtcIntersect1 (or rtcOccluded1 with occluded) on `threads` threads, "
+        "doing nothing else. Returns (hits, seconds): the ceiling the renderer's rays/s is measured against.");
 }

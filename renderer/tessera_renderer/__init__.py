@@ -14,9 +14,12 @@ import numpy as np
 from . import _core
 from .usd_scene import SceneData, SceneError, translate_stage
 
-__all__ = ["Scene", "SceneError", "load_scene", "NonFiniteSampleError"]
+__all__ = ["Scene", "SceneError", "load_scene", "NonFiniteSampleError", "AOV_NAMES"]
 
 log = logging.getLogger("tessera.renderer")
+
+# Per-pixel outputs render_tile can return besides RGBA (docs/aovs.md).
+AOV_NAMES = ("albedo", "normal", "depth", "spp", "variance")
 
 # Below this UsdPreviewSurface roughness a metal or clearcoat reflects sharply enough to
 # form caustics that path tracing finds only by chance (see docs/integrators.md).
@@ -130,7 +133,7 @@ class Scene:
                     height: int | None = None, spp: int = 64, seed: int = 0, max_depth: int = 64,
                     threads: int = 0, sample_start: int = 0, return_variance: bool = False,
                     integrator: str = "path", splats: np.ndarray | None = None,
-                    sampler: str = "sobol"):
+                    sampler: str = "sobol", aovs=(), stats: dict | None = None):
         """Renders pixels [x0, x0+w) x [y0, y0+h) of a width x height image, averaging samples
         [sample_start, sample_start + spp) of each pixel. Returns float32 linear RGBA of shape
         (h, w, 4); with return_variance, (rgba, variance) where variance is float32 (h, w, 3),
@@ -138,22 +141,41 @@ class Scene:
         integrator "light" also adds the tile's light-path splats to `splats`, an int64
         (height, width, 3) full-frame buffer (see film.py for turning it into an image); the
         tile traced w * h * spp light paths. sampler: "sobol" (Owen-scrambled, default) or
-        "independent". Releases the GIL."""
+        "independent".
+
+        aovs: names from AOV_NAMES (albedo, normal, depth, spp, variance; docs/aovs.md).
+        With any, returns (rgba, {name: array}) instead: albedo and normal float32 (h, w, 3),
+        depth and spp float32 (h, w), variance (h, w, 3); return_variance then adds
+        "variance" to the dict. `stats`, if given, is filled with the renderer's counters
+        (samples, closest_rays, shadow_rays, ...). Releases the GIL."""
         width = width or self.width
         height = height or self.height
         integrator = self.resolve_integrator(integrator)
-        rgba, stats = _core.render_tile(self._core, self.camera(width, height), x0, y0, w, h,
-                                        spp, seed, max_depth, threads, sample_start, return_variance,
-                                        integrator, splats, sampler)
-        if stats["rejected_splats"]:
-            raise NonFiniteSampleError(f"{stats['rejected_splats']} NaN/Inf/negative splats in tile "
+        aovs = [aovs] if isinstance(aovs, str) else list(aovs)
+        unknown = [a for a in aovs if a not in AOV_NAMES]
+        if unknown:
+            raise ValueError(f"unknown AOV {unknown[0]!r} (known: {', '.join(AOV_NAMES)})")
+        want_variance = return_variance or "variance" in aovs
+        core_aovs = [a for a in aovs if a != "variance"]
+        rgba, info = _core.render_tile(self._core, self.camera(width, height), x0, y0, w, h,
+                                       spp, seed, max_depth, threads, sample_start, want_variance,
+                                       integrator, splats, sampler, core_aovs)
+        if stats is not None:
+            stats.update({k: v for k, v in info.items() if not isinstance(v, np.ndarray)})
+        if info["rejected_splats"]:
+            raise NonFiniteSampleError(f"{info['rejected_splats']} NaN/Inf/negative splats in tile "
                                        f"({x0},{y0},{w}x{h}) (seed {seed})")
-        if stats["nonfinite_samples"]:
-            x, y, s = stats["first_nonfinite"]
+        if info["nonfinite_samples"]:
+            x, y, s = info["first_nonfinite"]
             raise NonFiniteSampleError(
-                f"{stats['nonfinite_samples']} NaN/Inf samples in tile ({x0},{y0},{w}x{h}); "
+                f"{info['nonfinite_samples']} NaN/Inf samples in tile ({x0},{y0},{w}x{h}); "
                 f"first at pixel ({x},{y}) sample {s} (seed {seed})")
-        return (rgba, stats["variance"]) if return_variance else rgba
+        if aovs:
+            out = {name: info[name] for name in core_aovs}
+            if want_variance:
+                out["variance"] = info["variance"]
+            return rgba, out
+        return (rgba, info["variance"]) if return_variance else rgba
 
 
 # Column order of the core's UsdPreviewSurface table (renderer/python/module.cpp).

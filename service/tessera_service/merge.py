@@ -7,17 +7,21 @@ from pathlib import Path
 import numpy as np
 
 from tessera import images
-from tessera.protocol import add_splats, resolve_splats, JobSpec, TileResult, combine_passes, decode_tile, tile_grid
+from tessera.protocol import (JobSpec, TileResult, add_splats, combine_aovs, combine_passes, decode_tile,
+                              new_aov_frame, resolve_splats, tile_grid)
 
 
 class MergeError(Exception):
     """The stored tiles do not form the job's image (missing, misplaced or corrupt)."""
 
 
-def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes], *, partial: bool = False) -> np.ndarray:
+def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes], *, partial: bool = False,
+                with_aovs: bool = False):
     """Combines each tile's passes (protocol.combine_passes, as the local render does) and
     pastes the tiles into a full float RGBA image; returns it as (h, w, 4) float32. With
-    `partial`, missing tiles stay black (a preview of a running job)."""
+    `partial`, missing tiles stay black (a preview of a running job). With `with_aovs`,
+    returns (rgba, aovs): the job's AOVs (settings.aovs) merged like the local render's
+    (protocol.combine_aovs), as full-frame float32 (h, w, c) layers."""
     s = spec.settings
     grid = tile_grid(s.width, s.height, s.tile_size)
     passes: dict[int, list[TileResult]] = {}
@@ -46,6 +50,7 @@ def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes], *, partial: bool
         missing = sorted(set(range(len(grid))) - set(passes))
         raise MergeError(f"{len(missing)} of {len(grid)} tiles are missing (first: {missing[:5]})")
     full = np.zeros((s.height, s.width, 4), dtype=np.float32)
+    aovs = new_aov_frame(s) if with_aovs else {}
     # Light-tracing splats from every result, summed exactly (integers) and normalised once
     # by the light paths of all results (protocol.resolve_splats).
     splats = None
@@ -67,22 +72,31 @@ def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes], *, partial: bool
             if not results:
                 continue
         try:
-            rgba, _, _ = combine_passes(results)
+            rgba, variance, _ = combine_passes(results)
+            layers = combine_aovs(results) if aovs else {}
         except ValueError as e:
             raise MergeError(f"tile {index}: {e}") from e
         full[rect.y0:rect.y0 + rect.height, rect.x0:rect.x0 + rect.width] = rgba
-    return resolve_splats(full, splats, light_paths) if splats is not None else full
+        if variance is not None:
+            layers["variance"] = variance
+        for name, buf in aovs.items():
+            if layers.get(name) is None:
+                raise MergeError(f"tile {index} has no {name} AOV (rendered by a worker without AOVs?)")
+            buf[rect.y0:rect.y0 + rect.height, rect.x0:rect.x0 + rect.width] = \
+                np.asarray(layers[name], np.float32).reshape(rect.height, rect.width, -1)
+    image = resolve_splats(full, splats, light_paths) if splats is not None else full
+    return (image, aovs) if with_aovs else image
 
 
-def encode_image(rgba: np.ndarray, spec: JobSpec, fmt: str) -> bytes:
-    """The image as float EXR bytes (with the same header attributes as a local render)
-    or as a tonemapped sRGB PNG preview."""
+def encode_image(rgba: np.ndarray, spec: JobSpec, fmt: str, aovs: dict[str, np.ndarray] | None = None) -> bytes:
+    """The image as float EXR bytes (with the same header attributes and AOV layers as a
+    local render) or as a tonemapped sRGB PNG preview (colour only)."""
     with tempfile.TemporaryDirectory(prefix="tessera-merge-") as tmp:
         path = Path(tmp, f"image.{fmt}")
         if fmt == "exr":
             s = spec.settings
             images.write_exr(path, rgba, images.render_metadata(
-                s.max_spp if s.adaptive else s.spp, s.seed, spec.scene_name))
+                s.max_spp if s.adaptive else s.spp, s.seed, spec.scene_name), aovs=aovs)
         else:
             images.write_png_preview(path, rgba)
         return path.read_bytes()

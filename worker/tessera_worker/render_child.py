@@ -9,10 +9,11 @@ On start it sends ("hello", blob_version): the renderer's translated-scene blob 
 (None if this renderer has no blob API). Then, per request:
 
 Request: dict(serial, scene_path, blob_path, blob_out, x0, y0, w, h, width, height, spp,
-sample_start, seed, max_depth, threads, variance, fault). The scene comes from the blob
+sample_start, seed, max_depth, threads, variance, aovs, fault). The scene comes from the blob
 file `blob_path` if given (no USD involved), else is translated from `scene_path`; with
-`blob_out`, the translation is also written there as a blob for other workers. Reply: ("ok", rgba, variance | None, seconds, splat | None, serial), splat = (rect, int64 layer,
-light paths) for the light and bdpt integrators
+`blob_out`, the translation is also written there as a blob for other workers. Reply: ("ok", rgba, variance | None, seconds, splat | None, aovs | None, serial), splat =
+(rect, int64 layer, light paths) for the light and bdpt integrators, aovs = {name: layer}
+for the requested AOVs other than variance
 or ("error", kind, message, serial) with kind "scene" | "memory" | "other"; the serial
 lets the supervisor check that a reply answers its latest request.
 """
@@ -101,6 +102,7 @@ def serve(conn: Connection) -> None:
                           seed=req["seed"], max_depth=req["max_depth"], threads=req["threads"])
             if req["variance"] or req["sample_start"]:
                 kwargs.update(sample_start=req["sample_start"], return_variance=req["variance"])
+            aovs = [a for a in req.get("aovs", ()) if a != "variance"]  # variance: req["variance"]
             # `auto` resolves from the scene alone, so every worker picks the same method.
             integrator = scene.resolve_integrator(req.get("integrator", "path"))
             splats = None
@@ -108,14 +110,19 @@ def serve(conn: Connection) -> None:
                 splats = np.zeros((req["height"], req["width"], 3), dtype=np.int64)
             started = time.perf_counter()
             out = scene.render_tile(req["x0"], req["y0"], req["w"], req["h"], integrator=integrator,
-                                    splats=splats, **kwargs)
+                                    splats=splats, aovs=aovs, **kwargs)
             seconds = time.perf_counter() - started
-            rgba, variance = out if req["variance"] else (out, None)
+            layers = None
+            if aovs:
+                rgba, layers = out
+                variance = layers.pop("variance", None)
+            else:
+                rgba, variance = out if req["variance"] else (out, None)
             splat = None
             if splats is not None:
                 rect, layer = splat_layer(splats)
                 splat = (rect, layer, req["w"] * req["h"] * req["spp"])  # one light path per sample
-            reply = ("ok", rgba, variance, seconds, splat)
+            reply = ("ok", rgba, variance, seconds, splat, layers)
         except SceneError as e:
             reply = ("error", "scene", str(e))
         except MemoryError as e:

@@ -511,7 +511,7 @@ class Worker:
         self.current = f"{job_id}/{task.tile.index}/{task.pass_index}"
         try:
             try:
-                rgba, variance, seconds, splat = self._render(task, sample_start, spp)
+                rgba, variance, seconds, splat, aovs = self._render(task, sample_start, spp)
             except Abandoned:
                 log.info("job %s ended while tile %d rendered; dropped it", job_id, task.tile.index)
                 self._ack(queue, entry_id)
@@ -519,7 +519,7 @@ class Worker:
             except RenderFailed as e:
                 self._failed(task, entry_id, str(e), e.fatal)
                 return
-            final, data = self._result(task, rgba, variance, sample_start, spp, started_at, splat)
+            final, data = self._result(task, rgba, variance, sample_start, spp, started_at, splat, aovs)
         finally:
             self.current = ""
         if task.settings.lockstep:
@@ -542,7 +542,8 @@ class Worker:
         request = dict(**scene, x0=rect.x0, y0=rect.y0,
                        w=rect.width, h=rect.height, width=s.width, height=s.height, spp=spp,
                        sample_start=sample_start, seed=s.seed, max_depth=s.max_depth,
-                       threads=self.threads, variance=s.adaptive, integrator=s.integrator,
+                       threads=self.threads, variance=s.adaptive or "variance" in s.aovs,
+                       aovs=list(s.aovs), integrator=s.integrator,
                        fault=self._fault_for(task))
         job_key = protocol.job_key(task.job_id)
 
@@ -557,7 +558,7 @@ class Worker:
         if reply[0] == "ok":
             if scene.get("blob_out"):
                 self._share_blob(task, scene["blob_out"])
-            return reply[1], reply[2], reply[3], reply[4]
+            return reply[1], reply[2], reply[3], reply[4], reply[5]
         _, kind, message = reply
         if kind == "scene":
             raise RenderFailed(f"cannot load scene {task.scene_name!r}: {message}", fatal=True)
@@ -569,7 +570,7 @@ class Worker:
         raise RenderFailed(message, fatal=False)
 
     def _result(self, task: TileTask, rgba, variance, sample_start: int, spp: int,
-                started_at: float | None, splat=None) -> tuple[bool, bytes]:
+                started_at: float | None, splat=None, aovs=None) -> tuple[bool, bytes]:
         """Encodes the pass and decides whether the tile needs another one."""
         s, rect = task.settings, task.tile
         splat_args = {}
@@ -577,7 +578,8 @@ class Worker:
             splat_rect, layer, light_paths = splat
             splat_args = dict(splat_rect=splat_rect, splat=layer, light_paths=light_paths)
         data = protocol.encode_tile(rect, rgba, pass_index=task.pass_index,
-                                    sample_start=sample_start, spp=spp, variance=variance, **splat_args)
+                                    sample_start=sample_start, spp=spp, variance=variance, aovs=aovs,
+                                    **splat_args)
         if not s.adaptive or s.lockstep:
             return True, data  # lockstep: the pass barrier decides (_decide)
         earlier = []

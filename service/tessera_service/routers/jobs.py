@@ -69,6 +69,8 @@ def create_job(
     max_attempts: Annotated[int, Form(ge=1, le=100, description=(
         "failed deliveries of one tile pass (errors, crashes, dead workers) before the job "
         "fails naming the tile"))] = protocol.DEFAULT_MAX_ATTEMPTS,
+    aovs: Annotated[str, Form(description="comma-separated extra EXR layers: albedo, normal, depth, "
+                                          "spp, variance, or all (docs/aovs.md)")] = "",
 ) -> JobCreated:
     settings: Settings = request.app.state.settings
     store: JobStore = request.app.state.store
@@ -80,7 +82,7 @@ def create_job(
                                  f"upload a {', '.join(SCENE_SUFFIXES)} file")
     params = dict(spp=spp, seed=seed, max_depth=max_depth, tile_size=tile_size, integrator=integrator,
                   target_error=target_error, min_spp=min_spp, max_spp=max_spp,
-                  time_limit=time_limit)
+                  time_limit=time_limit, aovs=aovs)
     # Check what can be checked before the (slow) inspection; resolution comes later.
     _render_settings(width=width if width is not None else 1,
                      height=height if height is not None else 1, **params)
@@ -270,10 +272,10 @@ def _image(request: Request, job_id: str, fmt: str) -> bytes:
     data = store.cached_image(job_id, fmt)
     if data is None:
         try:
-            rgba = merge_tiles(job.spec, store.tiles(job_id))
+            rgba, aovs = merge_tiles(job.spec, store.tiles(job_id), with_aovs=True)
         except MergeError as e:
             raise HTTPException(500, f"cannot assemble the image of job {job_id}: {e}") from None
-        data = encode_image(rgba, job.spec, fmt)
+        data = encode_image(rgba, job.spec, fmt, aovs=aovs)
         store.cache_image(job_id, fmt, data)
     return data
 

@@ -1,0 +1,178 @@
+"""A glass-sphere caustic: path, light and bdpt estimate the same image (statistically),
+and the floor under the sphere is brighter than the sphere's shadow around it and than the
+unshadowed floor, which only focusing by refraction can do.
+
+A smooth glass ball (ior 1.5, radius 0.5, centre 1.5 above a Lambertian floor) under a
+small sphere light (radius 0.3, 4 above the floor). As a ball lens (focal length
+n R / (2 (n - 1)) = 0.75 from its centre) it focuses the light 1.07 below its centre, so
+the floor gets a bright disk of radius ~0.2 inside the ball's shadow (radius ~0.8).
+
+Statistics: each integrator renders the image with independent seeds; per floor region
+(caustic disk, shadow ring, lit floor) the per-seed means give a mean and its standard
+error, and two integrators are compared with Welch's t-test. The limit is the Student-t
+quantile for a family-wise false-alarm rate of 1e-3 over all comparisons (Bonferroni):
+derived from the number of seeds and comparisons, not tuned to the data. Pixels that see
+the ball itself are left out: light tracing cannot produce paths whose last scattering
+before the eye is specular (L...S E), so those pixels differ by design.
+"""
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+import pytest
+from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade
+
+from tessera_renderer import load_scene
+from tessera_renderer.film import new_splat_buffer, resolve_image
+from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, new_stage
+
+W = H = 48
+SEEDS = 16
+SPP = {"path": 256, "light": 48, "bdpt": 24}
+FAMILY_ALPHA = 1e-3
+LIGHT_RADIUS = 0.3
+CAM_ORIGIN, CAM_TILT, TAN_HALF = (0.0, 2.5, 4.0), -32.0, 12.0 / 35.0
+BALL_CENTRE, BALL_RADIUS = np.array([0.0, 1.5, 0.0]), 0.5
+# Floor regions by distance from the point under the ball.
+REGIONS = {"caustic": (0.0, 0.2), "shadow": (0.45, 0.7), "lit": (1.0, 1.6)}
+PAIRS = [("light", "path"), ("bdpt", "path"), ("bdpt", "light")]
+
+
+def write_scene(path, glass: bool = True):
+    stage = new_stage(path)
+    floor = add_mesh(stage, "/Floor", [(-4, 0, -4), (-4, 0, 4), (4, 0, 4), (4, 0, -4)], [4], [0, 1, 2, 3])
+    floor.CreateDisplayColorAttr([Gf.Vec3f(0.8, 0.8, 0.8)])
+    mat = add_material(stage, "/BallMaterial", (0.0, 0.0, 0.0))
+    if glass:
+        shader = UsdShade.Shader(stage.GetPrimAtPath("/BallMaterial/Surface"))
+        shader.CreateInput("opacity", Sdf.ValueTypeNames.Float).Set(0.0)
+        shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.0)
+        shader.CreateInput("ior", Sdf.ValueTypeNames.Float).Set(1.5)
+    ball = UsdGeom.Sphere.Define(stage, "/Ball")
+    ball.CreateRadiusAttr(BALL_RADIUS)
+    ball.AddTranslateOp().Set(Gf.Vec3d(*BALL_CENTRE))
+    UsdShade.MaterialBindingAPI.Apply(ball.GetPrim()).Bind(mat)
+    light = UsdLux.SphereLight.Define(stage, "/Light")
+    light.CreateRadiusAttr(LIGHT_RADIUS)
+    light.CreateIntensityAttr(20.0 / LIGHT_RADIUS ** 2)  # the same power whatever its size
+    light.AddTranslateOp().Set(Gf.Vec3d(0, 4, 0))
+    cam = add_camera(stage, "/Cam", CAM_ORIGIN, focal=35.0, haperture=24.0, vaperture=24.0)
+    UsdGeom.Xformable(cam.GetPrim()).AddRotateXOp().Set(CAM_TILT)
+    add_render_settings(stage, cam, (W, H))
+    stage.GetRootLayer().Save()
+    return load_scene(path)
+
+
+def floor_radius() -> np.ndarray:
+    """Per pixel, the distance from the floor point its centre sees to the point under the
+    ball (NaN where the pixel sees the ball or the sky): the camera set up above."""
+    th = math.radians(CAM_TILT)
+    fwd, up = np.array([0, math.sin(th), -math.cos(th)]), np.array([0, math.cos(th), math.sin(th)])
+    o = np.array(CAM_ORIGIN)
+    sx = (2 * (np.arange(W) + 0.5) / W - 1) * TAN_HALF
+    sy = (1 - 2 * (np.arange(H) + 0.5) / H) * TAN_HALF
+    d = fwd + np.array([1.0, 0, 0]) * sx[None, :, None] + up * sy[:, None, None]
+    d /= np.linalg.norm(d, axis=2, keepdims=True)
+    oc = o - BALL_CENTRE
+    b = (d * oc).sum(axis=2)
+    # Pixels whose footprint may touch the ball (its radius grown by a pixel's width there).
+    sees_ball = b * b - (oc @ oc - (BALL_RADIUS + 0.05) ** 2) > 0
+    p = o + d * (-o[1] / d[..., 1])[..., None]
+    r = np.hypot(p[..., 0], p[..., 2])
+    r[sees_ball | (d[..., 1] >= 0)] = np.nan
+    return r
+
+
+def region_means(img: np.ndarray, r: np.ndarray) -> dict[str, float]:
+    lum = img[..., :3].astype(np.float64).mean(axis=2)
+    return {name: float(lum[(r >= lo) & (r < hi)].mean()) for name, (lo, hi) in REGIONS.items()}
+
+
+def render(scene, integrator: str, seed: int) -> np.ndarray:
+    spp = SPP[integrator]
+    splats = new_splat_buffer(W, H) if integrator != "path" else None
+    img = scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, max_depth=8, threads=2,
+                            integrator=integrator, splats=splats)
+    return resolve_image(img, splats, W * H * spp) if splats is not None else img
+
+
+def student_t_quantile(p: float, df: float) -> float:
+    """Inverse CDF of Student's t (p > 0.5), by bisection on the CDF integrated with
+    Simpson's rule (no scipy here)."""
+    c = math.exp(math.lgamma((df + 1) / 2) - math.lgamma(df / 2)) / math.sqrt(df * math.pi)
+
+    def cdf(x: float) -> float:
+        n = 2000
+        h = x / n
+        f = [c * (1 + (i * h) ** 2 / df) ** (-(df + 1) / 2) for i in range(n + 1)]
+        return 0.5 + h / 3 * (f[0] + f[-1] + 4 * sum(f[1:-1:2]) + 2 * sum(f[2:-1:2]))
+
+    lo, hi = 0.0, 1e3
+    for _ in range(100):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if cdf(mid) < p else (lo, mid)
+    return (lo + hi) / 2
+
+
+def welch(a: list[float], b: list[float]) -> tuple[float, float, float]:
+    """(t statistic, Welch-Satterthwaite degrees of freedom, standard error of a - b)."""
+    a, b = np.asarray(a), np.asarray(b)
+    va, vb = a.var(ddof=1) / len(a), b.var(ddof=1) / len(b)
+    se = math.sqrt(va + vb)
+    df = (va + vb) ** 2 / (va ** 2 / (len(a) - 1) + vb ** 2 / (len(b) - 1))
+    return (a.mean() - b.mean()) / se, df, se
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    scene = write_scene(tmp_path_factory.mktemp("caustic") / "caustic.usda")
+    r = floor_radius()
+    for name, (lo, hi) in REGIONS.items():
+        assert ((r >= lo) & (r < hi)).sum() >= 8, f"region {name} has too few pixels"
+    base = int(os.environ.get("TESSERA_TEST_SEED_BASE", "0"))  # to probe the false-alarm rate
+    return {name: [region_means(render(scene, name, base + s), r) for s in range(SEEDS)]
+            for name in SPP}
+
+
+def test_path_light_and_bdpt_agree_on_the_caustic_scene(runs):
+    comparisons = len(PAIRS) * len(REGIONS)
+    failures, sharpness = [], []
+    for a, b in PAIRS:
+        for region in REGIONS:
+            xa = [m[region] for m in runs[a]]
+            xb = [m[region] for m in runs[b]]
+            t, df, se = welch(xa, xb)
+            limit = student_t_quantile(1 - FAMILY_ALPHA / (2 * comparisons), df)
+            if abs(t) > limit:
+                failures.append(f"{a} vs {b}, {region}: t = {t:.2f}, limit {limit:.2f} "
+                                f"({np.mean(xa):.4f} vs {np.mean(xb):.4f})")
+            # The smallest relative difference this comparison would detect.
+            sharpness.append(limit * se / abs(np.mean(xb)))
+    assert not failures, "\n".join(failures)
+    # Sharp enough to matter: a 30 % error in any region would be detected. Measured over 5
+    # seed blocks: caustic 10-15 %, shadow ring (lit only by the caustic's fringe) 15-22 %,
+    # open floor 1-3 %. (This bounds the test's power; it is not a tolerance on the image.)
+    assert max(sharpness) < 0.3, f"detectable relative differences: {np.round(sharpness, 3)}"
+
+
+@pytest.mark.parametrize("integrator", list(SPP))
+def test_the_caustic_is_brighter_than_the_shadow_and_the_open_floor(runs, integrator):
+    """Under the ball the floor is brighter than the shadow ring around it and than the
+    floor in the open: a ball that did not refract (or refracted without focusing) could
+    make it at most as bright as the open floor, never brighter."""
+    caustic = [m["caustic"] for m in runs[integrator]]
+    comparisons = 2 * len(SPP)
+    for other in ("shadow", "lit"):
+        t, df, _ = welch(caustic, [m[other] for m in runs[integrator]])
+        limit = student_t_quantile(1 - FAMILY_ALPHA / comparisons, df)  # one-sided
+        assert t > limit, f"{integrator}: caustic {np.mean(caustic):.3f} not brighter than {other} (t = {t:.2f})"
+
+
+def test_an_opaque_ball_leaves_no_caustic(tmp_path):
+    """Negative control for the check above: the same scene with a black opaque ball has
+    a dark floor under it."""
+    scene = write_scene(tmp_path / "opaque.usda", glass=False)
+    means = region_means(render(scene, "bdpt", 0), floor_radius())
+    assert means["caustic"] < 0.1 * means["lit"]
