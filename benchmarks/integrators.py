@@ -63,7 +63,7 @@ def render(scene, integrator: str, spp: int, seed: int, res: int) -> tuple[np.nd
     rgba = scene.render_tile(0, 0, res, res, width=res, height=res, spp=spp, seed=seed, threads=2,
                              max_depth=32, integrator=integrator, splats=splats)
     seconds = time.perf_counter() - start
-    return resolve_image(rgba, splats, res * res * spp), seconds
+    return resolve_image(rgba, splats, res * res * spp, scene.splat_exponent), seconds
 
 
 def main() -> int:

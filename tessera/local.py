@@ -169,7 +169,7 @@ def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, th
             if not settings.adaptive:
                 break
             # protocol.pass_image, from the same numbers the farm's barrier decodes.
-            image = resolve_splats(pass_rgba, pass_splats, pass_paths) if splatting else pass_rgba
+            image = resolve_splats(pass_rgba, pass_splats, pass_paths, scene.splat_exponent) if splatting else pass_rgba
             acc = acc.add(image, spp)
             if image_finished(settings, p, acc) or (deadline is not None and time.monotonic() >= deadline):
                 break
@@ -180,5 +180,5 @@ def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, th
         mean, var, _ = combine_passes(results)
         rgba[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = mean
         paste_aovs(aovs, _tile_aovs(settings, results, var), t)
-    image = resolve_splats(rgba, total_splats, total_paths) if splatting else rgba
+    image = resolve_splats(rgba, total_splats, total_paths, scene.splat_exponent) if splatting else rgba
     return LocalRenderResult(image, time.perf_counter() - start, samples, p + 1, aovs=aovs)

@@ -12,6 +12,7 @@ bit for bit whatever the pass schedule.
 """
 from __future__ import annotations
 
+import math
 import struct
 import zlib
 from dataclasses import dataclass
@@ -319,7 +320,8 @@ def job_tasks(spec: JobSpec) -> list[TileTask]:
 #       splats in the renderer's fixed point (tessera_renderer.film), covering that rect of
 #       the full frame (the bounding box of where the pass's light paths landed). Summed
 #       over all results (exact, order-free) and normalised by the job's total light_paths
-#       (film.resolve_image).
+#       (film.resolve_image). With FLAG_SPLAT_EXPONENT an int32 e follows the rect: the
+#       fixed point's unit is 2^e (the scene's splat_exponent; 0 without the flag).
 #   aovs if FLAG_AOVS (version 3 only): a u32 mask (bit i: the i-th of AOV_CHANNELS'
 #       names: albedo, normal, depth, spp), then each present AOV as float32 (h, w, c)
 #       in that order (see docs/aovs.md for their meaning)
@@ -335,6 +337,7 @@ FLAG_VARIANCE = 1
 FLAG_SPLAT = 2         # splat section stored raw
 FLAG_SPLAT_ZLIB = 4    # splat section's int64 bytes zlib-compressed (u32 length first)
 FLAG_AOVS = 8          # AOV section (version 3)
+FLAG_SPLAT_EXPONENT = 16  # the splat section's unit exponent
 RESULT_VERSION_AOVS = 3
 
 # Integrators whose light paths splat onto the whole frame (and `auto`, which may be one).
@@ -357,13 +360,14 @@ class TileResult:
     splat: np.ndarray | None = None     # int64 (h, w, 3), fixed point
     light_paths: int = 0
     aovs: dict[str, np.ndarray] | None = None  # name -> float32 (h, w, c) (AOV_CHANNELS)
+    splat_exponent: int = 0             # the splats' fixed-point unit is 2^splat_exponent
 
 
 def encode_tile(rect: TileRect, rgba: np.ndarray, *, pass_index: int = 0, sample_start: int = 0,
                 spp: int = 0, variance: np.ndarray | None = None,
                 splat_rect: tuple[int, int, int, int] | None = None,
                 splat: np.ndarray | None = None, light_paths: int = 0,
-                aovs: dict[str, np.ndarray] | None = None) -> bytes:
+                aovs: dict[str, np.ndarray] | None = None, splat_exponent: int = 0) -> bytes:
     rgba = np.ascontiguousarray(rgba, dtype=np.float32)
     if rgba.shape != (rect.height, rect.width, 4):
         raise ValueError(f"tile {rect.index}: pixels have shape {rgba.shape}, "
@@ -404,8 +408,8 @@ def encode_tile(rect: TileRect, rgba: np.ndarray, *, pass_index: int = 0, sample
             raise ValueError(f"splat layer has shape {splat.shape}, rect {splat_rect}")
         # Splat layers are mostly small integers and zeros: zlib shrinks them several fold.
         packed = zlib.compress(splat.tobytes(), 1)
-        flags |= FLAG_SPLAT | FLAG_SPLAT_ZLIB
-        parts += [_SPLAT_RECT.pack(*splat_rect), struct.pack("<I", len(packed)), packed]
+        flags |= FLAG_SPLAT | FLAG_SPLAT_ZLIB | FLAG_SPLAT_EXPONENT
+        parts += [_SPLAT_RECT.pack(*splat_rect), struct.pack("<iI", splat_exponent, len(packed)), packed]
     header = _HEADER.pack(_TILE_MAGIC, version, rect.x0, rect.y0, rect.width, rect.height,
                           pass_index, sample_start, spp, flags, light_paths)
     return header + b"".join(parts)
@@ -427,7 +431,8 @@ def decode_tile(data: bytes) -> TileResult:
     if len(data) < _HEADER.size:
         raise ValueError("tile result is truncated")
     *_, pass_index, sample_start, spp, flags, light_paths = _HEADER.unpack_from(data)
-    known = FLAG_VARIANCE | FLAG_SPLAT | FLAG_SPLAT_ZLIB | (FLAG_AOVS if version >= RESULT_VERSION_AOVS else 0)
+    known = FLAG_VARIANCE | FLAG_SPLAT | FLAG_SPLAT_ZLIB | FLAG_SPLAT_EXPONENT | (
+        FLAG_AOVS if version >= RESULT_VERSION_AOVS else 0)
     if flags & ~known:
         raise ValueError(f"tile result v{version} has unknown flags {flags & ~known:#x}")
     expected = _HEADER.size + w * h * 16 + (w * h * 12 if flags & FLAG_VARIANCE else 0)
@@ -452,14 +457,23 @@ def decode_tile(data: bytes) -> TileResult:
         if sw < 0 or sh < 0:
             raise ValueError("tile result has a negative splat size")
         result.splat_rect = (sx, sy, sw, sh)
-        if flags & FLAG_SPLAT_ZLIB:
-            if len(data) < expected + _SPLAT_RECT.size + 4:
+        head = _SPLAT_RECT.size
+        if flags & FLAG_SPLAT_EXPONENT:
+            if len(data) < expected + head + 4:
                 raise ValueError("tile result is truncated")
-            (packed_len,) = struct.unpack_from("<I", data, expected + _SPLAT_RECT.size)
-            splat_offset = expected + _SPLAT_RECT.size + 4
-            expected += _SPLAT_RECT.size + 4 + packed_len
+            (result.splat_exponent,) = struct.unpack_from("<i", data, expected + head)
+            if not -1000 < result.splat_exponent < 1000:
+                raise ValueError(f"tile result has an impossible splat exponent {result.splat_exponent}")
+            head += 4
+        if flags & FLAG_SPLAT_ZLIB:
+            if len(data) < expected + head + 4:
+                raise ValueError("tile result is truncated")
+            (packed_len,) = struct.unpack_from("<I", data, expected + head)
+            splat_offset = expected + head + 4
+            expected += head + 4 + packed_len
         else:
-            expected += _SPLAT_RECT.size + sw * sh * 24
+            splat_offset = expected + head
+            expected += head + sw * sh * 24
     if len(data) != expected:
         raise ValueError(f"tile result has {len(data)} bytes, expected {expected}")
     result.rgba = _floats(data, offset, (h, w, 4))
@@ -482,7 +496,7 @@ def decode_tile(data: bytes) -> TileResult:
             result.splat = np.frombuffer(raw, dtype=np.int64).reshape(sh, sw, 3)
         else:
             result.splat = np.frombuffer(data, dtype=np.int64, count=sw * sh * 3,
-                                         offset=offset + _SPLAT_RECT.size).reshape(sh, sw, 3)
+                                         offset=splat_offset).reshape(sh, sw, 3)
     return result
 
 
@@ -504,14 +518,26 @@ def add_splats(total: np.ndarray, rect: tuple[int, int, int, int], layer: np.nda
         total[y0:y0 + h, x0:x0 + w] += layer
 
 
-def resolve_splats(rgba: np.ndarray, splats: np.ndarray | None, light_paths: int) -> np.ndarray:
-    """Full-frame float32 RGBA = camera part + splats * pixel_count / (SPLAT_SCALE * light
-    paths of all tiles). The renderer's film.resolve_image, for the farm's side."""
+def resolve_splats(rgba: np.ndarray, splats: np.ndarray | None, light_paths: int,
+                   exponent: int) -> np.ndarray:
+    """Full-frame float32 RGBA = camera part + splats * 2^exponent * pixel_count /
+    (SPLAT_SCALE * light paths of all tiles). The renderer's film.resolve_image, for the
+    farm's side."""
     out = np.array(rgba, dtype=np.float32, copy=True)
     if splats is not None and light_paths > 0:
         height, width = out.shape[:2]
-        out[..., :3] += (splats.astype(np.float64) * (width * height / (SPLAT_SCALE * light_paths))).astype(np.float32)
+        scale = math.ldexp(width * height / (SPLAT_SCALE * light_paths), exponent)
+        out[..., :3] += (splats.astype(np.float64) * scale).astype(np.float32)
     return out
+
+
+def splat_exponent_of(results) -> int:
+    """The splat unit exponent shared by results carrying splats (0 if none does); results
+    of one scene always share it, so a mismatch means they are not one job's."""
+    exponents = {r.splat_exponent for r in results if r.splat is not None}
+    if len(exponents) > 1:
+        raise ValueError(f"tile results disagree on the splat unit (2^{sorted(exponents)})")
+    return exponents.pop() if exponents else 0
 
 
 def _floats(data: bytes, offset: int, shape: tuple[int, ...]) -> np.ndarray:
@@ -628,7 +654,7 @@ def pass_image(width: int, height: int, results: list[TileResult]) -> np.ndarray
                 splats = np.zeros((height, width, 3), dtype=np.int64)
             add_splats(splats, r.splat_rect, r.splat)
             light_paths += r.light_paths
-    return resolve_splats(full, splats, light_paths) if splats is not None else full
+    return resolve_splats(full, splats, light_paths, splat_exponent_of(results)) if splats is not None else full
 
 
 @dataclass

@@ -95,7 +95,7 @@ def render(scene, integrator: str, seed: int) -> np.ndarray:
     splats = new_splat_buffer(W, H) if integrator != "path" else None
     img = scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, max_depth=8, threads=2,
                             integrator=integrator, splats=splats)
-    return resolve_image(img, splats, W * H * spp) if splats is not None else img
+    return resolve_image(img, splats, W * H * spp, scene.splat_exponent) if splats is not None else img
 
 
 def student_t_quantile(p: float, df: float) -> float:

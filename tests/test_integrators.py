@@ -19,7 +19,7 @@ def render(scene, integrator, seed, spp, **kw):
         splats = new_splat_buffer(W, H)
         cam = scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, threads=2,
                                 integrator=integrator, splats=splats, **kw)
-        return resolve_image(cam, splats, W * H * spp)
+        return resolve_image(cam, splats, W * H * spp, scene.splat_exponent)
     return scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, threads=2, **kw)
 
 
@@ -88,8 +88,8 @@ def test_splatting_integrators_are_invariant_to_tiles_threads_and_merge_order(co
     assert cam.tobytes() == whole.tobytes()
     assert np.array_equal(merged, whole_splats)
     assert np.count_nonzero(whole_splats) > 0.5 * whole_splats.size  # splats land all over
-    a = resolve_image(whole, whole_splats, Wi * Hi * spp)
-    b = resolve_image(cam, merged, Wi * Hi * spp)
+    a = resolve_image(whole, whole_splats, Wi * Hi * spp, scene.splat_exponent)
+    b = resolve_image(cam, merged, Wi * Hi * spp, scene.splat_exponent)
     assert a.tobytes() == b.tobytes()
 
 
@@ -179,6 +179,7 @@ def test_path_tracing_misses_a_point_light_caustic_that_bdpt_finds(tmp_path):
     path_img = scene.render_tile(0, 0, W, H, width=W, height=H, spp=64, max_depth=8)
     splats = new_splat_buffer(W, H)
     bdpt_img = resolve_image(scene.render_tile(0, 0, W, H, width=W, height=H, spp=64, max_depth=8,
-                                               integrator="bdpt", splats=splats), splats, W * H * 64)
+                                               integrator="bdpt", splats=splats), splats, W * H * 64,
+                             scene.splat_exponent)
     assert path_img[..., :3].max() == 0.0          # the caustic does not exist for path tracing
     assert bdpt_img[..., :3].mean() > 0.05         # it does for bdpt

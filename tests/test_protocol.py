@@ -211,6 +211,24 @@ def test_compressed_splat_layers_round_trip_and_merge_exactly():
     assert protocol.splat_layer(np.zeros((4, 4, 3), np.int64))[0] == (0, 0, 0, 0)
 
 
+def test_splat_unit_exponent_round_trips_and_scales_the_image():
+    tile = protocol.TileRect(index=0, x0=0, y0=0, width=2, height=1)
+    layer = np.full((1, 2, 3), 1 << 24, np.int64)  # one unit per channel
+    results = []
+    for exponent in (-90, 0, 70):
+        data = protocol.encode_tile(tile, np.zeros((1, 2, 4), np.float32), spp=1,
+                                    splat_rect=(0, 0, 2, 1), splat=layer, light_paths=2,
+                                    splat_exponent=exponent)
+        r = protocol.decode_tile(data)
+        assert r.splat_exponent == exponent
+        image = protocol.resolve_splats(np.zeros((1, 2, 4), np.float32), r.splat, 2, r.splat_exponent)
+        assert np.allclose(image[..., :3], 2.0 ** exponent, rtol=1e-6)
+        results.append(r)
+    assert protocol.splat_exponent_of(results[:1]) == -90
+    with pytest.raises(ValueError, match="splat unit"):
+        protocol.splat_exponent_of(results)
+
+
 def test_splatting_integrators_take_noise_targets_in_lockstep():
     for name in ("light", "bdpt", "auto"):
         s = protocol.RenderSettings(width=8, height=8, target_error=0.05, integrator=name)

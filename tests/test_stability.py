@@ -17,7 +17,7 @@ import math
 import numpy as np
 import pytest
 
-from tessera_renderer import NonFiniteSampleError, Scene
+from tessera_renderer import Scene
 from tessera_renderer.film import resolve_image
 from tessera_renderer.usd_scene import PARAM_KEYS, CameraDesc, SceneData
 
@@ -106,7 +106,7 @@ def render(scene: Scene, integrator: str, spp: int = 4, seed: int = 0) -> np.nda
         splats = np.zeros((h, w, 3), np.int64)
         rgba = scene.render_tile(0, 0, w, h, spp=spp, seed=seed, threads=2, integrator=integrator,
                                  splats=splats)
-        rgb = resolve_image(rgba, splats, w * h * spp)[..., :3]
+        rgb = resolve_image(rgba, splats, w * h * spp, scene.splat_exponent)[..., :3]
     else:
         rgb = scene.render_tile(0, 0, w, h, spp=spp, seed=seed, threads=2, integrator=integrator)[..., :3]
     assert np.isfinite(rgb).all(), f"{integrator}: {int((~np.isfinite(rgb)).sum())} non-finite values"
@@ -376,13 +376,10 @@ def test_extreme_materials_stay_finite(name):
 
 
 # ------------------------------------------------------------------ extreme lights
-# Known limit of light and bdpt: their camera connections go to a fixed-point film (int64,
-# 2^24 per unit; splat_film.h) so that any tiling sums exactly. A splat above 2^39 is
-# rejected and counted (NonFiniteSampleError: loud), one below 2^-24 rounds away (silent:
-# emission 1e-9 renders black with `light`, 1e-3 loses linearity to a few %).
-SPLAT_OVERFLOW = pytest.mark.xfail(strict=True, raises=NonFiniteSampleError,
-                                   reason="splat above the fixed-point film's range")
-SPLAT_UNDERFLOW = pytest.mark.xfail(strict=True, reason="splat below the fixed-point film's resolution")
+# light and bdpt splat camera connections into a fixed-point film (int64) so that any
+# tiling sums exactly. With a fixed unit of 1 this caught both ends: emission 1e20 and
+# above overflowed (2^39), 1e-9 and below rounded to black (2^-24). The unit is now a power
+# of two from the scene's light power (Scene::splat_exponent), so every case here renders.
 
 
 def _extreme_cases():
@@ -391,13 +388,7 @@ def _extreme_cases():
                               ("quad", 0.05, 1e-3), ("quad", 0.05, 1e3), ("quad", 0.05, 1e9),
                               ("quad", 0.05, 1e30)):
         for integrator in INTEGRATORS:
-            marks = []
-            if integrator in ("light", "bdpt") and value >= 1e20:
-                marks = [SPLAT_OVERFLOW]
-            elif kind == "quad" and (integrator, value) in (("light", 1e-30), ("light", 1e-9), ("light", 1e-3),
-                                                            ("bdpt", 1e-3)):
-                marks = [SPLAT_UNDERFLOW]
-            yield pytest.param(kind, size, value, integrator, marks=marks,
+            yield pytest.param(kind, size, value, integrator,
                                id=f"{integrator}-{kind}-{size:g}-{value:g}")
 
 

@@ -117,7 +117,7 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                                                                               : options.max_depth);
     const WhittedIntegrator whitted(options.max_depth);
     const LightTracer light_tracer(options.max_depth);
-    SplatFilm film(splats, camera.width, camera.height);
+    SplatFilm film(splats, camera.width, camera.height, scene.splat_exponent());
     std::atomic<uint64_t> nonfinite{0}, rejected_splats{0}, closest_rays{0}, shadow_rays{0};
     const bool want_aovs = aovs.any();
     std::mutex first_mutex;

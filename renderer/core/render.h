@@ -79,7 +79,7 @@ struct AOVBuffers {
 // kLight and kBDPT also add every light path's camera connections, anywhere in the frame, to
 // `splats` (camera.width * camera.height * 3 int64, fixed point, see splat_film.h); `rgba`
 // then holds only the light that reaches the camera unscattered. The final image is
-// rgba + splats * pixel_count / (kSplatScale * total light paths of all tiles).
+// rgba + splats * pixel_count / (SplatScale(scene.splat_exponent()) * total light paths of all tiles).
 RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOptions& options, TileRect tile,
                        float* rgba, float* variance = nullptr, int64_t* splats = nullptr,
                        const AOVBuffers& aovs = {});

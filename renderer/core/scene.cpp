@@ -1,5 +1,7 @@
 #include "scene.h"
 
+#include <algorithm>
+
 #include <atomic>
 #include <limits>
 #include <stdexcept>
@@ -302,6 +304,16 @@ Scene::Scene(const SceneDesc& desc)
         power.push_back(4.0 * kPi * disk_area * double(Luminance(dome_radiance_)) * mean);
     }
     light_sampler_ = LightSampler(power);
+
+    // The splat film's unit (splat_film.h): the power of two nearest the radiance the lights
+    // can give a diffuse surface, Phi / (pi^2 R^2), so that the fixed point keeps 2^-24 of
+    // it as resolution and 2^39 as headroom whatever the scene's emission scale (1e-30 and
+    // 1e30 alike). Every tile of a scene uses the same unit, so sums stay exact.
+    double total = 0.0;
+    for (double p : power) total += p;
+    const double typical = total / (kPi * kPi * double(scene_radius_) * double(scene_radius_));
+    if (typical > 0.0 && std::isfinite(typical))
+        splat_exponent_ = std::clamp(int(std::lround(std::log2(typical))), -120, 120);
 }
 
 Scene::~Scene() {

@@ -214,6 +214,8 @@ public:
     bool IsInfiniteLight(uint32_t emitter) const;
     bool IsDeltaLight(uint32_t emitter) const;
     float scene_radius() const { return scene_radius_; }
+    // Splats are stored in units of 2^splat_exponent() (see SplatFilm).
+    int splat_exponent() const { return splat_exponent_; }
 
     // Lights at infinity seen along a ray that escapes the scene: calls
     // visit(light_index, radiance, solid-angle pdf of sampling that direction from it).
@@ -305,7 +307,8 @@ private:
     Color DomeRadiance(Vec3 w, float* pdf) const;          // w toward the dome
     Vec3 SampleDome(Vec2 u, float* pdf, Color* L) const;   // returns w toward the dome
     Vec3 scene_center_;
-    float scene_radius_ = 1.f;  // bounding sphere: the power of lights at infinity
+    float scene_radius_ = 1.f;
+    int splat_exponent_ = 0;  // bounding sphere: the power of lights at infinity
     std::vector<Emitter> emitters_;
     std::vector<uint32_t> environment_lights_;  // emitter indices of distant cones and the dome
     std::vector<int32_t> sphere_emitter_;

@@ -15,12 +15,17 @@
 
 namespace tessera {
 
-inline constexpr double kSplatScale = 16777216.0;  // 2^24: resolution 6e-8, headroom ~5e11
+// Fixed point relative to the scene's unit 2^e (Scene::splat_exponent): a value v is
+// stored as round(v * kSplatScale / 2^e), so the resolution is 2^(e-24) and one splat may
+// reach 2^(e+39) before it is refused. Stored = value * SplatScale(e).
+inline constexpr double kSplatScale = 16777216.0;  // 2^24
+inline double SplatScale(int exponent) { return std::ldexp(kSplatScale, -exponent); }
 
 class SplatFilm {
 public:
     // `data` holds width * height * 3 int64 (RGB), zeroed by the caller.
-    SplatFilm(int64_t* data, uint32_t width, uint32_t height) : data_(data), width_(width), height_(height) {}
+    SplatFilm(int64_t* data, uint32_t width, uint32_t height, int exponent = 0)
+        : data_(data), width_(width), height_(height), scale_(SplatScale(exponent)) {}
 
     // Adds `value` at continuous raster position (px, py); safe from many threads.
     // Returns false (adding nothing) for a value that is not finite and >= 0, or too large
@@ -31,7 +36,7 @@ public:
         if (x >= width_ || y >= height_) return false;
         int64_t q[3];
         for (int c = 0; c < 3; ++c) {
-            double v = double(value[c]) * kSplatScale;
+            double v = double(value[c]) * scale_;
             if (!(v >= 0.0) || !(v < 9.0e18)) return false;  // NaN, negative, or overflow
             q[c] = std::llround(v);
         }
@@ -47,6 +52,7 @@ public:
 private:
     int64_t* data_;
     uint32_t width_, height_;
+    double scale_;
 };
 
 }  // namespace tessera

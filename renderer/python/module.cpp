@@ -306,7 +306,9 @@ NB_MODULE(_core, m) {
         .def_prop_ro("num_triangles", &Scene::num_triangles)
         .def_prop_ro("num_emitters", &Scene::num_emitters)
         .def_prop_ro("num_instances", &Scene::num_instances)
-        .def_prop_ro("num_stored_triangles", &Scene::num_stored_triangles);
+        .def_prop_ro("num_stored_triangles", &Scene::num_stored_triangles)
+        .def_prop_ro("splat_exponent", &Scene::splat_exponent,
+                     "splats are fixed point in units of 2^splat_exponent (SPLAT_SCALE / 2^e per unit)");
 
     m.def("embree_memory_bytes", &EmbreeMemoryBytes,
           "Bytes Embree holds right now (BVHs and geometry buffers), from its device memory monitor.");

@@ -79,6 +79,12 @@ class Scene:
         return self._core.num_emitters
 
     @property
+    def splat_exponent(self) -> int:
+        """Splats are fixed point in units of 2^splat_exponent, chosen from the lights'
+        power so that any emission scale fits (film.resolve_image)."""
+        return self._core.splat_exponent
+
+    @property
     def num_instances(self) -> int:
         return self._core.num_instances
 

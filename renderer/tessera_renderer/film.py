@@ -5,11 +5,14 @@ A tile rendered with the `light` integrator returns its own pixels' directly vis
 int64 fixed-point buffer. Summing those buffers over all tiles is exact and order-free, so
 any tiling on any number of machines gives the same image. The image is
 
-    rgba + splats * pixel_count / (SPLAT_SCALE * light_paths)
+    rgba + splats * 2^e * pixel_count / (SPLAT_SCALE * light_paths)
 
-with light_paths the total over all tiles (one per pixel sample).
+with light_paths the total over all tiles (one per pixel sample) and e the scene's
+splat_exponent (the fixed point's unit, from its lights' power).
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -23,11 +26,13 @@ def new_splat_buffer(width: int, height: int) -> np.ndarray:
     return np.zeros((height, width, 3), dtype=np.int64)
 
 
-def resolve_image(rgba: np.ndarray, splats: np.ndarray | None, light_paths: int) -> np.ndarray:
-    """Full-frame float32 RGBA from the camera part and the summed splats."""
+def resolve_image(rgba: np.ndarray, splats: np.ndarray | None, light_paths: int,
+                  exponent: int) -> np.ndarray:
+    """Full-frame float32 RGBA from the camera part and the summed splats (in units of
+    2^exponent: Scene.splat_exponent)."""
     out = np.array(rgba, dtype=np.float32, copy=True)
     if splats is not None and light_paths > 0:
         height, width = out.shape[:2]
-        scale = width * height / (SPLAT_SCALE * light_paths)
+        scale = math.ldexp(width * height / (SPLAT_SCALE * light_paths), exponent)
         out[..., :3] += (splats.astype(np.float64) * scale).astype(np.float32)
     return out

@@ -77,7 +77,7 @@ inline std::vector<float> RenderResolved(const Scene& scene, const Camera& cam, 
     if (st.light_paths)
         for (size_t i = 0; i < size_t(W) * H; ++i)
             for (int c = 0; c < 3; ++c)
-                img[4 * i + c] += float(double(splats[3 * i + c]) / kSplatScale * double(W * H) / double(st.light_paths));
+                img[4 * i + c] += float(double(splats[3 * i + c]) / SplatScale(scene.splat_exponent()) * double(W * H) / double(st.light_paths));
     if (stats_out) *stats_out = st;
     return img;
 }

@@ -249,7 +249,7 @@ TEST(Integrators, PathLightAndBidirectionalAgreeForEveryLightKind) {
         EXPECT_EQ(stats.rejected_splats, 0u);
         EXPECT_EQ(stats.nonfinite_samples, 0u);
         EXPECT_EQ(stats.light_paths, uint64_t(W) * H * spp);
-        const double scale = double(W * H) / (kSplatScale * double(stats.light_paths));
+        const double scale = double(W * H) / (SplatScale(scene.splat_exponent()) * double(stats.light_paths));
         for (size_t i = 0; i < size_t(W) * H; ++i)
             for (int c = 0; c < 3; ++c) img[4 * i + c] += float(double(splats[3 * i + c]) * scale);
         return img;

@@ -8,7 +8,7 @@ import numpy as np
 
 from tessera import images
 from tessera.protocol import (JobSpec, TileResult, add_splats, combine_aovs, combine_passes, decode_tile,
-                              new_aov_frame, resolve_splats, tile_grid)
+                              new_aov_frame, resolve_splats, splat_exponent_of, tile_grid)
 
 
 class MergeError(Exception):
@@ -84,7 +84,13 @@ def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes], *, partial: bool
                 raise MergeError(f"tile {index} has no {name} AOV (rendered by a worker without AOVs?)")
             buf[rect.y0:rect.y0 + rect.height, rect.x0:rect.x0 + rect.width] = \
                 np.asarray(layers[name], np.float32).reshape(rect.height, rect.width, -1)
-    image = resolve_splats(full, splats, light_paths) if splats is not None else full
+    if splats is not None:
+        try:
+            exponent = splat_exponent_of([r for results in passes.values() for r in results])
+        except ValueError as e:
+            raise MergeError(str(e)) from e
+        full = resolve_splats(full, splats, light_paths, exponent)
+    image = full
     return (image, aovs) if with_aovs else image
 
 

@@ -12,7 +12,7 @@ Request: dict(serial, scene_path, blob_path, blob_out, x0, y0, w, h, width, heig
 sample_start, seed, max_depth, threads, variance, aovs, fault). The scene comes from the blob
 file `blob_path` if given (no USD involved), else is translated from `scene_path`; with
 `blob_out`, the translation is also written there as a blob for other workers. Reply: ("ok", rgba, variance | None, seconds, splat | None, aovs | None, serial), splat =
-(rect, int64 layer, light paths) for the light and bdpt integrators, aovs = {name: layer}
+(rect, int64 layer, light paths, unit exponent) for the light and bdpt integrators, aovs = {name: layer}
 for the requested AOVs other than variance
 or ("error", kind, message, serial) with kind "scene" | "memory" | "other"; the serial
 lets the supervisor check that a reply answers its latest request.
@@ -121,7 +121,8 @@ def serve(conn: Connection) -> None:
             splat = None
             if splats is not None:
                 rect, layer = splat_layer(splats)
-                splat = (rect, layer, req["w"] * req["h"] * req["spp"])  # one light path per sample
+                # One light path per sample; the scene's fixed-point unit goes with the layer.
+                splat = (rect, layer, req["w"] * req["h"] * req["spp"], scene.splat_exponent)
             reply = ("ok", rgba, variance, seconds, splat, layers)
         except SceneError as e:
             reply = ("error", "scene", str(e))

@@ -575,8 +575,9 @@ class Worker:
         s, rect = task.settings, task.tile
         splat_args = {}
         if splat is not None:
-            splat_rect, layer, light_paths = splat
-            splat_args = dict(splat_rect=splat_rect, splat=layer, light_paths=light_paths)
+            splat_rect, layer, light_paths, exponent = splat
+            splat_args = dict(splat_rect=splat_rect, splat=layer, light_paths=light_paths,
+                              splat_exponent=exponent)
         data = protocol.encode_tile(rect, rgba, pass_index=task.pass_index,
                                     sample_start=sample_start, spp=spp, variance=variance, aovs=aovs,
                                     **splat_args)
