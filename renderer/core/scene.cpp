@@ -116,6 +116,18 @@ Scene::Scene(const SceneDesc& desc)
         dome_distribution_ = Distribution2D(weights, dome_w_, dome_h_);
     }
 
+    // From here on Embree objects exist: a throw must release them, since a constructor
+    // that throws never runs its destructor.
+    try {
+        BuildGeometryAndLights(desc);
+    } catch (...) {
+        ReleaseEmbree();
+        throw;
+    }
+}
+
+// The BVHs (the world's, one per prototype, the instances), then the light table.
+void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
     RTCDevice device = EmbreeDevice();
     scene_ = rtcNewScene(device);
     // Watertight triangle test: a closed mesh must not leak light through its edges.
@@ -316,10 +328,15 @@ Scene::Scene(const SceneDesc& desc)
         splat_exponent_ = std::clamp(int(std::lround(std::log2(typical))), -120, 120);
 }
 
-Scene::~Scene() {
+Scene::~Scene() { ReleaseEmbree(); }
+
+void Scene::ReleaseEmbree() noexcept {
     if (scene_) rtcReleaseScene(scene_);
-    for (Mesh& m : meshes_)
+    scene_ = nullptr;
+    for (Mesh& m : meshes_) {
         if (m.scene) rtcReleaseScene(m.scene);
+        m.scene = nullptr;
+    }
 }
 
 size_t Scene::num_stored_triangles() const {

@@ -231,6 +231,8 @@ public:
     size_t num_stored_triangles() const;
 
 private:
+    void BuildGeometryAndLights(const SceneDesc& desc);
+    void ReleaseEmbree() noexcept;
     enum class LightKind : uint8_t { kTriangle, kSphere, kPoint, kDistant, kDome };
     struct Emitter {
         LightKind kind = LightKind::kTriangle;

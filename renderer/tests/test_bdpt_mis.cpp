@@ -13,6 +13,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -311,4 +312,50 @@ TEST_F(MISTest, DeltaLightsAreNeverHit) {
     EXPECT_EQ(CheckPath({kEye, kWall, kFloorB, kPoint}, "E D D P"), (std::vector<int>{1, 2, 3}));
     // E D S P: a point light's caustic: only the light tracer's (3, 1) can make it.
     EXPECT_EQ(CheckPath({kEye, kFloorB, kMirror, kPoint}, "E D S P"), (std::vector<int>{3}));
+}
+
+TEST_F(MISTest, RandomPathsSumToOne) {
+    // Random full paths: 1 to 4 vertices on the floor, the back wall and the rough metal
+    // (never twice in a row on one plane), ending on a random point of the area light or
+    // at the point light; kept if every segment is unoccluded and the camera sees the first
+    // vertex. Every one of them must pass CheckPath.
+    std::mt19937 rng(20261122);
+    std::uniform_real_distribution<float> u(0.f, 1.f);
+    auto surface_point = [&](int surface) -> PathPoint {
+        switch (surface) {
+            case 0: return {Kind::kSurface, Vec3(-3.6f + 7.2f * u(rng), 0.f, -4.6f + 9.f * u(rng))};
+            case 1: return {Kind::kSurface, Vec3(-4.6f + 9.2f * u(rng), 0.2f + 4.6f * u(rng), -5.f)};
+            default: return {Kind::kSurface, Vec3(4.f, 0.3f + 2.5f * u(rng), -2.8f + 5.6f * u(rng))};
+        }
+    };
+    auto visible = [&](Vec3 a, Vec3 b) {
+        SurfaceHit hit;
+        return scene_.Intersect({a, Normalize(b - a)}, &hit, 1e-4f) && Length(hit.p - b) < 1e-4f;
+    };
+    int checked = 0, strategies = 0;
+    for (int attempt = 0; attempt < 20000 && checked < 60; ++attempt) {
+        std::vector<PathPoint> x{kEye};
+        const int n = 1 + int(u(rng) * 4.f);
+        int last = -1;
+        for (int i = 0; i < n; ++i) {
+            int surface;
+            do surface = int(u(rng) * 3.f) % 3; while (surface == last);
+            last = surface;
+            x.push_back(surface_point(surface));
+        }
+        x.push_back(u(rng) < 0.25f ? kPoint
+                                   : PathPoint{Kind::kAreaLight, Vec3(-0.45f + 0.9f * u(rng), 4.f, -0.45f + 0.9f * u(rng))});
+        float px, py, c;
+        bool ok = camera_.Project(Normalize(x[1].p - kEye.p), &px, &py, &c);
+        for (size_t i = 0; ok && i + 1 < x.size(); ++i) {
+            // Toward an area light, from below only (it emits downward).
+            ok = visible(x[i].p, x[i + 1].p) && (x[i + 1].kind != Kind::kAreaLight || x[i].p.y < 4.f);
+        }
+        if (!ok) continue;
+        const std::string what = "random path " + std::to_string(checked) + " of " + std::to_string(x.size()) + " points";
+        strategies += int(CheckPath(x, what.c_str()).size());
+        ++checked;
+    }
+    EXPECT_EQ(checked, 60) << "too few random paths were unoccluded";
+    EXPECT_GT(strategies, 2 * checked);  // most paths have several strategies to weigh
 }
