@@ -146,6 +146,8 @@ def scene_dict(data, width: int, height: int, mesh_dir: str | Path, *, max_depth
     import mitsuba as mi
 
     _check_supported(data)
+    materials = data.triangle_material.reshape(-1)
+    bsdfs = {int(row): _material(data, int(row)) for row in np.unique(materials)}   # raises first
     cam = data.camera
     tan_w, _ = cam.tan_half_angles(width, height)
     origin = [float(x) for x in cam.origin]
@@ -179,7 +181,7 @@ def scene_dict(data, width: int, height: int, mesh_dir: str | Path, *, max_depth
         sel = np.nonzero(materials == row)[0]
         corners = positions[tris[sel]].reshape(-1, 3)                  # unshared vertices
         corner_normals = None if normals is None else np.asarray(normals, np.float32)[sel].reshape(-1, 3)
-        bsdf = _material(data, int(row))
+        bsdf = bsdfs[int(row)]
         radiance = [float(x) for x in emission[row]]
         flips = (False, True) if (max(radiance) > 0 and bool(two_sided[row])) else (False,)
         for flip in flips:
