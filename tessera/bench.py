@@ -66,6 +66,7 @@ class BenchScene:
     lambertize: bool = False            # opaque UsdPreviewSurfaces -> Lambertian (peer variant)
     peer: bool = False                  # compare with Mitsuba
     integrators: tuple[str, ...] | None = None   # restrict (peer variants: what is compared)
+    ref_scale: int = 1                  # x the config's reference spp (noisy caustics)
 
 
 CORNELL = REPO / "examples" / "cornell" / "cornell.usda"
@@ -78,7 +79,7 @@ SCENES = {s.name: s for s in (
                "the materials Mitsuba can match", lambertize=True, peer=True,
                integrators=("path", "bdpt")),
     BenchScene("caustic", CAUSTIC, "glass sphere on a Lambertian floor, small sphere light "
-               "(examples/caustic)", reference="bdpt", cross_check="path", peer=True),
+               "(examples/caustic)", reference="bdpt", cross_check="path", peer=True, ref_scale=2),
     BenchScene("dome-glass", SHARED_SCENES / "openusd_testenv" / "testUsdImagingGLDomeLight" / "domeLightYup.usda",
                "OpenUSD test scene: smooth dielectric sphere under a PNG dome light (shared/scenes)"),
     BenchScene("instancing", SHARED_SCENES / "openusd_testenv" / "testUsdImagingGLInstancingWithMaterials"
@@ -383,7 +384,7 @@ def run(scene_names, integrators, cfg: Config, out: Path, peer_variants=("scalar
                       "res": res, "triangles": scene.num_triangles}
         # References: two seeds of the reference integrator, averaged.
         ref_int = bs.reference
-        ref_spp = cfg.ref_spp[ref_int]
+        ref_spp = cfg.ref_spp[ref_int] * bs.ref_scale
 
         def tkey(integrator, spp, seed):
             return {"scene": name, "scene_digest": sdig, "lambertize": bs.lambertize, "renderer": build,
