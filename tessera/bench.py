@@ -162,9 +162,12 @@ def fit_loglog(seconds, errors) -> tuple[float, float]:
     return float(a), float(b)
 
 
+FLAT_SLOPE = -0.2   # a fit flatter than this cannot be extrapolated to a target: no time
+
+
 def time_to(fit, target: float) -> float:
     a, b = fit
-    return 10 ** ((math.log10(target) - a) / b) if b < 0 else float("inf")
+    return 10 ** ((math.log10(target) - a) / b) if b < FLAT_SLOPE else float("inf")
 
 
 def error_at(fit, seconds: float) -> float:
@@ -435,13 +438,13 @@ def run(scene_names, integrators, cfg: Config, out: Path, peer_variants=("scalar
                 mref, meta = cached_render(
                     {"scene": name, "scene_digest": sdig, "lambertize": bs.lambertize,
                      "renderer": f"mitsuba {peer.version} {peer.variant}", "integrator": "path",
-                     "spp": cfg.peer_ref_spp, "seed": 7, "res": res, "max_depth": cfg.max_depth,
+                     "spp": cfg.peer_ref_spp * bs.ref_scale, "seed": 7, "res": res, "max_depth": cfg.max_depth,
                      "tessera_translation": build},
-                    lambda p=peer: p.render_passes(name, cfg.peer_ref_spp, 7), log)
+                    lambda p=peer: p.render_passes(name, cfg.peer_ref_spp * bs.ref_scale, 7), log)
                 agree = units_agree(ref, mref)
-                info["peer"][tag] = {"reference_spp": cfg.peer_ref_spp, "reference_seconds": meta["seconds"],
+                info["peer"][tag] = {"reference_spp": cfg.peer_ref_spp * bs.ref_scale, "reference_seconds": meta["seconds"],
                                      "rel_mse_vs_tessera_reference": rel_mse(mref, ref), **agree}
-                log(f"  units: {tag} {cfg.peer_ref_spp} spp vs Tessera's reference: image means "
+                log(f"  units: {tag} {cfg.peer_ref_spp * bs.ref_scale} spp vs Tessera's reference: image means "
                     f"{', '.join(f'{r:.4f}' for r in agree['mean_ratio'])} (max deviation "
                     f"{agree['worst_mean_deviation']:.2%}), worst of {agree['regions_compared']} regions "
                     f"{agree['worst_region_deviation']:.2%} -> {'AGREE' if agree['agree'] else 'DISAGREE'} "
