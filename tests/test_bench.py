@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -19,7 +20,7 @@ from tessera import bench, peer_mitsuba
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
-    env = {**__import__("os").environ, "TESSERA_CACHE_DIR": str(out / "cache")}
+    env = {**os.environ, "TESSERA_CACHE_DIR": str(out / "cache")}
     proc = subprocess.run([sys.executable, "-m", "tessera", "bench", "--quick", "--out", str(out / "results")],
                           env=env, capture_output=True, text=True, timeout=300)
     return out, proc
