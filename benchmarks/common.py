@@ -23,7 +23,5 @@ def fmt(s: dict, unit: str = "", digits: int = 3) -> str:
             f"(n={s['n']}, range {s['min']:.{digits}g}–{s['max']:.{digits}g})")
 
 
-def rel_mse(img: np.ndarray, ref: np.ndarray) -> float:
-    """Mean over pixels and channels of (x - ref)^2 / (ref^2 + 1e-2)."""
-    x, r = img[..., :3].astype(np.float64), ref[..., :3].astype(np.float64)
-    return float(np.mean((x - r) ** 2 / (r * r + 1e-2)))
+# One definition of relMSE for the scripts here and `tessera bench` (tessera/bench.py).
+from tessera.bench import rel_mse  # noqa: E402,F401

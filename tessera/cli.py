@@ -257,6 +257,12 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bench(args: argparse.Namespace) -> int:
+    from .bench import main as bench_main
+
+    return bench_main(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tessera", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log more")
@@ -329,6 +335,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--worker-threads", type=int, default=1, help="render threads per local worker (default 1)")
     s.add_argument("--redis-url", help="use this Redis instead of starting one (default: $REDIS_URL)")
     s.set_defaults(func=cmd_serve)
+
+    from .bench import add_options as add_bench_options
+
+    b = sub.add_parser("bench", help="error versus time per integrator (and Mitsuba 3 side by side): "
+                                     "CSV, plots and a summary (docs/benchmarks/error-vs-time.md)")
+    add_bench_options(b)
+    b.set_defaults(func=cmd_bench)
     return parser
 
 

@@ -1,0 +1,762 @@
+"""`tessera bench`: error versus time for each integrator, and a peer renderer side by side.
+
+For every scene x series (a renderer and an integrator) x rung of a ladder of sample
+counts, renders the image, times it (wall clock, 2 threads) and measures its error against
+a high-sample reference:
+
+    relMSE = mean over pixels and channels of (x - ref)^2 / (ref^2 + 1e-2)
+    RMSE   = sqrt(mean over pixels and channels of (x - ref)^2)
+
+Repetitions (different seeds) are interleaved: every repetition walks the ladder once and
+renders every series at each rung before moving on, in an order rotated per repetition,
+so that load from other processes on the machine hits all series alike. A straight line
+is fitted to log10(relMSE) against log10(seconds) per series, once over all points and
+once per repetition; the time to reach a relMSE target and the relMSE at a time budget are
+read off the line (interpolated when the target lies within the measured range, else
+extrapolated: the report says which), with the half-range of the per-repetition values as
+their error. Ratios between two series are taken per repetition, then summarised the same
+way: both series' points come from the same run and the same minutes.
+
+References are rendered once and cached outside git (`~/.cache/tessera/references/`, or
+$TESSERA_CACHE_DIR), keyed by a hash of the scene's files, the settings and the renderer
+build. Two references with different seeds are rendered; the image compared against is
+their mean, and their mutual relMSE is reported: the mean's own error is about a quarter
+of it, which must be far below the smallest error measured.
+
+The peer is Mitsuba 3 (optional extra `peer`), built from Tessera's own translation of the
+scene (tessera/peer_mitsuba.py). Before any speed ratio is quoted, converged images of
+both renderers must agree: the image mean and the mean of every region of a 4 x 4 grid
+within 1 %.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import hashlib
+import json
+import math
+import os
+import statistics
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_SCENES = Path(os.environ.get("TESSERA_SHARED_SCENES", REPO.parent / "shared" / "scenes"))
+INSTALL_HINT = "pip install -e '.[bench]'"
+PEER_HINT = "pip install -e '.[peer]'"
+UNIT_TOLERANCE = 0.01          # converged means must agree within 1 %
+REGIONS = 4                    # 4 x 4 regions for the per-region means
+TARGETS = (1e-2, 1e-3)
+
+
+# -- scenes ------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class BenchScene:
+    name: str
+    path: Path
+    note: str
+    reference: str = "path"             # integrator of the references
+    cross_check: str | None = None      # a second integrator whose reference must agree
+    lambertize: bool = False            # opaque UsdPreviewSurfaces -> Lambertian (peer variant)
+    peer: bool = False                  # compare with Mitsuba
+    integrators: tuple[str, ...] | None = None   # restrict (peer variants: what is compared)
+    ref_scale: int = 1                  # x the config's reference spp (noisy caustics)
+
+
+CORNELL = REPO / "examples" / "cornell" / "cornell.usda"
+CAUSTIC = REPO / "examples" / "caustic" / "caustic.usda"
+
+SCENES = {s.name: s for s in (
+    BenchScene("cornell", CORNELL, "the Cornell box as authored (UsdPreviewSurface, roughness 1)"),
+    BenchScene("cornell-lambert", CORNELL,
+               "the Cornell box with every opaque UsdPreviewSurface made Lambertian (same albedo), "
+               "the materials Mitsuba can match", lambertize=True, peer=True,
+               integrators=("path", "bdpt")),
+    BenchScene("caustic", CAUSTIC, "glass sphere on a Lambertian floor, small sphere light "
+               "(examples/caustic)", reference="bdpt", cross_check="path", peer=True, ref_scale=2),
+    BenchScene("dome-glass", SHARED_SCENES / "openusd_testenv" / "testUsdImagingGLDomeLight" / "domeLightYup.usda",
+               "OpenUSD test scene: smooth dielectric sphere under a PNG dome light (shared/scenes)"),
+    BenchScene("instancing", SHARED_SCENES / "openusd_testenv" / "testUsdImagingGLInstancingWithMaterials"
+               / "ni_ni_material_binding_resolution.usda",
+               "OpenUSD test scene: nested native instances, 20k triangles, one distant light (shared/scenes)"),
+)}
+DEFAULT_SCENES = ("cornell", "cornell-lambert", "caustic", "dome-glass", "instancing")
+DEFAULT_INTEGRATORS = ("path", "bdpt", "light")
+
+
+@dataclass
+class Config:
+    res: int = 128
+    reps: int = 3
+    ladders: dict = field(default_factory=lambda: {
+        "path": (4, 16, 64, 256), "light": (4, 16, 64, 256), "bdpt": (1, 4, 16, 64),
+        "local": (4, 16, 64, 256), "whitted": (4, 16, 64, 256), "mitsuba": (4, 16, 64, 256)})
+    ref_spp: dict = field(default_factory=lambda: {"path": 4096, "bdpt": 1024, "light": 4096})
+    peer_ref_spp: int = 4096
+    budget: float = 1.0          # seconds, for the equal-time error
+    max_depth: int = 64
+    threads: int = 2
+    quick: bool = False
+
+
+def quick_config() -> Config:
+    ladder = (1, 4, 16)
+    # 64 px: at 32 px a region of the 4 x 4 grid is 8 x 8 pixels, and one region of the
+    # Cornell box disagreed by 1.4 % with Mitsuba at 4096 spp (none above 0.3 % at 64 px).
+    return Config(res=64, reps=2, ladders={k: ladder for k in Config().ladders},
+                  ref_spp={"path": 512, "bdpt": 128, "light": 512}, peer_ref_spp=1024, budget=0.1,
+                  quick=True)
+
+
+# -- errors --------------------------------------------------------------------------------
+
+def rel_mse(img: np.ndarray, ref: np.ndarray) -> float:
+    """Mean over pixels and channels of (x - ref)^2 / (ref^2 + 1e-2)."""
+    x, r = img[..., :3].astype(np.float64), ref[..., :3].astype(np.float64)
+    return float(np.mean((x - r) ** 2 / (r * r + 1e-2)))
+
+
+def rmse(img: np.ndarray, ref: np.ndarray) -> float:
+    x, r = img[..., :3].astype(np.float64), ref[..., :3].astype(np.float64)
+    return float(np.sqrt(np.mean((x - r) ** 2)))
+
+
+def region_means(img: np.ndarray, n: int = REGIONS) -> np.ndarray:
+    """(n, n, 3) channel means over an n x n grid of regions."""
+    h, w = img.shape[:2]
+    ys = np.linspace(0, h, n + 1).astype(int)
+    xs = np.linspace(0, w, n + 1).astype(int)
+    return np.array([[img[ys[i]:ys[i + 1], xs[j]:xs[j + 1], :3].astype(np.float64).mean((0, 1))
+                      for j in range(n)] for i in range(n)])
+
+
+def units_agree(a: np.ndarray, b: np.ndarray, tolerance: float = UNIT_TOLERANCE) -> dict:
+    """Compares two converged images of the same scene: the ratio b/a of the image means
+    (per channel) and of every region's mean (luminance-weighted channels summed, regions
+    with less than 2 % of the image's mean excluded as too dark to matter)."""
+    mean_a, mean_b = a[..., :3].astype(np.float64).mean((0, 1)), b[..., :3].astype(np.float64).mean((0, 1))
+    channel_ratio = mean_b / np.maximum(mean_a, 1e-30)
+    ra, rb = region_means(a).sum(-1), region_means(b).sum(-1)
+    lit = ra > 0.02 * ra.mean()
+    region_ratio = np.where(lit, rb / np.maximum(ra, 1e-30), np.nan)
+    worst = float(np.nanmax(np.abs(region_ratio - 1.0))) if lit.any() else float("nan")
+    worst_mean = float(np.max(np.abs(channel_ratio - 1.0)))
+    return {"mean_ratio": channel_ratio.tolist(), "region_ratio": region_ratio.tolist(),
+            "worst_mean_deviation": worst_mean, "worst_region_deviation": worst,
+            "regions_compared": int(lit.sum()), "tolerance": tolerance,
+            "agree": bool(worst_mean <= tolerance and worst <= tolerance)}
+
+
+# -- fits ----------------------------------------------------------------------------------
+
+def fit_loglog(seconds, errors) -> tuple[float, float]:
+    """(intercept a, slope b) of log10(error) = a + b log10(seconds), least squares."""
+    x, y = np.log10(np.asarray(seconds, float)), np.log10(np.asarray(errors, float))
+    b, a = np.polyfit(x, y, 1)
+    return float(a), float(b)
+
+
+FLAT_SLOPE = -0.2   # a fit flatter than this cannot be extrapolated to a target: no time
+
+
+def time_to(fit, target: float) -> float:
+    a, b = fit
+    return 10 ** ((math.log10(target) - a) / b) if b < FLAT_SLOPE else float("inf")
+
+
+def error_at(fit, seconds: float) -> float:
+    a, b = fit
+    return 10 ** (a + b * math.log10(seconds))
+
+
+def spread(values) -> dict:
+    v = [x for x in values if math.isfinite(x)]
+    if not v:
+        return {"median": float("nan"), "half_range": float("nan"), "n": 0}
+    return {"median": statistics.median(v), "half_range": (max(v) - min(v)) / 2, "n": len(v)}
+
+
+def fmt(s: dict, digits: int = 3) -> str:
+    if not s["n"]:
+        return "—"
+    return f"{s['median']:.{digits}g} ± {s['half_range']:.2g}"
+
+
+# -- references ----------------------------------------------------------------------------
+
+def cache_dir() -> Path:
+    base = os.environ.get("TESSERA_CACHE_DIR")
+    if base:
+        return Path(base) / "references"
+    xdg = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(xdg) / "tessera" / "references"
+
+
+def _file_digest(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def scene_digest(path: Path) -> str:
+    """The root layer and every file beside it (textures, sublayers next to it)."""
+    h = hashlib.sha256()
+    for p in sorted(q for q in path.parent.iterdir() if q.is_file()):
+        h.update(p.name.encode())
+        h.update(_file_digest(p).encode())
+    return h.hexdigest()
+
+
+def tessera_build() -> str:
+    """Tessera's version and a digest of the compiled core: a rebuilt core is a new renderer."""
+    import tessera_renderer._core as core
+
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        v = version("tessera")
+    except PackageNotFoundError:
+        v = "dev"
+    return f"tessera {v} core {_file_digest(Path(core.__file__))[:16]}"
+
+
+def _read_exr(path: Path) -> np.ndarray:
+    import OpenImageIO as oiio
+
+    buf = oiio.ImageBuf(str(path))
+    return np.asarray(buf.get_pixels(oiio.FLOAT), dtype=np.float32)[..., :3]
+
+
+def _write_exr(path: Path, img: np.ndarray) -> None:
+    import OpenImageIO as oiio
+
+    img = np.ascontiguousarray(img[..., :3], dtype=np.float32)
+    spec = oiio.ImageSpec(img.shape[1], img.shape[0], 3, oiio.FLOAT)
+    tmp = path.with_suffix(".tmp.exr")
+    out = oiio.ImageOutput.create(str(tmp))
+    if out is None or not out.open(str(tmp), spec):
+        raise RuntimeError(f"cannot write {path}: {oiio.geterror()}")
+    out.write_image(img)
+    out.close()
+    os.replace(tmp, path)
+
+
+def cached_render(key: dict, render, log) -> tuple[np.ndarray, dict]:
+    """The image for `key` from the cache, or render() -> image, stored with its key and
+    render time. Returns (image, metadata)."""
+    digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:24]
+    directory = cache_dir()
+    exr, meta_path = directory / f"{digest}.exr", directory / f"{digest}.json"
+    if exr.is_file() and meta_path.is_file():
+        meta = json.loads(meta_path.read_text())
+        meta["cached"] = True
+        return _read_exr(exr), meta
+    log(f"  rendering reference {key['renderer']} {key['integrator']} {key['spp']} spp seed {key['seed']} "
+        f"({key['scene']}) ...")
+    start = time.perf_counter()
+    img = render()
+    seconds = time.perf_counter() - start
+    directory.mkdir(parents=True, exist_ok=True)
+    _write_exr(exr, img)
+    meta = {"key": key, "seconds": seconds, "file": str(exr)}
+    meta_path.write_text(json.dumps(meta, indent=2) + "\n")
+    meta["cached"] = False
+    log(f"    {seconds:.1f} s -> {exr}")
+    return img, meta
+
+
+# -- renderers -----------------------------------------------------------------------------
+
+def load_bench_scene(bs: BenchScene):
+    from tessera_renderer import Scene, load_scene
+
+    from .peer_mitsuba import lambertize
+
+    if not bs.path.is_file():
+        raise FileNotFoundError(f"scene {bs.name}: {bs.path} not found")
+    scene = load_scene(bs.path)
+    if bs.lambertize:
+        scene = Scene(lambertize(scene.data))
+    return scene
+
+
+def render_tessera(scene, integrator: str, spp: int, seed: int, res: int, cfg: Config) -> np.ndarray:
+    from tessera_renderer.film import SPLATTING_INTEGRATORS, new_splat_buffer, resolve_image
+
+    splats = new_splat_buffer(res, res) if integrator in SPLATTING_INTEGRATORS else None
+    rgba = scene.render_tile(0, 0, res, res, width=res, height=res, spp=spp, seed=seed, threads=cfg.threads,
+                             max_depth=cfg.max_depth, integrator=integrator, splats=splats)
+    return resolve_image(rgba, splats, res * res * spp)[..., :3]
+
+
+class MitsubaPeer:
+    """One Mitsuba variant with the bench scenes loaded into it."""
+
+    def __init__(self, variant: str, threads: int):
+        from . import peer_mitsuba
+
+        self.variant = variant
+        self.threads = threads
+        self.pm = peer_mitsuba
+        self.mi = peer_mitsuba.set_variant(variant, threads)
+        self.version = self.mi.__version__
+        self.scenes: dict = {}
+        self._tmp = tempfile.TemporaryDirectory(prefix="tessera-bench-mi-")
+
+    def load(self, name: str, data, res: int, cfg: Config) -> None:
+        self.pm.set_variant(self.variant, self.threads)
+        d = self.pm.scene_dict(data, res, res, Path(self._tmp.name) / name, max_depth=cfg.max_depth)
+        self.scenes[name] = self.mi.load_dict(d)
+
+    def render(self, name: str, spp: int, seed: int) -> np.ndarray:
+        self.pm.set_variant(self.variant, self.threads)
+        return self.pm.render(self.scenes[name], spp, seed)
+
+    def render_passes(self, name: str, spp: int, seed: int, pass_spp: int = 256) -> np.ndarray:
+        total, acc = 0, None
+        k = 0
+        while total < spp:
+            n = min(pass_spp, spp - total)
+            img = self.render(name, n, seed * 100003 + k).astype(np.float64) * n
+            acc = img if acc is None else acc + img
+            total += n
+            k += 1
+        return (acc / total).astype(np.float32)
+
+
+# -- the run -------------------------------------------------------------------------------
+
+@dataclass
+class Series:
+    scene: str
+    renderer: str       # "tessera" or "mitsuba <variant>"
+    integrator: str
+    ladder: tuple[int, ...]
+
+    @property
+    def label(self) -> str:
+        return f"{self.renderer} {self.integrator}"
+
+
+def run(scene_names, integrators, cfg: Config, out: Path, peer_variants=("scalar_rgb", "llvm_ad_rgb"),
+        log=print) -> dict:
+    out.mkdir(parents=True, exist_ok=True)
+    build = tessera_build()
+    result: dict = {"config": {"res": cfg.res, "reps": cfg.reps, "ladders": {k: list(v) for k, v in cfg.ladders.items()},
+                               "ref_spp": cfg.ref_spp, "peer_ref_spp": cfg.peer_ref_spp, "budget_seconds": cfg.budget,
+                               "max_depth": cfg.max_depth, "threads": cfg.threads, "quick": cfg.quick},
+                    "tessera": build, "cpu_count": os.cpu_count(), "started": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
+                    "peer": {}, "scenes": {}}
+    try:
+        result["load_average_start"] = os.getloadavg()
+    except OSError:
+        pass
+
+    # Peers: every requested variant that runs here; say why one does not.
+    peers: list[MitsubaPeer] = []
+    want_peer = any(SCENES[n].peer for n in scene_names)
+    if want_peer:
+        from . import peer_mitsuba
+
+        if not peer_mitsuba.available():
+            result["peer"]["error"] = f"mitsuba is not installed ({PEER_HINT})"
+            log(f"peer: mitsuba is not installed; no side-by-side ({PEER_HINT})")
+        else:
+            for variant in peer_variants:
+                try:
+                    peers.append(MitsubaPeer(variant, cfg.threads))
+                    result["peer"][variant] = "ok"
+                except RuntimeError as exc:
+                    result["peer"][variant] = str(exc)
+                    log(f"peer: {exc}")
+    rows: list[dict] = []
+    for name in scene_names:
+        bs = SCENES[name]
+        log(f"[{name}] {bs.note}")
+        scene = load_bench_scene(bs)
+        res = cfg.res
+        sdig = scene_digest(bs.path)
+        info: dict = {"note": bs.note, "path": str(bs.path.relative_to(REPO.parent) if bs.path.is_relative_to(REPO.parent) else bs.path),
+                      "res": res, "triangles": scene.num_triangles}
+        # References: two seeds of the reference integrator, averaged.
+        ref_int = bs.reference
+        ref_spp = cfg.ref_spp[ref_int] * bs.ref_scale
+
+        def tkey(integrator, spp, seed):
+            return {"scene": name, "scene_digest": sdig, "lambertize": bs.lambertize, "renderer": build,
+                    "integrator": integrator, "spp": spp, "seed": seed, "res": res, "max_depth": cfg.max_depth,
+                    "threads_do_not_matter": True}
+
+        refs = []
+        for seed in (900001, 900002):
+            img, meta = cached_render(tkey(ref_int, ref_spp, seed),
+                                      lambda s=seed: render_tessera(scene, ref_int, ref_spp, s, res, cfg), log)
+            refs.append((img, meta))
+        ref = (refs[0][0].astype(np.float64) + refs[1][0]) / 2
+        mutual = rel_mse(refs[0][0], refs[1][0])
+        ra, rb = region_means(refs[0][0]).sum(-1), region_means(refs[1][0]).sum(-1)
+        lit = (ra + rb) > 0.04 * (ra + rb).mean()
+        region_noise = float(np.max(np.abs(ra - rb)[lit] / (ra + rb)[lit])) if lit.any() else float("nan")
+        info["reference"] = {"integrator": ref_int, "spp": ref_spp, "seeds": 2, "mutual_rel_mse": mutual,
+                             "region_mean_noise": region_noise,
+                             "estimated_rel_mse_of_mean": mutual / 4,
+                             "seconds": [m["seconds"] for _, m in refs], "cached": [m["cached"] for _, m in refs]}
+        log(f"  reference: {ref_int} 2 x {ref_spp} spp, mutual relMSE {mutual:.3g} "
+            f"(the mean's own relMSE ~ {mutual / 4:.2g}); its region means differ by at most "
+            f"{region_noise:.2%} between the two seeds")
+        if bs.cross_check:
+            cc_spp = cfg.ref_spp[bs.cross_check]
+            cc, meta = cached_render(tkey(bs.cross_check, cc_spp, 900003),
+                                     lambda: render_tessera(scene, bs.cross_check, cc_spp, 900003, res, cfg), log)
+            agree = units_agree(ref, cc)
+            info["reference"]["cross_check"] = {"integrator": bs.cross_check, "spp": cc_spp,
+                                                "rel_mse_vs_reference": rel_mse(cc, ref), **agree}
+            log(f"  cross-check: {bs.cross_check} {cc_spp} spp vs the {ref_int} reference: means within "
+                f"{agree['worst_mean_deviation']:.2%}, regions within {agree['worst_region_deviation']:.2%} "
+                f"(relMSE {rel_mse(cc, ref):.3g}) -> {'agree' if agree['agree'] else 'DISAGREE'}")
+
+        series = [Series(name, "tessera", i, cfg.ladders[i]) for i in integrators
+                  if bs.integrators is None or i in bs.integrators]
+        # Peer: converged images must agree before any ratio is quoted.
+        if bs.peer and peers:
+            info["peer"] = {}
+            for peer in peers:
+                tag = f"mitsuba {peer.variant}"
+                try:
+                    peer.load(name, scene.data, res, cfg)
+                except Exception as exc:  # noqa: BLE001 - Unmatched or a Mitsuba error: report it
+                    info["peer"][tag] = {"error": str(exc)}
+                    log(f"  {tag}: not comparable: {exc}")
+                    continue
+                mref, meta = cached_render(
+                    {"scene": name, "scene_digest": sdig, "lambertize": bs.lambertize,
+                     "renderer": f"mitsuba {peer.version} {peer.variant}", "integrator": "path",
+                     "spp": cfg.peer_ref_spp * bs.ref_scale, "seed": 7, "res": res, "max_depth": cfg.max_depth,
+                     "tessera_translation": build},
+                    lambda p=peer: p.render_passes(name, cfg.peer_ref_spp * bs.ref_scale, 7), log)
+                agree = units_agree(ref, mref)
+                info["peer"][tag] = {"reference_spp": cfg.peer_ref_spp * bs.ref_scale, "reference_seconds": meta["seconds"],
+                                     "rel_mse_vs_tessera_reference": rel_mse(mref, ref), **agree}
+                log(f"  units: {tag} {cfg.peer_ref_spp * bs.ref_scale} spp vs Tessera's reference: image means "
+                    f"{', '.join(f'{r:.4f}' for r in agree['mean_ratio'])} (max deviation "
+                    f"{agree['worst_mean_deviation']:.2%}), worst of {agree['regions_compared']} regions "
+                    f"{agree['worst_region_deviation']:.2%} -> {'AGREE' if agree['agree'] else 'DISAGREE'} "
+                    f"(tolerance {UNIT_TOLERANCE:.0%})")
+                series.append(Series(name, tag, "path", cfg.ladders["mitsuba"]))
+        # Warm-up outside the timings: caches, and for Mitsuba's LLVM variants the kernels,
+        # which are compiled per sample count (measured: the first call at a new spp is slow).
+        for s in series:
+            for spp in (s.ladder if "llvm" in s.renderer else s.ladder[:1]):
+                _render_series(s, scene, peers, spp, 1, res, cfg)
+        # Interleaved repetitions.
+        n_rungs = max(len(s.ladder) for s in series)
+        for rep in range(cfg.reps):
+            order = series[rep % len(series):] + series[:rep % len(series)]
+            for k in range(n_rungs):
+                for s in order:
+                    if k >= len(s.ladder):
+                        continue
+                    spp = s.ladder[k]
+                    seed = 1 + rep * 1000 + k
+                    start = time.perf_counter()
+                    img = _render_series(s, scene, peers, spp, seed, res, cfg)
+                    seconds = time.perf_counter() - start
+                    row = {"scene": name, "renderer": s.renderer, "integrator": s.integrator, "spp": spp,
+                           "rep": rep, "seed": seed, "res": res, "seconds": seconds,
+                           "rel_mse": rel_mse(img, ref), "rmse": rmse(img, ref)}
+                    rows.append(row)
+            log(f"  repetition {rep + 1}/{cfg.reps} done")
+        info["series"] = _summarise(name, series, rows, cfg)
+        smallest = min(r["rel_mse"] for r in rows if r["scene"] == name)
+        info["reference"]["smallest_measured_rel_mse"] = smallest
+        info["reference"]["ok"] = bool(mutual / 4 < 0.1 * smallest)
+        log(f"  reference check: its own relMSE ~{mutual / 4:.2g} vs smallest measured {smallest:.3g} "
+            f"({smallest / max(mutual / 4, 1e-30):.0f}x) -> {'OK' if info['reference']['ok'] else 'TOO NOISY'}")
+        info["ratios"] = _ratios(info, cfg)
+        result["scenes"][name] = info
+    for peer in peers:
+        peer._tmp.cleanup()
+    try:
+        result["load_average_end"] = os.getloadavg()
+    except OSError:
+        pass
+    _write_csv(out / "error-vs-time.csv", rows)
+    (out / "error-vs-time.json").write_text(json.dumps(result, indent=2, default=_json_default) + "\n")
+    _plots(result, rows, out)
+    (out / "error-vs-time-results.md").write_text(_markdown(result))
+    return result
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o))
+
+
+def _render_series(s: Series, scene, peers, spp, seed, res, cfg) -> np.ndarray:
+    if s.renderer == "tessera":
+        return render_tessera(scene, s.integrator, spp, seed, res, cfg)
+    variant = s.renderer.split(" ", 1)[1]
+    peer = next(p for p in peers if p.variant == variant)
+    return peer.render(s.scene, spp, seed)
+
+
+def _summarise(name, series, rows, cfg) -> dict:
+    out = {}
+    for s in series:
+        pts = [r for r in rows if r["scene"] == name and r["renderer"] == s.renderer and r["integrator"] == s.integrator]
+        secs = [r["seconds"] for r in pts]
+        errs = [r["rel_mse"] for r in pts]
+        fit = fit_loglog(secs, errs)
+        reps = sorted({r["rep"] for r in pts})
+        rep_fits = [fit_loglog([r["seconds"] for r in pts if r["rep"] == k], [r["rel_mse"] for r in pts if r["rep"] == k])
+                    for k in reps]
+        entry = {"label": s.label, "renderer": s.renderer, "integrator": s.integrator,
+                 "fit": {"intercept": fit[0], "slope": fit[1]}, "rep_fits": rep_fits,
+                 "seconds_range": [min(secs), max(secs)], "rel_mse_range": [min(errs), max(errs)],
+                 "rungs": []}
+        for spp in s.ladder:
+            at = [r for r in pts if r["spp"] == spp]
+            entry["rungs"].append({"spp": spp, "seconds": spread([r["seconds"] for r in at]),
+                                   "rel_mse": spread([r["rel_mse"] for r in at]),
+                                   "rmse": spread([r["rmse"] for r in at])})
+        for target in TARGETS:
+            how = "interpolated" if min(errs) <= target <= max(errs) else "extrapolated"
+            entry[f"time_to_{target:g}"] = {"all": time_to(fit, target), **spread([time_to(f, target) for f in rep_fits]),
+                                            "how": how}
+        how = "interpolated" if min(secs) <= cfg.budget <= max(secs) else "extrapolated"
+        entry["rel_mse_at_budget"] = {"all": error_at(fit, cfg.budget),
+                                      **spread([error_at(f, cfg.budget) for f in rep_fits]), "how": how}
+        # Efficiency 1/(relMSE x seconds) at the largest rung: the classic single-number summary.
+        top = [r for r in pts if r["spp"] == s.ladder[-1]]
+        entry["efficiency_top_rung"] = spread([1.0 / (r["rel_mse"] * r["seconds"]) for r in top])
+        out[s.label] = entry
+    return out
+
+
+def _ratios(info, cfg) -> dict:
+    """Time-to-equal-error ratios between series of this scene, per repetition, at each
+    target and at the relMSE that Tessera path reaches at the budget."""
+    series = info["series"]
+    pairs = []
+    if "tessera path" in series and "tessera bdpt" in series:
+        pairs.append(("tessera bdpt", "tessera path"))
+    if "tessera path" in series and "tessera light" in series:
+        pairs.append(("tessera light", "tessera path"))
+    peer_ok = {tag: v.get("agree", False) for tag, v in info.get("peer", {}).items()}
+    for label in series:
+        if label.startswith("mitsuba"):
+            tag = label.rsplit(" ", 1)[0]
+            for mine in ("tessera path", "tessera bdpt"):
+                if mine in series:
+                    pairs.append((mine, label))
+    out = {}
+    for a, b in pairs:
+        fa, fb = series[a]["rep_fits"], series[b]["rep_fits"]
+        entry = {}
+        for target in TARGETS:
+            vals = [time_to(x, target) / time_to(y, target) for x, y in zip(fa, fb)]
+            ea, eb = series[a][f"time_to_{target:g}"]["how"], series[b][f"time_to_{target:g}"]["how"]
+            entry[f"{target:g}"] = {**spread(vals), "how": "interpolated" if ea == eb == "interpolated" else "extrapolated"}
+        key = f"{a} / {b}"
+        if b.startswith("mitsuba"):
+            tag = b.rsplit(" ", 1)[0]
+            entry["units_agree"] = peer_ok.get(tag, False)
+        out[key] = entry
+    return out
+
+
+def _write_csv(path: Path, rows) -> None:
+    fields = ["scene", "renderer", "integrator", "spp", "rep", "seed", "res", "seconds", "rel_mse", "rmse"]
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fields)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (f"{r[k]:.6g}" if isinstance(r[k], float) else r[k]) for k in fields})
+
+
+def _plots(result, rows, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    budget = result["config"]["budget_seconds"]
+    for name, info in result["scenes"].items():
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
+        for k, (label, s) in enumerate(info["series"].items()):
+            color = f"C{k}"
+            pts = [r for r in rows if r["scene"] == name and f"{r['renderer']} {r['integrator']}" == label]
+            secs = np.array([r["seconds"] for r in pts])
+            for ax, key in ((axes[0], "rel_mse"), (axes[1], "rmse")):
+                vals = np.array([r[key] for r in pts])
+                ax.loglog(secs, vals, "o", color=color, ms=3.5, alpha=0.6,
+                          label=label if key == "rmse" else None)
+                x = np.log10(secs)
+                b, a = np.polyfit(x, np.log10(vals), 1)
+                xs = np.linspace(x.min() - 0.3, x.max() + 0.5, 20)
+                ax.loglog(10 ** xs, 10 ** (a + b * xs), "-", color=color, lw=1.2,
+                          label=f"{label} (slope {b:.2f})" if key == "rel_mse" else None)
+        scene_rows = [r for r in rows if r["scene"] == name]
+        for ax, key in ((axes[0], "rel_mse"), (axes[1], "rmse")):
+            vals = [r[key] for r in scene_rows] + (list(TARGETS) if key == "rel_mse" else [])
+            ax.set_ylim(min(vals) / 3, max(vals) * 3)
+            secs = [r["seconds"] for r in scene_rows] + [budget]
+            ax.set_xlim(min(secs) / 2, max(secs) * 4)
+        for t in TARGETS:
+            axes[0].axhline(t, color="grey", ls="--", lw=0.8)
+        axes[0].axvline(budget, color="grey", ls=":", lw=0.8)
+        axes[0].set_ylabel("relMSE")
+        axes[1].set_ylabel("RMSE")
+        for ax in axes:
+            ax.set_xlabel("seconds (wall clock, 2 threads)")
+            ax.grid(True, which="both", alpha=0.25)
+        axes[0].legend(fontsize=7)
+        axes[1].legend(fontsize=7)
+        fig.suptitle(f"{name}: error vs time, {info['res']}x{info['res']} "
+                     f"(reference {info['reference']['integrator']} 2 x {info['reference']['spp']} spp)", fontsize=10)
+        fig.tight_layout()
+        fig.savefig(out / f"error-vs-time-{name}.png", dpi=90)
+        plt.close(fig)
+
+
+def _markdown(result) -> str:
+    cfg = result["config"]
+    L = ["# Error versus time: results", "",
+         f"Written by `tessera bench` ({result['tessera']}) on {result['started']}: "
+         f"{cfg['res']}x{cfg['res']} px, {cfg['threads']} threads, {cfg['reps']} interleaved repetitions, "
+         f"max depth {cfg['max_depth']}. Values are median ± half-range over the repetitions' own "
+         "log-log fits (relMSE = a · seconds^slope). Raw points: `error-vs-time.csv`; everything: "
+         "`error-vs-time.json`. How to read it: `error-vs-time.md`.", ""]
+    if "load_average_start" in result:
+        L += [f"Load average at start / end: {', '.join(f'{x:.2f}' for x in result['load_average_start'])} / "
+              f"{', '.join(f'{x:.2f}' for x in result.get('load_average_end', []))} "
+              f"on {result['cpu_count']} cores (other processes share the machine).", ""]
+    L += ["## References", "",
+          "| scene | reference | mutual relMSE of the two | mean's own relMSE ≈ | smallest measured relMSE | ok |",
+          "|---|---|---|---|---|---|"]
+    for name, info in result["scenes"].items():
+        r = info["reference"]
+        L.append(f"| {name} | {r['integrator']}, 2 × {r['spp']} spp | {r['mutual_rel_mse']:.2g} | "
+                 f"{r['estimated_rel_mse_of_mean']:.2g} | {r['smallest_measured_rel_mse']:.3g} | "
+                 f"{'yes' if r['ok'] else 'NO'} |")
+    for name, info in result["scenes"].items():
+        cc = info["reference"].get("cross_check")
+        if cc:
+            L += ["", f"{name}: a {cc['integrator']} reference ({cc['spp']} spp) against the "
+                      f"{info['reference']['integrator']} one: image means within {cc['worst_mean_deviation']:.2%}, "
+                      f"the {cc['regions_compared']} lit regions of a 4 × 4 grid within {cc['worst_region_deviation']:.2%} "
+                      f"(relMSE {cc['rel_mse_vs_reference']:.3g}) → {'agree' if cc['agree'] else 'DISAGREE'} at 1 %."]
+    L += ["", f"## Time to reach a relMSE, and relMSE at an equal time budget of {cfg['budget_seconds']:g} s", "",
+          "| scene | series | slope | s to relMSE 1e-2 | s to relMSE 1e-3 | relMSE at "
+          f"{cfg['budget_seconds']:g} s |", "|---|---|---|---|---|---|"]
+    for name, info in result["scenes"].items():
+        for label, s in info["series"].items():
+            t2, t3, eb = s["time_to_0.01"], s["time_to_0.001"], s["rel_mse_at_budget"]
+            L.append(f"| {name} | {label} | {s['fit']['slope']:.2f} | {fmt(t2)} ({t2['how'][:6]}.) | "
+                     f"{fmt(t3)} ({t3['how'][:6]}.) | {fmt(eb)} ({eb['how'][:6]}.) |")
+    L += ["", "## Ratios of times to equal error (same run, per repetition)", "",
+          "A ratio below 1 means the first series is faster to the same error.", "",
+          "| scene | ratio | at relMSE 1e-2 | at relMSE 1e-3 |", "|---|---|---|---|"]
+    for name, info in result["scenes"].items():
+        for key, r in info["ratios"].items():
+            if "units_agree" in r and not r["units_agree"]:
+                L.append(f"| {name} | {key} | not quoted: units disagree | |")
+                continue
+            L.append(f"| {name} | {key} | {fmt(r['0.01'])} ({r['0.01']['how'][:6]}.) | "
+                     f"{fmt(r['0.001'])} ({r['0.001']['how'][:6]}.) |")
+    peers = {n: i["peer"] for n, i in result["scenes"].items() if i.get("peer")}
+    L += ["", "## Mitsuba 3 side by side: unit agreement first", ""]
+    if result["peer"]:
+        L += ["Variants: " + "; ".join(f"`{k}`: {v}" for k, v in result["peer"].items()), ""]
+    if peers:
+        L += ["| scene | peer | peer reference | image-mean ratio (R, G, B) | worst region | agree within 1 % |",
+              "|---|---|---|---|---|---|"]
+        for name, pi in peers.items():
+            for tag, v in pi.items():
+                if "error" in v:
+                    L.append(f"| {name} | {tag} | not comparable: {v['error']} | | | |")
+                    continue
+                L.append(f"| {name} | {tag} | path, {v['reference_spp']} spp | "
+                         f"{', '.join(f'{x:.4f}' for x in v['mean_ratio'])} | {v['worst_region_deviation']:.2%} "
+                         f"({v['regions_compared']} regions) | {'yes' if v['agree'] else 'NO'} |")
+    else:
+        L.append("No peer in this run.")
+    L += ["", "## Points (median ± half-range over repetitions)", "",
+          "| scene | series | spp | seconds | relMSE | RMSE |", "|---|---|---|---|---|---|"]
+    for name, info in result["scenes"].items():
+        for label, s in info["series"].items():
+            for r in s["rungs"]:
+                L.append(f"| {name} | {label} | {r['spp']} | {fmt(r['seconds'])} | {fmt(r['rel_mse'])} | "
+                         f"{fmt(r['rmse'])} |")
+    return "\n".join(L) + "\n"
+
+
+# -- command line ------------------------------------------------------------------------
+
+def add_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenes", default=None,
+                   help=f"comma-separated, from {', '.join(SCENES)} (default: all; --quick: cornell,cornell-lambert)")
+    p.add_argument("--integrators", default=",".join(DEFAULT_INTEGRATORS),
+                   help="comma-separated tessera integrators (default path,bdpt,light; local and whitted "
+                        "estimate only a subset of light paths, so their error does not vanish)")
+    p.add_argument("--quick", action="store_true", help="tiny sizes and ladders (a test, seconds)")
+    p.add_argument("--out", help="output directory (default docs/benchmarks; --quick: out/bench-quick)")
+    p.add_argument("--res", type=int, help="image width and height in pixels")
+    p.add_argument("--reps", type=int, help="interleaved repetitions (seeds)")
+    p.add_argument("--budget", type=float, help="time budget in seconds for the equal-time error")
+    p.add_argument("--peer", default=None,
+                   help="Mitsuba variants to compare with, comma-separated, '' for none (default "
+                        "scalar_rgb,llvm_ad_rgb; --quick: scalar_rgb). llvm_ad_rgb needs Debian's libllvm19")
+
+
+def main(args: argparse.Namespace) -> int:
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        print(f"tessera bench: needs matplotlib for its plots: {INSTALL_HINT}", file=sys.stderr)
+        return 2
+    cfg = quick_config() if args.quick else Config()
+    if args.res:
+        cfg.res = args.res
+    if args.reps:
+        cfg.reps = args.reps
+    if args.budget:
+        cfg.budget = args.budget
+    names = [s for s in (args.scenes.split(",") if args.scenes else
+                         (("cornell", "cornell-lambert") if args.quick else DEFAULT_SCENES)) if s]
+    unknown = [n for n in names if n not in SCENES]
+    if unknown:
+        print(f"tessera bench: unknown scene(s) {', '.join(unknown)}; known: {', '.join(SCENES)}", file=sys.stderr)
+        return 2
+    integrators = [i for i in args.integrators.split(",") if i]
+    bad = [i for i in integrators if i not in cfg.ladders or i == "mitsuba"]
+    if bad:
+        print(f"tessera bench: unknown integrator(s) {', '.join(bad)}", file=sys.stderr)
+        return 2
+    out = Path(args.out) if args.out else (REPO / "out" / "bench-quick" if args.quick else REPO / "docs" / "benchmarks")
+    peer_arg = args.peer if args.peer is not None else ("scalar_rgb" if args.quick else "scalar_rgb,llvm_ad_rgb")
+    peers = tuple(v for v in peer_arg.split(",") if v)
+    try:
+        result = run(names, integrators, cfg, out, peers, log=lambda m: print(m, file=sys.stderr, flush=True))
+    except FileNotFoundError as exc:
+        print(f"tessera bench: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {out}/error-vs-time.csv, error-vs-time.json, error-vs-time-results.md and "
+          f"{len(result['scenes'])} plots", file=sys.stderr)
+    failed = [n for n, i in result["scenes"].items() if not i["reference"]["ok"]
+              or (i["reference"].get("cross_check") and not i["reference"]["cross_check"]["agree"])
+              or any(not v.get("agree", False) for v in i.get("peer", {}).values() if "error" not in v)]
+    if failed:
+        print(f"tessera bench: checks failed for {', '.join(failed)} (see error-vs-time-results.md)", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,125 @@
+"""`tessera bench`: the quick run produces its CSV, plots and summary with sane numbers,
+its reference check runs, and Mitsuba 3 agrees with Tessera on the (Lambertian) Cornell
+box before any ratio is quoted. Mitsuba and matplotlib come with the `test` extra: a
+missing one is a failure here, not a skip."""
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tessera import bench, peer_mitsuba
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    env = {**os.environ, "TESSERA_CACHE_DIR": str(out / "cache")}
+    proc = subprocess.run([sys.executable, "-m", "tessera", "bench", "--quick", "--out", str(out / "results")],
+                          env=env, capture_output=True, text=True, timeout=300)
+    return out, proc
+
+
+def test_mitsuba_and_matplotlib_are_installed():
+    import matplotlib  # noqa: F401
+
+    assert peer_mitsuba.available(), "mitsuba is missing: install the test extra (pip install -e '.[test]')"
+
+
+def test_quick_bench_writes_csv_plots_and_summary(quick_run):
+    out, proc = quick_run
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    results = out / "results"
+    rows = list(csv.DictReader(open(results / "error-vs-time.csv")))
+    assert {r["scene"] for r in rows} == {"cornell", "cornell-lambert"}
+    assert {(r["renderer"], r["integrator"]) for r in rows} >= {
+        ("tessera", "path"), ("tessera", "bdpt"), ("tessera", "light"), ("mitsuba scalar_rgb", "path")}
+    for name in ("cornell", "cornell-lambert"):
+        png = results / f"error-vs-time-{name}.png"
+        assert png.stat().st_size > 10_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    summary = (results / "error-vs-time-results.md").read_text()
+    assert "relMSE 1e-2" in summary and "relMSE 1e-3" in summary and "agree within 1 %" in summary
+    # The references were rendered into the cache given, not into git.
+    assert len(list((out / "cache" / "references").glob("*.exr"))) >= 5
+
+
+def test_quick_bench_numbers_are_sane(quick_run):
+    out, proc = quick_run
+    result = json.loads((out / "results" / "error-vs-time.json").read_text())
+    for name, info in result["scenes"].items():
+        ref = info["reference"]
+        # Two independent references agree far below the errors measured against them.
+        assert 0 < ref["mutual_rel_mse"] < ref["smallest_measured_rel_mse"] / 5, (name, ref)
+        assert ref["ok"]
+        for label, s in info["series"].items():
+            errors = [r["rel_mse"]["median"] for r in s["rungs"]]
+            seconds = [r["seconds"]["median"] for r in s["rungs"]]
+            # More samples: less error, more time (16x the samples: well above the noise).
+            assert errors[-1] < errors[0] / 3, (name, label, errors)
+            assert seconds[-1] > seconds[0], (name, label, seconds)
+            assert -2.5 < s["fit"]["slope"] < -0.3, (name, label, s["fit"])
+            assert s["time_to_0.01"]["median"] > 0
+
+
+def test_quick_bench_mitsuba_units_agree(quick_run):
+    out, proc = quick_run
+    result = json.loads((out / "results" / "error-vs-time.json").read_text())
+    peer = result["scenes"]["cornell-lambert"]["peer"]["mitsuba scalar_rgb"]
+    assert "error" not in peer, peer
+    assert peer["agree"], peer
+    assert peer["worst_mean_deviation"] < 0.01 and peer["worst_region_deviation"] < 0.01
+    assert peer["regions_compared"] >= 12
+    ratios = result["scenes"]["cornell-lambert"]["ratios"]
+    assert ratios["tessera path / mitsuba scalar_rgb path"]["units_agree"]
+
+
+def test_units_check_detects_a_one_and_a_half_percent_difference():
+    rng = np.random.default_rng(1)
+    img = rng.uniform(0.2, 1.0, (64, 64, 3)).astype(np.float32)
+    assert bench.units_agree(img, img * 1.005)["agree"]
+    assert not bench.units_agree(img, img * 1.015)["agree"]
+    local = img.copy()
+    local[:16, :16] *= 1.015       # one region of the 4 x 4 grid
+    check = bench.units_agree(img, local)
+    assert check["worst_mean_deviation"] < 0.01 and not check["agree"]
+
+
+def test_fit_reads_times_and_errors_off_the_line():
+    secs = np.array([0.1, 0.4, 1.6, 6.4])
+    errs = 0.02 / secs                          # relMSE = 0.02 / t
+    fit = bench.fit_loglog(secs, errs)
+    assert fit[1] == pytest.approx(-1.0)
+    assert bench.time_to(fit, 1e-2) == pytest.approx(2.0)
+    assert bench.error_at(fit, 4.0) == pytest.approx(0.005)
+
+
+def test_peer_refuses_materials_it_cannot_match(cornell_path):
+    from tessera_renderer import load_scene
+
+    data = load_scene(cornell_path).data   # UsdPreviewSurface, roughness 1: a GGX lobe Mitsuba lacks
+    with pytest.raises(peer_mitsuba.Unmatched):
+        peer_mitsuba.scene_dict(data, 16, 16, "/nonexistent-not-written")
+    matched = peer_mitsuba.lambertize(data)
+    assert not matched.material_params["preview_surface"].any()
+    assert data.material_params["preview_surface"].all()     # the original is untouched
+
+
+def test_bench_without_matplotlib_says_how_to_install(monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    args = bench_args(["--quick"])
+    assert bench.main(args) == 2
+    assert "pip install" in capsys.readouterr().err and "[bench]" in bench.INSTALL_HINT
+
+
+def bench_args(argv):
+    import argparse
+
+    p = argparse.ArgumentParser()
+    bench.add_options(p)
+    return p.parse_args(argv)
