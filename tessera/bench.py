@@ -293,7 +293,7 @@ def render_tessera(scene, integrator: str, spp: int, seed: int, res: int, cfg: C
     splats = new_splat_buffer(res, res) if integrator in SPLATTING_INTEGRATORS else None
     rgba = scene.render_tile(0, 0, res, res, width=res, height=res, spp=spp, seed=seed, threads=cfg.threads,
                              max_depth=cfg.max_depth, integrator=integrator, splats=splats)
-    return resolve_image(rgba, splats, res * res * spp)[..., :3]
+    return resolve_image(rgba, splats, res * res * spp, scene.splat_exponent)[..., :3]
 
 
 class MitsubaPeer:
