@@ -47,9 +47,11 @@ def cmd_render(args: argparse.Namespace) -> int:
     scene_path = Path(args.scene)
     output = Path(args.output) if args.output else Path(scene_path.stem + ".exr")
     try:
-        scene = load_scene(scene_path, frame=args.frame)
+        scene = load_scene(scene_path, frame=args.frame, root=args.root)
     except SceneError as exc:
-        print(f"tessera render: {exc}", file=sys.stderr)
+        hint = ("; if that folder is yours, let assets resolve within it with --root DIR"
+                if "outside the bundle" in str(exc) and not args.root else "")
+        print(f"tessera render: {exc}{hint}", file=sys.stderr)
         return 2
     width, height = args.res or (scene.width, scene.height)
     try:
@@ -278,6 +280,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--max-depth", type=_positive, default=64, help="maximum bounces (default 64)")
     r.add_argument("--tile", type=_positive, default=64, help="tile size in pixels (default 64)")
     r.add_argument("--frame", type=float, help="time code to render (default: the stage's default time)")
+    r.add_argument("--root", help="folder every asset path must resolve within (default: the scene's "
+                                  "folder); e.g. the project folder when layers reference ../assets")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     _add_noise_target_options(r)
     _add_integrator_option(r)
