@@ -260,6 +260,10 @@ Color PreviewSurfaceBSDF::Albedo() const {
 
 void PreviewSurfaceBSDF::LobeProbabilities(Vec3 wo, float p[kNumLobes]) const {
     const float mu = std::abs(wo.z);
+    if (mu == cached_mu_) {
+        for (int i = 0; i < kNumLobes; ++i) p[i] = cached_p_[i];
+        return;
+    }
     const float fc = clearcoat_ * FrSchlick(kCoatF0, 1.f, mu);
     const Color fs = spec_.F(mu);
     p[kCoat] = clearcoat_ > 0.f ? std::max(kMinLobeWeight, fc) : 0.f;
@@ -270,6 +274,8 @@ void PreviewSurfaceBSDF::LobeProbabilities(Vec3 wo, float p[kNumLobes]) const {
     float sum = 0.f;
     for (int i = 0; i < kNumLobes; ++i) sum += p[i];
     for (int i = 0; i < kNumLobes; ++i) p[i] = sum > 0.f ? p[i] / sum : 0.f;
+    cached_mu_ = mu;
+    for (int i = 0; i < kNumLobes; ++i) cached_p_[i] = p[i];
 }
 
 Color PreviewSurfaceBSDF::OpaqueF(Vec3 wo, Vec3 wi) const {

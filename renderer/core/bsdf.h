@@ -166,6 +166,11 @@ private:
     float clearcoat_;
     float opacity_;
     DielectricBSDF glass_;
+    // LobeProbabilities depends on |wo.z| only, and one shading point asks for it with the
+    // same wo up to three times (NEE's PDF, Sample_f and the PDF inside it): the last
+    // answer is kept. A BSDF belongs to one thread's shading point, so this is not shared.
+    mutable float cached_mu_ = -1.f;
+    mutable float cached_p_[kNumLobes] = {};
 };
 
 // What the integrator holds per shading point.
