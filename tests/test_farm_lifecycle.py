@@ -299,6 +299,34 @@ def test_lockstep_noise_target_equals_the_local_render(farm, redis_client, tmp_p
     assert_bit_identical(farm_image(farm, job_id, tmp_path), local)
 
 
+def test_a_pass_barrier_applies_once(redis_client):
+    """At-least-once delivery may hand a lockstep barrier out twice (a worker that dies
+    after applying it but before its ack): the second application queues nothing and
+    leaves the accumulator alone. Run against the worker's own script on a real Redis."""
+    from tessera_worker.worker import _DECIDE
+
+    decide = redis_client.register_script(_DECIDE)
+    job = "barrier-once"
+    key, queue = protocol.job_key(job), protocol.job_queue_key(job)
+    redis_client.delete(key, queue, protocol.job_passes_key(job))
+    # Paused, so that the module's running workers never see this job's fake tasks.
+    redis_client.hset(key, mapping={"state": "paused", "tiles_total": 2, "priority": 5})
+    redis_client.xgroup_create(queue, protocol.WORKER_GROUP, id="0", mkstream=True)
+    entry = redis_client.xadd(queue, {"task": "barrier"})
+    args = [job, 0, 0, repr(time.time()), entry, b"acc-after-pass-0", "t0", "t1"]
+    assert decide(args=args) == 0
+    assert [f[b"task"] for _, f in redis_client.xrange(queue)] == [b"t0", b"t1"]
+    again = redis_client.xadd(queue, {"task": "barrier"})
+    assert decide(args=[job, 0, 0, repr(time.time()), again, b"other", "t0", "t1"]) == -1
+    assert [f[b"task"] for _, f in redis_client.xrange(queue)] == [b"t0", b"t1"]
+    assert redis_client.get(protocol.job_passes_key(job)) == b"acc-after-pass-0"
+    # The next pass's barrier finishes the job.
+    last = redis_client.xadd(queue, {"task": "barrier"})
+    assert decide(args=[job, 1, 1, repr(time.time()), last, b"acc-after-pass-1"]) == 1
+    assert redis_client.hget(key, "state") == b"done" and redis_client.hget(key, "tiles_done") == b"2"
+    redis_client.delete(*protocol.job_keys(job))
+
+
 # ------------------------------------------------------------------ priorities
 def test_priority_first_then_fair_share(tmp_path):
     """One worker, started after four jobs are queued: the priority-9 job is served first,
