@@ -3,6 +3,7 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <vector>
 
 #include "render.h"
@@ -86,6 +87,18 @@ inline double MeanChannel(const std::vector<float>& px, int c) {
     double sum = 0;
     for (size_t i = 0; i < px.size() / 4; ++i) sum += px[4 * i + c];
     return sum / double(px.size() / 4);
+}
+
+// The image mean of channel c rendered by path, light and bdpt (in that order) with the
+// same options otherwise: for agreement tests between the integrators.
+inline std::array<double, 3> MeansOfPathLightBDPT(const Scene& scene, const Camera& cam, RenderOptions opt, int c) {
+    std::array<double, 3> mean{};
+    const Integrator order[3] = {Integrator::kPath, Integrator::kLight, Integrator::kBDPT};
+    for (int k = 0; k < 3; ++k) {
+        opt.integrator = order[k];
+        mean[k] = MeanChannel(RenderResolved(scene, cam, opt), c);
+    }
+    return mean;
 }
 
 }  // namespace tessera_test

@@ -469,15 +469,7 @@ TEST(Camera, LensPathLightAndBidirectionalAgree) {
     Camera cam = LookDownMinusZ({0, 0, 1.5f}, W, H, 0.45f);
     cam.lens_radius = 0.15f;
     cam.focal_distance = 2.0f;
-    double mean[3] = {0, 0, 0};
-    for (int k = 0; k < 3; ++k) {
-        RenderOptions opt{256, 7, 16, 2};
-        opt.integrator = k == 0 ? Integrator::kPath : (k == 1 ? Integrator::kLight : Integrator::kBDPT);
-        auto img = RenderResolved(scene, cam, opt);
-        double sum = 0;
-        for (size_t i = 0; i < size_t(W) * H; ++i) sum += img[4 * i + 1];
-        mean[k] = sum / (W * H);
-    }
+    const auto mean = MeansOfPathLightBDPT(scene, cam, RenderOptions{256, 7, 16, 2}, 1);
     EXPECT_GT(mean[0], 0.05);
     EXPECT_NEAR(mean[1], mean[0], 0.02 * mean[0]);
     EXPECT_NEAR(mean[2], mean[0], 0.02 * mean[0]);
@@ -584,15 +576,7 @@ TEST(Dome, TexturedDomeIntegratorsAgree) {
     const uint32_t W = 16, H = 16;
     Camera cam{{0, 4, 6}, Vec3(1, 0, 0), Normalize(Vec3(0, 0.83f, -0.55f)), Normalize(Vec3(0, -0.55f, -0.83f)),
                0.6f, 0.6f, W, H};
-    double mean[3] = {0, 0, 0};
-    for (int k = 0; k < 3; ++k) {
-        RenderOptions opt{512, 11, 16, 2};
-        opt.integrator = k == 0 ? Integrator::kPath : (k == 1 ? Integrator::kLight : Integrator::kBDPT);
-        auto img = RenderResolved(scene, cam, opt);
-        double sum = 0;
-        for (size_t i = 0; i < size_t(W) * H; ++i) sum += img[4 * i + 0];
-        mean[k] = sum / (W * H);
-    }
+    const auto mean = MeansOfPathLightBDPT(scene, cam, RenderOptions{512, 11, 16, 2}, 0);
     EXPECT_GT(mean[0], 0.05);
     EXPECT_NEAR(mean[1], mean[0], 0.03 * mean[0]);
     EXPECT_NEAR(mean[2], mean[0], 0.02 * mean[0]);
@@ -667,15 +651,7 @@ TEST(ShadingNormals, SmoothSpheresKeepPathLightAndBidirectionalInAgreement) {
     const uint32_t W = 16, H = 16;
     Camera cam{{0, 3, 5}, Vec3(1, 0, 0), Normalize(Vec3(0, 0.93f, -0.37f)), Normalize(Vec3(0, -0.37f, -0.93f)),
                0.6f, 0.6f, W, H};
-    double mean[3];
-    for (int k = 0; k < 3; ++k) {
-        RenderOptions opt{512, 5, 16, 2};
-        opt.integrator = k == 0 ? Integrator::kPath : (k == 1 ? Integrator::kLight : Integrator::kBDPT);
-        auto img = RenderResolved(scene, cam, opt);
-        double sum = 0;
-        for (size_t i = 0; i < size_t(W) * H; ++i) sum += img[4 * i + 0];
-        mean[k] = sum / (W * H);
-    }
+    const auto mean = MeansOfPathLightBDPT(scene, cam, RenderOptions{512, 5, 16, 2}, 0);
     EXPECT_GT(mean[0], 0.05);
     EXPECT_NEAR(mean[1], mean[0], 0.02 * mean[0]);
     EXPECT_NEAR(mean[2], mean[0], 0.02 * mean[0]);
