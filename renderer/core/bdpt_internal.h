@@ -347,7 +347,7 @@ public:
             sampled->pdf_fwd = PdfLightOrigin(*sampled, pt);
             Color f = F(pt, *sampled) * std::abs(Dot(ls.wi, pt.ns));
             if (IsBlack(f) || IsBlack(sampled->beta)) return Color(0.f);
-            if (scene_.Occluded(OffsetRayOrigin(pt.p, pt.p_error, pt.ng, ls.wi), ls.wi, ls.distance * (1.f - 1e-4f)))
+            if (!scene_.Unoccluded(pt.p, pt.p_error, pt.ng, ls))
                 return Color(0.f);
             return pt.beta * f * sampled->beta;
         }
@@ -375,7 +375,7 @@ public:
         // but both ends here are surfaces).
         float g = std::abs(Dot(qs.ns, w)) * std::abs(Dot(pt.ns, w)) / d2;
         if (!(g > 0.f)) return Color(0.f);
-        if (scene_.Occluded(OffsetRayOrigin(qs.p, qs.p_error, qs.ng, w), w, dist * (1.f - 1e-4f))) return Color(0.f);
+        if (!scene_.Unoccluded(qs.p, qs.p_error, qs.ng, pt.p, pt.p_error, pt.ng)) return Color(0.f);
         return L * g;
     }
 

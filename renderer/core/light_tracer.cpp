@@ -16,7 +16,7 @@ bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, float p_e
     if (!camera.Project(lens, -*wc, px, py, &cos_camera)) return false;
     const float depth = d * cos_camera;
     if (depth < camera.near || depth > camera.far) return false;
-    if (scene.Occluded(OffsetRayOrigin(p, p_error, ng, *wc), *wc, d * (1.f - 1e-4f))) return false;
+    if (!scene.Unoccluded(p, p_error, ng, lens, 0.f, Vec3(0.f))) return false;
     *importance_over_d2 = 1.f / (camera.ImagePlaneArea() * cos_camera * cos_camera * cos_camera * d2);
     if (lens_point) *lens_point = lens;
     return true;

@@ -98,6 +98,10 @@ inline Vec3 OffsetRayOrigin(Vec3 p, float p_error, Vec3 n, Vec3 w) {
     return {push(p.x, n.x), push(p.y, n.y), push(p.z, n.z)};
 }
 
+// The relative shortening of a shadow ray whose ends were both moved off their surfaces:
+// it only absorbs the intersector's own rounding of t.
+inline constexpr float kShadowEpsilon = 1e-4f;
+
 // The error bound of p = b0 p0 + b1 p1 + b2 p2 (barycentric interpolation in float): the
 // interpolated point lies within this of the triangle's plane, however inaccurate the
 // barycentrics themselves are (pbrt-v4 6.8.4).

@@ -18,7 +18,7 @@ Color SampleDirectLight(const Scene& scene, const SurfaceHit& hit, const BSDF& b
     const Vec3 wo_local = frame.ToLocal(wo), wi_local = frame.ToLocal(ls.wi);
     if (!SidesAgree(wo, ls.wi, hit.ng, wo_local, wi_local)) return Color(0.f);
     const Color f = bsdf.f(wo_local, wi_local) * std::abs(wi_local.z);
-    if (IsBlack(f) || scene.Occluded(OffsetRayOrigin(hit.p, hit.p_error, hit.ng, ls.wi), ls.wi, ls.distance * (1.f - 1e-4f)))
+    if (IsBlack(f) || !scene.Unoccluded(hit.p, hit.p_error, hit.ng, ls))
         return Color(0.f);
     // A delta light cannot be hit by BSDF sampling: light sampling takes it all.
     const float w = (mis && !ls.is_delta) ? PowerHeuristic(light_pdf, bsdf.PDF(wo_local, wi_local)) : 1.f;

@@ -645,6 +645,23 @@ bool Scene::Occluded(Vec3 origin, Vec3 dir, float t_far) const {
     return ray.tfar < 0.f;  // Embree sets tfar = -inf on a hit
 }
 
+bool Scene::Unoccluded(Vec3 p0, float p0_error, Vec3 n0, Vec3 p1, float p1_error, Vec3 n1) const {
+    const Vec3 from = OffsetRayOrigin(p0, p0_error, n0, p1 - p0);
+    const Vec3 to = OffsetRayOrigin(p1, p1_error, n1, from - p1);
+    const Vec3 d = to - from;
+    const float len = Length(d);
+    if (!(len > 0.f)) return false;
+    // Both ends already sit off their surfaces; the shortening only keeps Embree's own
+    // rounding of t from reaching the far one.
+    return !Occluded(from, d / len, len * (1.f - kShadowEpsilon));
+}
+
+bool Scene::Unoccluded(Vec3 p, float p_error, Vec3 ng, const LightSample& ls) const {
+    if (std::isinf(ls.distance))
+        return !Occluded(OffsetRayOrigin(p, p_error, ng, ls.wi), ls.wi, std::numeric_limits<float>::infinity());
+    return Unoccluded(p, p_error, ng, ls.p, ls.p_error, ls.n);
+}
+
 const Material& Scene::MaterialAt(const SurfaceHit& hit) const {
     static const Material kLightSurface{Color(0.f), Color(0.f), false, std::nullopt};
     return hit.geom_id == kTriangleGeometry ? MaterialOf(hit.mesh, hit.prim_id) : kLightSurface;
@@ -692,6 +709,8 @@ bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) 
             out->pdf = 1.f;
             out->is_delta = true;
             out->n = Vec3(0.f);
+            out->p = p.position;
+            out->p_error = 0.f;
             return true;
         }
         case LightKind::kDistant: {
@@ -738,7 +757,10 @@ bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) 
         out->wi = wi;
         out->radiance = s.radiance;
         out->pdf = 1.f / (2.f * kPi * one_minus_cos);
-        out->n = Normalize(ref + wi * out->distance - s.center);
+        out->p = ref + wi * out->distance;
+        out->n = Normalize(out->p - s.center);
+        // ref + t wi: the error of t (from b, d2 and r2) and of the product and sum.
+        out->p_error = Gamma(8) * (MaxAbsComponent(ref) + std::abs(b) + d + s.radius) + Gamma(5) * MaxAbsComponent(s.center);
         return out->distance > 0.f;
     }
     Vec3 b = SampleUniformTriangle(u);
@@ -762,6 +784,10 @@ bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) 
     out->radiance = TriangleEmission(e.mesh, e.index, b.y, b.z);
     out->pdf = d2 / (cos_light * e.area);  // area measure 1/A converted to solid angle
     out->n = ng;
+    out->p = p;
+    out->p_error = BarycentricPointError(p0, p1, p2, b.x, b.y, b.z);
+    if (e.instance != kNoInstance)  // the corners carry the transform's rounding
+        out->p_error += Gamma(3) * std::max(MaxAbsComponent(p0), std::max(MaxAbsComponent(p1), MaxAbsComponent(p2)));
     return true;
 }
 

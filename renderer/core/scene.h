@@ -148,6 +148,10 @@ struct LightSample {
     float pdf = 0.f;       // solid-angle density at the reference point, light already chosen
     bool is_delta = false; // point or delta-distant light: pdf is a probability, no MIS
     Vec3 n;                // the light's surface normal at the sample (zero for points, infinity)
+    // The sampled point (finite distance only) and its error bound as SurfaceHit::p_error:
+    // the shadow ray stops short of the light's own surface by that bound (Scene::Unoccluded).
+    Vec3 p;
+    float p_error = 0.f;
 };
 
 // The start of a light subpath: a ray leaving a light, and its throughput
@@ -184,6 +188,16 @@ public:
     bool Intersect(const Ray& ray, SurfaceHit* hit, float t_min = 0.f,
                    float t_max = std::numeric_limits<float>::infinity()) const;
     bool Occluded(Vec3 origin, Vec3 dir, float t_far) const;
+    // Is the segment between two points free? Each end lies within its error bound of a
+    // surface with geometric normal n (n = 0: not on a surface, as a point light or the
+    // lens), and each is moved off its own surface toward the other before the ray is
+    // traced (pbrt-v4's SpawnRayTo, applied at both ends), so the segment can hit neither
+    // end's surface however far from the origin the two points lie. Moving only the origin
+    // lets the ray reach the light's own surface wherever rounding put the light sample
+    // behind it: 90 % of shadow rays 1e3 units from the origin were blocked that way.
+    bool Unoccluded(Vec3 p0, float p0_error, Vec3 n0, Vec3 p1, float p1_error, Vec3 n1) const;
+    // The same for a light sample seen from p: to its point, or toward infinity.
+    bool Unoccluded(Vec3 p, float p_error, Vec3 ng, const LightSample& ls) const;
 
     const Material& MaterialAt(const SurfaceHit& hit) const;
     // The scattering function at a hit; a black DiffuseBSDF on light-only geometry.
