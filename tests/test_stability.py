@@ -123,89 +123,200 @@ def lit_plane(light=LIGHT, occluder: bool = False) -> Builder:
     return b
 
 
-def assert_within_noise(image: np.ndarray, reference: np.ndarray, what: str, sigmas: float = 6.0) -> None:
-    """Mean of the image (and of each quarter) equals the reference's within `sigmas`
-    standard errors (from the pixel spread of both), for the noisy integrators."""
-    h, w = image.shape[:2]
-    for ys, xs in ((slice(None), slice(None)), (slice(0, h // 2), slice(0, w // 2)),
-                   (slice(0, h // 2), slice(w // 2, None)), (slice(h // 2, None), slice(0, w // 2)),
-                   (slice(h // 2, None), slice(w // 2, None))):
-        a, b = image[ys, xs].reshape(-1, 3), reference[ys, xs].reshape(-1, 3)
-        se = np.sqrt(a.var(axis=0, ddof=1) / len(a) + b.var(axis=0, ddof=1) / len(b)) + 1e-6 * np.abs(b).mean()
-        diff = np.abs(a.mean(axis=0) - b.mean(axis=0))
-        assert (diff <= sigmas * se + 2e-3 * np.abs(b.mean(axis=0))).all(), \
-            f"{what}: mean {a.mean(axis=0)} vs {b.mean(axis=0)} (se {se})"
+# The noisy integrators' check on a uniformly lit plane (no shadow contrast, so the pixel
+# spread is noise alone): the image mean within MEAN_TOLERANCE of the analytic value, from
+# enough samples that the mean's standard error is at most MAX_SE: a 2 % error lies
+# (2 - 1.5) / 0.35 = 1.4 standard errors past the tolerance (detected 92 % of the time), and
+# a correct mean fails only 4.3 standard errors out.
+MEAN_TOLERANCE, MAX_SE = 0.015, 0.0035
+LIGHT_SPP = 8192  # light tracing a distant light: 0.2-0.33 % standard error at 24 x 24
+
+
+def assert_mean_is(v: np.ndarray, what: str) -> None:
+    """v (already divided by the analytic value) has mean 1 within MEAN_TOLERANCE, and the
+    same check on v 2 % brighter fails (the negative control)."""
+    se = float(v.std() / math.sqrt(v.size))
+    assert se <= MAX_SE, f"{what}: standard error {se:.2%} is too large for the check"
+    assert abs(float(v.mean()) - 1.0) <= MEAN_TOLERANCE, f"{what}: mean {float(v.mean()):.4f}, se {se:.2%}"
+    assert abs(float(v.mean()) * 1.02 - 1.0) > MEAN_TOLERANCE, f"{what}: cannot see 2 %"
 
 
 # ------------------------------------------------------------------ far away, tiny, huge
-# Rays leave a surface by the error bound of their hit point (math.h OffsetRayOrigin), which
-# grows with the triangle's own coordinates: a few float32 ulps at 1e5 (0.0078 units), so the
-# occluder 0.5 above the plane there still casts its shadow. (An offset proportional to |p|,
-# 1e-5 (1 + max |p|), jumped that gap; this test caught it.)
-PLACEMENTS = [dict(offset=1e3), dict(offset=1e5), dict(scale=1e-3), dict(scale=1e4),
-              dict(offset=1e5, scale=1e3)]
-NOISY_HERE = ("path", "light", "bdpt")  # path: the bounce under the occluder is random
+# An area light is where it shows: a shadow ray must stop short of the light's own surface
+# by the light sample's error bound, or the ray hits the light it is aimed at wherever
+# rounding put the sample behind it. With only the origin moved off its surface (and a
+# fixed 1e-4 shortening), this scene rendered 92 % dark 1e3 from the origin with path and
+# local, 49 % with bdpt, >99 % with whitted (the scene of issue 10, `light` was right).
+# SceneData as given (no translation): rays leave a surface by its hit point's error
+# bound, about |p| 2^-22 (0.0024 at 1e4, 0.024 at 1e5 from the origin), which moves the
+# line of a shadow ray or a camera connection by that much. Against a pixel's footprint on
+# the subject here (0.07) that moves a penumbra or, for light and bdpt, a silhouette's
+# coverage: at 1e4 by up to 1.6 % in a region for light and bdpt, at 1e5 by 4 % for local.
+# So raw coordinates hold a view to 1 % while |p| 2^-22 stays under ~2 % of the pixel
+# footprint; through USD (OFFSETS_USD) the translator moves the camera to the origin and
+# |p| becomes the distance from the camera, which always satisfies it.
+OFFSETS_RAW = {"path": (1e3, 1e4), "local": (1e3, 1e4), "whitted": (1e3, 1e4), "light": (1e3,), "bdpt": (1e3,)}
+OFFSETS_USD = (1e3, 1e4, 1e5, 1e6)  # through USD: translated relative to the camera
+SCALES = (1e-3, 1e4)
+FAR_RES, FAR_BLOCK = 32, 8          # 16 regions of 8 x 8 pixels
+FAR_SPP = {"path": 64, "bdpt": 32, "light": 64, "local": 8, "whitted": 8}
+FAR_TOLERANCE = 0.01                # per region, relative
 
 
 def _placement_id(p: dict) -> str:
     return ",".join(f"{k}={v:g}" for k, v in p.items()) or "unit"
 
 
+def _area_lit_plane(offset: float = 0.0, scale: float = 1.0, emission: float = 4.0) -> Scene:
+    """The Lambertian plane (albedo 0.75/0.5/0.25) under a 1 x 2 emissive quad one unit
+    above it, a grey square half way up casting a soft shadow, the camera 3 units away; coordinates are multiples of 2^-4, so every offset
+    here is float32-exact."""
+    b = Builder()
+    b.quad((0, 0, 0), (2, 0, 0), (0, 2, 0), b.material(albedo=(0.75, 0.5, 0.25)))
+    b.quad((0, 0, 1.0), (0.5, 0, 0), (0, -1.0, 0), b.material(albedo=0.0, emission=emission))  # faces -z
+    b.quad((0.75, 0.25, 0.5), (0.25, 0, 0), (0, 0.25, 0), b.material(albedo=0.5))  # casts a soft shadow
+    b.camera = dict(origin=(0.0, -2.0, 2.25), right=(1, 0, 0), up=(0, 0.8, 0.6), forward=(0, 0.6, -0.8))
+    return b.build(offset=offset, scale=scale, res=FAR_RES, fov_tan=0.6)
+
+
+def _write_area_lit_usd(path, offset: float = 0.0, scale: float = 1.0) -> None:
+    """The same scene as a USD file as a DCC writes it: float32 points at their world
+    position, UsdPreviewSurface materials, the camera's transform a double matrix."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
+
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+
+    def material(name, diffuse, emissive=(0.0, 0.0, 0.0)):
+        m = UsdShade.Material.Define(stage, f"/Looks/{name}")
+        sh = UsdShade.Shader.Define(stage, f"/Looks/{name}/Surface")
+        sh.CreateIdAttr("UsdPreviewSurface")
+        sh.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*diffuse))
+        sh.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*emissive))
+        for name_, value in (("metallic", 0.0), ("roughness", 1.0), ("ior", 1.0)):
+            sh.CreateInput(name_, Sdf.ValueTypeNames.Float).Set(value)
+        m.CreateSurfaceOutput().ConnectToSource(sh.ConnectableAPI(), "surface")
+        return m
+
+    def quad(name, corners, mat):
+        mesh = UsdGeom.Mesh.Define(stage, f"/World/{name}")
+        pts = np.asarray(corners, np.float64) * scale + offset
+        mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
+        mesh.CreateFaceVertexCountsAttr([4])
+        mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+        mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
+
+    quad("plane", [(-2, -2, 0), (2, -2, 0), (2, 2, 0), (-2, 2, 0)], material("plane", (0.75, 0.5, 0.25)))
+    quad("light", [(-0.5, -1, 1), (-0.5, 1, 1), (0.5, 1, 1), (0.5, -1, 1)],
+         material("light", (0.0, 0.0, 0.0), (4.0, 4.0, 4.0)))
+    quad("occluder", [(0.5, 0, 0.5), (1, 0, 0.5), (1, 0.5, 0.5), (0.5, 0.5, 0.5)], material("occluder", (0.5, 0.5, 0.5)))
+    cam = UsdGeom.Camera.Define(stage, "/Camera")
+    eye = Gf.Vec3d(0.0, -2.0, 2.25) * scale + Gf.Vec3d(offset, offset, offset)
+    centre = Gf.Vec3d(0.0, 1.0, -1.75) * scale + Gf.Vec3d(offset, offset, offset)
+    cam.AddTransformOp(UsdGeom.XformOp.PrecisionDouble).Set(Gf.Matrix4d().SetLookAt(eye, centre, Gf.Vec3d(0, 0.8, 0.6)).GetInverse())
+    cam.CreateFocalLengthAttr(10.0)
+    cam.CreateHorizontalApertureAttr(12.0)
+    cam.CreateVerticalApertureAttr(12.0)
+    render_settings = stage.DefinePrim("/Render/Settings", "RenderSettings")
+    render_settings.CreateAttribute("resolution", Sdf.ValueTypeNames.Int2).Set(Gf.Vec2i(FAR_RES, FAR_RES))
+    render_settings.CreateRelationship("camera").SetTargets([cam.GetPath()])
+    stage.SetMetadata("renderSettingsPrimPath", "/Render/Settings")
+    stage.GetRootLayer().Save()
+
+
+def _region_means(image: np.ndarray) -> np.ndarray:
+    """(16, 3) block means of the image's 8 x 8 regions."""
+    n = FAR_RES // FAR_BLOCK
+    return image.reshape(n, FAR_BLOCK, n, FAR_BLOCK, 3).mean(axis=(1, 3)).reshape(-1, 3)
+
+
+def _worst_region_error(image: np.ndarray, reference: np.ndarray) -> float:
+    a, b = _region_means(image), _region_means(reference)
+    return float(np.max(np.abs(a / b - 1.0)))
+
+
 @pytest.fixture(scope="module")
-def shadow_reference() -> dict[str, np.ndarray]:
-    scene = lit_plane(occluder=True).build()
-    return {i: render(scene, i, spp=64 if i in NOISY_HERE else 4) for i in INTEGRATORS}
+def area_lit_reference() -> dict[str, np.ndarray]:
+    scene = _area_lit_plane()
+    return {i: render(scene, i, spp=FAR_SPP[i]) for i in INTEGRATORS}
 
 
-def test_shadow_reference_is_what_the_geometry_says(shadow_reference):
-    """Not vacuous: the unit-scale image has lit plane, the occluder, interreflection
-    under it and a visible shadow."""
-    v = shadow_reference["local"][..., 0] / PLANE_RADIANCE
-    assert (np.abs(v - 1) < 1e-5).mean() > 0.7 and (v == 0).sum() >= 20
-    bounced = shadow_reference["path"][..., 0] > shadow_reference["local"][..., 0] + 1e-3
-    assert bounced.sum() >= 10  # light bounced between the plane and the occluder
+def _check_far(image: np.ndarray, reference: np.ndarray, integrator: str, what: str) -> None:
+    """Every region's mean within FAR_TOLERANCE of the origin render's. Both renders use
+    the same seed, so they draw the same samples (common random numbers): their difference
+    holds only what the placement changed, and any region changed by 2 % fails (the
+    negative control below proves that on every integrator)."""
+    assert (_region_means(reference) > 0).all(), f"{integrator}: the reference has dark regions"
+    err = _worst_region_error(image, reference)
+    assert err <= FAR_TOLERANCE, f"{integrator} {what}: a region differs by {err:.2%} from the origin's"
 
 
-@pytest.mark.parametrize("placement,integrator", [
-    pytest.param(p, i, id=f"{i}-{_placement_id(p)}",
-                 )
-    for p in PLACEMENTS for i in INTEGRATORS])
-def test_offset_and_scale_leave_the_image_unchanged(shadow_reference, placement, integrator):
-    """The lit plane with an occluder, moved far from the origin or scaled: the same image.
-    local and whitted (deterministic here): pixel for pixel, up to a few pixels on the
-    shadow's and the occluder's edges (float32 rounding moves an edge by a fraction of a
-    pixel), and the same number of shadow pixels within 4. path, light and bdpt: the means of
-    the image and of its quarters within noise."""
-    image = render(lit_plane(occluder=True).build(**placement), integrator,
-                   spp=64 if integrator in NOISY_HERE else 4)
-    reference = shadow_reference[integrator]
-    if integrator not in NOISY_HERE:
-        differ = ~np.isclose(image, reference, rtol=1e-3, atol=1e-6).all(axis=2)
-        shadow, shadow_ref = int((image[..., 0] == 0).sum()), int((reference[..., 0] == 0).sum())
-        # Nothing may change away from an edge (of the occluder or its shadow) of the
-        # reference: a changed interior pixel is a lost shadow or a leak.
-        value = reference[..., 0]
-        padded = np.pad(value, 1, mode="edge")
-        window = np.stack([padded[dy:dy + RES, dx:dx + RES] for dy in range(3) for dx in range(3)])
-        edge = ~np.isclose(window.min(axis=0), window.max(axis=0), rtol=1e-3, atol=1e-6)
-        assert not (differ & ~edge).any(), f"pixels changed away from edges: {np.argwhere(differ & ~edge)[:5]}"
-        if placement.get("offset", 0.0) < 1e5:
-            assert differ.sum() <= 0.02 * RES * RES and abs(shadow - shadow_ref) <= 4, (
-                f"{int(differ.sum())} of {RES * RES} pixels changed; shadow pixels {shadow_ref} -> {shadow}")
-        # At 1e5, float32 holds coordinates to 0.0078 (5 % of a pixel here), and the
-        # occluder's axis-aligned edges lie on rows of sample positions, so whole edge rows
-        # may flip; only the edges may move.
-    else:
-        assert_within_noise(image, reference, f"{integrator} {placement}")
+def test_far_check_sees_a_two_percent_change(area_lit_reference):
+    """Negative control for the placement tests: the origin scene with its light 2 %
+    brighter fails the same per-region check, with every integrator."""
+    brighter = _area_lit_plane(emission=4.0 * 1.02)
+    for integrator in INTEGRATORS:
+        err = _worst_region_error(render(brighter, integrator, spp=FAR_SPP[integrator]),
+                                  area_lit_reference[integrator])
+        assert err > FAR_TOLERANCE, f"{integrator}: 2 % brighter passed ({err:.3%})"
+
+
+@pytest.mark.parametrize("integrator,placement", [
+    pytest.param(i, p, id=f"{i}-{_placement_id(p)}")
+    for i in INTEGRATORS for p in [dict(offset=o) for o in OFFSETS_RAW[i]] + [dict(scale=s) for s in SCALES]])
+def test_area_lit_plane_far_from_the_origin_or_scaled(area_lit_reference, placement, integrator):
+    """The scene's points moved far from the origin (or scaled) as given to the core, with
+    no help from the translator: the same image as at the origin, per region within 1 %."""
+    image = render(_area_lit_plane(**placement), integrator, spp=FAR_SPP[integrator])
+    _check_far(image, area_lit_reference[integrator], integrator, str(placement))
+
+
+@pytest.fixture(scope="module")
+def usd_area_lit_reference(tmp_path_factory) -> dict[str, np.ndarray]:
+    from tessera_renderer import load_scene
+
+    path = tmp_path_factory.mktemp("far") / "origin.usda"
+    _write_area_lit_usd(path)
+    scene = load_scene(path)
+    return {i: render(scene, i, spp=FAR_SPP[i]) for i in INTEGRATORS}
+
+
+@pytest.mark.parametrize("placement", [dict(offset=o) for o in OFFSETS_USD] + [dict(scale=s) for s in SCALES],
+                         ids=_placement_id)
+def test_usd_scene_far_from_the_origin_or_scaled(tmp_path, usd_area_lit_reference, placement):
+    """The USD file moved up to 1e6 from the origin, where float32 spacing (0.0625) is half
+    a pixel's footprint on the subject: translated relative to the camera, it renders as at
+    the origin with every integrator, per region within 1 %; and the translation keeps the
+    world position it removed."""
+    from tessera_renderer import load_scene
+    from tessera_renderer.usd_scene import translate_stage
+
+    path = tmp_path / "far.usda"
+    _write_area_lit_usd(path, **placement)
+    scene = load_scene(path)
+    for integrator in INTEGRATORS:
+        image = render(scene, integrator, spp=FAR_SPP[integrator])
+        _check_far(image, usd_area_lit_reference[integrator], integrator, f"USD {placement}")
+    data = translate_stage(str(path))
+    eye = np.array([0.0, -2.0, 2.25]) * placement.get("scale", 1.0) + placement.get("offset", 0.0)
+    np.testing.assert_allclose(data.world_offset, eye, rtol=1e-12)
+    assert data.camera.origin == (0.0, 0.0, 0.0)
 
 
 # ------------------------------------------------------------------ shadow acne
 @pytest.mark.parametrize("incidence", [0.0, 45.0, 80.0, 89.0])
 @pytest.mark.parametrize("placement", [dict(), dict(offset=1e3), dict(offset=1e5), dict(scale=1e-3),
-                                       dict(scale=1e4)], ids=lambda p: ",".join(f"{k}={v:g}" for k, v in p.items()) or "unit")
+                                       dict(scale=1e4)], ids=_placement_id)
 def test_no_shadow_acne_on_a_lit_plane(incidence, placement):
     """Every pixel of the lit plane equals rho E cos(theta) / pi (no dark pixel from a
-    shadow ray hitting its own surface), for light at 0 to 89 degrees from the normal."""
+    shadow ray hitting its own surface), for light at 0 to 89 degrees from the normal:
+    path, local and whitted per pixel to 1e-4; bdpt and light in the mean (assert_mean_is:
+    detects 2 %). Light tracing a distant light at 80-89 degrees would need 16 times the
+    samples for that power; bdpt's light subpaths cover those angles. Nor is light checked at
+    1e5 from the origin in raw coordinates: the hit points there are rounded to 0.0078, an
+    eighth of a pixel's footprint, so splats alias into a pixel pattern (mean right within
+    0.1 %, spread 1.6 times wider; see OFFSETS_RAW)."""
     theta = math.radians(incidence)
     light = np.array([math.sin(theta), 0.0, -math.cos(theta)])
     scene = lit_plane(light).build(**placement)
@@ -215,9 +326,9 @@ def test_no_shadow_acne_on_a_lit_plane(incidence, placement):
         dark = float((v < 0.99).mean())
         assert dark == 0.0, f"{integrator}: {dark:.1%} dark pixels (min {v.min():.3g})"
         np.testing.assert_allclose(v, 1.0, rtol=1e-4, err_msg=integrator)
-    for integrator in ("light", "bdpt"):
-        v = render(scene, integrator, spp=16)[..., 0] / expected
-        assert abs(v.mean() - 1.0) < 6 * v.std() / math.sqrt(v.size) + 2e-3, integrator
+    assert_mean_is(render(scene, "bdpt", spp=16)[..., 0] / expected, "bdpt")
+    if incidence <= 45.0 and placement.get("offset", 0.0) < 1e5:
+        assert_mean_is(render(scene, "light", spp=LIGHT_SPP)[..., 0] / expected, "light")
 
 
 @pytest.mark.parametrize("size", [
@@ -270,7 +381,8 @@ def test_grazing_camera_rays(elevation):
 def test_degenerate_and_sliver_triangles():
     """Zero-area triangles (repeated and collinear corners), needle slivers, and the same
     as emitters, in the lit plane's scene: every integrator stays finite, and the plane's
-    pixels keep their value where no sliver covers them."""
+    pixels keep their value where no sliver covers them (path, local, whitted to 1e-4;
+    light and bdpt in the mean, detecting 2 %: assert_mean_is)."""
     b = lit_plane()
     m = b.material()
     glow = b.material(emission=5.0)
@@ -286,10 +398,8 @@ def test_degenerate_and_sliver_triangles():
         v = render(scene, integrator)[..., 0] / PLANE_RADIANCE
         assert np.median(v) == pytest.approx(1.0, rel=1e-4), integrator
     plane_only = np.isclose(render(scene, "path")[..., 0], PLANE_RADIANCE, rtol=1e-4)  # no sliver seen
-    for integrator in ("light", "bdpt"):
-        image = render(scene, integrator, spp=64)[..., 0][plane_only]
-        assert abs(image.mean() / PLANE_RADIANCE - 1) < 6 * image.std() / math.sqrt(image.size) / PLANE_RADIANCE \
-            + 0.01, integrator
+    for integrator, spp in (("light", LIGHT_SPP), ("bdpt", 64)):
+        assert_mean_is(render(scene, integrator, spp=spp)[..., 0][plane_only] / PLANE_RADIANCE, integrator)
 
 
 def test_coincident_faces():

@@ -3,6 +3,7 @@ textures and the translate-once blob. Expectations come from geometry, the UsdLu
 UsdPreviewSurface specifications and published colorimetry, not from earlier output."""
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 
@@ -13,10 +14,14 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
 from tessera_renderer import load_scene
 from tessera_renderer import gprims
 from tessera_renderer.scene_blob import scene_data_from_blob, scene_from_blob, translate_to_blob
-from tessera_renderer.usd_scene import translate_stage
+from tessera_renderer.usd_scene import translate_stage as _translate_stage
 from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, new_stage
 
 QUAD2 = ([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 0, 0), (2, 1, 0)], [4, 4], [0, 1, 2, 3, 1, 4, 5, 2])
+
+# These tests read what the translation put where: world coordinates, not the
+# camera-relative ones a render uses (test_stability.py tests those).
+translate_stage = functools.partial(_translate_stage, camera_relative=False)
 
 
 def save(stage):

@@ -1,4 +1,5 @@
 """USD -> flat arrays: geometry, materials, lights, camera and errors."""
+import functools
 import math
 
 import numpy as np
@@ -6,8 +7,13 @@ import pytest
 from pxr import Gf, UsdGeom, UsdLux
 
 from tessera_renderer import SceneError, load_scene
-from tessera_renderer.usd_scene import _triangulate_fan, translate_stage
+from tessera_renderer.usd_scene import _triangulate_fan
+from tessera_renderer.usd_scene import translate_stage as _translate_stage
 from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, new_stage
+
+# These tests read what the translation put where: world coordinates, not the
+# camera-relative ones a render uses (test_stability.py tests those).
+translate_stage = functools.partial(_translate_stage, camera_relative=False)
 
 
 def triangle_areas(data):

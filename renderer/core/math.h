@@ -102,12 +102,21 @@ inline Vec3 OffsetRayOrigin(Vec3 p, float p_error, Vec3 n, Vec3 w) {
 // it only absorbs the intersector's own rounding of t.
 inline constexpr float kShadowEpsilon = 1e-4f;
 
-// The error bound of p = b0 p0 + b1 p1 + b2 p2 (barycentric interpolation in float): the
-// interpolated point lies within this of the triangle's plane, however inaccurate the
-// barycentrics themselves are (pbrt-v4 6.8.4).
-inline float BarycentricPointError(Vec3 p0, Vec3 p1, Vec3 p2, float b0, float b1, float b2) {
+// The point of triangle (p0, p1, p2) at barycentrics (1 - b1 - b2, b1, b2), evaluated as
+// p0 + b1 (p1 - p0) + b2 (p2 - p0), and in *p_error the bound of its distance (per axis)
+// from the triangle's plane. For any b1, b2 the exact value of that expression lies on the
+// plane, so however inaccurate the barycentrics are, only the evaluation's own rounding
+// moves the point off it: one rounding of the final sum (relative to |p|) and three of the
+// small terms (relative to the edges). The weighted sum b0 p0 + b1 p1 + b2 p2 instead needs
+// gamma_7 of sum |b_i p_i| (pbrt-v4 6.8.4), seven times the offset far from the origin,
+// where rays leaving a surface must not be moved farther than a pixel's footprint.
+inline Vec3 TrianglePoint(Vec3 p0, Vec3 p1, Vec3 p2, float b1, float b2, float* p_error) {
     auto abs3 = [](Vec3 v) { return Vec3(std::abs(v.x), std::abs(v.y), std::abs(v.z)); };
-    return Gamma(7) * MaxAbsComponent(abs3(p0 * b0) + abs3(p1 * b1) + abs3(p2 * b2));
+    const Vec3 e1 = p1 - p0, e2 = p2 - p0;
+    const Vec3 p = p0 + (e1 * b1 + e2 * b2);
+    *p_error = Gamma(2) * MaxAbsComponent(abs3(p)) +
+               Gamma(4) * MaxAbsComponent(abs3(e1) * std::abs(b1) + abs3(e2) * std::abs(b2));
+    return p;
 }
 
 }  // namespace tessera

@@ -589,8 +589,8 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceH
                p1 = LocalVertex(mesh.positions, mesh.indices, prim, 1),
                p2 = LocalVertex(mesh.positions, mesh.indices, prim, 2);
     const float u = rh.hit.u, v = rh.hit.v;
-    Vec3 p = p0 * (1.f - u - v) + p1 * u + p2 * v;
-    float p_error = BarycentricPointError(p0, p1, p2, 1.f - u - v, u, v);
+    float p_error;
+    Vec3 p = TrianglePoint(p0, p1, p2, u, v, &p_error);
     Vec3 ng = Cross(p1 - p0, p2 - p0);
     Vec3 ns(0.f);
     if (!mesh.normals.empty()) {
@@ -767,7 +767,8 @@ bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) 
     Vec3 tri[3];
     const float orientation = TriangleVertices(e.mesh, e.index, e.instance, tri);
     const Vec3 p0 = tri[0], p1 = tri[1], p2 = tri[2];
-    Vec3 p = p0 * b.x + p1 * b.y + p2 * b.z;
+    float p_error;
+    const Vec3 p = TrianglePoint(p0, p1, p2, b.y, b.z, &p_error);
     Vec3 ng = Normalize(Cross(p1 - p0, p2 - p0)) * orientation;
     Vec3 to_light = p - ref;
     float d2 = LengthSquared(to_light);
@@ -785,7 +786,7 @@ bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) 
     out->pdf = d2 / (cos_light * e.area);  // area measure 1/A converted to solid angle
     out->n = ng;
     out->p = p;
-    out->p_error = BarycentricPointError(p0, p1, p2, b.x, b.y, b.z);
+    out->p_error = p_error;
     if (e.instance != kNoInstance)  // the corners carry the transform's rounding
         out->p_error += Gamma(3) * std::max(MaxAbsComponent(p0), std::max(MaxAbsComponent(p1), MaxAbsComponent(p2)));
     return true;
@@ -808,8 +809,7 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
                 sides = 2.f;
                 if (u_side < 0.5f) n = -n;
             }
-            out->p = p0 * b.x + p1 * b.y + p2 * b.z;
-            out->p_error = BarycentricPointError(p0, p1, p2, b.x, b.y, b.z);
+            out->p = TrianglePoint(p0, p1, p2, b.y, b.z, &out->p_error);
             if (e.instance != kNoInstance)  // the corners carry the transform's rounding
                 out->p_error += Gamma(3) * std::max(MaxAbsComponent(p0), std::max(MaxAbsComponent(p1), MaxAbsComponent(p2)));
             out->n = n;

@@ -39,8 +39,9 @@ MAGIC = b"TSSCENE\0"
 BLOB_VERSION = 1
 # Bumped whenever translation output changes for the same input.
 # 2: camera lens and clipping range; 3: sRGB only for 8-bit colour images on colour
-# inputs, NaN st replaced, and instancing "auto" (Embree instances) by default.
-TRANSLATOR_VERSION = 3
+# inputs, NaN st replaced, and instancing "auto" (Embree instances) by default;
+# 4: coordinates relative to the camera (SceneData.world_offset).
+TRANSLATOR_VERSION = 4
 _ALIGN = 64
 _PROTO_FIELDS = ("positions", "indices", "triangle_material", "shading_normals", "uvs")
 
@@ -121,6 +122,7 @@ def scene_data_to_blob(data: SceneData) -> bytes:
         "warnings": data.warnings, "textures": textures,
         "material_textures": [[m, name, t] for (m, name), t in data.material_textures.items()],
         "dome_light": dome, "meters_per_unit": data.meters_per_unit, "up_axis": data.up_axis,
+        "world_offset": list(data.world_offset),
         "prototypes": len(data.prototypes), "translator_version": TRANSLATOR_VERSION,
     }
     table, offset = {}, 0
@@ -208,7 +210,8 @@ def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
         textures=textures, material_textures={(m, n): t for m, n, t in meta["material_textures"]},
         distant_lights=arrays["distant_lights"], point_lights=arrays["point_lights"], dome_light=dome,
         prototypes=prototypes, instances=arrays["instances"], instance_transforms=arrays["instance_transforms"],
-        meters_per_unit=meta["meters_per_unit"], up_axis=meta["up_axis"])
+        meters_per_unit=meta["meters_per_unit"], up_axis=meta["up_axis"],
+        world_offset=tuple(meta["world_offset"]))
     if tmp:
         data._blob_files = _Dir(tmp)
     return data

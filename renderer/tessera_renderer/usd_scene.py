@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import math
 from collections import Counter
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -112,6 +113,10 @@ class SceneData:
     instance_transforms: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4), np.float32))
     meters_per_unit: float = 0.01
     up_axis: str = "Y"
+    # The world-space position of this data's origin: a translated stage is moved so that
+    # its camera sits at the origin (float32 precision follows distance from the camera);
+    # world = these coordinates + world_offset.
+    world_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 @dataclass
@@ -1232,26 +1237,31 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def translate_stage(path: str, frame: float | None = None, *, bundle=None, instancing: str = "flatten",
-                    default_light: bool = False, root: str | None = None) -> SceneData:
+                    default_light: bool = False, root: str | None = None,
+                    camera_relative: bool = True) -> SceneData:
     """Opens a USD file through the bundle sandbox and translates it. `instancing` is
     "flatten" (every instance copied into the flat arrays), "instances" (prototypes +
     instance transforms, prototypes kept out of the flat arrays; the core builds one BVH
     per prototype) or "auto" (instances, unless lights sit inside native-instance
-    prototypes: only flattening renders those). Raises SceneError with a readable message."""
+    prototypes: only flattening renders those). With `camera_relative` (the default, and
+    what every render uses) the coordinates are the world's less SceneData.world_offset,
+    the camera's position, so that float32 holds them as finely as the view needs
+    (_move_to_camera); without, they are world coordinates. Raises SceneError with a
+    readable message."""
     from . import bundle as bundle_mod
 
     if bundle is None:
         bundle = bundle_mod.open_bundle(path, root=root)
     stage = bundle_mod.open_stage(bundle)
     data = translate_opened_stage(stage, frame, bundle=bundle, instancing=instancing,
-                                  default_light=default_light)
+                                  default_light=default_light, camera_relative=camera_relative)
     data.warnings[:0] = bundle.warnings
     data._bundle = bundle  # keeps an unpack directory (and the textures in it) alive
     return data
 
 
 def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, instancing: str = "flatten",
-                           default_light: bool = False, limits=None) -> SceneData:
+                           default_light: bool = False, limits=None, camera_relative: bool = True) -> SceneData:
     from pxr import Usd, UsdGeom
 
     from .bundle import DEFAULT_LIMITS
@@ -1263,11 +1273,11 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
         # one exception: lights inside native-instance prototypes, which only flattening
         # keeps. Such scenes are translated again, flattened.
         data = translate_opened_stage(stage, frame, bundle=bundle, instancing="instances",
-                                      default_light=default_light, limits=limits)
+                                      default_light=default_light, limits=limits, camera_relative=camera_relative)
         if not getattr(data, "_native_prototype_lights", 0):
             return data
         flat = translate_opened_stage(stage, frame, bundle=bundle, instancing="flatten",
-                                      default_light=default_light, limits=limits)
+                                      default_light=default_light, limits=limits, camera_relative=camera_relative)
         flat.warnings.append("lights inside native instances: the scene was flattened so that they render")
         return flat
     limits = limits or (bundle.limits if bundle is not None else DEFAULT_LIMITS)
@@ -1284,6 +1294,47 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     if instancing == "flatten" and tr.instanced_triangles > FLATTEN_WARN_TRIANGLES:
         warn(f"instancing was flattened into {tr.instanced_triangles} triangles; "
              f"instancing='instances' keeps one copy per prototype")
+
+    # Camera and resolution: RenderSettings, else the only/first camera, else a default.
+    settings = _find_render_settings(stage, warn)
+    resolution, from_stage = DEFAULT_RESOLUTION, False
+    camera_prim = None
+    if settings:
+        res = settings.GetResolutionAttr().Get(time)
+        if res is not None:
+            if res[0] < 1 or res[1] < 1:
+                raise SceneError(f"{settings.GetPath()}: resolution {tuple(res)} must be positive")
+            resolution, from_stage = (int(res[0]), int(res[1])), True
+        targets = settings.GetCameraRel().GetForwardedTargets()
+        if targets:
+            camera_prim = stage.GetPrimAtPath(targets[0])
+            if not camera_prim or not camera_prim.IsA(UsdGeom.Camera):
+                raise SceneError(f"{settings.GetPath()}: camera {targets[0]} is not a Camera prim")
+    cameras = tr.cameras
+    if camera_prim is None and cameras:
+        camera_prim = cameras[0]
+        if len(cameras) > 1:
+            warn(f"{len(cameras)} cameras and no RenderSettings camera; using {camera_prim.GetPath()}")
+    up_axis = UsdGeom.GetStageUpAxis(stage)
+    if camera_prim is not None:
+        camera = _camera_from_prim(camera_prim, tr.xform_cache, time, warn)
+    else:
+        corners = [np.stack([c.points.min(axis=0), c.points.max(axis=0)]) for c in tr.chunks if len(c.points)]
+        all_instances = np.concatenate(tr.instances) if tr.instances else np.zeros(0, np.uint32)
+        if len(all_instances):
+            mats = np.concatenate(tr.instance_xforms)
+            corners += [_instance_corners(proto["chunks"], mats[all_instances == k])
+                        for k, proto in enumerate(tr.prototypes) if any(len(c.points) for c in proto["chunks"])]
+        bound_pts = np.concatenate(corners) if corners else np.zeros((0, 3))
+        spheres = np.array([row[:3] for row in tr.sphere_lights], np.float64).reshape(-1, 3)
+        camera = _default_camera(bound_pts, spheres, up_axis)
+        warn("the scene has no camera: using a default camera framing its bounds")
+    camera_offset = (0.0, 0.0, 0.0)
+    if camera_relative:
+        _move_to_camera(tr, camera)
+        camera_offset = camera.origin
+        camera = dataclasses.replace(camera, origin=(0.0, 0.0, 0.0))
+
 
     positions, indices, tri_material, normals, uvs = _assemble(tr.chunks)
     sphere_lights = np.array(tr.sphere_lights, dtype=np.float32).reshape(-1, 7)
@@ -1325,38 +1376,6 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
         else:
             warn("the scene has no lights: it renders black")
 
-    # Camera and resolution: RenderSettings, else the only/first camera, else a default.
-    settings = _find_render_settings(stage, warn)
-    resolution, from_stage = DEFAULT_RESOLUTION, False
-    camera_prim = None
-    if settings:
-        res = settings.GetResolutionAttr().Get(time)
-        if res is not None:
-            if res[0] < 1 or res[1] < 1:
-                raise SceneError(f"{settings.GetPath()}: resolution {tuple(res)} must be positive")
-            resolution, from_stage = (int(res[0]), int(res[1])), True
-        targets = settings.GetCameraRel().GetForwardedTargets()
-        if targets:
-            camera_prim = stage.GetPrimAtPath(targets[0])
-            if not camera_prim or not camera_prim.IsA(UsdGeom.Camera):
-                raise SceneError(f"{settings.GetPath()}: camera {targets[0]} is not a Camera prim")
-    cameras = tr.cameras
-    if camera_prim is None and cameras:
-        camera_prim = cameras[0]
-        if len(cameras) > 1:
-            warn(f"{len(cameras)} cameras and no RenderSettings camera; using {camera_prim.GetPath()}")
-    up_axis = UsdGeom.GetStageUpAxis(stage)
-    if camera_prim is not None:
-        camera = _camera_from_prim(camera_prim, tr.xform_cache, time, warn)
-    else:
-        bound_pts = positions
-        if len(instances):
-            corners = [_instance_corners(prototypes[k]["positions"], instance_xforms[instances == k])
-                       for k in range(len(prototypes)) if len(prototypes[k]["positions"])]
-            bound_pts = np.concatenate([positions] + corners) if corners else positions
-        camera = _default_camera(bound_pts, sphere_lights, up_axis)
-        warn("the scene has no camera: using a default camera framing its bounds")
-
     data = SceneData(positions=positions, indices=indices, triangle_material=tri_material,
                      albedo=albedo, emission=emission, two_sided_emission=two_sided,
                      sphere_lights=sphere_lights, camera=camera, resolution=resolution,
@@ -1365,14 +1384,37 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
                      textures=tr.materials.textures, material_textures=material_textures,
                      distant_lights=distant, point_lights=point, dome_light=dome,
                      prototypes=prototypes, instances=instances, instance_transforms=instance_xforms,
-                     meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)), up_axis=str(up_axis))
+                     meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)), up_axis=str(up_axis),
+                     world_offset=camera_offset)
     data._native_prototype_lights = tr.native_prototype_lights
     return data
 
 
-def _instance_corners(points: np.ndarray, mats: np.ndarray) -> np.ndarray:
+def _move_to_camera(tr, camera: CameraDesc) -> None:
+    """Translates everything the walk put in world space so that the camera sits at the
+    origin, in float64 before anything is rounded to float32. float32 holds a coordinate
+    to 2^-24 of its magnitude: 1e5 units from the origin that is 0.006, more than a pixel's
+    footprint on a subject a few units from the camera. Relative to the camera, a point at
+    distance D is held to D 2^-24, far below the pixel footprint at D (D 2 tan(fov/2) / width)
+    at any resolution, and rays leave surfaces by about D 1e-6 (the hit points' error
+    bounds), so only gaps thinner than that, at that distance, can leak light."""
+    shift = np.array(camera.origin, np.float64)
+    if not shift.any():
+        return
+    for c in tr.chunks:
+        c.points = c.points - shift
+    for row in tr.sphere_lights:
+        row[:3] = list(np.asarray(row[:3], np.float64) - shift)
+    for row in tr.point_lights:
+        row[:3] = list(np.asarray(row[:3], np.float64) - shift)
+    for mats in tr.instance_xforms:
+        mats[:, 3, :3] -= shift
+
+
+def _instance_corners(chunks: list, mats: np.ndarray) -> np.ndarray:
     """World bounding-box corners of every instance of a prototype (8 per instance)."""
-    lo, hi = points.min(axis=0), points.max(axis=0)
+    lo = np.min([c.points.min(axis=0) for c in chunks if len(c.points)], axis=0)
+    hi = np.max([c.points.max(axis=0) for c in chunks if len(c.points)], axis=0)
     box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     return (np.einsum("vj,njk->nvk", box, mats[:, :3, :3]) + mats[:, None, 3, :3]).reshape(-1, 3)
 
