@@ -13,6 +13,7 @@ bit for bit whatever the pass schedule.
 from __future__ import annotations
 
 import math
+import re
 import struct
 import zlib
 from dataclasses import dataclass
@@ -71,6 +72,15 @@ def translated_scene_key(scene_hash: str, blob_version: str) -> str:
     """String: the renderer's translated scene blob (translate once, load everywhere), per
     blob/translator version so that an upgraded worker never reads an old blob as new."""
     return f"{PREFIX}:translated:{blob_version}:{scene_hash}"
+
+
+# A job id is what the service hands out: uuid4().hex. Anything else names no job (and a
+# string such as "<id>:tiles" must never reach a key built from it).
+JOB_ID_PATTERN = re.compile(r"[0-9a-f]{32}")
+
+
+def is_job_id(value: str) -> bool:
+    return JOB_ID_PATTERN.fullmatch(value) is not None
 
 
 def job_key(job_id: str) -> str:
@@ -161,14 +171,14 @@ class RenderSettings(BaseModel):
     max_depth: int = Field(default=64, ge=1, le=1024)
     tile_size: int = Field(default=64, ge=8, le=4096)
     target_error: float | None = Field(
-        default=None, gt=0, le=1,
+        default=None, gt=0, le=1, allow_inf_nan=False,
         description="relative noise to stop at (0.01 = 1 %); unset: fixed spp")
     min_spp: int = Field(default=16, ge=1, le=1 << 20,
                          description="samples of the first pass (noise-target mode)")
     max_spp: int = Field(default=1024, ge=1, le=1 << 20,
                          description="most samples any pixel gets (noise-target mode)")
     time_limit: float | None = Field(
-        default=None, gt=0, le=7 * 86400,
+        default=None, gt=0, le=7 * 86400, allow_inf_nan=False,
         description="seconds after the job starts when no further passes begin "
                     "(noise-target mode; makes the image depend on timing)")
     integrator: Literal["path", "bdpt", "light", "whitted", "local", "auto"] = Field(

@@ -106,6 +106,33 @@ def test_bad_settings_are_422_naming_the_field(api, field, value):
     assert any(e["loc"][-1] == field for e in r.json()["detail"]), r.text
 
 
+@pytest.mark.parametrize("field,value", [("target_error", "nan"), ("target_error", "inf"),
+                                         ("time_limit", "nan"), ("time_limit", "-inf")])
+def test_non_finite_settings_are_422_not_500(api, field, value):
+    """JSON has no NaN: the validation error used to fail to encode its own input."""
+    form = {field: value, **({"target_error": "0.05"} if field == "time_limit" else {})}
+    r = submit(api, CORNELL, **form)
+    assert r.status_code == 422, r.text
+    errors = [e for e in r.json()["detail"] if e["loc"][-1] == field]
+    assert errors and "finite" in errors[0]["msg"], r.text
+
+
+def test_ids_that_are_not_job_ids_are_404_before_any_key_is_built(api):
+    """A real id with a key suffix ("<id>:tiles") must not reach the Redis keys built
+    from it (it gave 500s and a broken event stream)."""
+    job = submit(api, CORNELL, spp=1, tile_size=256).json()["id"]
+    try:
+        assert api.get(f"/jobs/{job}").status_code == 200  # the control: the id itself works
+        for bad in (f"{job}:tiles", f"{job}:events", job.upper(), job[:-1]):
+            for method, path in (("GET", ""), ("GET", "/log"), ("GET", "/events"), ("GET", "/image.exr"),
+                                 ("GET", "/preview.png"), ("DELETE", ""), ("POST", "/pause"), ("POST", "/resume")):
+                r = api.request(method, f"/jobs/{bad}{path}")
+                assert r.status_code == 404, (method, bad, path, r.status_code, r.text)
+                assert "no job with id" in r.json()["detail"]
+    finally:
+        api.delete(f"/jobs/{job}")
+
+
 def test_submit_uses_scene_resolution_and_creates_tiles(api, redis_client):
     r = submit(api, CORNELL, spp=4, tile_size=100)
     assert r.status_code == 201, r.text

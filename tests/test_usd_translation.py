@@ -153,6 +153,24 @@ def test_out_of_range_indices_are_an_error_naming_the_prim(tmp_path):
         load_scene(tmp_path / "i.usda")
 
 
+def test_negative_face_vertex_counts_are_named_as_such(tmp_path):
+    stage = new_stage(tmp_path / "c.usda")
+    add_mesh(stage, "/World/Neg", [(0, 0, 0), (1, 0, 0), (0, 1, 0), (1, 1, 0)], [3, 4, -3], [0, 1, 2, 1])
+    stage.GetRootLayer().Save()
+    with pytest.raises(SceneError, match=r"/World/Neg: faceVertexCounts has 1 negative entries \(the first, -3, at face 2\)"):
+        load_scene(tmp_path / "c.usda")
+
+
+def test_an_authored_zero_aperture_is_an_error_not_the_fallback(tmp_path):
+    stage = new_stage(tmp_path / "a.usda")
+    add_mesh(stage, "/World/M", [(0, 0, 0), (1, 0, 0), (0, 1, 0)], [3], [0, 1, 2])
+    cam = add_camera(stage, "/Cam", translate=(0, 0, 5))
+    cam.GetHorizontalApertureAttr().Set(0.0)
+    stage.GetRootLayer().Save()
+    with pytest.raises(SceneError, match=r"/Cam: focalLength and apertures must be positive \(got 50.0, 0.0"):
+        load_scene(tmp_path / "a.usda")
+
+
 def test_nan_points_drop_their_triangles_with_a_warning(tmp_path):
     stage = new_stage(tmp_path / "n.usda")
     nan = float("nan")

@@ -360,7 +360,10 @@ class _Translator:
         if len(points) == 0 or len(counts) == 0:
             self.warn(f"{path}: mesh has no points or faces; skipped")
             return None
-        if np.any(counts < 0) or counts.sum() != len(face_indices):
+        if np.any(counts < 0):
+            raise SceneError(f"{path}: faceVertexCounts has {int(np.count_nonzero(counts < 0))} negative "
+                             f"entries (the first, {int(counts[counts < 0][0])}, at face {int(np.argmax(counts < 0))})")
+        if counts.sum() != len(face_indices):
             raise SceneError(f"{path}: faceVertexCounts sum to {int(counts.sum())} but there are "
                              f"{len(face_indices)} faceVertexIndices")
         if len(face_indices) and (face_indices.min() < 0 or face_indices.max() >= len(points)):
@@ -1166,9 +1169,12 @@ def _camera_from_prim(prim, xform_cache, time, warn) -> CameraDesc:
     from pxr import UsdGeom
 
     cam = UsdGeom.Camera(prim)
-    focal = float(cam.GetFocalLengthAttr().Get(time) or 50.0)
-    hap = float(cam.GetHorizontalApertureAttr().Get(time) or 20.955)
-    vap = float(cam.GetVerticalApertureAttr().Get(time) or 15.2908)
+    def authored(attr, fallback):  # an authored 0 is an error below, not the fallback
+        value = attr.Get(time)
+        return float(fallback if value is None else value)
+    focal = authored(cam.GetFocalLengthAttr(), 50.0)
+    hap = authored(cam.GetHorizontalApertureAttr(), 20.955)
+    vap = authored(cam.GetVerticalApertureAttr(), 15.2908)
     path = str(prim.GetPath())
     if not all(math.isfinite(v) and v > 0 for v in (focal, hap, vap)):
         raise SceneError(f"{path}: focalLength and apertures must be positive "

@@ -2,11 +2,14 @@
 from __future__ import annotations
 
 import logging
+import math
 from contextlib import asynccontextmanager
 
 import redis
 import redis.asyncio
 from fastapi import Depends, FastAPI, HTTPException, Request
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -59,6 +62,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return JSONResponse(Health(status="ok" if ok else "redis unreachable", redis=ok).model_dump(),
                             status_code=200 if ok else 503)
 
+    @app.exception_handler(RequestValidationError)
+    async def invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:
+        # FastAPI's own handler echoes each error's input, and JSON has no NaN or Infinity:
+        # target_error=nan answered 500. Non-finite numbers are echoed as text.
+        return JSONResponse({"detail": _json_safe(jsonable_encoder(exc.errors()))}, status_code=422)
+
     @app.exception_handler(redis.ConnectionError)
     @app.exception_handler(redis.TimeoutError)
     async def redis_unavailable(request: Request, exc: redis.RedisError) -> JSONResponse:
@@ -66,6 +75,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                             status_code=503)
 
     return app
+
+
+def _json_safe(value):
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
 
 
 class UploadLimit:

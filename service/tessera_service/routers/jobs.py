@@ -142,6 +142,7 @@ def get_job(job_id: str, request: Request) -> JobStatus:
 def cancel_job(job_id: str, request: Request) -> JobStatus:
     """Cancels a queued, running or paused job: its open tiles are dropped at once and a
     tile being rendered is abandoned. A finished job is left as it is."""
+    _check_id(job_id)
     store: JobStore = request.app.state.store
     if not store.cancel(job_id):
         raise _not_found(job_id)
@@ -153,6 +154,7 @@ def cancel_job(job_id: str, request: Request) -> JobStatus:
 def pause_job(job_id: str, request: Request) -> JobStatus:
     """Stops handing out the job's tiles (tiles being rendered are still stored). A job
     that is not queued or running is left as it is."""
+    _check_id(job_id)
     if not request.app.state.store.pause(job_id):
         raise _not_found(job_id)
     return _status(job_id, _job(request, job_id))
@@ -162,6 +164,7 @@ def pause_job(job_id: str, request: Request) -> JobStatus:
              responses={404: {"description": "no such job"}})
 def resume_job(job_id: str, request: Request) -> JobStatus:
     """Resumes a paused job; any other job is left as it is."""
+    _check_id(job_id)
     if not request.app.state.store.resume(job_id):
         raise _not_found(job_id)
     return _status(job_id, _job(request, job_id))
@@ -187,6 +190,7 @@ async def job_events(job_id: str, request: Request,
                      ) -> StreamingResponse:
     # Async, on its own Redis client: a stream may stay open for hours, and must hold
     # neither a worker thread nor a pooled connection of the synchronous routes.
+    _check_id(job_id)
     aredis = request.app.state.aredis
     job_key, events_key = protocol.job_key(job_id), protocol.job_events_key(job_id)
     if not await aredis.exists(job_key):
@@ -250,7 +254,14 @@ def get_preview(job_id: str, request: Request) -> Response:
 
 
 # ---------------------------------------------------------------------------- helpers
+def _check_id(job_id: str) -> None:
+    """A string that is not a job id names no job: 404, before any Redis key is built."""
+    if not protocol.is_job_id(job_id):
+        raise _not_found(job_id)
+
+
 def _job(request: Request, job_id: str) -> Job:
+    _check_id(job_id)
     job = request.app.state.store.get(job_id)
     if job is None:
         raise _not_found(job_id)
