@@ -98,6 +98,19 @@ def test_malformed_usd_is_422_with_message(api, tmp_path):
     assert len(detail) > len("the scene cannot be rendered: ") + 5
 
 
+def test_usd_errors_speak_of_the_bundle_not_the_server(api, tmp_path):
+    """A parse error names the line in the uploaded layer, without the server's temporary
+    directory, USD's source files, C++ namespaces or pointer addresses."""
+    scene = tmp_path / "cut.usda"
+    scene.write_text('#usda 1.0\ndef Mesh "M" {\n  point3f[] points = [(0,0,\n')
+    r = submit(api, scene)
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"]
+    assert ".usda:4:1: parse error" in detail and "</M.points>" in detail, detail
+    for leak in ("/tmp", "tessera-upload", "pxrInternal", "textParserHelpers", "0x"):
+        assert leak not in detail, (leak, detail)
+
+
 @pytest.mark.parametrize("field,value", [("spp", "0"), ("tile_size", "4"), ("width", "-3"),
                                          ("seed", "-1"), ("max_depth", "abc")])
 def test_bad_settings_are_422_naming_the_field(api, field, value):

@@ -282,7 +282,7 @@ def preflight(bundle: Bundle) -> None:
         try:
             layer = Sdf.Layer.FindOrOpen(identifier)
         except Tf.ErrorException as exc:
-            problems.append(f"cannot read USD file {where}: {_error_text(exc)}")
+            problems.append(f"cannot read USD file {where}: {_error_text(exc, bundle.root)}")
             continue
         if layer is None:
             problems.append(f"cannot read USD file {where}")
@@ -374,7 +374,7 @@ def open_stage(bundle: Bundle):
     try:
         stage = Usd.Stage.Open(str(bundle.root_layer), Ar.DefaultResolverContext([]), Usd.Stage.LoadAll)
     except Tf.ErrorException as exc:
-        raise SceneError(f"cannot read USD file {bundle.root_layer.name}: {_error_text(exc)}") from None
+        raise SceneError(f"cannot read USD file {bundle.root_layer.name}: {_error_text(exc, bundle.root)}") from None
     if stage is None:
         raise SceneError(f"cannot read USD file {bundle.root_layer.name}")
     root = os.path.realpath(str(bundle.root))
@@ -413,13 +413,31 @@ def _rel(path: str, root: Path) -> str:
         return path
 
 
-def _error_text(exc: Exception) -> str:
-    """The first lines of a USD error. Its text quotes the file, and str() of it raises
-    UnicodeDecodeError when the file holds bytes that are not UTF-8."""
+def _error_text(exc: Exception, root=None) -> str:
+    """The first lines of a USD error, in the user's terms: paths inside the bundle (not
+    the server's unpack directory), without USD's source locations, C++ namespaces or
+    pointer addresses. str() of the error raises UnicodeDecodeError when the file holds
+    bytes that are not UTF-8."""
     try:
-        return _first_line(str(exc))
+        text = str(exc)
     except UnicodeDecodeError:
         return "the file is corrupt or not UTF-8 text (undecodable bytes in USD's error message)"
+    return _first_line(user_terms(text, root))
+
+
+_USD_SOURCE = re.compile(r"Error in '[^']*' at line \d+ in file [^ ]+ : ")
+_USD_NAMESPACE = re.compile(r"\bpxrInternal_v[0-9_]+__pxrReserved__::")
+_POINTER = re.compile(r"\b0x[0-9a-fA-F]{6,}\b")
+
+
+def user_terms(text: str, root=None) -> str:
+    """An error text for the person who uploaded the scene: the bundle's directory (and
+    its real path) removed from paths, and USD's internals left out."""
+    for base in {str(root), os.path.realpath(str(root))} if root is not None else ():
+        text = text.replace(base.rstrip("/") + "/", "")
+    text = _USD_SOURCE.sub("", text)
+    text = _USD_NAMESPACE.sub("", text)
+    return _POINTER.sub("<address>", text)
 
 
 def _first_line(text: str) -> str:
