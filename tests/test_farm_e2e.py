@@ -243,6 +243,50 @@ def test_embedded_serve_runs_a_whole_farm_and_stops_it(tmp_path):
         serve.stop()
 
 
+def _worker_children(pid: int) -> list[int]:
+    return [c for c in child_pids(pid) if b"redis-server" not in Path("/proc", str(c), "cmdline").read_bytes()]
+
+
+def test_embedded_serve_restarts_a_killed_worker(tmp_path):
+    """`tessera serve --workers 1` with its worker SIGKILLed: the dead worker is reaped (no
+    zombie), a new one is started, /healthz counts it, and a job submitted afterwards is
+    rendered. (Before, the worker stayed a zombie and every job hung.)"""
+    port = free_port()
+    serve = Process("serve", [sys.executable, "-m", "tessera", "serve", "--port", str(port),
+                              "--workers", "1"], tmp_path, clean_env())
+    base = f"http://127.0.0.1:{port}"
+
+    def wait_for(what, condition):
+        deadline = time.monotonic() + STARTUP_TIMEOUT
+        while not condition():
+            assert serve.alive(), serve.log()
+            assert time.monotonic() < deadline, f"{what}: {serve.log()}"
+            time.sleep(0.05)
+
+    def health():
+        try:
+            return httpx.get(f"{base}/healthz", timeout=1).json()
+        except httpx.TransportError:
+            return {}
+
+    try:
+        wait_for("a live worker", lambda: health().get("workers") == 1)
+        [first] = _worker_children(serve.pid)
+        os.kill(first, signal.SIGKILL)
+        wait_for("the killed worker reaped", lambda: not Path("/proc", str(first)).exists())
+        wait_for("a new worker", lambda: len(_worker_children(serve.pid)) == 1)
+        [second] = _worker_children(serve.pid)
+        assert second != first and is_running(second)
+        assert "restarting it in" in serve.log() and "restarted a local worker" in serve.log()
+        with httpx.Client(base_url=base, timeout=60) as client:
+            r = submit(client, CORNELL, width=16, height=16, spp=1, tile_size=8)
+            assert r.status_code == 201, r.text
+            status = wait_for_job(client, r.json()["id"], processes=[serve])
+            assert status["state"] == "done", status
+    finally:
+        serve.stop()
+
+
 def test_worker_does_not_import_the_service():
     code = ("import sys, tessera_worker.worker; "
             "bad = sorted(m for m in sys.modules if m.split('.')[0] in "

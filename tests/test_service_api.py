@@ -23,10 +23,27 @@ def api(redis_server, tmp_path_factory):
     proc.stop()
 
 
-def test_healthz(api):
+def test_healthz_says_degraded_without_workers(api):
+    """The API and Redis answer (200), but no worker renders: the body says so."""
     r = api.get("/healthz")
     assert r.status_code == 200
-    assert r.json() == {"status": "ok", "redis": True}
+    assert r.json() == {"status": "degraded", "redis": True, "workers": 0,
+                        "problems": ["no worker is alive (no current heartbeat)"]}
+
+
+def test_healthz_says_degraded_when_the_queue_has_not_moved(api, redis_client):
+    """A queued job whose newest event is old (its stream rewritten to one event at 1970)
+    is a stalled queue beyond the default 600 s; cancelled, it no longer counts."""
+    job = submit(api, CORNELL, spp=1, tile_size=256).json()["id"]
+    try:
+        events = protocol.job_events_key(job)
+        redis_client.delete(events)
+        redis_client.xadd(events, {"type": "state"}, id="1000-0")
+        problems = api.get("/healthz").json()["problems"]
+        assert any("have not progressed for" in p for p in problems), problems
+    finally:
+        api.delete(f"/jobs/{job}")
+    assert not any("progressed" in p for p in api.get("/healthz").json()["problems"])
 
 
 def test_unknown_job_is_404(api):

@@ -58,9 +58,18 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @app.get("/healthz", response_model=Health, tags=["health"])
     def healthz() -> JSONResponse:
-        ok = store.ping()
-        return JSONResponse(Health(status="ok" if ok else "redis unreachable", redis=ok).model_dump(),
-                            status_code=200 if ok else 503)
+        """200 while the API and Redis answer (a load balancer keeps routing); the body
+        says degraded when the farm is not rendering: no live worker, or work in the queue
+        that has not moved for `stall_seconds`. 503 when Redis is unreachable."""
+        if not store.ping():
+            return JSONResponse(Health(status="redis unreachable", redis=False).model_dump(), status_code=503)
+        workers = len(store.workers())
+        problems = [] if workers else ["no worker is alive (no current heartbeat)"]
+        idle = store.seconds_since_progress()
+        if idle is not None and idle > settings.stall_seconds:
+            problems.append(f"queued or running jobs have not progressed for {idle:.0f} s")
+        return JSONResponse(Health(status="degraded" if problems else "ok", redis=True, workers=workers,
+                                   problems=problems).model_dump())
 
     @app.exception_handler(RequestValidationError)
     async def invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:

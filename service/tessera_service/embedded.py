@@ -14,6 +14,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
@@ -62,10 +63,10 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
                 redis_url = local.url
                 log.warning("started a private redis-server at %s (nothing is persisted)",
                             redis_url)
-                procs: list[subprocess.Popen] = []
-                stack.callback(stop_processes, procs, WORKER_STOP_TIMEOUT)
-                for _ in range(workers):
-                    procs.append(start_worker(redis_url, threads=worker_threads))
+                url = redis_url
+                supervisor = WorkerSupervisor(lambda: start_worker(url, threads=worker_threads), workers)
+                stack.callback(supervisor.stop, WORKER_STOP_TIMEOUT)
+                supervisor.start()
                 log.warning("started %d local worker(s)", workers)
             app = create_app(Settings(redis_url=redis_url))  # tokens etc. from the environment
             server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level=log_level))
@@ -128,6 +129,71 @@ def redis_server(workdir: str, port: int | None = None, timeout: float = 10.0, *
         yield LocalRedis(proc, url)
     finally:
         stop_processes([proc], 10.0)
+
+
+class WorkerSupervisor:
+    """Keeps `count` worker processes alive: a worker that dies (a crash, the OOM killer,
+    a SIGKILL) is reaped at once and started again, after a delay that doubles while
+    workers keep dying young (RESTART_DELAY up to MAX_RESTART_DELAY) and resets once one
+    has lived HEALTHY_LIFETIME. Without it a killed embedded worker stayed a zombie and its
+    job never finished."""
+
+    RESTART_DELAY, MAX_RESTART_DELAY, HEALTHY_LIFETIME = 0.5, 30.0, 60.0
+    POLL = 0.2
+
+    def __init__(self, start, count: int):
+        self._start = start
+        self._slots: list[dict] = [{"proc": None, "since": 0.0, "due": 0.0, "delay": self.RESTART_DELAY}
+                                   for _ in range(count)]
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._run, name="worker-supervisor", daemon=True)
+        self.restarts = 0
+
+    def start(self) -> None:
+        with self._lock:
+            for slot in self._slots:
+                self._launch(slot)
+        self._thread.start()
+
+    @property
+    def processes(self) -> list[subprocess.Popen]:
+        with self._lock:
+            return [s["proc"] for s in self._slots if s["proc"] is not None]
+
+    def _launch(self, slot: dict) -> None:
+        slot["proc"], slot["since"] = self._start(), time.monotonic()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.POLL):
+            with self._lock:
+                for slot in self._slots:
+                    self._check(slot)
+
+    def _check(self, slot: dict) -> None:
+        now, proc = time.monotonic(), slot["proc"]
+        if proc is not None:
+            code = proc.poll()  # reaps it: no zombie
+            if code is None:
+                if now - slot["since"] >= self.HEALTHY_LIFETIME:
+                    slot["delay"] = self.RESTART_DELAY
+                return
+            lived = now - slot["since"]
+            if lived < self.HEALTHY_LIFETIME and slot["due"]:
+                slot["delay"] = min(self.MAX_RESTART_DELAY, slot["delay"] * 2)
+            slot["proc"], slot["due"] = None, now + slot["delay"]
+            log.warning("worker pid %d exited with code %s after %.1f s; restarting it in %.1f s",
+                        proc.pid, code, lived, slot["delay"])
+        if now >= slot["due"] and not self._stop.is_set():
+            self._launch(slot)
+            self.restarts += 1
+            log.warning("restarted a local worker (pid %d)", slot["proc"].pid)
+
+    def stop(self, timeout: float) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join()
+        stop_processes(self.processes, timeout)
 
 
 def start_worker(redis_url: str, threads: int = 1, name: str | None = None,

@@ -61,8 +61,11 @@ class WorkerList(BaseModel):
 
 
 class Health(BaseModel):
-    status: str
+    status: str = Field(description="ok; degraded (the API works but the farm does not render: "
+                                    "see problems); or redis unreachable")
     redis: bool
+    workers: int = Field(default=0, description="workers whose heartbeat is current")
+    problems: list[str] = Field(default_factory=list)
 
 
 class Problem(BaseModel):

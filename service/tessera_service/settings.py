@@ -35,6 +35,11 @@ class Settings(BaseSettings):
         description="seconds an uploaded scene and its pre-flight result are kept after the "
                     "last job that used it was submitted (0: forever)")
 
+    stall_seconds: float = Field(
+        default=600.0, gt=0,
+        description="/healthz reports degraded when queued or running jobs have shown no "
+                    "progress for this long")
+
     @field_validator("api_tokens", mode="before")
     @classmethod
     def _split_tokens(cls, value):

@@ -204,6 +204,27 @@ class JobStore:
                                   failures=int(f.get("failures", 0))))
         return out
 
+    def seconds_since_progress(self) -> float | None:
+        """Seconds since the newest event of any queued or running job (a tile pass stored,
+        a state change, a failure), or None when no such job exists: how long the queue has
+        not moved while there is work in it."""
+        ids = [j.decode() for j in self.redis.smembers(protocol.ACTIVE)]
+        with self.redis.pipeline(transaction=False) as pipe:
+            for job_id in ids:
+                pipe.hget(protocol.job_key(job_id), "state")
+                pipe.xrevrange(protocol.job_events_key(job_id), count=1)
+            rows = pipe.execute()
+        newest = None
+        for state, events in zip(rows[0::2], rows[1::2]):
+            if state is None or state.decode() not in ("queued", "running"):
+                continue
+            ms = int(events[0][0].decode().split("-")[0]) if events else 0
+            newest = ms if newest is None else max(newest, ms)
+        if newest is None:
+            return None
+        now_s, now_us = self.redis.time()  # the server's clock, as the event ids use
+        return max(0.0, now_s + now_us / 1e6 - newest / 1000.0)
+
     def stats(self) -> dict[str, float]:
         return {k.decode(): float(v) for k, v in self.redis.hgetall(protocol.STATS).items()}
 
