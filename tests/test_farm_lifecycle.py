@@ -9,9 +9,12 @@ worker "w-y" only, blocky*.usda segfaults on every tile."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -20,7 +23,7 @@ import numpy as np
 import pytest
 import redis
 
-from conftest import (CORNELL, clean_env, farm_image, local_reference, start_api, start_worker,
+from conftest import (CORNELL, STARTUP_TIMEOUT, child_pids, clean_env, is_running, farm_image, local_reference, start_api, start_worker,
                       submit, wait_for_job)
 from tessera import protocol
 from tessera_service.embedded import free_port, redis_server as local_redis
@@ -433,3 +436,68 @@ def test_finished_jobs_expire(redis_server, redis_client, tmp_path):
             assert redis_client.zscore(protocol.JOB_INDEX, job_id) is None
     finally:
         api.stop()
+
+
+def test_a_killed_api_leaves_no_inspection_running_and_its_next_start_removes_the_upload(
+        redis_server, tmp_path):
+    """The API SIGKILLed while it inspects an upload: the inspection child dies with it
+    (it is SIGSTOPped first, so it cannot simply finish: only the parent-death signal can
+    end it), and the next API process removes the upload folder the killed one left."""
+    import threading
+
+    api, base = start_api(redis_server, tmp_path, preflight_timeout="600")
+    scene = tmp_path / "scene.usda"
+    scene.write_text(CORNELL.read_text())
+    threading.Thread(target=lambda: _post_ignoring_errors(base, scene), daemon=True).start()
+    deadline = time.monotonic() + STARTUP_TIMEOUT
+    while not (inspections := [c for c in child_pids(api.pid) if b"tessera_renderer.inspect" in _cmdline(c)]):
+        assert api.alive() and time.monotonic() < deadline, api.log()
+        time.sleep(0.01)
+    [child] = inspections
+    os.kill(child, signal.SIGSTOP)
+    uploads = list(Path(tempfile.gettempdir()).glob(f"tessera-upload-{api.pid}-*"))
+    assert len(uploads) == 1 and any(uploads[0].iterdir())  # the user's scene is in it
+    os.kill(api.pid, signal.SIGKILL)
+    api.popen.wait()
+    deadline = time.monotonic() + STARTUP_TIMEOUT
+    while is_running(child):
+        assert time.monotonic() < deadline, f"the inspection {child} outlived the killed API"
+        time.sleep(0.01)
+    again, _ = start_api(redis_server, tmp_path)
+    try:
+        assert not uploads[0].exists(), "the killed API's upload folder is still there"
+        assert "left by an API process that was killed" in again.log()
+    finally:
+        again.stop()
+
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        return Path("/proc", str(pid), "cmdline").read_bytes()
+    except OSError:
+        return b""
+
+
+def _post_ignoring_errors(base: str, scene: Path) -> None:
+    try:
+        with scene.open("rb") as f:
+            httpx.post(f"{base}/jobs", files={"file": (scene.name, f)}, timeout=60)
+    except httpx.HTTPError:
+        pass  # the API is killed mid-request
+
+
+def test_a_worker_start_removes_what_killed_workers_left(redis_server, tmp_path):
+    """A folder of a dead worker (its pid in the name) is removed when the next worker
+    starts; one of a live worker is left alone."""
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    orphan = Path(tempfile.mkdtemp(prefix=f"tessera-worker-{dead.pid}-"))
+    (orphan / "scene.usda").write_text("#usda 1.0\n")
+    alive = Path(tempfile.mkdtemp(prefix=f"tessera-worker-{os.getpid()}-"))
+    worker = start_worker(redis_server, "w-cleanup", tmp_path)
+    try:
+        assert not orphan.exists() and alive.exists()
+        assert f"removed {orphan}" in worker.log()
+    finally:
+        worker.stop()
+        shutil.rmtree(alive)

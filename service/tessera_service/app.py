@@ -13,6 +13,8 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from tessera.process import remove_orphaned_tempdirs
+
 from .auth import require_token
 from .routers import compare, farm, jobs
 from .schemas import Health, Problem
@@ -34,6 +36,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
+        # What a killed API left: uploads (users' scenes), merges and compares in progress.
+        for kind in ("upload", "merge", "compare"):
+            for path in remove_orphaned_tempdirs(kind):
+                log.warning("removed %s, left by an API process that was killed", path)
         if not store.ping():  # not fatal: /healthz reports it, requests retry
             log.warning("redis at %s is not reachable yet", settings.redis_url)
         yield

@@ -1,6 +1,7 @@
 """Merging a finished job's tiles into one image, and encoding it as EXR and PNG."""
 from __future__ import annotations
 
+import os
 import tempfile
 from pathlib import Path
 
@@ -97,7 +98,7 @@ def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes], *, partial: bool
 def encode_image(rgba: np.ndarray, spec: JobSpec, fmt: str, aovs: dict[str, np.ndarray] | None = None) -> bytes:
     """The image as float EXR bytes (with the same header attributes and AOV layers as a
     local render) or as a tonemapped sRGB PNG preview (colour only)."""
-    with tempfile.TemporaryDirectory(prefix="tessera-merge-") as tmp:
+    with tempfile.TemporaryDirectory(prefix=f"tessera-merge-{os.getpid()}-") as tmp:
         path = Path(tmp, f"image.{fmt}")
         if fmt == "exr":
             s = spec.settings

@@ -10,6 +10,8 @@ import subprocess
 import sys
 from dataclasses import dataclass, field
 
+from tessera.process import die_with_parent
+
 INSPECT_MODULE = "tessera_renderer.inspect"
 
 
@@ -32,6 +34,7 @@ class SceneInfo:
 
 def _limits(memory_bytes: int):
     def apply() -> None:  # runs in the child between fork and exec: keep it minimal
+        die_with_parent(signal.SIGKILL)  # a killed API must not leave a 5 GB inspection running
         if memory_bytes > 0:
             resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
         resource.setrlimit(resource.RLIMIT_CORE, (0, 0))

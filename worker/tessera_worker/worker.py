@@ -30,7 +30,6 @@ import signal
 import socket
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from multiprocessing.connection import Connection
@@ -39,7 +38,7 @@ from pathlib import PurePosixPath
 import redis
 
 from tessera import protocol
-from tessera.process import die_with_parent
+from tessera.process import die_with_parent, private_tempdir, remove_orphaned_tempdirs
 from tessera.protocol import TileTask
 
 from .settings import WorkerSettings
@@ -418,7 +417,9 @@ class Worker:
 
     # ----------------------------------------------------------------- main loop
     def run(self, stop: threading.Event) -> None:
-        self._tmpdir = tempfile.mkdtemp(prefix="tessera-worker-")
+        for path in remove_orphaned_tempdirs("worker"):
+            log.warning("removed %s, left by a worker that was killed", path)
+        self._tmpdir = private_tempdir("worker")
         heartbeat_stop = threading.Event()
         heartbeat = threading.Thread(target=self._heartbeat_loop, args=(heartbeat_stop,),
                                      name="tessera-heartbeat", daemon=True)

@@ -1,6 +1,7 @@
 """/compare: the noise-aware comparison of two uploaded EXRs (tessera.compare), as JSON."""
 from __future__ import annotations
 
+import os
 import tempfile
 from pathlib import Path
 from typing import Annotated, Callable
@@ -71,7 +72,7 @@ def compare(
     tests with a multiple-comparison correction (docs/accuracy.md). Returns the report; its
     `verdict` is "same" or "differs" (the CLI's exit codes 0 and 1)."""
     settings: Settings = request.app.state.settings
-    with tempfile.TemporaryDirectory(prefix="tessera-compare-") as tmp:
+    with tempfile.TemporaryDirectory(prefix=f"tessera-compare-{os.getpid()}-") as tmp:
         paths = []
         for role, upload in (("test", test), ("reference", reference)):
             path = Path(tmp, f"{role}.exr")

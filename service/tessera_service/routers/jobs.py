@@ -2,6 +2,7 @@
 image, cancel, pause, resume."""
 from __future__ import annotations
 
+import os
 import hashlib
 import json
 import math
@@ -87,7 +88,7 @@ def create_job(
     _render_settings(width=width if width is not None else 1,
                      height=height if height is not None else 1, **params)
 
-    with tempfile.TemporaryDirectory(prefix="tessera-upload-") as tmp:
+    with tempfile.TemporaryDirectory(prefix=f"tessera-upload-{os.getpid()}-") as tmp:
         path = Path(tmp, f"scene{suffix}")
         scene_hash = _save_upload(file, path, settings.max_upload_bytes)
         # Concurrent uploads of one scene wait for a single inspection.
