@@ -83,6 +83,13 @@ def is_job_id(value: str) -> bool:
     return JOB_ID_PATTERN.fullmatch(value) is not None
 
 
+def scene_file_name(suffix: str) -> str:
+    """The name an uploaded scene has on disk, alone in a private directory, wherever it is
+    opened (the API's pre-flight, every worker): a loose layer sees the same bundle in both
+    (one that references @./scene.usda@ passes or fails in both alike)."""
+    return f"scene{suffix}"
+
+
 def job_key(job_id: str) -> str:
     """Hash: the job's spec (JSON), state, counters and timings. Fields:
     spec, state (JobState), priority, tiles_total, tiles_done (tiles whose last pass is

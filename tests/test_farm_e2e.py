@@ -208,6 +208,22 @@ def test_killed_worker_tile_is_taken_over(farm, redis_client, tmp_path):
     farm.processes[1] = farm.workers["w-a"]
 
 
+def test_a_layer_naming_its_stored_file_renders_as_it_passed_pre_flight(farm, tmp_path):
+    """The pre-flight and every worker open an upload under one name, alone in its folder
+    (protocol.scene_file_name): a layer that references @./scene.usda@ (itself, as the
+    pre-flight saw it) renders on the workers too. (Workers used to name it by hash among
+    other scenes: pre-flight said 201, the job failed.)"""
+    scene = tmp_path / "self_reference.usda"
+    scene.write_text(CORNELL.read_text() + '\ndef "Probe" (prepend references = @./scene.usda@</Cornell/Looks>) {}\n')
+    form = dict(width=16, height=16, spp=2, seed=3, max_depth=8, tile_size=8)
+    r = submit(farm, scene, **form)
+    assert r.status_code == 201, r.text
+    status = wait_for_job(farm, r.json()["id"], processes=farm.processes)
+    assert status["state"] == "done", status
+    # Materials only, referenced again: the image is the plain Cornell box's.
+    assert_bit_identical(download_exr(farm, status["id"], tmp_path / "farm.exr"), reference(form))
+
+
 def test_embedded_serve_runs_a_whole_farm_and_stops_it(tmp_path):
     """`tessera serve` without a Redis URL: private redis-server + local worker + API; on
     SIGTERM everything it started is stopped."""

@@ -725,8 +725,8 @@ class Worker:
         self.redis.set(protocol.translated_scene_key(task.scene_hash, blob_version), data,
                        nx=True, px=ttl if ttl and ttl > 0 else None)
 
-    def _keep_file(self, name: str, data: bytes) -> str:
-        path = os.path.join(self._tmpdir, name)
+    def _keep_file(self, name: str, data: bytes, relpath: str | None = None) -> str:
+        path = os.path.join(self._tmpdir, relpath or name)
         tmp = path + ".part"
         with open(tmp, "wb") as f:
             f.write(data)
@@ -738,12 +738,16 @@ class Worker:
         self._scene_files[name] = path
         while len(self._scene_files) > SCENE_FILES:
             old = next(iter(self._scene_files))
+            path = self._scene_files.pop(old)
             with contextlib.suppress(OSError):
-                os.unlink(self._scene_files.pop(old))
+                os.unlink(path)
+                if os.path.dirname(path) != self._tmpdir:  # a scene's own directory
+                    os.rmdir(os.path.dirname(path))
 
     def _scene_file(self, task: TileTask) -> str:
-        """A local file with the task's scene (named by hash; the suffix tells USD the
-        format)."""
+        """A local file with the task's scene, alone in a directory of its own under the
+        name the API's pre-flight gave it (protocol.scene_file_name): the bundle a loose
+        layer sees here is the one that passed pre-flight, and holds no other scene."""
         suffix = PurePosixPath(task.scene_name).suffix.lower()
         key = f"{task.scene_hash}{suffix}"
         path = self._scene_files.get(key)
@@ -754,7 +758,8 @@ class Worker:
         if data is None:
             raise RenderFailed(f"cannot load scene {task.scene_name!r}: scene "
                                f"{task.scene_hash} is missing from the store", fatal=True)
-        return self._keep_file(key, data)
+        os.makedirs(os.path.join(self._tmpdir, task.scene_hash), exist_ok=True)
+        return self._keep_file(key, data, os.path.join(task.scene_hash, protocol.scene_file_name(suffix)))
 
     def _fault_for(self, task: TileTask) -> str | None:
         for kind, pattern, tile in self._faults:

@@ -89,7 +89,7 @@ def create_job(
                      height=height if height is not None else 1, **params)
 
     with tempfile.TemporaryDirectory(prefix=f"tessera-upload-{os.getpid()}-") as tmp:
-        path = Path(tmp, f"scene{suffix}")
+        path = Path(tmp, protocol.scene_file_name(suffix))
         scene_hash = _save_upload(file, path, settings.max_upload_bytes)
         # Concurrent uploads of one scene wait for a single inspection.
         with _inspection_lock(scene_hash):
