@@ -16,6 +16,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import uuid
 from pathlib import Path
 
 import httpx
@@ -447,7 +448,8 @@ def test_a_killed_api_leaves_no_inspection_running_and_its_next_start_removes_th
 
     api, base = start_api(redis_server, tmp_path, preflight_timeout="600")
     scene = tmp_path / "scene.usda"
-    scene.write_text(CORNELL.read_text())
+    # Bytes no earlier test uploaded: a scene inspected before is not inspected again.
+    scene.write_text(CORNELL.read_text() + f"\n# {uuid.uuid4().hex}\n")
     threading.Thread(target=lambda: _post_ignoring_errors(base, scene), daemon=True).start()
     deadline = time.monotonic() + STARTUP_TIMEOUT
     while not (inspections := [c for c in child_pids(api.pid) if b"tessera_renderer.inspect" in _cmdline(c)]):
