@@ -18,6 +18,19 @@ REPO = Path(__file__).resolve().parents[1]
 CORNELL = REPO / "examples" / "cornell" / "cornell.usda"
 STARTUP_TIMEOUT = 30.0
 
+# The quick tier is `pytest -m "not slow"` (about a minute): these modules run real farms
+# (API, workers, Redis restarts, network namespaces), the bench, the fuzz campaign or
+# long statistical renders; a test elsewhere may carry @pytest.mark.slow itself.
+SLOW_MODULES = {"test_farm_e2e", "test_farm_lifecycle", "test_farm_resilience", "test_farm_netns",
+                "test_farm_openapi", "test_bundles_farm", "test_bench", "test_fuzz", "test_caustic",
+                "test_integrators"}
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.module.__name__.rsplit(".", 1)[-1] in SLOW_MODULES:
+            item.add_marker(pytest.mark.slow)
+
 
 @pytest.fixture(scope="session")
 def cornell_path() -> Path:
