@@ -22,8 +22,9 @@ a scene the two renderers would see differently):
 | box pixel filter, linear float RGBA               | `hdrfilm` rgb float32 with `box` rfilter     |
 
 Why Lambertian rows only for opaque diffuse surfaces: Tessera's UsdPreviewSurface with
-metallic 0 keeps a GGX specular lobe (F0 from ior, F90 = 1) and attenuates the diffuse
-lobe by (1 - F) on both sides (docs/materials.md); no Mitsuba BSDF has that model.
+metallic 0 keeps a GGX specular lobe (F0 from ior, F90 = min(1, 50 F0)) with Kulla-Conty
+compensation over an albedo-scaled diffuse (docs/materials.md); no Mitsuba BSDF has that
+model. (With ior 1 or specularColor 0 it is exactly Lambert.)
 `lambertize()` turns such rows into plain Lambertian ones (same albedo) for *both*
 renderers when a comparison wants them.
 

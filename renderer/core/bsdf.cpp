@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "fresnel.h"
+#include "ggx_albedo.h"
 #include "sampling.h"
 
 namespace tessera {
@@ -15,6 +16,9 @@ inline Vec3 MirrorAboutNormal(Vec3 w) { return {-w.x, -w.y, w.z}; }
 inline float Clamp01(float v) { return std::isfinite(v) ? std::clamp(v, 0.f, 1.f) : 0.f; }
 inline Color Clamp01(Color c) { return {Clamp01(c.x), Clamp01(c.y), Clamp01(c.z)}; }
 inline Color Lerp(float t, Color a, Color b) { return a * (1.f - t) + b * t; }
+// Below this 1 - E1_avg (roughness under ~0.05) the compensation adds < 1e-4 and its
+// normalisation would divide by almost nothing: it is left out (both f and the albedos).
+constexpr float kMinMsLoss = 1e-4f;
 
 }  // namespace
 
@@ -64,6 +68,44 @@ float MicrofacetReflection::PDF(Vec3 wo, Vec3 wi) const {
     return cos_om > 0.f ? distrib.PDF(wo, wm) / (4.f * cos_om) : 0.f;
 }
 
+Color MicrofacetReflection::SingleAlbedo(float mu) const {
+    if (distrib.EffectivelySmooth()) return F(mu);
+    GGXAlbedo e = LookupGGXAlbedo(mu, distrib.alpha());
+    return f0 * e.e1 + (f90 - f0) * e.e5;
+}
+
+Color MicrofacetReflection::Fms() const {
+    if (distrib.EffectivelySmooth()) return Color(0.f);
+    const float e_avg = LookupGGXAverage(distrib.alpha()).e1;
+    if (!(1.f - e_avg > kMinMsLoss)) return Color(0.f);
+    const Color f_avg = f0 + (f90 - f0) * (1.f / 21.f);
+    auto ch = [&](float fa) { return fa * fa * e_avg / (1.f - fa * (1.f - e_avg)); };
+    return {ch(f_avg.x), ch(f_avg.y), ch(f_avg.z)};
+}
+
+Color MicrofacetReflection::MultiAlbedo(float mu) const {
+    Color fms_ = Fms();
+    if (IsBlack(fms_)) return Color(0.f);
+    return fms_ * std::max(0.f, 1.f - LookupGGXAlbedo(mu, distrib.alpha()).e1);
+}
+
+Color MicrofacetReflection::AverageAlbedo() const {
+    if (distrib.EffectivelySmooth()) return f0 + (f90 - f0) * (1.f / 21.f);
+    GGXAlbedo a = LookupGGXAverage(distrib.alpha());
+    return f0 * a.e1 + (f90 - f0) * a.e5 + Fms() * std::max(0.f, 1.f - a.e1);
+}
+
+Color MicrofacetReflection::fms(Vec3 wo, Vec3 wi) const {
+    if (!(wo.z > 0.f && wi.z > 0.f)) return Color(0.f);
+    Color fms_ = Fms();
+    if (IsBlack(fms_)) return Color(0.f);
+    const float a = distrib.alpha();
+    const float loss_avg = 1.f - LookupGGXAverage(a).e1;
+    const float lo = std::max(0.f, 1.f - LookupGGXAlbedo(wo.z, a).e1);
+    const float li = std::max(0.f, 1.f - LookupGGXAlbedo(wi.z, a).e1);
+    return fms_ * (lo * li * kInvPi / loss_avg);
+}
+
 bool MicrofacetReflection::Sample(Vec3 wo, Vec2 u, Vec3* wi) const {
     Vec3 wm = distrib.Sample_wm(wo, u);
     *wi = Reflect(wo, wm);
@@ -75,19 +117,36 @@ bool MicrofacetReflection::Sample(Vec3 wo, Vec2 u, Vec3* wi) const {
 // ---------------------------------------------------------------------------------------
 // ConductorBSDF
 
+namespace {
+// Every lobe that can contribute keeps at least this selection weight, so a lobe whose
+// albedo estimate at wo is 0 (F0 = 0 at normal incidence) is still sampled and BSDF
+// sampling alone stays unbiased.
+constexpr float kMinLobeWeight = 0.02f;
+}  // namespace
+
+float ConductorBSDF::MsProbability(float mu) const {
+    if (lobe_.distrib.EffectivelySmooth() || IsBlack(lobe_.Fms())) return 0.f;
+    // The same weights as PreviewSurfaceBSDF's specular and diffuse lobes with a black base,
+    // so a pure-metal PreviewSurface samples exactly like this conductor.
+    const float ws = std::max(kMinLobeWeight, Luminance(lobe_.SingleAlbedo(mu)));
+    const float wm = std::max(kMinLobeWeight, Luminance(lobe_.MultiAlbedo(mu)));
+    return wm / (ws + wm);
+}
+
 Color ConductorBSDF::f(Vec3 wo, Vec3 wi) const {
     if (lobe_.distrib.EffectivelySmooth() || !SameHemisphere(wo, wi)) return Color(0.f);
     if (wo.z < 0.f) wo = FlipZ(wo), wi = FlipZ(wi);
-    return lobe_.f(wo, wi);
+    return lobe_.f(wo, wi) + lobe_.fms(wo, wi);
 }
 
 float ConductorBSDF::PDF(Vec3 wo, Vec3 wi) const {
     if (lobe_.distrib.EffectivelySmooth() || !SameHemisphere(wo, wi)) return 0.f;
     if (wo.z < 0.f) wo = FlipZ(wo), wi = FlipZ(wi);
-    return lobe_.PDF(wo, wi);
+    const float pm = MsProbability(wo.z);
+    return (1.f - pm) * lobe_.PDF(wo, wi) + pm * CosineHemispherePdf(wi.z);
 }
 
-std::optional<BSDFSample> ConductorBSDF::Sample_f(Vec3 wo, float, Vec2 u) const {
+std::optional<BSDFSample> ConductorBSDF::Sample_f(Vec3 wo, float uc, Vec2 u) const {
     if (wo.z == 0.f) return std::nullopt;
     bool flip = wo.z < 0.f;
     Vec3 w = flip ? FlipZ(wo) : wo;
@@ -96,10 +155,14 @@ std::optional<BSDFSample> ConductorBSDF::Sample_f(Vec3 wo, float, Vec2 u) const 
         return BSDFSample{lobe_.F(w.z) / w.z, flip ? FlipZ(wi) : wi, 1.f, true, false, 1.f};
     }
     Vec3 wi;
-    if (!lobe_.Sample(w, u, &wi)) return std::nullopt;
-    float pdf = lobe_.PDF(w, wi);
+    if (uc < MsProbability(w.z)) {
+        wi = SampleCosineHemisphere(u);
+    } else if (!lobe_.Sample(w, u, &wi)) {
+        return std::nullopt;
+    }
+    float pdf = PDF(w, wi);
     if (!(pdf > 0.f)) return std::nullopt;
-    return BSDFSample{lobe_.f(w, wi), flip ? FlipZ(wi) : wi, pdf, false, false, 1.f};
+    return BSDFSample{f(w, wi), flip ? FlipZ(wi) : wi, pdf, false, false, 1.f};
 }
 
 // ---------------------------------------------------------------------------------------
@@ -215,10 +278,11 @@ std::optional<BSDFSample> DielectricBSDF::Sample_f(Vec3 wo, float uc, Vec2 u) co
 
 namespace {
 constexpr float kCoatF0 = 0.04f;  // clearcoat is a fixed ior-1.5 layer, as in Storm
-// Every lobe that can contribute keeps at least this selection weight, so a lobe whose
-// Fresnel estimate at wo is 0 (F0 = 0 at normal incidence with ior = 1) is still sampled
-// and BSDF sampling alone stays unbiased.
-constexpr float kMinLobeWeight = 0.02f;
+// Grazing reflectance of a dielectric specular layer with normal reflectance F0: 1 for any
+// real interface (F0 >= 0.02, ior >= 1.33), falling to 0 with F0 so that ior 1 or
+// specularColor 0 (no interface: the exact Fresnel is 0 at every angle) has no specular.
+// The rule Filament and Unreal use; Storm keeps F90 = 1.
+inline float DielectricF90(Color f0) { return std::min(1.f, 50.f * MaxComponent(f0)); }
 }  // namespace
 
 PreviewSurfaceBSDF::PreviewSurfaceBSDF(const MaterialParams& p, TransportMode mode)
@@ -230,15 +294,29 @@ PreviewSurfaceBSDF::PreviewSurfaceBSDF(const MaterialParams& p, TransportMode mo
     const float alpha = TrowbridgeReitz::RoughnessToAlpha(p.roughness);
     const Color base = Clamp01(p.diffuse_color);
     if (p.use_specular_workflow) {
-        diffuse_ = base;
-        spec_ = {TrowbridgeReitz(alpha), Clamp01(p.specular_color), Color(1.f)};
+        diffuse_albedo_ = base;
+        const Color f0 = Clamp01(p.specular_color);
+        spec_ = {TrowbridgeReitz(alpha), f0, Color(DielectricF90(f0))};
     } else {
         const float m = Clamp01(p.metallic);
-        const float f0 = F0FromIor(glass_.eta());
-        diffuse_ = base * (1.f - m);
-        spec_ = {TrowbridgeReitz(alpha), Lerp(m, Color(f0), base), Lerp(m, Color(1.f), base)};
+        const Color f0 = Color(F0FromIor(glass_.eta()));
+        diffuse_albedo_ = base * (1.f - m);
+        spec_ = {TrowbridgeReitz(alpha), Lerp(m, f0, base), Lerp(m, Color(DielectricF90(f0)), base)};
     }
+    // Albedo scaling: ρ/pi (1 - Es(wo)) (1 - Es(wi)) / (1 - Es_avg), with the average folded
+    // into the stored colour. A channel whose specular reflects everything has no diffuse.
+    const Color loss_avg = Color(1.f) - spec_.AverageAlbedo();
+    auto scaled = [](float rho, float loss) { return loss > 1e-6f ? rho / loss : 0.f; };
+    diffuse_ = {scaled(diffuse_albedo_.x, loss_avg.x), scaled(diffuse_albedo_.y, loss_avg.y),
+                scaled(diffuse_albedo_.z, loss_avg.z)};
+    if (IsBlack(diffuse_)) diffuse_albedo_ = Color(0.f);
 }
+
+float PreviewSurfaceBSDF::CoatAttenuation(float mu) const {
+    return clearcoat_ > 0.f ? 1.f - clearcoat_ * coat_.Albedo(mu).x : 1.f;
+}
+
+Color PreviewSurfaceBSDF::DiffuseScale(float mu) const { return Clamp01(Color(1.f) - spec_.Albedo(mu)); }
 
 uint32_t PreviewSurfaceBSDF::Flags() const {
     uint32_t flags = 0;
@@ -246,15 +324,18 @@ uint32_t PreviewSurfaceBSDF::Flags() const {
         flags |= kBSDFReflection;
         flags |= spec_.distrib.EffectivelySmooth() ? kBSDFSpecular : kBSDFGlossy;
         if (clearcoat_ > 0.f) flags |= coat_.distrib.EffectivelySmooth() ? kBSDFSpecular : kBSDFGlossy;
-        if (!IsBlack(diffuse_)) flags |= kBSDFDiffuse;
+        if (!IsBlack(diffuse_) || !IsBlack(spec_.Fms()) || (clearcoat_ > 0.f && !IsBlack(coat_.Fms())))
+            flags |= kBSDFDiffuse;  // the cosine lobe also carries the multiple scattering
     }
     if (opacity_ < 1.f) flags |= glass_.Flags();
     return flags;
 }
 
 Color PreviewSurfaceBSDF::Albedo() const {
-    Color opaque = Color(clearcoat_ * kCoatF0) +
-                   (1.f - clearcoat_ * kCoatF0) * (spec_.f0 + (Color(1.f) - spec_.f0) * diffuse_);
+    // The directional albedo at normal incidence (the coat's interreflection with the base
+    // is left out, as in the BSDF).
+    const float ac = CoatAttenuation(1.f);
+    Color opaque = Color(1.f - ac) + ac * (spec_.Albedo(1.f) + DiffuseScale(1.f) * diffuse_albedo_);
     return opaque * opacity_ + Color(1.f - opacity_);
 }
 
@@ -264,11 +345,17 @@ void PreviewSurfaceBSDF::LobeProbabilities(Vec3 wo, float p[kNumLobes]) const {
         for (int i = 0; i < kNumLobes; ++i) p[i] = cached_p_[i];
         return;
     }
-    const float fc = clearcoat_ * FrSchlick(kCoatF0, 1.f, mu);
-    const Color fs = spec_.F(mu);
-    p[kCoat] = clearcoat_ > 0.f ? std::max(kMinLobeWeight, fc) : 0.f;
-    p[kSpec] = std::max(kMinLobeWeight, (1.f - fc) * Luminance(fs));
-    p[kDiffuse] = IsBlack(diffuse_) ? 0.f : std::max(kMinLobeWeight, (1.f - fc) * Luminance((Color(1.f) - fs) * diffuse_));
+    // The cosine lobe carries the diffuse and both multiple-scattering terms.
+    const float ac = CoatAttenuation(mu);
+    const bool has_coat = clearcoat_ > 0.f;
+    const bool has_spec = !(IsBlack(spec_.f0) && IsBlack(spec_.f90));
+    const bool has_cosine = (Flags() & kBSDFDiffuse) != 0;
+    const Color cosine = spec_.MultiAlbedo(mu) + DiffuseScale(mu) * diffuse_albedo_;
+    p[kCoat] = has_coat ? std::max(kMinLobeWeight, clearcoat_ * coat_.SingleAlbedo(mu).x) : 0.f;
+    p[kSpec] = has_spec ? std::max(kMinLobeWeight, ac * Luminance(spec_.SingleAlbedo(mu))) : 0.f;
+    p[kDiffuse] = has_cosine ? std::max(kMinLobeWeight, ac * Luminance(cosine) +
+                                                            (has_coat ? clearcoat_ * coat_.MultiAlbedo(mu).x : 0.f))
+                             : 0.f;
     for (int i = 0; i < kGlass; ++i) p[i] *= opacity_;
     p[kGlass] = 1.f - opacity_;
     float sum = 0.f;
@@ -279,13 +366,12 @@ void PreviewSurfaceBSDF::LobeProbabilities(Vec3 wo, float p[kNumLobes]) const {
 }
 
 Color PreviewSurfaceBSDF::OpaqueF(Vec3 wo, Vec3 wi) const {
-    const float ac_o = 1.f - clearcoat_ * FrSchlick(kCoatF0, 1.f, wo.z);
-    const float ac_i = 1.f - clearcoat_ * FrSchlick(kCoatF0, 1.f, wi.z);
-    const Color as_o = Color(1.f) - spec_.F(wo.z), as_i = Color(1.f) - spec_.F(wi.z);
-    Color base = as_o * as_i * diffuse_ * kInvPi;
-    if (!spec_.distrib.EffectivelySmooth()) base += spec_.f(wo, wi);
-    Color result = base * (ac_o * ac_i);
-    if (clearcoat_ > 0.f && !coat_.distrib.EffectivelySmooth()) result += coat_.f(wo, wi) * clearcoat_;
+    Color base(0.f);
+    if (!IsBlack(diffuse_)) base = DiffuseScale(wo.z) * DiffuseScale(wi.z) * diffuse_ * kInvPi;
+    if (!spec_.distrib.EffectivelySmooth()) base += spec_.f(wo, wi) + spec_.fms(wo, wi);
+    if (!(clearcoat_ > 0.f)) return base;
+    Color result = base * (CoatAttenuation(wo.z) * CoatAttenuation(wi.z));
+    if (!coat_.distrib.EffectivelySmooth()) result += (coat_.f(wo, wi) + coat_.fms(wo, wi)) * clearcoat_;
     return result;
 }
 
@@ -344,7 +430,7 @@ std::optional<BSDFSample> PreviewSurfaceBSDF::Sample_f(Vec3 wo, float uc, Vec2 u
         case kSpec: {
             const MicrofacetReflection& l = lobe == kCoat ? coat_ : spec_;
             if (l.distrib.EffectivelySmooth()) {
-                const float ac = 1.f - clearcoat_ * FrSchlick(kCoatF0, 1.f, w.z);
+                const float ac = CoatAttenuation(w.z);
                 // Mirror direction: wi.z == wo.z, so each attenuation appears squared.
                 Color value = lobe == kCoat ? l.F(w.z) * clearcoat_ : l.F(w.z) * (ac * ac);
                 return BSDFSample{value * (opacity_ / w.z), out(MirrorAboutNormal(w)), p[lobe], true, false, 1.f};

@@ -72,17 +72,37 @@ private:
 // GGX reflection with Schlick Fresnel F(cos) = F0 + (F90 - F0)(1 - cos)^5 at the microfacet
 // normal. Shared by ConductorBSDF and PreviewSurfaceBSDF's specular and clearcoat lobes.
 // Works on the upper hemisphere only; callers mirror. Invariant: f(wo, wi) == f(wi, wo).
+//
+// Energy compensation (Kulla & Conty 2017): single-scattering GGX loses the light that
+// would scatter between microfacets (a white metal at roughness 1 reflects 0.31 head-on).
+// fms adds it back as a reciprocal, cosine-like lobe
+//   fms(wo, wi) = Fms (1 - E1(wo)) (1 - E1(wi)) / (pi (1 - E1_avg)),
+//   Fms = F_avg² E1_avg / (1 - F_avg (1 - E1_avg)),  F_avg = F0 + (F90 - F0) / 21,
+// whose albedo is Fms (1 - E1(wo)): with F = 1 the lobe reflects exactly 1 at every angle.
+// E1, E5 and their averages come from ggx_albedo.h. A smooth lobe is a delta with albedo
+// F(cos) and no multiple scattering.
 struct MicrofacetReflection {
     TrowbridgeReitz distrib;
     Color f0, f90;
 
     Color F(float cos_theta) const;
-    Color f(Vec3 wo, Vec3 wi) const;                 // rough path only
-    float PDF(Vec3 wo, Vec3 wi) const;               // rough path only
+    Color f(Vec3 wo, Vec3 wi) const;                 // rough path only, single scattering
+    Color fms(Vec3 wo, Vec3 wi) const;               // rough path only, multiple scattering
+    float PDF(Vec3 wo, Vec3 wi) const;               // rough path only, single-scattering lobe
     bool Sample(Vec3 wo, Vec2 u, Vec3* wi) const;    // rough path only; false below horizon
+
+    // Directional albedos at mu = cos θ in [0, 1] (per channel) and the cosine-weighted
+    // hemispherical average of the total, 2 ∫ Albedo(mu) mu dmu.
+    Color SingleAlbedo(float mu) const;
+    Color MultiAlbedo(float mu) const;
+    Color Albedo(float mu) const { return SingleAlbedo(mu) + MultiAlbedo(mu); }
+    Color AverageAlbedo() const;
+    Color Fms() const;  // 0 when smooth or when E1_avg is so close to 1 that there is nothing to add
 };
 
-// UsdPreviewSurface with metallic = 1: F0 = F90 = colour (angle-independent), GGX.
+// UsdPreviewSurface with metallic = 1: F0 = F90 = colour (angle-independent), GGX with
+// multiple-scattering compensation. Sample_f picks the visible-normal lobe or, for the
+// compensation term, the cosine lobe, in proportion to their albedos at wo.
 class ConductorBSDF {
 public:
     ConductorBSDF(Color f0, Color f90, float alpha) : lobe_{TrowbridgeReitz(alpha), f0, f90} {}
@@ -92,9 +112,10 @@ public:
     uint32_t Flags() const {
         return kBSDFReflection | (lobe_.distrib.EffectivelySmooth() ? kBSDFSpecular : kBSDFGlossy);
     }
-    Color Albedo() const { return lobe_.f0; }
+    Color Albedo() const { return lobe_.Albedo(1.f); }
 
 private:
+    float MsProbability(float mu) const;  // probability of the cosine lobe at |wo.z| = mu
     MicrofacetReflection lobe_;
 };
 
@@ -137,13 +158,18 @@ struct MaterialParams {
 // The UsdPreviewSurface mixture (see docs/materials.md for the derivation):
 //
 //   f = opacity · f_opaque + (1 - opacity) · f_dielectric(ior, roughness)
-//   f_opaque(wo, wi) = c f_coat + Ac(wo) Ac(wi) [ f_spec + As(wo) As(wi) ρ / pi ]
-//   Ac(w) = 1 - c Fc(|w.z|),  As(w) = 1 - Fs(|w.z|)   (per channel)
+//   f_opaque(wo, wi) = c f_coat + Ac(wo) Ac(wi) [ f_spec + ρ/pi (1 - Es(wo)) (1 - Es(wi)) / (1 - Es_avg) ]
+//   Ac(w) = 1 - c Ec(|w.z|)                                             (per channel)
 //
-// where c = clearcoat, Fc = Schlick(0.04, 1), Fs = Schlick(F0, F90) of the workflow and
-// ρ = diffuseColor (1 - metallic). Each attenuation appears once per direction, so f is
-// reciprocal, and since a lobe's directional albedo is at most its Fresnel at the cosine,
-// the reflected energy is at most 1 per channel (checked by the furnace tests).
+// where c = clearcoat, f_coat and f_spec are GGX lobes with Kulla-Conty compensation
+// (MicrofacetReflection::f + fms), Es / Ec their directional albedos and Es_avg the
+// cosine-weighted average of Es. The specular Fresnel is Schlick(F0, F90) with
+// F90 = min(1, 50 max(F0)) for the dielectric part, so F0 = 0 (ior 1, or specularColor 0)
+// has no specular at all; metallic lerps (F0, F90) to (diffuseColor, diffuseColor).
+// ρ = diffuseColor (1 - metallic). The diffuse term is albedo-scaled: its albedo is
+// exactly (1 - Es(wo)) ρ, so a white base reflects Es + (1 - Es) = 1 at every angle, and a
+// base without specular is Lambert. The coat multiplies the base by its transmittance
+// 1 - c Ec once per direction: reciprocal, and bounded by 1 per channel.
 class PreviewSurfaceBSDF {
 public:
     PreviewSurfaceBSDF(const MaterialParams& p, TransportMode mode);
@@ -160,7 +186,11 @@ private:
     Color OpaqueF(Vec3 wo, Vec3 wi) const;  // both mirrored to the upper hemisphere
     float LobePdf(int lobe, Vec3 wo, Vec3 wi) const;
 
-    Color diffuse_;  // ρ = diffuseColor (1 - metallic)
+    float CoatAttenuation(float mu) const;  // Ac = 1 - c Ec(mu)
+    Color DiffuseScale(float mu) const;     // 1 - Es(mu), clamped to [0, 1]
+
+    Color diffuse_;  // ρ = diffuseColor (1 - metallic), divided by (1 - Es_avg) per channel
+    Color diffuse_albedo_;  // ρ itself
     MicrofacetReflection spec_;
     MicrofacetReflection coat_;
     float clearcoat_;

@@ -657,7 +657,11 @@ TEST(BsdfPreviewSurface, FresnelFollowsTheWorkflow) {
     EXPECT_NEAR(mirror_weight(p, 0.02f).x, FrSchlick(0.04f, 1.f, 0.02f), 2e-3f);         // F90 = 1
     p.ior = 1.f;
     EXPECT_NEAR(mirror_weight(p, 1.f).x, 0.f, 1e-6f);
-    EXPECT_GT(mirror_weight(p, 0.02f).x, 0.85f);  // ior 1 keeps the grazing lobe (F90 = 1)
+    // ior 1 is no interface: the exact Fresnel is 0 at every angle, and F90 = min(1, 50 F0)
+    // follows it (Storm's F90 = 1 would reflect 0.9 here).
+    EXPECT_NEAR(mirror_weight(p, 0.02f).x, 0.f, 1e-6f);
+    p.ior = 1.2f;  // F0 = 0.0083: F90 = 0.41
+    EXPECT_NEAR(mirror_weight(p, 0.02f).x, FrSchlick(F0FromIor(1.2f), 50.f * F0FromIor(1.2f), 0.02f), 2e-3f);
     p.metallic = 1.f;
     p.diffuse_color = Color(0.9f, 0.5f, 0.1f);
     p.clearcoat = 1e-6f;  // keep it a PreviewSurfaceBSDF, not the factory's conductor shortcut

@@ -329,6 +329,59 @@ TEST(Materials, SmoothMetalFurnaceIsLeOverOneMinusReflectance) {
     }
 }
 
+// The furnace with UsdPreviewSurface walls: metallic 0, roughness 1, ior 1 (no interface,
+// so no specular) and diffuse a must read Le / (1 - a) like Lambertian walls (it read -6 %
+// at a = 0.5 and -42 % at a = 0.9 when the diffuse was dimmed by Schlick at both ends).
+// Tolerance 0.5 % of the expected value with 4 se below it; detects 1 %: the negative
+// control (the same check against an expectation 1 % off) must fail.
+TEST(Materials, PreviewSurfaceFurnaceIsLeOverOneMinusAlbedo) {
+    for (float a : {0.5f, 0.9f}) {
+        MaterialParams wall;
+        wall.diffuse_color = Color(a);
+        wall.metallic = 0.f;
+        wall.roughness = 1.f;
+        wall.ior = 1.f;
+        SceneDesc d;
+        const Color Le(0.5f, 1.f, 2.f);
+        AddInwardBox(d, {-1, -2, -1.5f}, {3, 1, 2}, AddPreview(d, wall, Le, true));
+        Scene scene(d);
+        const uint32_t W = 24, H = 24;
+        auto px = Render(scene, LookDownMinusZ({0.2f, -0.3f, 0.1f}, W, H, 1.2f), {1024, 11, 100000, 2}, {0, 0, W, H});
+        for (int c = 0; c < 3; ++c) {
+            double se, mean = MeanOverPixels(px, c, &se);
+            double expected = Le[c] / (1.0 - a), tol = 0.005 * expected;
+            std::printf("albedo %.1f channel %d: %.5f of Le/(1-a)\n", a, c, mean / expected);
+            EXPECT_LT(4 * se, tol) << "too noisy to see 1 %";
+            EXPECT_NEAR(mean, expected, tol) << "channel " << c << " albedo " << a;
+            EXPECT_GT(std::abs(mean - 1.01 * expected), tol) << "negative control";
+        }
+    }
+}
+
+// A plain diffuse UsdPreviewSurface (ior 1, roughness 1) under a delta DistantLight at 60°
+// reflects E cos(60°) ρ / pi exactly (it read -3.1 % = (1 - cos 60)^5 before). The result
+// is noiseless (one light, one bounce), so the tolerance is 0.2 %; the negative control
+// checks that a 1 % error would be flagged.
+TEST(Materials, PreviewSurfaceUnderDistantLightIsLambert) {
+    MaterialParams p;
+    p.diffuse_color = Color(0.5f);
+    p.metallic = 0.f;
+    p.roughness = 1.f;
+    p.ior = 1.f;
+    SceneDesc d;
+    const float s = 1000.f;
+    AddQuad(d, {-s, 0, -s}, {-s, 0, s}, {s, 0, s}, {s, 0, -s}, AddPreview(d, p));
+    const float theta = float(kPi / 3.0);  // 60° from the normal
+    d.distant_lights.push_back({Vec3(std::sin(theta), -std::cos(theta), 0.f), 0.f, Color(3.f)});
+    Scene scene(d);
+    auto px = Render(scene, LookDownAtOrigin(1.f), {4, 0, 1, 1}, {0, 0, 4, 4});
+    const double expected = 0.5 / kPi * 3.0 * std::cos(double(theta)), tol = 0.002 * expected;
+    const double mean = MeanChannel(px, 0);
+    std::printf("60 degree distant light: %.5f of E cos rho / pi\n", mean / expected);
+    EXPECT_NEAR(mean, expected, tol);
+    EXPECT_GT(std::abs(mean - 1.01 * expected), tol) << "negative control";
+}
+
 // A smooth dielectric UsdPreviewSurface (black diffuse, ior 1.5) reflecting a large emitter:
 // the pixel is Le times Schlick's Fresnel at the angle of incidence.
 TEST(Materials, SmoothSpecularReflectsSchlickFresnel) {
