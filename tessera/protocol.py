@@ -641,6 +641,61 @@ def tile_finished(settings: RenderSettings, pass_index: int, rgba: np.ndarray,
 # per pixel on luminance. Owen-scrambled passes are not quite independent (their union is
 # better stratified than each), which makes this estimate conservative.
 
+def variance_of_mean(s1: np.ndarray, s2: np.ndarray, samples: int, batches: int) -> np.ndarray:
+    """The batch-means estimate above: Var(M) ~= (S2 - S1^2 / N) / ((K - 1) N), float64,
+    from S1 = sum n_k I_k, S2 = sum n_k I_k^2 over K >= 2 batches of N samples in all."""
+    n = float(samples)
+    return np.maximum(s2 - s1 * (s1 / n), 0.0) / (batches - 1) / n
+
+
+# Every image's noise estimate for the splatting integrators (light, bdpt; auto when it
+# resolves to one): a light path splats onto other pixels than its camera sample's, so a
+# pixel's per-sample variance describes only its camera half. Instead every pass's sample
+# range is also rendered as VARIANCE_BATCHES independent sub-ranges (batches), each a whole
+# image of its own (camera part + its own splats normalised by its own light paths); the
+# spread of the batch images per pixel estimates the variance of the pixel's mean with
+# K - 1 degrees of freedom (K batches in all). The image itself is rendered as before.
+VARIANCE_BATCHES = 8
+
+
+def batch_ranges(sample_start: int, spp: int, batches: int = VARIANCE_BATCHES) -> list[tuple[int, int]]:
+    """A pass's samples [sample_start, sample_start + spp) as min(batches, spp) contiguous
+    (start, count) ranges of near-equal size."""
+    k = max(1, min(batches, spp))
+    base, extra = divmod(spp, k)
+    out, start = [], sample_start
+    for j in range(k):
+        n = base + (1 if j < extra else 0)
+        out.append((start, n))
+        start += n
+    return out
+
+
+@dataclass
+class BatchMeans:
+    """Per-pixel, per-channel running sums over independent batch images (S1, S2 above)."""
+
+    batches: int = 0
+    samples: int = 0
+    s1: np.ndarray | None = None  # float64: sum n_k I_k
+    s2: np.ndarray | None = None  # float64: sum n_k I_k^2
+
+    def add(self, image: np.ndarray, n: int) -> None:
+        x = np.asarray(image, dtype=np.float64)
+        if self.s1 is None:
+            self.s1, self.s2 = np.zeros_like(x), np.zeros_like(x)
+        self.s1 += n * x
+        self.s2 += n * x * x
+        self.batches += 1
+        self.samples += n
+
+    def variance_of_mean(self) -> np.ndarray | None:
+        """float32 estimated variance of the mean of all batches; None below 2 batches."""
+        if self.batches < 2 or self.s1 is None:
+            return None
+        return variance_of_mean(self.s1, self.s2, self.samples, self.batches).astype(np.float32)
+
+
 def pass_image(width: int, height: int, results: list[TileResult]) -> np.ndarray:
     """The full-frame RGBA estimate of one pass from all tiles' results of that pass."""
     full = np.zeros((height, width, 4), dtype=np.float32)
@@ -678,10 +733,8 @@ class PassAccumulator:
         two passes (one pass cannot estimate its own variance)."""
         if self.passes < 2 or self.s1 is None:
             return None
-        n = float(self.samples)
-        mean = self.s1 / n
-        sigma2 = np.maximum(self.s2 - self.s1 * mean, 0.0) / (self.passes - 1)
-        var_mean = sigma2 / n
+        var_mean = variance_of_mean(self.s1, self.s2, self.samples, self.passes)
+        mean = self.s1 / float(self.samples)
         floor = max(1e-4, 0.01 * float(np.mean(np.abs(mean))))
         return float(np.sqrt(np.mean(var_mean / np.maximum(np.abs(mean), floor) ** 2)))
 

@@ -8,7 +8,8 @@ import numpy as np
 
 from tessera import images
 from tessera.protocol import (JobSpec, TileResult, add_splats, combine_aovs, combine_passes, decode_tile,
-                              new_aov_frame, resolve_splats, splat_exponent_of, tile_grid)
+                              new_aov_frame, resolve_splats, splat_exponent_of, tile_grid,
+                              SPLATTING_INTEGRATORS)
 
 
 class MergeError(Exception):
@@ -94,6 +95,16 @@ def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes], *, partial: bool
     return (image, aovs) if with_aovs else image
 
 
+def farm_variance_kind(settings, aovs: dict | None) -> str | None:
+    """What a merged variance layer means: the per-sample variance of the integrators
+    without splats. The farm does not yet render the batches (protocol.VARIANCE_BATCHES)
+    that light and bdpt need, so their layer (and auto's, which may resolve to bdpt) is
+    left unlabelled, and `tessera compare` refuses it rather than misjudge it."""
+    if not aovs or "variance" not in aovs or settings.integrator in SPLATTING_INTEGRATORS:
+        return None
+    return images.VARIANCE_PER_SAMPLE
+
+
 def encode_image(rgba: np.ndarray, spec: JobSpec, fmt: str, aovs: dict[str, np.ndarray] | None = None) -> bytes:
     """The image as float EXR bytes (with the same header attributes and AOV layers as a
     local render) or as a tonemapped sRGB PNG preview (colour only)."""
@@ -102,7 +113,8 @@ def encode_image(rgba: np.ndarray, spec: JobSpec, fmt: str, aovs: dict[str, np.n
         if fmt == "exr":
             s = spec.settings
             images.write_exr(path, rgba, images.render_metadata(
-                s.max_spp if s.adaptive else s.spp, s.seed, spec.scene_name), aovs=aovs)
+                s.max_spp if s.adaptive else s.spp, s.seed, spec.scene_name, s.integrator,
+                farm_variance_kind(s, aovs)), aovs=aovs)
         else:
             images.write_png_preview(path, rgba)
         return path.read_bytes()
