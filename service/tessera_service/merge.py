@@ -8,8 +8,8 @@ import numpy as np
 
 from tessera import images
 from tessera.protocol import (JobSpec, TileResult, add_splats, combine_aovs, combine_passes, decode_tile,
-                              new_aov_frame, resolve_splats, splat_exponent_of, tile_grid,
-                              SPLATTING_INTEGRATORS)
+                              batch_variance, new_aov_frame, resolve_splats, splat_exponent_of,
+                              tile_grid)
 
 
 class MergeError(Exception):
@@ -91,18 +91,34 @@ def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes], *, partial: bool
         except ValueError as e:
             raise MergeError(str(e)) from e
         full = resolve_splats(full, splats, light_paths, exponent)
+    if "variance" in aovs:
+        aovs = MergedLayers(aovs)
+        if splats is None:
+            aovs.variance_kind = images.VARIANCE_PER_SAMPLE
+        elif not partial:
+            # light and bdpt: the per-sample layer misses the splats; the batches replace it.
+            try:
+                estimate = batch_variance(s.width, s.height, [r for rs in passes.values() for r in rs])
+            except ValueError as e:
+                raise MergeError(str(e)) from e
+            if estimate is not None:
+                aovs["variance"], aovs.variance_kind = estimate[0], images.batch_means_kind(estimate[1])
     image = full
     return (image, aovs) if with_aovs else image
 
 
+class MergedLayers(dict):
+    """merge_tiles' AOV layers, with what their variance layer means (images'
+    VARIANCE_ATTRIBUTE kinds; None when it is not a valid estimate, e.g. light or bdpt
+    results rendered without batches)."""
+    variance_kind: str | None = None
+
+
 def farm_variance_kind(settings, aovs: dict | None) -> str | None:
-    """What a merged variance layer means: the per-sample variance of the integrators
-    without splats. The farm does not yet render the batches (protocol.VARIANCE_BATCHES)
-    that light and bdpt need, so their layer (and auto's, which may resolve to bdpt) is
-    left unlabelled, and `tessera compare` refuses it rather than misjudge it."""
-    if not aovs or "variance" not in aovs or settings.integrator in SPLATTING_INTEGRATORS:
+    """What a merged variance layer means (MergedLayers.variance_kind)."""
+    if not aovs or "variance" not in aovs:
         return None
-    return images.VARIANCE_PER_SAMPLE
+    return getattr(aovs, "variance_kind", None)
 
 
 def encode_image(rgba: np.ndarray, spec: JobSpec, fmt: str, aovs: dict[str, np.ndarray] | None = None) -> bytes:
