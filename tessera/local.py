@@ -116,6 +116,9 @@ def render_image(scene, settings: RenderSettings, threads: int = 0, progress: bo
             result.variance, result.variance_kind = batch_variance(scene, settings, integrator, tiles,
                                                                    threads, result.passes)
             result.seconds += time.perf_counter() - started
+            if "variance" in result.aovs:  # the farm's merge replaces it the same way
+                result.aovs["variance"] = (result.variance if result.variance is not None
+                                           else result.aovs["variance"])
             result.spp = None if result.variance is None else np.full((settings.height, settings.width), result.samples
                                  / (settings.width * settings.height), np.float32)
         elif want_variance and "variance" in result.aovs:
