@@ -1,10 +1,12 @@
 """Noise-aware comparison of two renders: do TEST and REFERENCE differ beyond their noise?
 
-Both images carry a per-pixel noise estimate (images.VARIANCE_CHANNELS: the per-sample
-variance, images.SPP_CHANNEL: the sample count), as `tessera render` writes them. Each
-pixel's mean a has the estimated variance var_a / n_a, so per pixel and channel
+Both images carry a per-pixel noise estimate (images.VARIANCE_CHANNELS, images.SPP_CHANNEL)
+of the kind their header names (images.VARIANCE_ATTRIBUTE): "per-sample" (the variance of
+one sample: the pixel's mean a has the variance s_a = var_a / n_a, n_a - 1 degrees of
+freedom) or "batch-means:K" (light, bdpt: s_a is the layer itself, K - 1 degrees of
+freedom). Images of no or an unknown kind are refused. Per pixel and channel
 
-    t = (a - b) / sqrt(var_a / n_a + var_b / n_b)
+    t = (a - b) / sqrt(s_a + s_b)
 
 is Welch's t statistic, with the Welch-Satterthwaite degrees of freedom (Jung, Hanika and
 Dachsbacher, "Detecting Bias in Monte Carlo Renderers using Welch's t-test", JCGT 2020;
@@ -137,7 +139,8 @@ def load(path: str | Path, role: str) -> images.RenderImage:
     if image.variance is None or image.spp is None:
         raise CompareError(
             f"{role} {path} has no variance channels ({', '.join(images.VARIANCE_CHANNELS)} and "
-            f"{images.SPP_CHANNEL}): render it with `tessera render` (any integrator)")
+            f"{images.SPP_CHANNEL}): render it with `tessera render` (any integrator), or on the "
+            f"farm with the variance and spp AOVs (`tessera submit --aovs variance,spp`)")
     _check_variance(image, f"{role} {path}")
     return image
 
