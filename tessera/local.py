@@ -121,9 +121,8 @@ def render_image(scene, settings: RenderSettings, threads: int = 0, progress: bo
                                            else result.aovs["variance"])
             result.spp = None if result.variance is None else np.full((settings.height, settings.width), result.samples
                                  / (settings.width * settings.height), np.float32)
-        elif want_variance and "variance" in result.aovs:
-            result.variance, result.variance_kind = result.aovs["variance"], images.VARIANCE_PER_SAMPLE
-            result.spp = _samples_per_pixel(settings, result.passes)
+        elif not want_variance:
+            result.variance = result.spp = result.variance_kind = None
         result.integrator = integrator
         return result
     start = time.perf_counter()
@@ -232,10 +231,19 @@ def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, th
                 break
             p += 1
     rgba = np.zeros((height, width, 4), dtype=np.float32)
+    variance: np.ndarray | None = np.zeros((height, width, 3), dtype=np.float32)
     aovs = new_aov_frame(settings)
     for t, results in zip(tiles, per_tile):
         mean, var, _ = combine_passes(results)
         rgba[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = mean
+        if var is None:
+            variance = None
+        elif variance is not None:
+            variance[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = var
         paste_aovs(aovs, _tile_aovs(settings, results, var), t)
     image = resolve_splats(rgba, total_splats, total_paths, scene.splat_exponent) if splatting else rgba
-    return LocalRenderResult(image, time.perf_counter() - start, samples, p + 1, aovs=aovs)
+    result = LocalRenderResult(image, time.perf_counter() - start, samples, p + 1, aovs=aovs)
+    if not splatting and variance is not None:  # per-sample variance is valid without splats
+        result.variance, result.variance_kind = variance, images.VARIANCE_PER_SAMPLE
+        result.spp = _samples_per_pixel(settings, p + 1)
+    return result
