@@ -26,13 +26,20 @@ def _positive(text: str) -> int:
 
 
 def _exr_layers(result) -> dict:
-    """The AOVs asked for, plus the noise estimate `tessera compare` needs (variance, spp)
-    whenever the integrator gives one."""
+    """The AOVs asked for, plus the noise estimate `tessera compare` needs (variance, spp,
+    of the kind result.variance_kind). For light and bdpt the variance layer is the batch
+    estimate, never the camera half's per-sample variance."""
     layers = dict(result.aovs)
     if result.variance is not None:
-        layers.setdefault("variance", result.variance)
+        layers["variance"] = result.variance
         layers.setdefault("spp", result.spp)
     return layers
+
+
+def _variance_kind(result, layers: dict) -> str | None:
+    """What the written variance layer means; None when there is none or it is not valid
+    for the integrator (then compare refuses the image)."""
+    return result.variance_kind if "variance" in layers and result.variance is not None else None
 
 
 def cmd_render(args: argparse.Namespace) -> int:
@@ -76,9 +83,10 @@ def cmd_render(args: argparse.Namespace) -> int:
         print(f"tessera render: renderer bug: {exc}", file=sys.stderr)
         return 3
     output.parent.mkdir(parents=True, exist_ok=True)
+    layers = _exr_layers(result)
     write_exr(output, result.rgba, render_metadata(
-        settings.max_spp if settings.adaptive else settings.spp, settings.seed, scene_path.name),
-        aovs=_exr_layers(result))
+        settings.max_spp if settings.adaptive else settings.spp, settings.seed, scene_path.name,
+        settings.integrator, _variance_kind(result, layers)), aovs=layers)
     preview = output.with_suffix(".png")
     write_png_preview(preview, result.rgba)
     if settings.adaptive:

@@ -1,10 +1,12 @@
 """Noise-aware comparison of two renders: do TEST and REFERENCE differ beyond their noise?
 
-Both images carry a per-pixel noise estimate (images.VARIANCE_CHANNELS: the per-sample
-variance, images.SPP_CHANNEL: the sample count), as `tessera render` writes them. Each
-pixel's mean a has the estimated variance var_a / n_a, so per pixel and channel
+Both images carry a per-pixel noise estimate (images.VARIANCE_CHANNELS, images.SPP_CHANNEL)
+of the kind their header names (images.VARIANCE_ATTRIBUTE): "per-sample" (the variance of
+one sample: the pixel's mean a has the variance s_a = var_a / n_a, n_a - 1 degrees of
+freedom) or "batch-means:K" (light, bdpt: s_a is the layer itself, K - 1 degrees of
+freedom). Images of no or an unknown kind are refused. Per pixel and channel
 
-    t = (a - b) / sqrt(var_a / n_a + var_b / n_b)
+    t = (a - b) / sqrt(s_a + s_b)
 
 is Welch's t statistic, with the Welch-Satterthwaite degrees of freedom (Jung, Hanika and
 Dachsbacher, "Detecting Bias in Monte Carlo Renderers using Welch's t-test", JCGT 2020;
@@ -137,9 +139,36 @@ def load(path: str | Path, role: str) -> images.RenderImage:
     if image.variance is None or image.spp is None:
         raise CompareError(
             f"{role} {path} has no variance channels ({', '.join(images.VARIANCE_CHANNELS)} and "
-            f"{images.SPP_CHANNEL}): render it with `tessera render` and the path, local or "
-            f"whitted integrator (light and bdpt images carry no per-pixel variance)")
+            f"{images.SPP_CHANNEL}): render it with `tessera render` (any integrator), or on the "
+            f"farm with the variance and spp AOVs (`tessera submit --aovs variance,spp`)")
+    _check_variance(image, f"{role} {path}")
     return image
+
+
+SPLATTING = ("light", "bdpt")
+
+
+def _check_variance(image: images.RenderImage, role: str) -> tuple[str, int | None]:
+    """The image's variance kind (images.parse_variance_kind); CompareError when the
+    image cannot be judged: no variance, no or an unknown tessera:variance kind, or a
+    per-sample variance from an integrator that splats (it misses the splats)."""
+    if image.variance is None or image.spp is None:
+        raise CompareError(f"{role} has no variance channels")
+    kind = image.variance_kind
+    if kind is None:
+        raise CompareError(
+            f"{role} does not say what its variance channels mean (no {images.VARIANCE_ATTRIBUTE} "
+            f"header attribute: written by an older Tessera, whose light and bdpt variance missed "
+            f"the splats); render it again with this version")
+    try:
+        parsed = images.parse_variance_kind(kind)
+    except ValueError as exc:
+        raise CompareError(f"{role}: {exc}; render it again with this version") from None
+    integrator = image.metadata.get("tessera:integrator", "")
+    if parsed[0] == images.VARIANCE_PER_SAMPLE and integrator in SPLATTING:
+        raise CompareError(f"{role} was rendered with {integrator} but carries a per-sample "
+                           f"variance, which misses its splats; render it again with this version")
+    return parsed
 
 
 def compare_files(test: str | Path, reference: str | Path, *, alpha: float = ALPHA,
@@ -157,9 +186,7 @@ def compare_images(test: images.RenderImage, reference: images.RenderImage, *, a
     if test.rgba.shape[:2] != reference.rgba.shape[:2]:
         (h1, w1), (h2, w2) = test.rgba.shape[:2], reference.rgba.shape[:2]
         raise CompareError(f"TEST is {w1}x{h1} but REFERENCE is {w2}x{h2}")
-    for role, img in (("TEST", test), ("REFERENCE", reference)):
-        if img.variance is None or img.spp is None:
-            raise CompareError(f"{role} has no variance channels")
+    kinds = [_check_variance(img, role) for role, img in (("TEST", test), ("REFERENCE", reference))]
     from scipy import stats
 
     h, w = test.rgba.shape[:2]
@@ -175,11 +202,13 @@ def compare_images(test: images.RenderImage, reference: images.RenderImage, *, a
         nonfinite = bad.any(axis=2)
         ok = ~nonfinite[..., None] & np.ones_like(bad)
         a, b = np.where(ok, a, 0.0), np.where(ok, b, 0.0)
-        sa = np.where(ok, va / np.where(ok, na, 1.0), 0.0)
-        sb = np.where(ok, vb / np.where(ok, nb, 1.0), 0.0)
-        # Welch-Satterthwaite denominators: s^2 / (n - 1); zero where a side has no noise.
-        qa = np.where(ok & (na > 1), sa * sa / np.maximum(na - 1.0, 1.0), 0.0)
-        qb = np.where(ok & (nb > 1), sb * sb / np.maximum(nb - 1.0, 1.0), 0.0)
+        # Each side's variance of the mean and its degrees of freedom: per-sample variance
+        # / spp with spp - 1, or a batch-means variance as it is with K - 1.
+        (sa, fa), (sb, fb) = (_mean_variance(v, n, ok, kind)
+                              for v, n, kind in ((va, na, kinds[0]), (vb, nb, kinds[1])))
+        # Welch-Satterthwaite denominators: s^2 / df; zero where a side has no noise.
+        qa = np.where(ok & (fa >= 1), sa * sa / np.maximum(fa, 1.0), 0.0)
+        qb = np.where(ok & (fb >= 1), sb * sb / np.maximum(fb, 1.0), 0.0)
         d = a - b
         tol = ATOL + RTOL * np.maximum(np.abs(a), np.abs(b))
         deterministic = ok & (sa + sb == 0.0)
@@ -270,6 +299,14 @@ def compare_images(test: images.RenderImage, reference: images.RenderImage, *, a
         mean_test=[v if math.isfinite(v) else 0.0 for v in mean_rgb(test)],
         mean_reference=[v if math.isfinite(v) else 0.0 for v in mean_rgb(reference)])
     return Comparison(report, pixel_t, significant, coarse & ~significant, nonfinite)
+
+
+def _mean_variance(var: np.ndarray, n: np.ndarray, ok: np.ndarray,
+                   kind: tuple[str, int | None]) -> tuple[np.ndarray, np.ndarray]:
+    """(variance of the pixel's mean, its degrees of freedom) of one side."""
+    if kind[0] == images.VARIANCE_PER_SAMPLE:
+        return np.where(ok, var / np.where(ok, n, 1.0), 0.0), n - 1.0
+    return np.where(ok, var, 0.0), np.full_like(var, float(kind[1] - 1))
 
 
 def _block_sums(x: np.ndarray, k_y: int, k_x: int) -> np.ndarray:

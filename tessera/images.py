@@ -24,6 +24,34 @@ AOV_EXR_CHANNELS = {
 VARIANCE_CHANNELS = AOV_EXR_CHANNELS["variance"]
 SPP_CHANNEL = AOV_EXR_CHANNELS["spp"][0]
 
+# What the variance channels mean, in the EXR header attribute VARIANCE_ATTRIBUTE:
+#   "per-sample": the unbiased sample variance of one sample of the pixel (variance of the
+#       mean = this / spp, spp - 1 degrees of freedom); the integrators without splats.
+#   "batch-means:K": the estimated variance of the pixel's mean itself, from the spread of
+#       K independent batch images (K - 1 degrees of freedom; protocol.VARIANCE_BATCHES);
+#       light and bdpt, whose splats land on other pixels than their samples'.
+# An EXR without the attribute (written before it existed) has no trustworthy variance:
+# light and bdpt images then carried only the camera half of their estimate.
+VARIANCE_ATTRIBUTE = "tessera:variance"
+VARIANCE_PER_SAMPLE = "per-sample"
+_BATCH_MEANS = "batch-means:"
+
+
+def batch_means_kind(batches: int) -> str:
+    return f"{_BATCH_MEANS}{int(batches)}"
+
+
+def parse_variance_kind(kind: str | None) -> tuple[str, int | None]:
+    """("per-sample", None) or ("batch-means", K); ValueError for anything else."""
+    if kind == VARIANCE_PER_SAMPLE:
+        return VARIANCE_PER_SAMPLE, None
+    if kind and kind.startswith(_BATCH_MEANS):
+        tail = kind[len(_BATCH_MEANS):]
+        if tail.isdigit() and int(tail) >= 2:
+            return "batch-means", int(tail)
+    raise ValueError(f"unknown variance kind {kind!r} (known: {VARIANCE_PER_SAMPLE}, "
+                     f"{_BATCH_MEANS}K with K >= 2)")
+
 
 def write_exr(path: str | Path, rgba: np.ndarray, metadata: dict[str, str] | None = None,
               aovs: dict[str, np.ndarray] | None = None) -> None:
@@ -66,9 +94,20 @@ def read_exr_aovs(path: str | Path) -> dict[str, np.ndarray]:
             for name, names in AOV_EXR_CHANNELS.items() if all(c in channels for c in names)}
 
 
-def render_metadata(spp: int, seed: int, scene_name: str) -> dict[str, str]:
-    """EXR header attributes describing how an image was rendered (local and farm alike)."""
-    return {"tessera:spp": str(spp), "tessera:seed": str(seed), "tessera:scene": scene_name}
+def render_metadata(spp: int, seed: int, scene_name: str, integrator: str | None = None,
+                    variance_kind: str | None = None) -> dict[str, str]:
+    """EXR header attributes describing how an image was rendered (local and farm alike):
+    spp, seed, scene, the Tessera version, the integrator as asked for (`auto` unresolved)
+    and, when the image carries variance channels, what they mean (VARIANCE_ATTRIBUTE)."""
+    from . import __version__
+
+    meta = {"tessera:spp": str(spp), "tessera:seed": str(seed), "tessera:scene": scene_name,
+            "tessera:version": __version__}
+    if integrator:
+        meta["tessera:integrator"] = integrator
+    if variance_kind:
+        meta[VARIANCE_ATTRIBUTE] = variance_kind
+    return meta
 
 
 def read_exr(path: str | Path) -> np.ndarray:
@@ -100,6 +139,8 @@ class RenderImage:
     variance: np.ndarray | None          # float32 (h, w, 3): per-sample variance
     spp: np.ndarray | None               # float32 (h, w): samples per pixel
     metadata: dict[str, str] = field(default_factory=dict)
+    # What `variance` means (VARIANCE_ATTRIBUTE); read_render takes it from the metadata.
+    variance_kind: str | None = None
 
 
 def read_render(path: str | Path, max_pixels: int | None = None) -> RenderImage:
@@ -133,7 +174,8 @@ def read_render(path: str | Path, max_pixels: int | None = None) -> RenderImage:
     rgba = np.concatenate([rgb, alpha if alpha is not None else np.ones_like(rgb[:, :, :1])], axis=2)
     variance, spp = channels(VARIANCE_CHANNELS), channels((SPP_CHANNEL,))
     return RenderImage(np.ascontiguousarray(rgba), None if variance is None else np.ascontiguousarray(variance),
-                       None if spp is None else np.ascontiguousarray(spp[:, :, 0]), metadata)
+                       None if spp is None else np.ascontiguousarray(spp[:, :, 0]), metadata,
+                       metadata.get(VARIANCE_ATTRIBUTE))
 
 
 def tonemap_srgb8(rgba: np.ndarray, exposure: float = 0.0) -> np.ndarray:

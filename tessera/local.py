@@ -12,8 +12,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from .protocol import (AOV_CHANNELS, PassAccumulator, RenderSettings, TileRect, TileResult,
-                       combine_aovs, combine_passes, image_finished, new_aov_frame, pass_range,
+from . import images
+
+from .protocol import (AOV_CHANNELS, BatchMeans, PassAccumulator, RenderSettings, TileRect, TileResult,
+                       batch_ranges, combine_aovs, combine_passes, image_finished, new_aov_frame, pass_range,
                        resolve_splats, tile_finished, tile_grid)
 
 
@@ -24,11 +26,15 @@ class LocalRenderResult:
     samples: int
     passes: int = 0
     # The per-pixel noise estimate (images.VARIANCE_CHANNELS / SPP_CHANNEL): float32
-    # (h, w, 3) per-sample variance and float32 (h, w) samples per pixel. None for the
-    # splatting integrators (light, bdpt), whose splats carry no per-pixel variance.
+    # (h, w, 3) variance and float32 (h, w) samples per pixel. `variance_kind` says what
+    # the variance is (images.VARIANCE_PER_SAMPLE: of one sample, for the integrators
+    # without splats; images.batch_means_kind(K): of the pixel's mean, from K independent
+    # batches, for light and bdpt). None when not computed.
     variance: np.ndarray | None = None
     spp: np.ndarray | None = None
     aovs: dict[str, np.ndarray] = field(default_factory=dict)  # settings.aovs, full frame
+    variance_kind: str | None = None  # see `variance`
+    integrator: str = ""  # the integrator that rendered it (`auto` resolved)
 
     @property
     def samples_per_second(self) -> float:
@@ -92,15 +98,33 @@ def _tile_passes(scene, settings: RenderSettings, rect: TileRect, threads: int, 
             return mean, var, samples, len(results)
 
 
-def render_image(scene, settings: RenderSettings, threads: int = 0, progress: bool = True) -> LocalRenderResult:
-    """Renders all tiles of `settings` with `scene` (a tessera_renderer.Scene)."""
+def render_image(scene, settings: RenderSettings, threads: int = 0, progress: bool = True,
+                 variance: bool = True) -> LocalRenderResult:
+    """Renders all tiles of `settings` with `scene` (a tessera_renderer.Scene). With
+    `variance` (the default) the result carries its noise estimate; for light and bdpt
+    that renders every sample a second time, in batches (protocol.VARIANCE_BATCHES)."""
+    want_variance = variance
     rgba = np.zeros((settings.height, settings.width, 4), dtype=np.float32)
     variance = np.zeros((settings.height, settings.width, 3), dtype=np.float32)
     spp = np.zeros((settings.height, settings.width), dtype=np.float32)
     tiles = tile_grid(settings.width, settings.height, settings.tile_size)
     integrator = scene.resolve_integrator(settings.integrator)
     if settings.lockstep or integrator in ("light", "bdpt"):
-        return _render_lockstep(scene, settings, integrator, tiles, threads, progress)
+        result = _render_lockstep(scene, settings, integrator, tiles, threads, progress)
+        if want_variance and integrator in ("light", "bdpt"):
+            started = time.perf_counter()
+            result.variance, result.variance_kind = batch_variance(scene, settings, integrator, tiles,
+                                                                   threads, result.passes)
+            result.seconds += time.perf_counter() - started
+            if "variance" in result.aovs:  # the farm's merge replaces it the same way
+                result.aovs["variance"] = (result.variance if result.variance is not None
+                                           else result.aovs["variance"])
+            result.spp = None if result.variance is None else np.full((settings.height, settings.width), result.samples
+                                 / (settings.width * settings.height), np.float32)
+        elif not want_variance:
+            result.variance = result.spp = result.variance_kind = None
+        result.integrator = integrator
+        return result
     start = time.perf_counter()
     deadline = time.monotonic() + settings.time_limit if settings.time_limit else None
     samples = passes = 0
@@ -118,7 +142,39 @@ def render_image(scene, settings: RenderSettings, threads: int = 0, progress: bo
             passes += p
             bar.update(t.width * t.height)
     seconds = time.perf_counter() - start
-    return LocalRenderResult(rgba, seconds, samples, passes, variance, spp, aovs)
+    return LocalRenderResult(rgba, seconds, samples, passes, variance, spp, aovs,
+                             variance_kind=images.VARIANCE_PER_SAMPLE, integrator=integrator)
+
+
+def _samples_per_pixel(settings: RenderSettings, passes: int) -> np.ndarray:
+    """Samples of every pixel of a lockstep render of `passes` passes (all tiles alike)."""
+    n = sum(pass_range(settings, p)[1] for p in range(passes))
+    return np.full((settings.height, settings.width), n, np.float32)
+
+
+def batch_variance(scene, settings: RenderSettings, integrator: str, tiles, threads: int,
+                   passes: int) -> tuple[np.ndarray | None, str | None]:
+    """The variance of every pixel's mean for a splatting integrator, from batch means
+    (protocol.VARIANCE_BATCHES): each pass's samples again as independent sub-ranges, each
+    a whole image (camera part + its own splats over its own light paths). Returns the
+    float32 (h, w, 3) variance and its images.batch_means_kind (None, None with one
+    sample, which cannot estimate its own variance)."""
+    height, width = settings.height, settings.width
+    acc = BatchMeans()
+    for p in range(passes):
+        for start, n in batch_ranges(*pass_range(settings, p)):
+            rgb = np.zeros((height, width, 4), np.float32)
+            splats = np.zeros((height, width, 3), np.int64)
+            for t in tiles:
+                out = scene.render_tile(t.x0, t.y0, t.width, t.height, width=width, height=height,
+                                        spp=n, seed=settings.seed, max_depth=settings.max_depth,
+                                        threads=threads, sample_start=start, integrator=integrator,
+                                        splats=splats)
+                rgb[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = out
+            image = resolve_splats(rgb, splats, width * height * n, scene.splat_exponent)
+            acc.add(image[..., :3], n)
+    var = acc.variance_of_mean()  # None from one sample: no estimate
+    return var, None if var is None else images.batch_means_kind(acc.batches)
 
 
 def paste_aovs(frame: dict[str, np.ndarray], layers: dict[str, np.ndarray], rect: TileRect) -> None:
@@ -175,10 +231,19 @@ def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, th
                 break
             p += 1
     rgba = np.zeros((height, width, 4), dtype=np.float32)
+    variance: np.ndarray | None = np.zeros((height, width, 3), dtype=np.float32)
     aovs = new_aov_frame(settings)
     for t, results in zip(tiles, per_tile):
         mean, var, _ = combine_passes(results)
         rgba[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = mean
+        if var is None:
+            variance = None
+        elif variance is not None:
+            variance[t.y0:t.y0 + t.height, t.x0:t.x0 + t.width] = var
         paste_aovs(aovs, _tile_aovs(settings, results, var), t)
     image = resolve_splats(rgba, total_splats, total_paths, scene.splat_exponent) if splatting else rgba
-    return LocalRenderResult(image, time.perf_counter() - start, samples, p + 1, aovs=aovs)
+    result = LocalRenderResult(image, time.perf_counter() - start, samples, p + 1, aovs=aovs)
+    if not splatting and variance is not None:  # per-sample variance is valid without splats
+        result.variance, result.variance_kind = variance, images.VARIANCE_PER_SAMPLE
+        result.spp = _samples_per_pixel(settings, p + 1)
+    return result

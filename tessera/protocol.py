@@ -339,6 +339,10 @@ def job_tasks(spec: JobSpec) -> list[TileTask]:
 #       over all results (exact, order-free) and normalised by the job's total light_paths
 #       (film.resolve_image). With FLAG_SPLAT_EXPONENT an int32 e follows the rect: the
 #       fixed point's unit is 2^e (the scene's splat_exponent; 0 without the flag).
+#   batches if FLAG_BATCHES (last): a u32 count, then per batch (in sample order) a u32
+#       spp, a u64 light_paths, float32 (h, w, 3) camera part, a splat rect (x0, y0, w, h),
+#       a u32 length and the zlib-compressed int64 (h, w, 3) splats of that rect (the
+#       splat section's unit); see VARIANCE_BATCHES
 #   aovs if FLAG_AOVS (version 3 only): a u32 mask (bit i: the i-th of AOV_CHANNELS'
 #       names: albedo, normal, depth, spp), then each present AOV as float32 (h, w, c)
 #       in that order (see docs/aovs.md for their meaning)
@@ -355,6 +359,7 @@ FLAG_SPLAT = 2         # splat section stored raw
 FLAG_SPLAT_ZLIB = 4    # splat section's int64 bytes zlib-compressed (u32 length first)
 FLAG_AOVS = 8          # AOV section (version 3)
 FLAG_SPLAT_EXPONENT = 16  # the splat section's unit exponent
+FLAG_BATCHES = 32      # variance batches of a splatting integrator (see VARIANCE_BATCHES)
 RESULT_VERSION_AOVS = 3
 
 # Integrators whose light paths splat onto the whole frame (and `auto`, which may be one).
@@ -378,13 +383,26 @@ class TileResult:
     light_paths: int = 0
     aovs: dict[str, np.ndarray] | None = None  # name -> float32 (h, w, c) (AOV_CHANNELS)
     splat_exponent: int = 0             # the splats' fixed-point unit is 2^splat_exponent
+    batches: list["SplatBatch"] | None = None  # variance batches (FLAG_BATCHES)
+
+
+@dataclass
+class SplatBatch:
+    """One variance batch of a tile's pass: samples [start, start + spp) of the pass's
+    range (batch_ranges), rendered on their own."""
+    spp: int
+    rgb: np.ndarray                     # float32 (h, w, 3): the camera part
+    splat_rect: tuple[int, int, int, int]
+    splat: np.ndarray                   # int64 (h, w, 3) of splat_rect, fixed point
+    light_paths: int
 
 
 def encode_tile(rect: TileRect, rgba: np.ndarray, *, pass_index: int = 0, sample_start: int = 0,
                 spp: int = 0, variance: np.ndarray | None = None,
                 splat_rect: tuple[int, int, int, int] | None = None,
                 splat: np.ndarray | None = None, light_paths: int = 0,
-                aovs: dict[str, np.ndarray] | None = None, splat_exponent: int = 0) -> bytes:
+                aovs: dict[str, np.ndarray] | None = None, splat_exponent: int = 0,
+                batches: list[SplatBatch] | None = None) -> bytes:
     rgba = np.ascontiguousarray(rgba, dtype=np.float32)
     if rgba.shape != (rect.height, rect.width, 4):
         raise ValueError(f"tile {rect.index}: pixels have shape {rgba.shape}, "
@@ -427,6 +445,17 @@ def encode_tile(rect: TileRect, rgba: np.ndarray, *, pass_index: int = 0, sample
         packed = zlib.compress(splat.tobytes(), 1)
         flags |= FLAG_SPLAT | FLAG_SPLAT_ZLIB | FLAG_SPLAT_EXPONENT
         parts += [_SPLAT_RECT.pack(*splat_rect), struct.pack("<iI", splat_exponent, len(packed)), packed]
+    if batches:
+        flags |= FLAG_BATCHES
+        parts.append(struct.pack("<I", len(batches)))
+        for b in batches:
+            rgb = np.ascontiguousarray(b.rgb, dtype=np.float32)
+            layer = np.ascontiguousarray(b.splat, dtype=np.int64)
+            if rgb.shape != (rect.height, rect.width, 3) or layer.shape != (b.splat_rect[3], b.splat_rect[2], 3):
+                raise ValueError(f"tile {rect.index}: a variance batch has the wrong shape")
+            packed = zlib.compress(layer.tobytes(), 1)
+            parts += [struct.pack("<IQ", b.spp, b.light_paths), rgb.tobytes(),
+                      _SPLAT_RECT.pack(*b.splat_rect), struct.pack("<I", len(packed)), packed]
     header = _HEADER.pack(_TILE_MAGIC, version, rect.x0, rect.y0, rect.width, rect.height,
                           pass_index, sample_start, spp, flags, light_paths)
     return header + b"".join(parts)
@@ -448,7 +477,7 @@ def decode_tile(data: bytes) -> TileResult:
     if len(data) < _HEADER.size:
         raise ValueError("tile result is truncated")
     *_, pass_index, sample_start, spp, flags, light_paths = _HEADER.unpack_from(data)
-    known = FLAG_VARIANCE | FLAG_SPLAT | FLAG_SPLAT_ZLIB | FLAG_SPLAT_EXPONENT | (
+    known = FLAG_VARIANCE | FLAG_SPLAT | FLAG_SPLAT_ZLIB | FLAG_SPLAT_EXPONENT | FLAG_BATCHES | (
         FLAG_AOVS if version >= RESULT_VERSION_AOVS else 0)
     if flags & ~known:
         raise ValueError(f"tile result v{version} has unknown flags {flags & ~known:#x}")
@@ -491,6 +520,8 @@ def decode_tile(data: bytes) -> TileResult:
         else:
             splat_offset = expected + head
             expected += head + sw * sh * 24
+    if flags & FLAG_BATCHES:
+        expected = _decode_batches(data, expected, w, h, result)
     if len(data) != expected:
         raise ValueError(f"tile result has {len(data)} bytes, expected {expected}")
     result.rgba = _floats(data, offset, (h, w, 4))
@@ -515,6 +546,69 @@ def decode_tile(data: bytes) -> TileResult:
             result.splat = np.frombuffer(data, dtype=np.int64, count=sw * sh * 3,
                                          offset=splat_offset).reshape(sh, sw, 3)
     return result
+
+
+def _decode_batches(data: bytes, offset: int, w: int, h: int, result: TileResult) -> int:
+    """Reads the FLAG_BATCHES section at `offset` into result.batches; returns its end."""
+    def need(n: int) -> None:
+        if len(data) < offset + n:
+            raise ValueError("tile result is truncated")
+    need(4)
+    (count,) = struct.unpack_from("<I", data, offset)
+    offset += 4
+    if count > 1 << 16:
+        raise ValueError(f"tile result has an impossible batch count {count}")
+    result.batches = []
+    for _ in range(count):
+        need(12 + w * h * 12 + _SPLAT_RECT.size + 4)
+        spp, light_paths = struct.unpack_from("<IQ", data, offset)
+        rgb = _floats(data, offset + 12, (h, w, 3))
+        offset += 12 + w * h * 12
+        sx, sy, sw, sh = _SPLAT_RECT.unpack_from(data, offset)
+        (packed_len,) = struct.unpack_from("<I", data, offset + _SPLAT_RECT.size)
+        offset += _SPLAT_RECT.size + 4
+        if sw < 0 or sh < 0:
+            raise ValueError("tile result has a negative splat size")
+        need(packed_len)
+        try:
+            raw = zlib.decompress(data[offset:offset + packed_len], bufsize=max(sw * sh * 24, 1))
+        except zlib.error as e:
+            raise ValueError(f"tile result has a corrupt batch splat layer: {e}") from None
+        if len(raw) != sw * sh * 24:
+            raise ValueError("tile result's batch splat layer has the wrong size")
+        offset += packed_len
+        result.batches.append(SplatBatch(spp, rgb, (sx, sy, sw, sh),
+                                         np.frombuffer(raw, dtype=np.int64).reshape(sh, sw, 3), light_paths))
+    return offset
+
+
+def batch_variance(width: int, height: int, results: list[TileResult]) -> tuple[np.ndarray, int] | None:
+    """The variance of every pixel's mean from the results' variance batches (see
+    VARIANCE_BATCHES): batch j of pass p of every tile makes one whole image, in (pass,
+    batch) order, as the local render makes it. None unless every result has batches and
+    there are at least two."""
+    if not results or any(not r.batches for r in results):
+        return None
+    exponent = splat_exponent_of(results)
+    acc = BatchMeans()
+    passes = sorted({r.pass_index for r in results})
+    for p in passes:
+        of_pass = [r for r in results if r.pass_index == p]
+        for j in range(len(of_pass[0].batches)):
+            rgb = np.zeros((height, width, 4), np.float32)
+            splats = np.zeros((height, width, 3), np.int64)
+            light_paths, n = 0, of_pass[0].batches[j].spp
+            for r in of_pass:
+                if len(r.batches) != len(of_pass[0].batches) or r.batches[j].spp != n:
+                    raise ValueError(f"tiles of pass {p} disagree on their variance batches")
+                b = r.batches[j]
+                th, tw = b.rgb.shape[:2]
+                rgb[r.y0:r.y0 + th, r.x0:r.x0 + tw, :3] = b.rgb
+                add_splats(splats, b.splat_rect, b.splat)
+                light_paths += b.light_paths
+            acc.add(resolve_splats(rgb, splats, light_paths, exponent)[..., :3], n)
+    var = acc.variance_of_mean()
+    return None if var is None else (var, acc.batches)
 
 
 def splat_layer(splats: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray]:
@@ -658,6 +752,61 @@ def tile_finished(settings: RenderSettings, pass_index: int, rgba: np.ndarray,
 # per pixel on luminance. Owen-scrambled passes are not quite independent (their union is
 # better stratified than each), which makes this estimate conservative.
 
+def variance_of_mean(s1: np.ndarray, s2: np.ndarray, samples: int, batches: int) -> np.ndarray:
+    """The batch-means estimate above: Var(M) ~= (S2 - S1^2 / N) / ((K - 1) N), float64,
+    from S1 = sum n_k I_k, S2 = sum n_k I_k^2 over K >= 2 batches of N samples in all."""
+    n = float(samples)
+    return np.maximum(s2 - s1 * (s1 / n), 0.0) / (batches - 1) / n
+
+
+# Every image's noise estimate for the splatting integrators (light, bdpt; auto when it
+# resolves to one): a light path splats onto other pixels than its camera sample's, so a
+# pixel's per-sample variance describes only its camera half. Instead every pass's sample
+# range is also rendered as VARIANCE_BATCHES independent sub-ranges (batches), each a whole
+# image of its own (camera part + its own splats normalised by its own light paths); the
+# spread of the batch images per pixel estimates the variance of the pixel's mean with
+# K - 1 degrees of freedom (K batches in all). The image itself is rendered as before.
+VARIANCE_BATCHES = 8
+
+
+def batch_ranges(sample_start: int, spp: int, batches: int = VARIANCE_BATCHES) -> list[tuple[int, int]]:
+    """A pass's samples [sample_start, sample_start + spp) as min(batches, spp) contiguous
+    (start, count) ranges of near-equal size."""
+    k = max(1, min(batches, spp))
+    base, extra = divmod(spp, k)
+    out, start = [], sample_start
+    for j in range(k):
+        n = base + (1 if j < extra else 0)
+        out.append((start, n))
+        start += n
+    return out
+
+
+@dataclass
+class BatchMeans:
+    """Per-pixel, per-channel running sums over independent batch images (S1, S2 above)."""
+
+    batches: int = 0
+    samples: int = 0
+    s1: np.ndarray | None = None  # float64: sum n_k I_k
+    s2: np.ndarray | None = None  # float64: sum n_k I_k^2
+
+    def add(self, image: np.ndarray, n: int) -> None:
+        x = np.asarray(image, dtype=np.float64)
+        if self.s1 is None:
+            self.s1, self.s2 = np.zeros_like(x), np.zeros_like(x)
+        self.s1 += n * x
+        self.s2 += n * x * x
+        self.batches += 1
+        self.samples += n
+
+    def variance_of_mean(self) -> np.ndarray | None:
+        """float32 estimated variance of the mean of all batches; None below 2 batches."""
+        if self.batches < 2 or self.s1 is None:
+            return None
+        return variance_of_mean(self.s1, self.s2, self.samples, self.batches).astype(np.float32)
+
+
 def pass_image(width: int, height: int, results: list[TileResult]) -> np.ndarray:
     """The full-frame RGBA estimate of one pass from all tiles' results of that pass."""
     full = np.zeros((height, width, 4), dtype=np.float32)
@@ -695,10 +844,8 @@ class PassAccumulator:
         two passes (one pass cannot estimate its own variance)."""
         if self.passes < 2 or self.s1 is None:
             return None
-        n = float(self.samples)
-        mean = self.s1 / n
-        sigma2 = np.maximum(self.s2 - self.s1 * mean, 0.0) / (self.passes - 1)
-        var_mean = sigma2 / n
+        var_mean = variance_of_mean(self.s1, self.s2, self.samples, self.passes)
+        mean = self.s1 / float(self.samples)
         floor = max(1e-4, 0.01 * float(np.mean(np.abs(mean))))
         return float(np.sqrt(np.mean(var_mean / np.maximum(np.abs(mean), floor) ** 2)))
 

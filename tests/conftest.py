@@ -165,7 +165,8 @@ def local_reference(form: dict):
     from tessera_renderer import load_scene
 
     settings = RenderSettings(**{k: v for k, v in form.items() if k != "priority"})
-    return render_image(load_scene(str(CORNELL)), settings, threads=0, progress=False).rgba
+    return render_image(load_scene(str(CORNELL)), settings, threads=0, progress=False,
+                        variance=False).rgba
 
 
 def farm_image(client: httpx.Client, job_id: str, tmp_path: Path):

@@ -98,11 +98,15 @@ def test_a_changed_scene_compares_different(renders, tmp_path, variant, method):
                                                          for s in report["scales"])
 
 
+def _tessera_meta(image: images.RenderImage) -> dict[str, str]:
+    return {k: v for k, v in image.metadata.items() if k.startswith("tessera:")}
+
+
 def test_a_nan_pixel_compares_different(renders, tmp_path):
     image = images.read_render(renders["seed1"])
     image.rgba[10, 20, 1] = np.nan
     bad = tmp_path / "nan.exr"
-    images.write_exr(bad, image.rgba, aovs={"variance": image.variance, "spp": image.spp})
+    images.write_exr(bad, image.rgba, _tessera_meta(image), aovs={"variance": image.variance, "spp": image.spp})
     rc, report = _compare(tmp_path, bad, renders["reference"])
     assert rc == 1
     assert report["nonfinite_pixels"] == 1 and report["first_difference"] == [20, 10]
@@ -110,7 +114,7 @@ def test_a_nan_pixel_compares_different(renders, tmp_path):
     # An infinite variance is caught the same way.
     image = images.read_render(renders["seed1"])
     image.variance[3, 4, 0] = np.inf
-    images.write_exr(bad, image.rgba, aovs={"variance": image.variance, "spp": image.spp})
+    images.write_exr(bad, image.rgba, _tessera_meta(image), aovs={"variance": image.variance, "spp": image.spp})
     rc, report = _compare(tmp_path, renders["reference"], bad)
     assert rc == 1 and report["nonfinite_pixels"] == 1
 
@@ -153,7 +157,7 @@ def _gaussian(rng, mean: np.ndarray, sigma: float, n: int) -> images.RenderImage
     samples = rng.normal(mean[None], sigma, size=(n, h, w, 3))
     rgba = np.concatenate([samples.mean(axis=0), np.ones((h, w, 1))], axis=2).astype(np.float32)
     return images.RenderImage(rgba, samples.var(axis=0, ddof=1).astype(np.float32),
-                              np.full((h, w), n, np.float32))
+                              np.full((h, w), n, np.float32), variance_kind=images.VARIANCE_PER_SAMPLE)
 
 
 def test_false_alarm_rate_is_at_most_alpha_on_gaussian_noise():
@@ -191,13 +195,14 @@ def test_zero_variance_pixels_must_agree_to_rounding():
     rgba = np.ones((4, 4, 4), np.float32)
     zero = np.zeros((4, 4, 3), np.float32)
     spp = np.full((4, 4), 4, np.float32)
-    ref = images.RenderImage(rgba, zero, spp)
-    assert not compare.compare_images(images.RenderImage(rgba.copy(), zero, spp), ref).report.differs
+    ref = images.RenderImage(rgba, zero, spp, variance_kind=images.VARIANCE_PER_SAMPLE)
+    assert not compare.compare_images(images.RenderImage(rgba.copy(), zero, spp, variance_kind="per-sample"),
+                                      ref).report.differs
     nudged = rgba.copy()
     nudged[1, 2, 0] += 5e-6                      # below ATOL + RTOL * 1 = 1.1e-5
-    assert not compare.compare_images(images.RenderImage(nudged, zero, spp), ref).report.differs
+    assert not compare.compare_images(images.RenderImage(nudged, zero, spp, variance_kind="per-sample"), ref).report.differs
     nudged[1, 2, 0] += 1e-3
-    report = compare.compare_images(images.RenderImage(nudged, zero, spp), ref).report
+    report = compare.compare_images(images.RenderImage(nudged, zero, spp, variance_kind="per-sample"), ref).report
     assert report.differs and report.exact_mismatch_pixels == 1 and report.first_difference == (2, 1)
 
 

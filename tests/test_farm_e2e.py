@@ -325,7 +325,8 @@ def test_splatting_integrators_on_the_farm_equal_a_local_render(farm, tmp_path, 
     status = wait_for_job(farm, r.json()["id"], processes=farm.processes)
     assert status["state"] == "done", status
     actual = download_exr(farm, status["id"], tmp_path / "farm.exr")
-    local = render_image(load_scene(str(CORNELL)), RenderSettings(**form), progress=False).rgba
+    local = render_image(load_scene(str(CORNELL)), RenderSettings(**form), progress=False,
+                         variance=False).rgba
     images.write_exr(tmp_path / "local.exr", local)
     assert_bit_identical(actual, images.read_exr(tmp_path / "local.exr"))
     assert actual[..., :3].mean() > 0.01
@@ -346,12 +347,23 @@ def test_farm_aovs_equal_a_local_render(farm, tmp_path, form):
     status = wait_for_job(farm, r.json()["id"], processes=farm.processes)
     assert status["state"] == "done", status
     download_exr(farm, status["id"], tmp_path / "farm.exr")
-    local = render_image(load_scene(str(CORNELL)), RenderSettings(aovs="all", **form), progress=False)
-    images.write_exr(tmp_path / "local.exr", local.rgba, aovs=local.aovs)
+    settings = RenderSettings(aovs="all", **form)
+    local = render_image(load_scene(str(CORNELL)), settings, progress=False)
+    images.write_exr(tmp_path / "local.exr", local.rgba, images.render_metadata(
+        settings.max_spp if settings.adaptive else settings.spp, settings.seed, CORNELL.name,
+        settings.integrator, local.variance_kind), aovs=local.aovs)
     farm_channels = images.read_exr_channels(tmp_path / "farm.exr")
     local_channels = images.read_exr_channels(tmp_path / "local.exr")
     assert set(farm_channels) == set(local_channels) and "N.Y" in farm_channels and "Z" in farm_channels
-    for name, values in local_channels.items():
+    for name, values in local_channels.items():  # the variance too: bdpt's from batch means
         assert_bit_identical(farm_channels[name], values)
+    # The same header: integrator, spp, seed, version and what the variance layer means.
+    farm_meta, local_meta = (
+        {k: v for k, v in images.read_render(tmp_path / f).metadata.items() if k.startswith("tessera:")}
+        for f in ("farm.exr", "local.exr"))
+    assert farm_meta == local_meta and farm_meta["tessera:integrator"] == settings.integrator
+    assert farm_meta[images.VARIANCE_ATTRIBUTE] == (
+        "batch-means:2" if settings.integrator == "bdpt" else "per-sample")  # bdpt: 2 spp, 2 batches
+    assert set(farm_meta) >= {"tessera:spp", "tessera:seed", "tessera:version"}
     if "target_error" in form:
         assert len(np.unique(farm_channels["spp"])) > 1  # tiles stopped at different passes

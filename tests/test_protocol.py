@@ -283,3 +283,39 @@ def test_pass_tasks_cover_the_grid_and_the_barrier_is_marked():
     assert all(t.pass_index == 1 and not t.decide and t.job_id == "j" for t in nxt)
 
 
+
+
+def test_variance_batches_round_trip_and_split_every_pass():
+    """FLAG_BATCHES: each batch's spp, light paths, camera part and splat layer come back
+    exactly; a reader of results without the flag sees none; a cut result is refused."""
+    assert protocol.batch_ranges(0, 16) == [(2 * j, 2) for j in range(8)]
+    assert protocol.batch_ranges(16, 3) == [(16, 1), (17, 1), (18, 1)]
+    assert sum(n for _, n in protocol.batch_ranges(5, 37)) == 37
+    rng = np.random.default_rng(3)
+    rect = TileRect(index=1, x0=8, y0=0, width=4, height=3)
+    batches = [protocol.SplatBatch(2, rng.random((3, 4, 3), dtype=np.float32), (1, 2, 5, 2),
+                                   rng.integers(0, 1 << 40, (2, 5, 3)), 24) for _ in range(3)]
+    data = encode_tile(rect, np.ones((3, 4, 4), np.float32), spp=6, batches=batches,
+                       splat_rect=(0, 0, 1, 1), splat=np.ones((1, 1, 3), np.int64), light_paths=72)
+    back = decode_tile(data)
+    assert len(back.batches) == 3 and back.splat is not None
+    for b, o in zip(back.batches, batches):
+        assert (b.spp, b.light_paths, b.splat_rect) == (o.spp, o.light_paths, o.splat_rect)
+        assert b.rgb.tobytes() == o.rgb.tobytes() and (b.splat == o.splat).all()
+    assert decode_tile(encode_tile(rect, np.ones((3, 4, 4), np.float32), spp=6)).batches is None
+    with pytest.raises(ValueError):
+        decode_tile(data[:-3])
+
+
+def test_batch_variance_is_the_spread_of_batch_images():
+    """protocol.batch_variance of one tile without splats equals the weighted sample
+    variance of its batch means divided by the batch count (equal batches)."""
+    rng = np.random.default_rng(4)
+    k, h, w = 6, 2, 3
+    means = rng.random((k, h, w, 3)).astype(np.float32)
+    result = protocol.TileResult(0, 0, np.zeros((h, w, 4), np.float32), spp=4 * k, batches=[
+        protocol.SplatBatch(4, means[j], (0, 0, 0, 0), np.zeros((0, 0, 3), np.int64), 4 * h * w)
+        for j in range(k)])
+    var, batches = protocol.batch_variance(w, h, [result])
+    assert batches == k
+    np.testing.assert_allclose(var, means.astype(np.float64).var(axis=0, ddof=1) / k, rtol=1e-5)

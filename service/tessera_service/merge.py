@@ -9,7 +9,8 @@ import numpy as np
 
 from tessera import images
 from tessera.protocol import (JobSpec, TileResult, add_splats, combine_aovs, combine_passes, decode_tile,
-                              new_aov_frame, resolve_splats, splat_exponent_of, tile_grid)
+                              batch_variance, new_aov_frame, resolve_splats, splat_exponent_of,
+                              tile_grid)
 
 
 class MergeError(Exception):
@@ -91,8 +92,34 @@ def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes], *, partial: bool
         except ValueError as e:
             raise MergeError(str(e)) from e
         full = resolve_splats(full, splats, light_paths, exponent)
+    if "variance" in aovs:
+        aovs = MergedLayers(aovs)
+        if splats is None:
+            aovs.variance_kind = images.VARIANCE_PER_SAMPLE
+        elif not partial:
+            # light and bdpt: the per-sample layer misses the splats; the batches replace it.
+            try:
+                estimate = batch_variance(s.width, s.height, [r for rs in passes.values() for r in rs])
+            except ValueError as e:
+                raise MergeError(str(e)) from e
+            if estimate is not None:
+                aovs["variance"], aovs.variance_kind = estimate[0], images.batch_means_kind(estimate[1])
     image = full
     return (image, aovs) if with_aovs else image
+
+
+class MergedLayers(dict):
+    """merge_tiles' AOV layers, with what their variance layer means (images'
+    VARIANCE_ATTRIBUTE kinds; None when it is not a valid estimate, e.g. light or bdpt
+    results rendered without batches)."""
+    variance_kind: str | None = None
+
+
+def farm_variance_kind(settings, aovs: dict | None) -> str | None:
+    """What a merged variance layer means (MergedLayers.variance_kind)."""
+    if not aovs or "variance" not in aovs:
+        return None
+    return getattr(aovs, "variance_kind", None)
 
 
 def encode_image(rgba: np.ndarray, spec: JobSpec, fmt: str, aovs: dict[str, np.ndarray] | None = None) -> bytes:
@@ -103,7 +130,8 @@ def encode_image(rgba: np.ndarray, spec: JobSpec, fmt: str, aovs: dict[str, np.n
         if fmt == "exr":
             s = spec.settings
             images.write_exr(path, rgba, images.render_metadata(
-                s.max_spp if s.adaptive else s.spp, s.seed, spec.scene_name), aovs=aovs)
+                s.max_spp if s.adaptive else s.spp, s.seed, spec.scene_name, s.integrator,
+                farm_variance_kind(s, aovs)), aovs=aovs)
         else:
             images.write_png_preview(path, rgba)
         return path.read_bytes()

@@ -123,7 +123,11 @@ def serve(conn: Connection) -> None:
                 rect, layer = splat_layer(splats)
                 # One light path per sample; the scene's fixed-point unit goes with the layer.
                 splat = (rect, layer, req["w"] * req["h"] * req["spp"], scene.splat_exponent)
-            reply = ("ok", rgba, variance, seconds, splat, layers)
+            batches = None
+            if splats is not None and req.get("batches"):
+                batches = _variance_batches(scene, req, integrator, kwargs)
+            seconds = time.perf_counter() - started
+            reply = ("ok", rgba, variance, seconds, splat, layers, batches)
         except SceneError as e:
             reply = ("error", "scene", str(e))
         except MemoryError as e:
@@ -137,6 +141,22 @@ def serve(conn: Connection) -> None:
             return
         except MemoryError:
             conn.send(("error", "memory", "out of memory sending the tile", serial))
+
+
+def _variance_batches(scene, req: dict, integrator: str, kwargs: dict) -> list:
+    """The pass's samples again as protocol.batch_ranges, each with its own splats: the
+    SplatBatch list of the tile result (protocol.VARIANCE_BATCHES)."""
+    from tessera.protocol import SplatBatch, batch_ranges
+
+    out = []
+    for start, n in batch_ranges(req["sample_start"], req["spp"]):
+        splats = np.zeros((req["height"], req["width"], 3), dtype=np.int64)
+        args = dict(kwargs, spp=n, sample_start=start, return_variance=False)
+        rgba = scene.render_tile(req["x0"], req["y0"], req["w"], req["h"], integrator=integrator,
+                                 splats=splats, **args)
+        rect, layer = splat_layer(splats)
+        out.append(SplatBatch(n, np.ascontiguousarray(rgba[..., :3]), rect, layer, req["w"] * req["h"] * n))
+    return out
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -512,7 +512,7 @@ class Worker:
         self.current = f"{job_id}/{task.tile.index}/{task.pass_index}"
         try:
             try:
-                rgba, variance, seconds, splat, aovs = self._render(task, sample_start, spp)
+                rgba, variance, seconds, splat, aovs, batches = self._render(task, sample_start, spp)
             except Abandoned:
                 log.info("job %s ended while tile %d rendered; dropped it", job_id, task.tile.index)
                 self._ack(queue, entry_id)
@@ -520,7 +520,8 @@ class Worker:
             except RenderFailed as e:
                 self._failed(task, entry_id, str(e), e.fatal)
                 return
-            final, data = self._result(task, rgba, variance, sample_start, spp, started_at, splat, aovs)
+            final, data = self._result(task, rgba, variance, sample_start, spp, started_at, splat, aovs,
+                                       batches)
         finally:
             self.current = ""
         if task.settings.lockstep:
@@ -545,6 +546,8 @@ class Worker:
                        sample_start=sample_start, seed=s.seed, max_depth=s.max_depth,
                        threads=self.threads, variance=s.adaptive or "variance" in s.aovs,
                        aovs=list(s.aovs), integrator=s.integrator,
+                       # light and bdpt: the variance layer from batches (protocol.VARIANCE_BATCHES)
+                       batches="variance" in s.aovs,
                        fault=self._fault_for(task))
         job_key = protocol.job_key(task.job_id)
 
@@ -559,7 +562,7 @@ class Worker:
         if reply[0] == "ok":
             if scene.get("blob_out"):
                 self._share_blob(task, scene["blob_out"])
-            return reply[1], reply[2], reply[3], reply[4], reply[5]
+            return reply[1], reply[2], reply[3], reply[4], reply[5], reply[6] if len(reply) > 6 else None
         _, kind, message = reply
         if kind == "scene":
             raise RenderFailed(f"cannot load scene {task.scene_name!r}: {message}", fatal=True)
@@ -571,7 +574,7 @@ class Worker:
         raise RenderFailed(message, fatal=False)
 
     def _result(self, task: TileTask, rgba, variance, sample_start: int, spp: int,
-                started_at: float | None, splat=None, aovs=None) -> tuple[bool, bytes]:
+                started_at: float | None, splat=None, aovs=None, batches=None) -> tuple[bool, bytes]:
         """Encodes the pass and decides whether the tile needs another one."""
         s, rect = task.settings, task.tile
         splat_args = {}
@@ -581,7 +584,7 @@ class Worker:
                               splat_exponent=exponent)
         data = protocol.encode_tile(rect, rgba, pass_index=task.pass_index,
                                     sample_start=sample_start, spp=spp, variance=variance, aovs=aovs,
-                                    **splat_args)
+                                    batches=batches, **splat_args)
         if not s.adaptive or s.lockstep:
             return True, data  # lockstep: the pass barrier decides (_decide)
         earlier = []
