@@ -78,7 +78,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     print(f"{scene_path.name}: {scene.num_triangles} triangles{instanced}, {scene.num_emitters} emitters; "
           f"{width}x{height}, {samples}, seed {settings.seed}", file=sys.stderr)
     try:
-        result = render_image(scene, settings, threads=args.threads, progress=not args.quiet)
+        result = render_image(scene, settings, threads=args.threads, progress=not args.quiet,
+                              variance=not args.no_variance)
     except NonFiniteSampleError as exc:
         print(f"tessera render: renderer bug: {exc}", file=sys.stderr)
         return 3
@@ -294,6 +295,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_noise_target_options(r)
     _add_integrator_option(r)
     _add_aov_option(r)
+    r.add_argument("--no-variance", action="store_true",
+                   help="write no variance layer: light and bdpt then render each sample once "
+                        "instead of twice (their variance comes from a second render in "
+                        "batches), and `tessera compare` cannot judge the image")
     r.set_defaults(func=cmd_render)
 
     from tessera_worker.settings import add_worker_options

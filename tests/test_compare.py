@@ -259,3 +259,14 @@ def test_endpoint_refuses_what_cannot_be_compared(api, renders):
     assert r.status_code == 413 and "limit" in r.json()["detail"]
     r = api.post("/compare", files={"test": ("t.exr", b"x")})
     assert r.status_code == 422
+
+
+def test_no_variance_renders_once_and_compare_refuses_it(tmp_path, capsys):
+    """`--no-variance` writes no variance layer (light and bdpt skip their batch render),
+    and compare says it cannot judge such an image instead of guessing."""
+    a = _render(CORNELL, tmp_path / "a.exr", 0, "--integrator", "bdpt", "--no-variance")
+    b = _render(CORNELL, tmp_path / "b.exr", 1, "--integrator", "bdpt")
+    assert images.read_render(a).variance is None and images.read_render(b).variance is not None
+    capsys.readouterr()
+    assert main(["compare", str(a), str(b), "--heatmap", str(tmp_path / "h.png")]) == 2
+    assert "variance" in capsys.readouterr().err
