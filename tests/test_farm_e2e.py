@@ -49,6 +49,15 @@ def reference(settings: dict) -> np.ndarray:
                                                 max_depth=settings["max_depth"], threads=0)
 
 
+def assert_farm_renders_the_cornell_box(farm, scene: Path, form: dict, out: Path) -> None:
+    """`scene` submitted with `form` finishes, and its image is the local Cornell box's."""
+    r = submit(farm, scene, **form)
+    assert r.status_code == 201, r.text
+    status = wait_for_job(farm, r.json()["id"], processes=farm.processes)
+    assert status["state"] == "done", status
+    assert_bit_identical(download_exr(farm, status["id"], out), reference(form))
+
+
 def assert_bit_identical(actual: np.ndarray, expected: np.ndarray) -> None:
     assert actual.shape == expected.shape and actual.dtype == expected.dtype == np.float32
     differ = actual.view(np.uint32) != expected.view(np.uint32)
@@ -125,12 +134,8 @@ def test_bad_scenes_fail_cleanly_and_the_farm_goes_on(farm, redis_client, tmp_pa
 
     # Everything still works afterwards.
     assert all(p.alive() for p in farm.processes), "\n".join(p.log() for p in farm.processes)
-    form = dict(width=24, height=24, spp=2, seed=0, max_depth=8, tile_size=8)
-    r = submit(farm, CORNELL, **form)
-    assert r.status_code == 201, r.text
-    status = wait_for_job(farm, r.json()["id"], processes=farm.processes)
-    assert status["state"] == "done", status
-    assert_bit_identical(download_exr(farm, status["id"], tmp_path / "after.exr"), reference(form))
+    assert_farm_renders_the_cornell_box(farm, CORNELL, dict(width=24, height=24, spp=2, seed=0, max_depth=8,
+                                                            tile_size=8), tmp_path / "after.exr")
 
 
 def test_sigterm_lets_the_worker_finish_its_tile(farm, redis_server, redis_client, tmp_path):
@@ -215,13 +220,9 @@ def test_a_layer_naming_its_stored_file_renders_as_it_passed_pre_flight(farm, tm
     other scenes: pre-flight said 201, the job failed.)"""
     scene = tmp_path / "self_reference.usda"
     scene.write_text(CORNELL.read_text() + '\ndef "Probe" (prepend references = @./scene.usda@</Cornell/Looks>) {}\n')
-    form = dict(width=16, height=16, spp=2, seed=3, max_depth=8, tile_size=8)
-    r = submit(farm, scene, **form)
-    assert r.status_code == 201, r.text
-    status = wait_for_job(farm, r.json()["id"], processes=farm.processes)
-    assert status["state"] == "done", status
     # Materials only, referenced again: the image is the plain Cornell box's.
-    assert_bit_identical(download_exr(farm, status["id"], tmp_path / "farm.exr"), reference(form))
+    assert_farm_renders_the_cornell_box(farm, scene, dict(width=16, height=16, spp=2, seed=3, max_depth=8,
+                                                          tile_size=8), tmp_path / "farm.exr")
 
 
 def test_embedded_serve_runs_a_whole_farm_and_stops_it(tmp_path):
