@@ -92,18 +92,6 @@ inline double MeanChannel(const std::vector<float>& px, int c) {
     return sum / double(px.size() / 4);
 }
 
-// The image mean of channel c rendered by path, light and bdpt (in that order) with the
-// same options otherwise: for agreement tests between the integrators.
-inline std::array<double, 3> MeansOfPathLightBDPT(const Scene& scene, const Camera& cam, RenderOptions opt, int c) {
-    std::array<double, 3> mean{};
-    const Integrator order[3] = {Integrator::kPath, Integrator::kLight, Integrator::kBDPT};
-    for (int k = 0; k < 3; ++k) {
-        opt.integrator = order[k];
-        mean[k] = MeanChannel(RenderResolved(scene, cam, opt), c);
-    }
-    return mean;
-}
-
 // Two-sided Student-t quantile: the x with P(|T| > x) = p for T ~ t(df), by bisection on
 // the CDF (Simpson's rule on the density).
 inline double StudentTCritical(double p, double df) {
