@@ -6,6 +6,7 @@ The folder sits beside the repository in CI; a missing folder is a failure, not 
 from __future__ import annotations
 
 import math
+import os
 import shutil
 import subprocess
 import sys
@@ -17,7 +18,8 @@ import pytest
 from tessera_renderer import load_scene
 
 REPO = Path(__file__).resolve().parents[1]
-SCENES = REPO.parent / "shared" / "scenes"
+# Beside the repository; TESSERA_SHARED_SCENES names it elsewhere (a git worktree, say).
+SCENES = Path(os.environ.get("TESSERA_SHARED_SCENES", REPO.parent / "shared" / "scenes"))
 
 # (folder, root layer, expected triangles or None, what else to check)
 ROOTS = [
@@ -41,6 +43,21 @@ def _discovered(folder: str, pattern: str):
     return sorted(str(p.relative_to(SCENES / folder)) for p in (SCENES / folder).glob(pattern))
 
 
+# Scenes whose render is known not to show a lit scene, with the reason (a renderer or
+# translation issue, not the scene's): strict, so a fix makes the test say so.
+KNOWN_BAD = {
+    # The camera sits inside the SphereLight "Light" (radius 25, 15 from the camera) and sees
+    # its inside as a constant emitter of 5 everywhere; UsdLux sphere lights emit outwards.
+    **{("openusd_testenv", f"testUsdImagingGLMaterialXvsNative/native{n}.usda"):
+       "camera inside a sphere light sees a constant image" for n in
+       ("Clearcoat", "Default", "Metallic", "Opacity", "Workflow")},
+    # The default camera frames the 1,000 teapots' bounds from ~1,170 away along -z: they
+    # cover under 0.1 % of a 32 x 24 image, which shows the bare dome.
+    ("usdwg_intent_vfx_instancing", "scenes/teapotScene_layout.usd"): "default camera sees almost no geometry",
+    ("usdwg_intent_vfx_instancing", "scenes/simpleAssetScene.usd"): "default camera sees almost no geometry",
+}
+
+
 def all_roots():
     assert SCENES.is_dir(), f"the shared scenes folder {SCENES} is missing (it sits beside the repository)"
     roots = list(ROOTS)
@@ -51,6 +68,15 @@ def all_roots():
     return roots
 
 
+def _params():
+    out = []
+    for folder, rel, triangles, checks in all_roots():
+        reason = KNOWN_BAD.get((folder, rel))
+        marks = [pytest.mark.xfail(reason=reason, strict=True)] if reason else []
+        out.append(pytest.param(folder, rel, triangles, checks, marks=marks, id=f"{folder}-{rel}"))
+    return out
+
+
 def test_the_scenes_folder_is_there_and_complete():
     assert SCENES.is_dir(), f"{SCENES} is missing"
     folders = {p.name for p in SCENES.iterdir() if p.is_dir()}
@@ -58,8 +84,7 @@ def test_the_scenes_folder_is_there_and_complete():
     assert len([r for r in all_roots() if r[0] == "openusd_testenv"]) == 12  # as its README lists
 
 
-@pytest.mark.parametrize("folder,rel,triangles,checks", all_roots() if SCENES.is_dir() else [],
-                         ids=lambda v: v if isinstance(v, str) else "")
+@pytest.mark.parametrize("folder,rel,triangles,checks", _params() if SCENES.is_dir() else [])
 def test_real_scene_translates_and_renders(folder, rel, triangles, checks):
     scene = load_scene(SCENES / folder / rel, frame=checks.get("frame"), root=SCENES / folder,
                        default_light=True)
@@ -72,8 +97,44 @@ def test_real_scene_translates_and_renders(folder, rel, triangles, checks):
         assert d.textures and all(Path(t["file"]).is_file() for t in d.textures)
     if "sphere_lights" in checks:
         assert len(d.sphere_lights) == checks["sphere_lights"]
-    img = scene.render_tile(0, 0, 8, 6, width=8, height=6, spp=1, max_depth=3)
+    img = scene.render_tile(0, 0, 32, 24, width=32, height=24, spp=4, max_depth=3)
     assert np.isfinite(img).all()
+    if scene.num_triangles == 0:  # nothing to see (the empty-mesh schema test)
+        assert (img[..., 3] == 0).all()
+        return
+    assert not image_faults(img), image_faults(img)
+
+
+def image_faults(img: np.ndarray) -> list[str]:
+    """Why an image does not show a lit scene: it must see geometry (alpha over 0.5 % of the
+    image), have at least 2 % of its pixels lit (luminance over 1e-3) and not be constant
+    (pixel standard deviation over 1 % of the mean). A black image fails the second, a
+    constant one (e.g. a camera inside an emitter, or the bare dome) the third."""
+    lum = img[..., :3].astype(np.float64).mean(axis=2)
+    faults = []
+    if img[..., 3].mean() < 0.005:
+        faults.append(f"sees almost no geometry (coverage {img[..., 3].mean():.4f})")
+    if (lum > 1e-3).mean() < 0.02:
+        faults.append(f"almost black (lit fraction {(lum > 1e-3).mean():.3f})")
+    if not lum.std() > 0.01 * lum.mean():
+        faults.append(f"constant (mean {lum.mean():.4g}, std {lum.std():.3g})")
+    return faults
+
+
+def test_image_faults_catches_black_and_constant_images():
+    """Negative control for the render check above: a black image, a constant one and a
+    bare sky with noise of 0.5 % all fail it; a lit object over a dark floor passes."""
+    black = np.zeros((24, 32, 4), np.float32)
+    black[..., 3] = 1
+    constant = np.full((24, 32, 4), 5.0, np.float32)
+    constant[..., 3] = 1
+    rng = np.random.default_rng(0)
+    sky = np.ones((24, 32, 4), np.float32) + rng.normal(0, 0.005, (24, 32, 4)).astype(np.float32)
+    sky[..., 3] = 0
+    assert image_faults(black) and image_faults(constant) and image_faults(sky)
+    lit = black.copy()
+    lit[8:16, 10:20, :3] = 0.6
+    assert image_faults(lit) == []
 
 
 def _world_triangles(d):

@@ -3,7 +3,10 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <array>
+#include <cmath>
+#include <cstdio>
 #include <vector>
 
 #include "render.h"
@@ -89,16 +92,77 @@ inline double MeanChannel(const std::vector<float>& px, int c) {
     return sum / double(px.size() / 4);
 }
 
-// The image mean of channel c rendered by path, light and bdpt (in that order) with the
-// same options otherwise: for agreement tests between the integrators.
-inline std::array<double, 3> MeansOfPathLightBDPT(const Scene& scene, const Camera& cam, RenderOptions opt, int c) {
-    std::array<double, 3> mean{};
-    const Integrator order[3] = {Integrator::kPath, Integrator::kLight, Integrator::kBDPT};
-    for (int k = 0; k < 3; ++k) {
-        opt.integrator = order[k];
-        mean[k] = MeanChannel(RenderResolved(scene, cam, opt), c);
+// Two-sided Student-t quantile: the x with P(|T| > x) = p for T ~ t(df), by bisection on
+// the CDF (Simpson's rule on the density).
+inline double StudentTCritical(double p, double df) {
+    const double c = std::exp(std::lgamma((df + 1) / 2) - std::lgamma(df / 2)) / std::sqrt(df * kPi);
+    auto tail = [&](double x) {  // P(T > x)
+        const int n = 4000;
+        double h = x / n, s = 0;
+        for (int i = 0; i <= n; ++i) {
+            double f = c * std::pow(1 + (i * h) * (i * h) / df, -(df + 1) / 2);
+            s += f * (i == 0 || i == n ? 1 : (i % 2 ? 4 : 2));
+        }
+        return 0.5 - s * h / 3;
+    };
+    double lo = 0, hi = 100;
+    for (int i = 0; i < 60; ++i) {
+        double mid = (lo + hi) / 2;
+        (2 * tail(mid) > p ? lo : hi) = mid;
     }
-    return mean;
+    return (lo + hi) / 2;
+}
+
+// Welch's t statistic of mean(a) - mean(b) from per-run values, with the Welch-Satterthwaite
+// degrees of freedom and the standard error of the difference.
+struct Welch {
+    double t, df, se;
+};
+inline Welch WelchT(double ma, double va, int na, double mb, double vb, int nb) {
+    double sa = va / na, sb = vb / nb, se = std::sqrt(sa + sb);
+    return {(ma - mb) / se, (sa + sb) * (sa + sb) / (sa * sa / (na - 1) + sb * sb / (nb - 1)), se};
+}
+
+// Path, light and bdpt agree on the image mean of channel c: K runs of each with
+// independent seeds (opt.seed + k), light vs path and bdpt vs path compared with Welch's t at
+// a family-wise false-alarm rate of 1e-3 (Bonferroni over the 2 comparisons). Power: each
+// comparison must detect a relative difference of 2 % (limit x standard error / mean), and
+// the negative control -- the same comparison with light or bdpt scaled by 2 % away from path
+// -- must fail; the path mean must exceed min_mean. Returns the worst detectable relative
+// difference.
+inline double ExpectPathLightBDPTAgree(const Scene& scene, const Camera& cam, RenderOptions opt, int c, int K,
+                                       double min_mean) {
+    const Integrator order[3] = {Integrator::kPath, Integrator::kLight, Integrator::kBDPT};
+    double mean[3] = {0, 0, 0}, var[3] = {0, 0, 0};
+    for (int i = 0; i < 3; ++i) {
+        std::vector<double> x;
+        RenderOptions o = opt;
+        o.integrator = order[i];
+        for (int k = 0; k < K; ++k) {
+            o.seed = opt.seed + uint32_t(k);
+            x.push_back(MeanChannel(RenderResolved(scene, cam, o), c));
+        }
+        for (double v : x) mean[i] += v / K;
+        for (double v : x) var[i] += (v - mean[i]) * (v - mean[i]) / (K - 1);
+    }
+    EXPECT_GT(mean[0], min_mean);  // not a black image
+    const double alpha = 1e-3 / 2;
+    double worst = 0;
+    for (int i = 1; i < 3; ++i) {
+        Welch w = WelchT(mean[i], var[i], K, mean[0], var[0], K);
+        const double limit = StudentTCritical(alpha, w.df);
+        EXPECT_LT(std::abs(w.t), limit) << "integrator " << int(order[i]) << ": " << mean[i] << " vs path "
+                                        << mean[0] << " (t = " << w.t << ", df " << w.df << ")";
+        const double detectable = limit * w.se / mean[0];
+        worst = std::max(worst, detectable);
+        EXPECT_LT(detectable, 0.02) << "integrator " << int(order[i]) << " detects only " << 100 * detectable << " %";
+        const double scale = mean[i] >= mean[0] ? 1.02 : 0.98;
+        Welch biased = WelchT(scale * mean[i], scale * scale * var[i], K, mean[0], var[0], K);
+        EXPECT_GT(std::abs(biased.t), StudentTCritical(alpha, biased.df))
+            << "integrator " << int(order[i]) << " x " << scale << " passes (t = " << biased.t << ")";
+    }
+    std::printf("worst detectable relative difference: %.2f %%\n", 100 * worst);
+    return worst;
 }
 
 }  // namespace tessera_test
