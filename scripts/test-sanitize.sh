@@ -9,17 +9,22 @@
 # (none is allowed unless the report is provably inside Embree or TBB; add them to
 # scripts/sanitize.supp with a comment saying why).
 #
-# Left out under the sanitizers, to keep CI time small: the two long statistical tests
+# Left out under the sanitizers, to keep CI time small: the long statistical tests
 # (BsdfChiSquare.SampleFollowsPdfForEveryBSDF, BsdfFurnace.WhiteMaterialsReflectAtMostOne:
-# about 50 s plain, 2.5 min under ASan). They run the BSDF sampling and evaluation code
-# that the other BSDF tests (reciprocity, robustness at extremes, per-lobe chi-square)
-# run under the sanitizers too, only with millions more samples; the plain ctest run
-# still runs them.
+# about 50 s plain, 2.5 min under ASan; the energy furnace over every roughness, ior and
+# angle, the emitting-box furnace and the two path/light/bdpt agreement renders: 15-24 s
+# each under ASan). They run the BSDF, sampling and integrator code that the other tests
+# (reciprocity, robustness at extremes, per-lobe chi-square, the small furnaces and
+# agreement scenes) run under the sanitizers too, only with many more samples; the plain
+# ctest run still runs them.
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 BUILD=$ROOT/build/sanitize
 SANITIZERS=address,undefined
 SLOW_TESTS="BsdfChiSquare.SampleFollowsPdfForEveryBSDF:BsdfFurnace.WhiteMaterialsReflectAtMostOne"
+SLOW_TESTS+=":PreviewSurfaceEnergy.WhiteFurnaceIsOneForEveryRoughnessIorAndAngle"
+SLOW_TESTS+=":Materials.PreviewSurfaceFurnaceIsLeOverOneMinusAlbedo"
+SLOW_TESTS+=":Integrators.PathLightAndBidirectionalAgreeForEveryLightKind:Camera.LensPathLightAndBidirectionalAgree"
 
 start=$(date +%s)
 echo "[sanitize] building the C++ tests with -fsanitize=$SANITIZERS ($BUILD)"
