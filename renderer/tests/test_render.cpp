@@ -309,6 +309,17 @@ TEST(Integrators, PathLightAndBidirectionalAgreeForEveryLightKind) {
 
 namespace {
 
+// A UsdPreviewSurface as exporters write a plain diffuse material: metallic 0, roughness 1,
+// ior 1 (no interface, so no specular): it must render as Lambert of albedo rho.
+MaterialParams PlainDiffusePreview(Color rho) {
+    MaterialParams p;
+    p.diffuse_color = rho;
+    p.metallic = 0.f;
+    p.roughness = 1.f;
+    p.ior = 1.f;
+    return p;
+}
+
 uint32_t AddPreview(SceneDesc& d, const MaterialParams& p, Color emission = Color(0.f), bool two_sided = false) {
     d.materials.push_back({p.diffuse_color, emission, two_sided, p});
     return uint32_t(d.materials.size() - 1);
@@ -358,11 +369,7 @@ TEST(Materials, SmoothMetalFurnaceIsLeOverOneMinusReflectance) {
 // control (the same check against an expectation 1 % off) must fail.
 TEST(Materials, PreviewSurfaceFurnaceIsLeOverOneMinusAlbedo) {
     for (float a : {0.5f, 0.9f}) {
-        MaterialParams wall;
-        wall.diffuse_color = Color(a);
-        wall.metallic = 0.f;
-        wall.roughness = 1.f;
-        wall.ior = 1.f;
+        const MaterialParams wall = PlainDiffusePreview(Color(a));
         SceneDesc d;
         const Color Le(0.5f, 1.f, 2.f);
         AddInwardBox(d, {-1, -2, -1.5f}, {3, 1, 2}, AddPreview(d, wall, Le, true));
@@ -385,11 +392,7 @@ TEST(Materials, PreviewSurfaceFurnaceIsLeOverOneMinusAlbedo) {
 // is noiseless (one light, one bounce), so the tolerance is 0.2 %; the negative control
 // checks that a 1 % error would be flagged.
 TEST(Materials, PreviewSurfaceUnderDistantLightIsLambert) {
-    MaterialParams p;
-    p.diffuse_color = Color(0.5f);
-    p.metallic = 0.f;
-    p.roughness = 1.f;
-    p.ior = 1.f;
+    const MaterialParams p = PlainDiffusePreview(Color(0.5f));
     SceneDesc d;
     const float s = 1000.f;
     AddQuad(d, {-s, 0, -s}, {-s, 0, s}, {s, 0, s}, {s, 0, -s}, AddPreview(d, p));
