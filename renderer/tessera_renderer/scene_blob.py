@@ -46,9 +46,10 @@ _ALIGN = 64
 _PROTO_FIELDS = ("positions", "indices", "triangle_material", "shading_normals", "uvs")
 
 
-def cache_key(scene_hash: str) -> str:
-    """The key a translated scene is stored under, for a bundle's content hash."""
-    return f"tessera:blob:v{BLOB_VERSION}.{TRANSLATOR_VERSION}:{scene_hash}"
+def format_tag() -> str:
+    """Names blob format and translator together: the farm keys translated scenes by it so
+    an upgraded worker never reads a stale blob."""
+    return f"v{BLOB_VERSION}.{TRANSLATOR_VERSION}"
 
 
 def translate_to_blob(path: str | Path, frame: float | None = None, *, root: str | Path | None = None,

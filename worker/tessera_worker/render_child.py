@@ -54,7 +54,7 @@ def _inject(fault: str) -> None:
 def _blob_api():
     try:
         from tessera_renderer import scene_blob
-        return scene_blob, f"v{scene_blob.BLOB_VERSION}.{scene_blob.TRANSLATOR_VERSION}"
+        return scene_blob, scene_blob.format_tag()
     except ImportError:
         return None, None
 
