@@ -5,6 +5,7 @@ also when a worker dies mid-job and another takes over its tile."""
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -172,25 +173,27 @@ def test_sigterm_lets_the_worker_finish_its_tile(farm, redis_server, redis_clien
 
 def test_killed_worker_tile_is_taken_over(farm, redis_client, tmp_path):
     """SIGKILL a worker mid-tile: its heartbeat expires, the other worker claims the tile,
-    and the image is still exactly the local render."""
-    victim = farm.workers["w-a"]
+    and the image is still exactly the local render. The victim hangs on its tile (fault
+    injection), so the job cannot end before the kill however fast the other worker is."""
+    farm.workers["w-a"].stop()
+    victim = farm.workers["w-a"] = start_worker(farm.redis_url, "w-a", farm.log_dir,
+                                                faults="hang:victim*.usda")
+    farm.processes[1] = victim
+    scene = tmp_path / "victim.usda"
+    shutil.copy(CORNELL, scene)
     form = dict(width=80, height=80, spp=384, seed=11, max_depth=16, tile_size=16)  # 25 tiles
-    r = submit(farm, CORNELL, **form)
+    r = submit(farm, scene, **form)
     assert r.status_code == 201, r.text
     job_id = r.json()["id"]
     queue = protocol.job_queue_key(job_id)
 
     deadline = time.monotonic() + 60
-    while True:
-        status = farm.get(f"/jobs/{job_id}").json()
-        held = redis_client.xpending_range(queue, protocol.WORKER_GROUP,
-                                           min="-", max="+", count=10, consumername="w-a")
-        if 0 < status["tiles_done"] < status["tiles_total"] and held:
-            os.kill(victim.pid, signal.SIGKILL)
-            break
-        assert status["state"] not in protocol.FINAL_STATES, f"job ended before the kill: {status}"
-        assert time.monotonic() < deadline, "w-a never held a tile"
+    while not redis_client.xpending_range(queue, protocol.WORKER_GROUP, min="-", max="+",
+                                          count=10, consumername="w-a"):
+        assert time.monotonic() < deadline, "w-a never held a tile\n" + victim.log()
         time.sleep(0.01)
+    os.kill(victim.pid, signal.SIGKILL)
+    status = farm.get(f"/jobs/{job_id}").json()
     victim.popen.wait(timeout=10)
     assert status["state"] == "running"
 

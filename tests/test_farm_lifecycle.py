@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -27,6 +28,7 @@ import redis
 from conftest import (CORNELL, STARTUP_TIMEOUT, child_pids, clean_env, is_running, farm_image, local_reference, start_api, start_worker,
                       submit, wait_for_job)
 from tessera import protocol
+from tessera_worker.worker import CLAIM_MIN_IDLE_MS
 from tessera_service.embedded import free_port, redis_server as local_redis
 
 COMMON_FAULTS = "segv:poison*.usda#1,hang:hang*.usda,oom:oom*.usda"
@@ -47,6 +49,7 @@ def farm(redis_server, tmp_path_factory):
     with httpx.Client(base_url=base, timeout=60) as client:
         client.processes = [api_proc, *workers.values()]
         client.workers = workers
+        client.redis_url = redis_server
         yield client
     for proc in [*workers.values(), api_proc]:
         proc.stop()
@@ -105,26 +108,42 @@ def test_segfaulting_tile_is_retried_then_poisons_only_its_job(farm, redis_clien
 
 
 def test_time_limit_fails_the_job_and_a_slow_tile_is_never_stolen(farm, redis_client, tmp_path):
-    """Both workers hang on a tile. For the whole time limit (6 s: three heartbeat TTLs and
-    reap intervals) the tiles stay with their live workers, delivered once; then the job
-    fails naming the limit, and the workers go on."""
+    """Both workers hang on a tile. While they do, an idle third worker's reaper looks at the
+    tiles after they have been idle longer than a claim needs, and leaves them with their
+    live workers (delivered once); then the job fails naming the limit, and the workers go
+    on."""
     reclaimed = int(redis_client.hget(protocol.STATS, "reclaimed") or 0)
-    r = submit(farm, scene_named(tmp_path, "hang.usda"), width=16, height=16, spp=1, tile_size=8)
-    assert r.status_code == 201
-    job_id = r.json()["id"]
-    queue = protocol.job_queue_key(job_id)
-    held = wait_until(lambda: redis_client.xpending_range(queue, protocol.WORKER_GROUP, "-", "+", 10),
-                      60, "no tile was picked")
-    first = {e["message_id"]: e["consumer"] for e in held}
-    longest = 0
-    while redis_client.exists(queue):
-        for e in redis_client.xpending_range(queue, protocol.WORKER_GROUP, "-", "+", 10):
-            assert e["times_delivered"] == 1, e
-            if e["message_id"] in first:
-                assert e["consumer"] == first[e["message_id"]], e
-                longest = max(longest, e["time_since_delivered"])
-        time.sleep(0.1)
-    assert longest > 4500, f"a hanging tile was seen for only {longest} ms"
+    reaper = start_worker(farm.redis_url, "w-z", tmp_path, tile_timeout=TILE_TIMEOUT)
+    try:
+        r = submit(farm, scene_named(tmp_path, "hang.usda"), width=16, height=16, spp=1, tile_size=8)
+        assert r.status_code == 201
+        job_id = r.json()["id"]
+        queue = protocol.job_queue_key(job_id)
+        hung = {"w-x", "w-y"}
+
+        def held_by_hung():
+            entries = redis_client.xpending_range(queue, protocol.WORKER_GROUP, "-", "+", 10)
+            return [e for e in entries if e["consumer"].decode() in hung]
+
+        held = wait_until(lambda: len(held_by_hung()) == 2, 60, "the hanging workers took no tiles")
+        first = {e["message_id"]: e["consumer"] for e in held_by_hung()}
+        reaps_seen = None  # w-z's reap count once both tiles could have been claimed
+        while redis_client.exists(queue):
+            entries = held_by_hung()
+            for e in entries:
+                assert e["times_delivered"] == 1, e
+                assert e["consumer"] == first.get(e["message_id"], e["consumer"]), e
+            reaps = int(redis_client.hget(protocol.worker_key("w-z"), "reaps") or 0)
+            if len(entries) == 2 and all(e["time_since_delivered"] > 2 * CLAIM_MIN_IDLE_MS
+                                         for e in entries):
+                reaps_seen = reaps_seen if reaps_seen is not None else reaps
+                if reaps > reaps_seen:
+                    break  # a reaper ran while it could have stolen both tiles, and did not
+            time.sleep(0.05)
+        assert reaps_seen is not None and reaps > reaps_seen, \
+            "the job ended before a reaper looked at its idle tiles\n" + reaper.log()
+    finally:
+        reaper.stop()
     status = wait_for_job(farm, job_id, timeout=60 + 2 * TILE_TIMEOUT, processes=farm.processes)
     assert status["state"] == "failed", status
     assert f"exceeded the per-tile time limit of {TILE_TIMEOUT:g} s" in status["error"]
@@ -340,9 +359,7 @@ def test_priority_first_then_fair_share(tmp_path):
         worker = None
         try:
             with httpx.Client(base_url=base, timeout=60) as client:
-                # 16 tiles each. Enough samples that one tile takes milliseconds: the order is
-                # read from event ids (ms-seq), whose sequence numbers are per stream, so two
-                # tiles finishing within one millisecond could not be ordered.
+                # 16 tiles each.
                 small = dict(width=32, height=32, spp=64, max_depth=4, tile_size=8)
                 ids = {}
                 for name, priority in (("low", 1), ("fair-a", 5), ("fair-b", 5), ("high", 9)):
@@ -352,14 +369,13 @@ def test_priority_first_then_fair_share(tmp_path):
                 worker = start_worker(rs.url, "solo", tmp_path)
                 for job_id in ids.values():
                     assert wait_for_job(client, job_id, processes=[worker])["state"] == "done"
-            client_redis = redis.Redis.from_url(rs.url)
-            order = []  # (event id, job) of every finished tile, in the order served
-            for name, job_id in ids.items():
-                for event_id, fields in client_redis.xrange(protocol.job_events_key(job_id)):
-                    if fields[b"type"] == b"tile":
-                        ms, seq = (int(v) for v in event_id.split(b"-"))
-                        order.append(((ms, seq), name))
-            order = [name for _, name in sorted(order)]
+            # The order served is the solo worker's own record of the tiles it rendered, one
+            # after another (event ids carry milliseconds and cannot order tiles of two jobs
+            # finished within one).
+            names = {job_id: name for name, job_id in ids.items()}
+            log = worker.log_path.read_text()
+            order = [names[job] for job in re.findall(r"job (\S+) tile \d+ pass \d+ rendered", log)]
+            assert len(order) == 64, order
             assert order[:16] == ["high"] * 16, order
             assert order[-16:] == ["low"] * 16, order
             fair = order[16:48]

@@ -1,11 +1,11 @@
-"""The farm under faults and load, with real processes: workers SIGKILLed at random while
+"""The farm under faults and load, with real processes: workers SIGKILLed mid-tile while
 ten jobs run; Redis (append-only), the API and all workers restarted mid-job; fifty jobs
 submitted at once; the `tessera submit` client. Every image must equal its local render
 bit for bit."""
 from __future__ import annotations
 
 import os
-import random
+import shutil
 import signal
 import statistics
 import subprocess
@@ -48,42 +48,46 @@ def farm(redis_server, tmp_path_factory):
         proc.stop()
 
 
-def test_chaos_random_worker_kills_while_ten_jobs_run(farm, redis_client, tmp_path):
-    """A random worker is SIGKILLed every few seconds and restarted; all ten jobs complete and
-    every image equals its local render."""
+def test_chaos_worker_kills_while_ten_jobs_run(farm, redis_client, tmp_path):
+    """Six workers are SIGKILLed in turn, each while its render process holds a tile of one of
+    ten queued jobs; then three fresh workers take over the dead workers' tiles. All ten jobs
+    complete, every image equals its local render, and no render process outlives its worker.
+    The victims hang on their tile (fault injection), so each kill is known to hit a tile in
+    flight, however fast or slow the machine."""
+    for w in farm.workers:
+        w.stop()
+    scene = tmp_path / "chaos.usda"
+    shutil.copy(CORNELL, scene)
     forms = [dict(width=48, height=48, spp=384, seed=seed, max_depth=16, tile_size=16)
              for seed in range(10)]
     ids = []
     for form in forms:
-        r = submit(farm, CORNELL, **form)
+        r = submit(farm, scene, **form)
         assert r.status_code == 201, r.text
         ids.append(r.json()["id"])
-    rng = random.Random(5)
-    kills = 0
-    orphans: list[int] = []  # render processes of killed workers
+    queues = [protocol.job_queue_key(job_id) for job_id in ids]
     reclaimed_before = int(redis_client.hget(protocol.STATS, "reclaimed") or 0)
-    deadline = time.monotonic() + 240
-    while True:
-        states = [farm.get(f"/jobs/{job_id}").json()["state"] for job_id in ids]
-        if all(s in protocol.FINAL_STATES for s in states):
-            break
-        assert time.monotonic() < deadline, f"jobs not finished: {states}\n" + \
-            "\n".join(w.log() for w in farm.workers)
-        if kills < 6:
-            # Prefer a worker that is rendering right now, so that its tile is lost.
-            busy = {w["name"] for w in farm.get("/workers").json()["workers"] if w["current"]}
-            candidates = [i for i, w in enumerate(farm.workers) if w.name in busy] or [0, 1, 2]
-            i = rng.choice(candidates)
-            victim = farm.workers[i]
-            children = child_pids(victim.pid)
-            os.kill(victim.pid, signal.SIGKILL)
-            victim.popen.wait(timeout=10)
-            victim.stop()
-            orphans.extend(children)
-            kills += 1
-            farm.workers[i] = start_worker(farm.redis_url, f"c-{i}-{kills}", farm.log_dir)
-        time.sleep(1.5)
-    assert kills >= 3, "the jobs finished before the chaos really started"
+    orphans: list[int] = []  # render processes of killed workers
+    for kill in range(6):
+        name = f"victim-{kill}"
+        victim = start_worker(farm.redis_url, name, farm.log_dir, faults="hang:chaos*.usda")
+        deadline = time.monotonic() + 60
+        while not any(redis_client.xpending_range(q, protocol.WORKER_GROUP, "-", "+", 1,
+                                                  consumername=name) for q in queues):
+            assert time.monotonic() < deadline, f"{name} never took a tile\n" + victim.log()
+            time.sleep(0.01)
+        while not (children := child_pids(victim.pid)):  # the render process of its tile
+            assert time.monotonic() < deadline, f"{name} has no render process\n" + victim.log()
+            time.sleep(0.01)
+        os.kill(victim.pid, signal.SIGKILL)
+        victim.popen.wait(timeout=10)
+        victim.stop()
+        orphans.extend(children)
+    states = [farm.get(f"/jobs/{job_id}").json()["state"] for job_id in ids]
+    assert not any(s in protocol.FINAL_STATES for s in states), states
+    farm.workers = [start_worker(farm.redis_url, f"c-{i}", farm.log_dir) for i in range(3)]
+    states = [wait_for_job(farm, job_id, timeout=240, processes=farm.workers)["state"]
+              for job_id in ids]
     assert all(s == "done" for s in states), states
     for job_id, form in zip(ids, forms):
         assert_bit_identical(farm_image(farm, job_id, tmp_path), local_reference(form),

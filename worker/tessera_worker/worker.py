@@ -797,6 +797,8 @@ class Worker:
     def _reap(self, stop: threading.Event) -> None:
         """Claims and renders the tiles held by workers whose heartbeat has expired, then
         removes those workers from the queues' groups."""
+        # Counted so that /workers and the tests can tell that a reaper looked.
+        self.redis.hincrby(protocol.worker_key(self.name), "reaps", 1)
         for job_id in [_text(j) for j in self.redis.smembers(protocol.ACTIVE)]:
             queue = protocol.job_queue_key(job_id)
             try:
