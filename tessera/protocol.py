@@ -10,7 +10,6 @@ bit for bit whatever the pass schedule.
 """
 from __future__ import annotations
 
-import math
 import re
 import struct
 import zlib
@@ -231,7 +230,8 @@ def job_tasks(spec: JobSpec) -> list[TileTask]:
 #       splats in the renderer's fixed point (tessera_renderer.film), covering that rect of
 #       the full frame (the bounding box of where the pass's light paths landed). Summed
 #       over all results (exact, order-free) and normalised by the job's total light_paths
-#       (film.resolve_image). With FLAG_SPLAT_EXPONENT an int32 e follows the rect: the
+#       (tessera.film.resolve_splats). The farm stores results with an empty splat rect and
+#       sums their layers per pass instead (tessera.film.SplatSums). With FLAG_SPLAT_EXPONENT an int32 e follows the rect: the
 #       fixed point's unit is 2^e (the scene's splat_exponent; 0 without the flag).
 #   batches if FLAG_BATCHES (last): a u32 count, then per batch (in sample order) a u32
 #       spp, a u64 light_paths, float32 (h, w, 3) camera part, a splat rect (x0, y0, w, h),

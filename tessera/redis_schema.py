@@ -26,6 +26,7 @@ Job hash fields (`job_key`), all written by the service at creation unless noted
 """
 from __future__ import annotations
 
+import re
 from functools import lru_cache
 from importlib import resources
 from typing import Literal
@@ -33,7 +34,9 @@ from typing import Literal
 import redis
 from pydantic import BaseModel, ConfigDict
 
-from .protocol import DEFAULT_PRIORITY, MAX_PRIORITY, JobState
+from .integrators import integrator_splats
+from .protocol import (AOV_CHANNELS, DEFAULT_PRIORITY, MAX_PRIORITY, VARIANCE_BATCHES, JobState,
+                       RenderSettings, pass_range)
 
 PREFIX = "tessera"
 WORKER_GROUP = "workers"                  # the consumer group on every job's queue
@@ -172,6 +175,43 @@ def result_field(tile_index: int, pass_index: int) -> str:
     return f"{tile_index}:{pass_index}"
 
 
+# ------------------------------------------------------------------ storage bound
+_RESULT_HEADER = 128   # a tile result's header and section lengths, rounded up
+_TASK_BYTES = 1024     # one queued TileTask (JSON) in the queue stream
+_EVENT_BYTES = 160     # one event stream entry
+
+
+def job_storage_bound(settings: RenderSettings) -> int:
+    """An upper bound on the bytes one job keeps in Redis (docs/farm.md, "Memory per
+    job"), from its settings alone: the service refuses a job above its budget before
+    queuing it. With P passes (the pass schedule's length), N = width * height pixels, T
+    tiles and B variance batches (protocol.VARIANCE_BATCHES with the variance AOV of a
+    splatting integrator, else 0):
+        tile results   P * (N * (16 + 12 [variance] + 4 * AOV channels + 12 * B) + T * 128)
+        splat sums     P * (1 + B) * N * 24        (splatting integrators; int64 RGB, raw)
+        lockstep sums  N * 16                      (PassAccumulator)
+        images         N * (16 + 4 * AOV channels + 4)  (cached EXR and PNG)
+        queue, events  T * (1024 + P * 160)
+    Splat sums are one full-frame layer per pass however many tiles there are (their
+    stored size is zlib'd and usually far smaller)."""
+    s = settings
+    pixels = s.width * s.height
+    tiles = -(-s.width // s.tile_size) * -(-s.height // s.tile_size)
+    passes = 0
+    while pass_range(s, passes) is not None:
+        passes += 1
+    channels = sum(AOV_CHANNELS[a] for a in s.aovs if a in AOV_CHANNELS)
+    splats = integrator_splats(s.integrator)
+    batches = VARIANCE_BATCHES if splats and "variance" in s.aovs else 0
+    variance = 12 if (s.adaptive or "variance" in s.aovs) else 0
+    results = passes * (pixels * (16 + variance + 4 * channels + 12 * batches)
+                        + tiles * _RESULT_HEADER)
+    sums = passes * (1 + batches) * pixels * 24 if splats else 0
+    lockstep = pixels * 16 if s.lockstep else 0
+    images = pixels * (16 + 4 * channels + 4 + (12 if "variance" in s.aovs else 0))
+    return results + sums + lockstep + images + tiles * (_TASK_BYTES + passes * _EVENT_BYTES)
+
+
 # ------------------------------------------------------------------ events
 class JobEvent(BaseModel):
     """One entry of a job's event stream (also sent as SSE `data`). The Lua scripts write
@@ -224,8 +264,9 @@ def script_source(name: str) -> str:
     text = "\n".join(parts)
     for key, value in _CONSTANTS.items():
         text = text.replace(f"@{key}@", str(value))
-    if "@" in text.replace("'@'", ""):
-        raise RuntimeError(f"script {name} has an unfilled @constant@")
+    left = re.search(r"@[A-Z_]+@", text)
+    if left:
+        raise RuntimeError(f"script {name} has an unfilled constant {left.group()}")
     return text
 
 

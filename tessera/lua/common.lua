@@ -1,5 +1,5 @@
 -- Helpers shared by every Tessera script (prepended by tessera.redis_schema, which also
--- fills in the @NAME@ constants once, when the scripts are loaded).
+-- fills in the named constants once, when the scripts are loaded).
 local function event(events, ...)
   redis.call('XADD', events, 'MAXLEN', '~', @EVENTS_MAXLEN@, '*', ...)
 end

@@ -2,7 +2,7 @@
 -- one served least. KEYS: ready. ARGV: worker, now, job key prefix.
 -- The one script that builds keys from ids: which job it reads is what it decides, so
 -- its keys cannot be named in advance (single-instance Redis; no cluster). The suffixes
--- are redis_schema's (@QUEUE@, @EVENTS@, @LOG@, @BLOCKLIST@).
+-- are redis_schema's.
 local me = ARGV[1]
 local cands = redis.call('ZRANGE', KEYS[1], 0, 15)
 for _, id in ipairs(cands) do
