@@ -83,8 +83,11 @@ def splat_exponent_of(results) -> int:
     return exponents.pop() if exponents else 0
 
 
-_SUM_HEADER = struct.Struct("<4siiii")  # magic, x0, y0, w, h of the non-zero rectangle
-_SUM_MAGIC = b"TSPS"
+# magic, x0, y0, w, h of the non-zero rectangle; then the rectangle's int64 values as
+# byte planes (all lowest bytes, then all second bytes, ...), zlib'd: splat values are
+# small against int64, so the high planes are nearly all zero and shrink to nothing.
+_SUM_HEADER = struct.Struct("<4siiii")
+_SUM_MAGIC = b"TSP2"
 
 
 class SplatSums:
@@ -140,7 +143,8 @@ class SplatSums:
 
     def encode(self, name: str) -> bytes:
         rect, layer = splat_layer(self.layer(name))
-        return _SUM_HEADER.pack(_SUM_MAGIC, *rect) + zlib.compress(layer.tobytes(), 1)
+        planes = np.ascontiguousarray(layer.reshape(-1).view(np.uint8).reshape(-1, 8).T)
+        return _SUM_HEADER.pack(_SUM_MAGIC, *rect) + zlib.compress(planes.tobytes(), 1)
 
     def decode_into(self, name: str, data: bytes) -> None:
         """Sets field `name` from encode()'s bytes."""
@@ -156,8 +160,10 @@ class SplatSums:
             raise ValueError(f"splat sum {name!r} is corrupt: {e}") from None
         if len(raw) != w * h * 24:
             raise ValueError(f"splat sum {name!r} has the wrong size")
+        planes = np.frombuffer(raw, np.uint8).reshape(8, -1)
+        values = np.ascontiguousarray(planes.T).view(np.int64).reshape(h, w, 3)
         full = np.zeros((self.height, self.width, 3), np.int64)
-        add_splats(full, (x0, y0, w, h), np.frombuffer(raw, np.int64).reshape(h, w, 3))
+        add_splats(full, (x0, y0, w, h), values)
         self.layers[name] = full
 
     @classmethod
