@@ -1,8 +1,10 @@
 """The embedded default: render every tile of an image in this process, no Redis or server.
 
-Uses the same tile grid, pass schedule and pass combination (tessera.protocol) as the
-farm; since pixels do not depend on tiling, the result is bit-identical to a farm render
-with the same settings (in noise-target mode too, unless a time_limit cuts passes short).
+Renders tile passes and assembles the image with the functions the farm uses
+(tessera.film.render_tile_pass and assemble_image), on the same tile grid and pass
+schedule (tessera.protocol); since pixels do not depend on tiling, the result is
+bit-identical to a farm render with the same settings (in noise-target mode too, unless a
+time_limit cuts passes short).
 """
 from __future__ import annotations
 
