@@ -72,14 +72,14 @@ class Farm:
         self.client = stack.enter_context(httpx.Client(base_url=self.base, timeout=600))
 
     def add_worker(self, name: str) -> subprocess.Popen:
-        from tessera import protocol
+        from tessera import redis_schema as rdb
 
         proc = subprocess.Popen([sys.executable, "-m", "tessera_worker", "--name", name,
                                  "--threads", "1", "--heartbeat-ttl", str(self.heartbeat_ttl),
                                  "--log-level", "WARNING"], env=self.env)
         self.procs.append(proc)
         deadline = time.monotonic() + 60
-        while not self.redis.exists(protocol.worker_key(name)):
+        while not self.redis.exists(rdb.worker_key(name)):
             if time.monotonic() > deadline:
                 raise RuntimeError(f"worker {name} did not start")
             time.sleep(0.05)
@@ -141,7 +141,7 @@ def efficiency(repeats: int, res: int, spp: int) -> dict:
 
 
 def dispatch(repeats: int, tiles: int) -> dict:
-    from tessera import protocol
+    from tessera import redis_schema as rdb
 
     side = 8 * int(tiles ** 0.5)
     per_tile, throughput = [], []
@@ -159,7 +159,7 @@ def dispatch(repeats: int, tiles: int) -> dict:
             job_id = farm.submit(width=side2, height=side2, spp=1, tile_size=8, max_depth=4)
             status = farm.wait(job_id)
             # From the first tile taken to the last stored, as the workers recorded them.
-            started, finished = farm.redis.hmget(protocol.job_key(job_id), "started_at",
+            started, finished = farm.redis.hmget(rdb.job_key(job_id), "started_at",
                                                  "finished_at")
             throughput.append(status["tiles_total"] / (float(finished) - float(started)))
     return {"dispatch_ms_per_tile": summary(per_tile), "tiles_per_second": summary(throughput),
@@ -167,7 +167,7 @@ def dispatch(repeats: int, tiles: int) -> dict:
 
 
 def recovery(repeats: int) -> dict:
-    from tessera import protocol
+    from tessera import redis_schema as rdb
 
     seconds = []
     with ExitStack() as stack, tempfile.TemporaryDirectory() as tmp:
@@ -176,11 +176,11 @@ def recovery(repeats: int) -> dict:
         farm.render(width=16, height=16, spp=1)
         for i in range(repeats):
             job_id = farm.submit(width=64, height=64, spp=2048, tile_size=32, max_depth=16)
-            queue = protocol.job_queue_key(job_id)
+            queue = rdb.job_queue_key(job_id)
             victim = entry = None
             while victim is None:
                 for name in workers:
-                    held = farm.redis.xpending_range(queue, protocol.WORKER_GROUP, "-", "+", 1,
+                    held = farm.redis.xpending_range(queue, rdb.WORKER_GROUP, "-", "+", 1,
                                                      consumername=name)
                     if held:
                         victim, entry = name, held[0]
@@ -191,7 +191,7 @@ def recovery(repeats: int) -> dict:
             workers.pop(victim).wait()
             entry_id = entry["message_id"]
             while True:
-                owner = farm.redis.xpending_range(queue, protocol.WORKER_GROUP, entry_id,
+                owner = farm.redis.xpending_range(queue, rdb.WORKER_GROUP, entry_id,
                                                   entry_id, 1)
                 if not owner or owner[0]["consumer"].decode() != victim:
                     break
@@ -207,8 +207,8 @@ def noise_target(repeats: int) -> dict:
     import numpy as np
     from tessera_renderer import load_scene
 
-    from tessera import protocol
     from tessera.local import render_tile_passes
+    from tessera import protocol
     from tessera.protocol import RenderSettings, tile_grid
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -56,14 +56,15 @@ def caustic_scene(directory: Path) -> Path:
 
 
 def render(scene, integrator: str, spp: int, seed: int, res: int) -> tuple[np.ndarray, float]:
-    from tessera_renderer.film import new_splat_buffer, resolve_image
+    from tessera.film import resolve_splats
+    from tessera_renderer.film import new_splat_buffer
 
     splats = new_splat_buffer(res, res)
     start = time.perf_counter()
     rgba = scene.render_tile(0, 0, res, res, width=res, height=res, spp=spp, seed=seed, threads=2,
                              max_depth=32, integrator=integrator, splats=splats)
     seconds = time.perf_counter() - start
-    return resolve_image(rgba, splats, res * res * spp, scene.splat_exponent), seconds
+    return resolve_splats(rgba, splats, res * res * spp, scene.splat_exponent), seconds
 
 
 def main() -> int:

@@ -288,12 +288,15 @@ def load_bench_scene(bs: BenchScene):
 
 
 def render_tessera(scene, integrator: str, spp: int, seed: int, res: int, cfg: Config) -> np.ndarray:
-    from tessera_renderer.film import SPLATTING_INTEGRATORS, new_splat_buffer, resolve_image
+    """One image as one tile pass, rendered and assembled as every Tessera render is."""
+    from .film import assemble_image, render_tile_pass
+    from .protocol import RenderSettings, TileRect
 
-    splats = new_splat_buffer(res, res) if integrator in SPLATTING_INTEGRATORS else None
-    rgba = scene.render_tile(0, 0, res, res, width=res, height=res, spp=spp, seed=seed, threads=cfg.threads,
-                             max_depth=cfg.max_depth, integrator=integrator, splats=splats)
-    return resolve_image(rgba, splats, res * res * spp, scene.splat_exponent)[..., :3]
+    settings = RenderSettings(width=res, height=res, spp=spp, seed=seed, max_depth=cfg.max_depth,
+                              tile_size=max(8, res), integrator=integrator)
+    result, _ = render_tile_pass(scene, settings, TileRect(index=0, x0=0, y0=0, width=res, height=res),
+                                 0, integrator=integrator, threads=cfg.threads)
+    return assemble_image(settings, {0: [result]}).rgba[..., :3]
 
 
 class MitsubaPeer:

@@ -145,10 +145,10 @@ def cmd_worker(args: argparse.Namespace) -> int:
 def cmd_submit(args: argparse.Namespace) -> int:
     """Uploads a scene to a farm's API; with --wait follows its progress and downloads
     the image."""
-    import json
-
     import httpx
     from tqdm import tqdm
+
+    from .redis_schema import JobEvent
 
     scene = Path(args.scene)
     token = args.token or os.environ.get("TESSERA_TOKEN")
@@ -191,12 +191,12 @@ def cmd_submit(args: argparse.Namespace) -> int:
                             for line in events.iter_lines():
                                 if not line.startswith("data: "):
                                     continue
-                                event = json.loads(line[6:])
-                                if event.get("type") == "tile":
-                                    bar.n = int(event.get("tiles_done", bar.n))
+                                event = JobEvent.model_validate_json(line[6:])
+                                if event.type == "tile" and event.tiles_done is not None:
+                                    bar.n = event.tiles_done
                                     bar.refresh()
-                                elif event.get("type") == "state":
-                                    state = event["state"]
+                                elif event.type == "state":
+                                    state = event.state
                     except httpx.TransportError:
                         pass
                     status = client.get(f"/jobs/{job['id']}").json()

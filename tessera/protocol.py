@@ -1,9 +1,7 @@
-"""The one job/tile message schema shared by the service and the workers.
-
-Everything that crosses Redis is declared here and nowhere else: the message models
-(versioned), the tile grid and pass schedule, the key layout, the encoding of tile results,
-how passes combine, and the Lua scripts that move a job through its states (so that the
-service and the workers cannot disagree about them).
+"""The one job/tile message schema shared by the service and the workers: the message
+models (versioned), the tile grid and pass schedule, the encoding of tile results and how
+passes combine. Where these live in Redis, and the scripts that move a job through its
+states, are in tessera.redis_schema; how tile results become an image, in tessera.film.
 
 Invariant: a pixel's value depends only on (scene, pixel, sample index, seed), so the
 tile grid is a scheduling choice and never changes the image. Passes are combined by
@@ -12,7 +10,6 @@ bit for bit whatever the pass schedule.
 """
 from __future__ import annotations
 
-import math
 import re
 import struct
 import zlib
@@ -22,6 +19,8 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, Field, field_validator, model_validator
 
+from .integrators import integrator_splats
+
 SCHEMA_VERSION = 2
 
 # Per-pixel outputs besides RGBA (docs/aovs.md), in canonical order, with their channel
@@ -29,49 +28,11 @@ SCHEMA_VERSION = 2
 AOV_NAMES = ("albedo", "normal", "depth", "spp", "variance")
 AOV_CHANNELS = {"albedo": 3, "normal": 3, "depth": 1, "spp": 1}  # the FLAG_AOVS section
 
-# Redis key layout. Everything Tessera stores lives under this prefix.
-PREFIX = "tessera"
-WORKER_GROUP = "workers"                  # the consumer group on every job's queue
-JOB_INDEX = f"{PREFIX}:jobs"              # sorted set: job id -> creation time
-READY = f"{PREFIX}:ready"                 # sorted set: job id -> scheduling score (see below)
-ACTIVE = f"{PREFIX}:active"               # set: ids of jobs not yet in a final state
-WORKERS = f"{PREFIX}:workers"             # set: names of workers that have registered
-STATS = f"{PREFIX}:stats"                 # hash: farm-wide counters (for /metrics)
-WAKE = f"{PREFIX}:wake"                   # list: tokens that wake idle workers (BLPOP)
-WAKE_MAX = 64
-DEAD_LETTER = f"{PREFIX}:dead"            # stream: poisoned tiles with their last error
-DEAD_LETTER_MAXLEN = 1000
-EVENTS_MAXLEN = 10000                     # per job; tile/pass/state events for SSE
-LOG_MAXLEN = 1000                         # per job; lines of the job log
-
-# Scheduling: READY's score is BAND * (MAX_PRIORITY - priority) + tiles served. The lowest
-# score is served next: higher priority first, and among equal priorities the job that has
-# been served least (fair share). A job (re)entering the ready set starts at the lowest
-# served count of its band, so it neither starves others nor waits behind them.
 MIN_PRIORITY, MAX_PRIORITY, DEFAULT_PRIORITY = 0, 9, 5
-BAND = 2 ** 40
 
 # Failure policy (per job, overridable in JobSpec).
 DEFAULT_MAX_ATTEMPTS = 3      # failed deliveries of one tile pass before the job fails
 BLOCKLIST_AFTER = 2           # failures of one job on one worker before it stops taking them
-
-
-def scene_key(scene_hash: str) -> str:
-    """Hash {name, data}: a scene stored once per content hash (TTL: the scene retention,
-    refreshed by every job that uses it)."""
-    return f"{PREFIX}:scene:{scene_hash}"
-
-
-def preflight_key(scene_hash: str) -> str:
-    """String: the pre-flight inspection result (JSON) of a scene, so that a scene that was
-    already validated is not inspected again."""
-    return f"{PREFIX}:preflight:{scene_hash}"
-
-
-def translated_scene_key(scene_hash: str, blob_version: str) -> str:
-    """String: the renderer's translated scene blob (translate once, load everywhere), per
-    blob/translator version so that an upgraded worker never reads an old blob as new."""
-    return f"{PREFIX}:translated:{blob_version}:{scene_hash}"
 
 
 # A job id is what the service hands out: uuid4().hex. Anything else names no job (and a
@@ -88,75 +49,6 @@ def scene_file_name(suffix: str) -> str:
     opened (the API's pre-flight, every worker): a loose layer sees the same bundle in both
     (one that references @./scene.usda@ passes or fails in both alike)."""
     return f"scene{suffix}"
-
-
-def job_key(job_id: str) -> str:
-    """Hash: the job's spec (JSON), state, counters and timings. Fields:
-    spec, state (JobState), priority, tiles_total, tiles_done (tiles whose last pass is
-    stored), passes_done, samples_done, warnings (JSON list), error (set when failed),
-    created_at / started_at / finished_at (unix seconds), render_seconds, retention
-    (seconds the job is kept after it ends), resume_state (while paused)."""
-    return f"{PREFIX}:job:{job_id}"
-
-
-def job_queue_key(job_id: str) -> str:
-    """Stream of the job's open TileTask messages, read through the WORKER_GROUP group.
-    Entries are deleted once acknowledged, so the stream holds only open work."""
-    return f"{PREFIX}:job:{job_id}:queue"
-
-
-def job_tiles_key(job_id: str) -> str:
-    """Hash: result_field(tile, pass) -> encoded TileResult. Written with HSETNX, so a
-    pass rendered twice (at-least-once delivery) is stored once."""
-    return f"{PREFIX}:job:{job_id}:tiles"
-
-
-def job_events_key(job_id: str) -> str:
-    """Stream of progress events: type=tile|pass|state|failure (see `JobEvent`)."""
-    return f"{PREFIX}:job:{job_id}:events"
-
-
-def job_log_key(job_id: str) -> str:
-    """List of log lines (oldest first), capped at LOG_MAXLEN."""
-    return f"{PREFIX}:job:{job_id}:log"
-
-
-def job_failures_key(job_id: str) -> str:
-    """Hash: "tile:<result field>" -> failed attempts, "worker:<name>" -> failures there."""
-    return f"{PREFIX}:job:{job_id}:failures"
-
-
-def job_passes_key(job_id: str) -> str:
-    """String: a lockstep job's PassAccumulator after its last decided pass."""
-    return f"{PREFIX}:job:{job_id}:passes"
-
-
-def job_blocklist_key(job_id: str) -> str:
-    """Set: workers that no longer take this job's tiles."""
-    return f"{PREFIX}:job:{job_id}:blocklist"
-
-
-def job_image_key(job_id: str, fmt: Literal["exr", "png"]) -> str:
-    """String: the merged image of a done job (EXR or PNG preview bytes), cached by the
-    service so that repeated downloads do not re-merge the tiles."""
-    return f"{PREFIX}:job:{job_id}:image.{fmt}"
-
-
-def job_keys(job_id: str) -> list[str]:
-    """Every key of one job (for expiry and deletion)."""
-    return [job_key(job_id), job_queue_key(job_id), job_tiles_key(job_id),
-            job_events_key(job_id), job_log_key(job_id), job_failures_key(job_id),
-            job_blocklist_key(job_id), job_passes_key(job_id), job_image_key(job_id, "exr"), job_image_key(job_id, "png")]
-
-
-def worker_key(worker_name: str) -> str:
-    """Hash with a TTL, present while the worker is alive (its heartbeat): host, pid,
-    started_at, beat_at, current ("job/tile/pass" or ""), tiles_done, failures."""
-    return f"{PREFIX}:worker:{worker_name}"
-
-
-def result_field(tile_index: int, pass_index: int) -> str:
-    return f"{tile_index}:{pass_index}"
 
 
 JobState = Literal["queued", "running", "paused", "done", "failed", "cancelled"]
@@ -231,7 +123,7 @@ class RenderSettings(BaseModel):
         paths per pixel, which per-tile stopping would break. `auto` may resolve to bdpt,
         and a farm cannot know before it loads the scene, so it is scheduled the same way
         (local renders follow the same rule, so farm and local images stay identical)."""
-        return self.adaptive and self.integrator in SPLATTING_INTEGRATORS
+        return self.adaptive and integrator_splats(self.integrator)
 
 
 def pass_range(settings: RenderSettings, pass_index: int) -> tuple[int, int] | None:
@@ -283,6 +175,7 @@ class TileTask(BaseModel):
 
     @property
     def field(self) -> str:
+        from .redis_schema import result_field  # the tiles hash's field of this pass
         return result_field(self.tile.index, self.pass_index)
 
     def to_fields(self) -> dict[str, str]:
@@ -337,7 +230,8 @@ def job_tasks(spec: JobSpec) -> list[TileTask]:
 #       splats in the renderer's fixed point (tessera_renderer.film), covering that rect of
 #       the full frame (the bounding box of where the pass's light paths landed). Summed
 #       over all results (exact, order-free) and normalised by the job's total light_paths
-#       (film.resolve_image). With FLAG_SPLAT_EXPONENT an int32 e follows the rect: the
+#       (tessera.film.resolve_splats). The farm stores results with an empty splat rect and
+#       sums their layers per pass instead (tessera.film.SplatSums). With FLAG_SPLAT_EXPONENT an int32 e follows the rect: the
 #       fixed point's unit is 2^e (the scene's splat_exponent; 0 without the flag).
 #   batches if FLAG_BATCHES (last): a u32 count, then per batch (in sample order) a u32
 #       spp, a u64 light_paths, float32 (h, w, 3) camera part, a splat rect (x0, y0, w, h),
@@ -361,13 +255,6 @@ FLAG_AOVS = 8          # AOV section (version 3)
 FLAG_SPLAT_EXPONENT = 16  # the splat section's unit exponent
 FLAG_BATCHES = 32      # variance batches of a splatting integrator (see VARIANCE_BATCHES)
 RESULT_VERSION_AOVS = 3
-
-# Integrators whose light paths splat onto the whole frame (and `auto`, which may be one).
-SPLATTING_INTEGRATORS = ("light", "bdpt", "auto")
-# The renderer's fixed-point splat scale (tessera_renderer film; kSplatScale in C++). The
-# farm normalises merged splats with it; tests/test_protocol.py pins the two together.
-SPLAT_SCALE = float(1 << 24)
-
 
 @dataclass
 class TileResult:
@@ -582,75 +469,6 @@ def _decode_batches(data: bytes, offset: int, w: int, h: int, result: TileResult
     return offset
 
 
-def batch_variance(width: int, height: int, results: list[TileResult]) -> tuple[np.ndarray, int] | None:
-    """The variance of every pixel's mean from the results' variance batches (see
-    VARIANCE_BATCHES): batch j of pass p of every tile makes one whole image, in (pass,
-    batch) order, as the local render makes it. None unless every result has batches and
-    there are at least two."""
-    if not results or any(not r.batches for r in results):
-        return None
-    exponent = splat_exponent_of(results)
-    acc = BatchMeans()
-    passes = sorted({r.pass_index for r in results})
-    for p in passes:
-        of_pass = [r for r in results if r.pass_index == p]
-        for j in range(len(of_pass[0].batches)):
-            rgb = np.zeros((height, width, 4), np.float32)
-            splats = np.zeros((height, width, 3), np.int64)
-            light_paths, n = 0, of_pass[0].batches[j].spp
-            for r in of_pass:
-                if len(r.batches) != len(of_pass[0].batches) or r.batches[j].spp != n:
-                    raise ValueError(f"tiles of pass {p} disagree on their variance batches")
-                b = r.batches[j]
-                th, tw = b.rgb.shape[:2]
-                rgb[r.y0:r.y0 + th, r.x0:r.x0 + tw, :3] = b.rgb
-                add_splats(splats, b.splat_rect, b.splat)
-                light_paths += b.light_paths
-            acc.add(resolve_splats(rgb, splats, light_paths, exponent)[..., :3], n)
-    var = acc.variance_of_mean()
-    return None if var is None else (var, acc.batches)
-
-
-def splat_layer(splats: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray]:
-    """The bounding rectangle (x0, y0, w, h) of a full-frame splat buffer's non-zero pixels
-    and that part of it (an empty rectangle when nothing landed)."""
-    nonzero = np.any(splats != 0, axis=2)
-    rows, cols = np.flatnonzero(nonzero.any(axis=1)), np.flatnonzero(nonzero.any(axis=0))
-    if len(rows) == 0:
-        return (0, 0, 0, 0), np.zeros((0, 0, 3), np.int64)
-    y0, y1, x0, x1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
-    return (x0, y0, x1 - x0, y1 - y0), np.ascontiguousarray(splats[y0:y1, x0:x1])
-
-
-def add_splats(total: np.ndarray, rect: tuple[int, int, int, int], layer: np.ndarray) -> None:
-    """Adds a splat layer into a full-frame int64 buffer (exact and order-free)."""
-    x0, y0, w, h = rect
-    if w and h:
-        total[y0:y0 + h, x0:x0 + w] += layer
-
-
-def resolve_splats(rgba: np.ndarray, splats: np.ndarray | None, light_paths: int,
-                   exponent: int) -> np.ndarray:
-    """Full-frame float32 RGBA = camera part + splats * 2^exponent * pixel_count /
-    (SPLAT_SCALE * light paths of all tiles). The renderer's film.resolve_image, for the
-    farm's side."""
-    out = np.array(rgba, dtype=np.float32, copy=True)
-    if splats is not None and light_paths > 0:
-        height, width = out.shape[:2]
-        scale = math.ldexp(width * height / (SPLAT_SCALE * light_paths), exponent)
-        out[..., :3] += (splats.astype(np.float64) * scale).astype(np.float32)
-    return out
-
-
-def splat_exponent_of(results) -> int:
-    """The splat unit exponent shared by results carrying splats (0 if none does); results
-    of one scene always share it, so a mismatch means they are not one job's."""
-    exponents = {r.splat_exponent for r in results if r.splat is not None}
-    if len(exponents) > 1:
-        raise ValueError(f"tile results disagree on the splat unit (2^{sorted(exponents)})")
-    return exponents.pop() if exponents else 0
-
-
 def _floats(data: bytes, offset: int, shape: tuple[int, ...]) -> np.ndarray:
     count = int(np.prod(shape))
     return np.frombuffer(data, dtype=np.float32, count=count, offset=offset).reshape(shape)
@@ -807,22 +625,6 @@ class BatchMeans:
         return variance_of_mean(self.s1, self.s2, self.samples, self.batches).astype(np.float32)
 
 
-def pass_image(width: int, height: int, results: list[TileResult]) -> np.ndarray:
-    """The full-frame RGBA estimate of one pass from all tiles' results of that pass."""
-    full = np.zeros((height, width, 4), dtype=np.float32)
-    splats = None
-    light_paths = 0
-    for r in results:
-        h, w = r.rgba.shape[:2]
-        full[r.y0:r.y0 + h, r.x0:r.x0 + w] = r.rgba
-        if r.splat is not None:
-            if splats is None:
-                splats = np.zeros((height, width, 3), dtype=np.int64)
-            add_splats(splats, r.splat_rect, r.splat)
-            light_paths += r.light_paths
-    return resolve_splats(full, splats, light_paths, splat_exponent_of(results)) if splats is not None else full
-
-
 @dataclass
 class PassAccumulator:
     """Running sums over the passes of a lockstep job (see above); bytes round-trip so a
@@ -875,125 +677,3 @@ def image_finished(settings: RenderSettings, pass_index: int, acc: PassAccumulat
         return True
     error = acc.error()
     return error is not None and error <= settings.target_error
-
-
-# ------------------------------------------------------------------ events
-class JobEvent(BaseModel):
-    """One entry of a job's event stream (also sent as SSE `data`)."""
-
-    type: Literal["state", "tile", "pass", "failure"]
-    state: JobState | None = None
-    tile: int | None = None
-    pass_index: int | None = None
-    samples: int | None = None
-    tiles_done: int | None = None
-    message: str | None = None
-
-
-# ------------------------------------------------------------------ state machine (Lua)
-# Shared by the service and the workers. Key names are built from the job id inside the
-# scripts (single-instance Redis; no cluster).
-LUA_HELPERS = f"""
-local P = '{PREFIX}:'
-local function jk(id) return P .. 'job:' .. id end
-local function event(id, ...)
-  redis.call('XADD', jk(id) .. ':events', 'MAXLEN', '~', {EVENTS_MAXLEN}, '*', ...)
-end
-local function logline(id, now, text)
-  local stamp = tostring(now)
-  redis.call('RPUSH', jk(id) .. ':log', stamp .. ' ' .. text)
-  redis.call('LTRIM', jk(id) .. ':log', -{LOG_MAXLEN}, -1)
-end
-local wake_tokens = {{}}
-for i = 1, 8 do wake_tokens[i] = '1' end
--- Puts a job (back) into the ready set, starting at its band's lowest served count.
-local function make_ready(id, priority)
-  local lo = {BAND} * ({MAX_PRIORITY} - tonumber(priority))
-  local first = redis.call('ZRANGEBYSCORE', '{READY}', lo, lo + {BAND} - 1, 'WITHSCORES', 'LIMIT', 0, 1)
-  local score = lo
-  if #first > 0 then score = tonumber(first[2]) end
-  redis.call('ZADD', '{READY}', 'NX', score, id)
-  -- Wakes idle workers now rather than at their next poll; capped, so it never grows.
-  redis.call('RPUSH', '{WAKE}', unpack(wake_tokens))
-  redis.call('LTRIM', '{WAKE}', -{WAKE_MAX}, -1)
-end
--- Moves a job to a final state: its open work is dropped and its keys start to expire.
-local function finish(id, state, now, err)
-  local key = jk(id)
-  if err then
-    redis.call('HSET', key, 'state', state, 'finished_at', now, 'error', err)
-  else
-    redis.call('HSET', key, 'state', state, 'finished_at', now)
-  end
-  redis.call('ZREM', '{READY}', id)
-  redis.call('SREM', '{ACTIVE}', id)
-  redis.call('DEL', key .. ':queue')
-  if err then
-    event(id, 'type', 'state', 'state', state, 'message', err)
-    logline(id, now, 'job ' .. state .. ': ' .. err)
-  else
-    event(id, 'type', 'state', 'state', state)
-    logline(id, now, 'job ' .. state)
-  end
-  local ttl = tonumber(redis.call('HGET', key, 'retention') or '0')
-  if ttl and ttl > 0 then
-    for _, suffix in ipairs({{'', ':tiles', ':events', ':log', ':failures', ':blocklist', ':passes'}}) do
-      redis.call('EXPIRE', key .. suffix, ttl)
-    end
-  end
-end
-local function is_final(state)
-  return state == 'done' or state == 'failed' or state == 'cancelled'
-end
-"""
-
-# Creates a job's ready entry after its hash and queue exist. ARGV: id, priority.
-LUA_MAKE_READY = LUA_HELPERS + """
-make_ready(ARGV[1], ARGV[2])
-return 1
-"""
-
-# ARGV: id, now, error. Fails the job unless final. Returns the state before the call.
-LUA_FAIL_JOB = LUA_HELPERS + """
-local state = redis.call('HGET', jk(ARGV[1]), 'state')
-if not state then return '' end
-if not is_final(state) then finish(ARGV[1], 'failed', ARGV[2], ARGV[3]) end
-return state
-"""
-
-# ARGV: id, now. Returns the state before the call ('' if no such job).
-LUA_CANCEL_JOB = LUA_HELPERS + """
-local state = redis.call('HGET', jk(ARGV[1]), 'state')
-if not state then return '' end
-if not is_final(state) then finish(ARGV[1], 'cancelled', ARGV[2], nil) end
-return state
-"""
-
-# Paused jobs leave the ready set; tiles already being rendered are still stored.
-# ARGV: id, now. Returns the state before the call.
-LUA_PAUSE_JOB = LUA_HELPERS + """
-local key = jk(ARGV[1])
-local state = redis.call('HGET', key, 'state')
-if not state then return '' end
-if state == 'queued' or state == 'running' then
-  redis.call('HSET', key, 'state', 'paused', 'resume_state', state)
-  redis.call('ZREM', '{READY}', ARGV[1])
-  event(ARGV[1], 'type', 'state', 'state', 'paused')
-  logline(ARGV[1], ARGV[2], 'job paused')
-end
-return state
-""".replace("{READY}", READY)
-
-LUA_RESUME_JOB = LUA_HELPERS + """
-local key = jk(ARGV[1])
-local state = redis.call('HGET', key, 'state')
-if not state then return '' end
-if state == 'paused' then
-  local back = redis.call('HGET', key, 'resume_state') or 'queued'
-  redis.call('HSET', key, 'state', back)
-  make_ready(ARGV[1], redis.call('HGET', key, 'priority') or '5')
-  event(ARGV[1], 'type', 'state', 'state', back)
-  logline(ARGV[1], ARGV[2], 'job resumed')
-end
-return state
-"""

@@ -12,6 +12,8 @@ import pytest
 import redis
 
 from tessera import protocol
+
+from tessera import redis_schema as rdb
 from tessera_service.embedded import free_port, redis_server as _redis_server, stop_processes
 
 REPO = Path(__file__).resolve().parents[1]
@@ -22,7 +24,7 @@ STARTUP_TIMEOUT = 30.0
 # (API, workers, Redis restarts, network namespaces), the bench, the fuzz campaign or
 # long statistical renders; a test elsewhere may carry @pytest.mark.slow itself.
 SLOW_MODULES = {"test_farm_e2e", "test_farm_lifecycle", "test_farm_resilience", "test_farm_netns",
-                "test_farm_openapi", "test_bundles_farm", "test_bench", "test_fuzz", "test_caustic", "test_compare_integrators",
+                "test_farm_openapi", "test_farm_storage", "test_bundles_farm", "test_bench", "test_fuzz", "test_caustic", "test_compare_integrators",
                 "test_integrators"}
 
 
@@ -126,7 +128,7 @@ def start_worker(redis_url: str, name: str, log_dir: Path, heartbeat_ttl: float 
     client = redis.Redis.from_url(watch_url or redis_url)
     deadline = time.monotonic() + STARTUP_TIMEOUT
     try:
-        while not client.exists(protocol.worker_key(name)):
+        while not client.exists(rdb.worker_key(name)):
             assert proc.alive(), f"worker {name} exited at startup\n" + proc.log()
             assert time.monotonic() < deadline, f"worker {name} did not start\n" + proc.log()
             time.sleep(0.05)

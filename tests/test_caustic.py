@@ -25,7 +25,8 @@ import pytest
 from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade
 
 from tessera_renderer import load_scene
-from tessera_renderer.film import new_splat_buffer, resolve_image
+from tessera.film import resolve_splats
+from tessera_renderer.film import new_splat_buffer
 from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, new_stage
 
 W = H = 48
@@ -98,7 +99,7 @@ def render(scene, integrator: str, seed: int) -> np.ndarray:
     splats = new_splat_buffer(W, H) if integrator != "path" else None
     img = scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, max_depth=8, threads=2,
                             integrator=integrator, splats=splats)
-    return resolve_image(img, splats, W * H * spp, scene.splat_exponent) if splats is not None else img
+    return resolve_splats(img, splats, W * H * spp, scene.splat_exponent) if splats is not None else img
 
 
 def student_t_quantile(p: float, df: float) -> float:

@@ -21,6 +21,7 @@ import pytest
 from conftest import (CORNELL, STARTUP_TIMEOUT, Process, child_pids, clean_env, is_running, start_api,
                       start_worker, submit, wait_for_job)
 from tessera import images, protocol
+from tessera import redis_schema as rdb
 from tessera.protocol import JobSpec, RenderSettings
 from tessera_renderer import load_scene
 from tessera_service.embedded import free_port
@@ -101,13 +102,14 @@ def test_farm_image_equals_local_render(farm, redis_client, tmp_path):
     # which the other workers load without parsing USD.
     from tessera_renderer import scene_blob
     version = f"v{scene_blob.BLOB_VERSION}.{scene_blob.TRANSLATOR_VERSION}"
-    spec = protocol.JobSpec.model_validate_json(redis_client.hget(protocol.job_key(job["id"]), "spec"))
-    blob = redis_client.get(protocol.translated_scene_key(spec.scene_hash, version))
+    spec = protocol.JobSpec.model_validate_json(redis_client.hget(rdb.job_key(job["id"]), "spec"))
+    blob = redis_client.hget(rdb.scene_key(spec.scene_hash), rdb.translated_field(version))
     assert blob and blob.startswith(scene_blob.MAGIC)
-    assert redis_client.pttl(protocol.translated_scene_key(spec.scene_hash, version)) > 0
+    # In the scene's hash: it expires with the scene, once no job holds it.
+    assert redis_client.pttl(rdb.scene_key(spec.scene_hash)) > 0
 
     # The merged files are cached: the same bytes again, without re-merging.
-    assert redis_client.exists(protocol.job_image_key(job["id"], "exr"))
+    assert redis_client.exists(rdb.job_image_key(job["id"], "exr"))
     assert farm.get(f"/jobs/{job['id']}/image.exr").content == (tmp_path / "farm.exr").read_bytes()
 
 
@@ -146,10 +148,10 @@ def test_sigterm_lets_the_worker_finish_its_tile(farm, redis_server, redis_clien
         r = submit(farm, CORNELL, width=64, height=64, spp=384, seed=5, max_depth=16, tile_size=16)
         assert r.status_code == 201, r.text
         job_id = r.json()["id"]
-        queue = protocol.job_queue_key(job_id)
+        queue = rdb.job_queue_key(job_id)
         deadline = time.monotonic() + 60
         while not (held := redis_client.xpending_range(
-                queue, protocol.WORKER_GROUP, min="-", max="+", count=10, consumername="w-c")):
+                queue, rdb.WORKER_GROUP, min="-", max="+", count=10, consumername="w-c")):
             assert time.monotonic() < deadline, "w-c never held a tile\n" + worker.log()
             time.sleep(0.01)
         entry_id = held[0]["message_id"]
@@ -159,12 +161,12 @@ def test_sigterm_lets_the_worker_finish_its_tile(farm, redis_server, redis_clien
         worker.popen.send_signal(signal.SIGTERM)
         assert worker.popen.wait(timeout=30) == 0, worker.log()
         assert f"job {job_id} tile {task.tile.index} pass 0 rendered" in worker.log(200), worker.log()
-        assert redis_client.hexists(protocol.job_tiles_key(job_id), task.field)
-        assert not redis_client.exists(protocol.worker_key("w-c"))
-        assert not redis_client.sismember(protocol.WORKERS, "w-c")
+        assert redis_client.hexists(rdb.job_tiles_key(job_id), task.field)
+        assert not redis_client.exists(rdb.worker_key("w-c"))
+        assert not redis_client.sismember(rdb.WORKERS, "w-c")
         if redis_client.exists(queue):
             assert all(c["name"] != b"w-c" for c in
-                       redis_client.xinfo_consumers(queue, protocol.WORKER_GROUP))
+                       redis_client.xinfo_consumers(queue, rdb.WORKER_GROUP))
         status = wait_for_job(farm, job_id, processes=farm.processes)
         assert status["state"] == "done", status
     finally:
@@ -185,10 +187,10 @@ def test_killed_worker_tile_is_taken_over(farm, redis_client, tmp_path):
     r = submit(farm, scene, **form)
     assert r.status_code == 201, r.text
     job_id = r.json()["id"]
-    queue = protocol.job_queue_key(job_id)
+    queue = rdb.job_queue_key(job_id)
 
     deadline = time.monotonic() + 60
-    while not redis_client.xpending_range(queue, protocol.WORKER_GROUP, min="-", max="+",
+    while not redis_client.xpending_range(queue, rdb.WORKER_GROUP, min="-", max="+",
                                           count=10, consumername="w-a"):
         assert time.monotonic() < deadline, "w-a never held a tile\n" + victim.log()
         time.sleep(0.01)
@@ -205,10 +207,10 @@ def test_killed_worker_tile_is_taken_over(farm, redis_client, tmp_path):
     # The done job's queue is gone, the dead worker's heartbeat has expired and the
     # reapers forget it.
     assert not redis_client.exists(queue)
-    assert not redis_client.exists(protocol.worker_key("w-a"))
-    assert int(redis_client.hget(protocol.STATS, "reclaimed") or 0) >= 1
+    assert not redis_client.exists(rdb.worker_key("w-a"))
+    assert int(redis_client.hget(rdb.STATS, "reclaimed") or 0) >= 1
     deadline = time.monotonic() + 10
-    while redis_client.sismember(protocol.WORKERS, "w-a"):
+    while redis_client.sismember(rdb.WORKERS, "w-a"):
         assert time.monotonic() < deadline, "the dead worker's name was left behind"
         time.sleep(0.1)
     # Restart it for the tests that follow.

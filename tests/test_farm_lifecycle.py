@@ -28,6 +28,7 @@ import redis
 from conftest import (CORNELL, STARTUP_TIMEOUT, child_pids, clean_env, is_running, farm_image, local_reference, start_api, start_worker,
                       submit, wait_for_job)
 from tessera import protocol
+from tessera import redis_schema as rdb
 from tessera_worker.worker import CLAIM_MIN_IDLE_MS
 from tessera_service.embedded import free_port, redis_server as local_redis
 
@@ -94,7 +95,7 @@ def test_segfaulting_tile_is_retried_then_poisons_only_its_job(farm, redis_clien
     # The other job is unaffected, and so are the workers (only their render child died).
     assert wait_for_job(farm, healthy.json()["id"], processes=farm.processes)["state"] == "done"
     assert_farm_alive(farm)
-    dead = redis_client.xrange(protocol.DEAD_LETTER)
+    dead = redis_client.xrange(rdb.DEAD_LETTER)
     assert any(f[b"job"].decode() == poison.json()["id"] and f[b"tile"] == b"1" for _, f in dead)
     log = farm.get(f"/jobs/{poison.json()['id']}/log").json()["lines"]
     assert sum("tile 1 attempt" in line and "SIGSEGV" in line for line in log) == 3, log
@@ -112,17 +113,17 @@ def test_time_limit_fails_the_job_and_a_slow_tile_is_never_stolen(farm, redis_cl
     tiles after they have been idle longer than a claim needs, and leaves them with their
     live workers (delivered once); then the job fails naming the limit, and the workers go
     on."""
-    reclaimed = int(redis_client.hget(protocol.STATS, "reclaimed") or 0)
+    reclaimed = int(redis_client.hget(rdb.STATS, "reclaimed") or 0)
     reaper = start_worker(farm.redis_url, "w-z", tmp_path, tile_timeout=TILE_TIMEOUT)
     try:
         r = submit(farm, scene_named(tmp_path, "hang.usda"), width=16, height=16, spp=1, tile_size=8)
         assert r.status_code == 201
         job_id = r.json()["id"]
-        queue = protocol.job_queue_key(job_id)
+        queue = rdb.job_queue_key(job_id)
         hung = {"w-x", "w-y"}
 
         def held_by_hung():
-            entries = redis_client.xpending_range(queue, protocol.WORKER_GROUP, "-", "+", 10)
+            entries = redis_client.xpending_range(queue, rdb.WORKER_GROUP, "-", "+", 10)
             return [e for e in entries if e["consumer"].decode() in hung]
 
         held = wait_until(lambda: len(held_by_hung()) == 2, 60, "the hanging workers took no tiles")
@@ -133,7 +134,7 @@ def test_time_limit_fails_the_job_and_a_slow_tile_is_never_stolen(farm, redis_cl
             for e in entries:
                 assert e["times_delivered"] == 1, e
                 assert e["consumer"] == first.get(e["message_id"], e["consumer"]), e
-            reaps = int(redis_client.hget(protocol.worker_key("w-z"), "reaps") or 0)
+            reaps = int(redis_client.hget(rdb.worker_key("w-z"), "reaps") or 0)
             if len(entries) == 2 and all(e["time_since_delivered"] > 2 * CLAIM_MIN_IDLE_MS
                                          for e in entries):
                 reaps_seen = reaps_seen if reaps_seen is not None else reaps
@@ -148,7 +149,7 @@ def test_time_limit_fails_the_job_and_a_slow_tile_is_never_stolen(farm, redis_cl
     assert status["state"] == "failed", status
     assert f"exceeded the per-tile time limit of {TILE_TIMEOUT:g} s" in status["error"]
     assert "of 'hang.usda'" in status["error"]
-    assert int(redis_client.hget(protocol.STATS, "reclaimed") or 0) == reclaimed
+    assert int(redis_client.hget(rdb.STATS, "reclaimed") or 0) == reclaimed
     assert_farm_alive(farm)
 
 
@@ -193,13 +194,13 @@ def test_cancel_stops_outstanding_work_promptly(farm, redis_client):
         return len(current) == 2 and all(c.startswith(job_id) for c in current)
 
     wait_until(both_rendering, 60, "the workers never both rendered the job")
-    stored = redis_client.hlen(protocol.job_tiles_key(job_id))
+    stored = redis_client.hlen(rdb.job_tiles_key(job_id))
     assert farm.delete(f"/jobs/{job_id}").json()["state"] == "cancelled"
-    assert not redis_client.exists(protocol.job_queue_key(job_id))
+    assert not redis_client.exists(rdb.job_queue_key(job_id))
     for name, proc in farm.workers.items():
         wait_until(lambda: f"job {job_id} ended while tile" in proc.log(400), 30,
                    f"{name} did not abandon its tile\n" + proc.log())
-    assert redis_client.hlen(protocol.job_tiles_key(job_id)) == stored
+    assert redis_client.hlen(rdb.job_tiles_key(job_id)) == stored
     events = farm.get(f"/jobs/{job_id}/events").text
     assert '"state": "cancelled"' in events
     assert_farm_alive(farm)
@@ -210,10 +211,10 @@ def test_pause_and_resume(farm, redis_client, tmp_path):
     r = submit(farm, CORNELL, **form)
     job_id = r.json()["id"]
     assert farm.post(f"/jobs/{job_id}/pause").json()["state"] == "paused"
-    assert redis_client.zscore(protocol.READY, job_id) is None
+    assert redis_client.zscore(rdb.READY, job_id) is None
     # Whatever was picked before the pause is stored; then nothing more is served.
-    queue = protocol.job_queue_key(job_id)
-    wait_until(lambda: redis_client.xpending(queue, protocol.WORKER_GROUP)["pending"] == 0,
+    queue = rdb.job_queue_key(job_id)
+    wait_until(lambda: redis_client.xpending(queue, rdb.WORKER_GROUP)["pending"] == 0,
                30, "tiles picked before the pause were not finished")
     before = farm.get(f"/jobs/{job_id}").json()
     assert before["state"] == "paused" and before["tiles_done"] < 64
@@ -293,7 +294,7 @@ def test_noise_target_passes_equal_the_local_render(farm, redis_client, tmp_path
     assert status["state"] == "done", status
     # Tiles converge unevenly: more passes than tiles, fewer than the full schedule.
     assert 9 < status["passes_done"] < 9 * 5, status
-    fields = redis_client.hkeys(protocol.job_tiles_key(job_id))
+    fields = redis_client.hkeys(rdb.job_tiles_key(job_id))
     assert len(fields) == status["passes_done"]
     assert_bit_identical(farm_image(farm, job_id, tmp_path), local_reference(form))
 
@@ -311,12 +312,12 @@ def test_lockstep_noise_target_equals_the_local_render(farm, redis_client, tmp_p
     status = wait_for_job(farm, job_id, processes=farm.processes)
     assert status["state"] == "done", status
     assert status["tiles_done"] == status["tiles_total"] == 4
-    fields = {f.decode() for f in redis_client.hkeys(protocol.job_tiles_key(job_id))}
+    fields = {f.decode() for f in redis_client.hkeys(rdb.job_tiles_key(job_id))}
     passes = status["passes_done"] // 4
     assert status["passes_done"] == 4 * passes and passes >= 2, status
     assert fields == {f"{t}:{p}" for t in range(4) for p in range(passes)}
     assert passes < 8, "the target should stop it before max_spp (2..256 is 8 passes)"
-    acc = protocol.PassAccumulator.from_bytes(redis_client.get(protocol.job_passes_key(job_id)))
+    acc = protocol.PassAccumulator.from_bytes(redis_client.get(rdb.job_passes_key(job_id)))
     assert acc.passes == passes and acc.error() <= form["target_error"]
     local = local_reference(form)
     assert_bit_identical(farm_image(farm, job_id, tmp_path), local)
@@ -326,15 +327,17 @@ def test_a_pass_barrier_applies_once(redis_client):
     """At-least-once delivery may hand a lockstep barrier out twice (a worker that dies
     after applying it but before its ack): the second application queues nothing and
     leaves the accumulator alone. Run against the worker's own script on a real Redis."""
-    from tessera_worker.worker import _DECIDE
-
-    decide = redis_client.register_script(_DECIDE)
+    scripts = rdb.Scripts(redis_client)
     job = "barrier-once"
-    key, queue = protocol.job_key(job), protocol.job_queue_key(job)
-    redis_client.delete(key, queue, protocol.job_passes_key(job))
+    keys = rdb.job_script_keys(job, "no-scene")
+
+    def decide(args):
+        return scripts.decide_pass(keys=keys, args=args)
+    key, queue = rdb.job_key(job), rdb.job_queue_key(job)
+    redis_client.delete(key, queue, rdb.job_passes_key(job))
     # Paused, so that the module's running workers never see this job's fake tasks.
     redis_client.hset(key, mapping={"state": "paused", "tiles_total": 2, "priority": 5})
-    redis_client.xgroup_create(queue, protocol.WORKER_GROUP, id="0", mkstream=True)
+    redis_client.xgroup_create(queue, rdb.WORKER_GROUP, id="0", mkstream=True)
     entry = redis_client.xadd(queue, {"task": "barrier"})
     args = [job, 0, 0, repr(time.time()), entry, b"acc-after-pass-0", "t0", "t1"]
     assert decide(args=args) == 0
@@ -342,12 +345,12 @@ def test_a_pass_barrier_applies_once(redis_client):
     again = redis_client.xadd(queue, {"task": "barrier"})
     assert decide(args=[job, 0, 0, repr(time.time()), again, b"other", "t0", "t1"]) == -1
     assert [f[b"task"] for _, f in redis_client.xrange(queue)] == [b"t0", b"t1"]
-    assert redis_client.get(protocol.job_passes_key(job)) == b"acc-after-pass-0"
+    assert redis_client.get(rdb.job_passes_key(job)) == b"acc-after-pass-0"
     # The next pass's barrier finishes the job.
     last = redis_client.xadd(queue, {"task": "barrier"})
     assert decide(args=[job, 1, 1, repr(time.time()), last, b"acc-after-pass-1"]) == 1
     assert redis_client.hget(key, "state") == b"done" and redis_client.hget(key, "tiles_done") == b"2"
-    redis_client.delete(*protocol.job_keys(job))
+    redis_client.delete(*rdb.job_keys(job))
 
 
 # ------------------------------------------------------------------ priorities
@@ -423,11 +426,11 @@ def test_preflight_result_is_cached_by_scene_hash(farm, redis_client, tmp_path):
     scene_hash = hashlib.sha256(scene.read_bytes()).hexdigest()
     r = submit(farm, scene, width=16, height=16, spp=1, tile_size=16)
     assert r.status_code == 201
-    cached = json.loads(redis_client.get(protocol.preflight_key(scene_hash)))
+    cached = json.loads(redis_client.get(rdb.preflight_key(scene_hash)))
     assert (cached["width"], cached["height"]) == (512, 512)
-    assert 0 < redis_client.ttl(protocol.preflight_key(scene_hash))
+    assert 0 < redis_client.ttl(rdb.preflight_key(scene_hash))
     # Proof that the inspection is skipped: a doctored cache entry is believed.
-    redis_client.set(protocol.preflight_key(scene_hash),
+    redis_client.set(rdb.preflight_key(scene_hash),
                      json.dumps({**cached, "width": 24, "height": 8, "warnings": ["cached!"]}))
     r = submit(farm, scene, spp=1, tile_size=8)
     assert r.status_code == 201
@@ -443,14 +446,14 @@ def test_finished_jobs_expire(redis_server, redis_client, tmp_path):
             job_id = r.json()["id"]
             # Cancelled, or done if a worker was quicker: either way it is final now.
             assert client.delete(f"/jobs/{job_id}").json()["state"] in ("cancelled", "done")
-            for key in (protocol.job_key(job_id), protocol.job_events_key(job_id),
-                        protocol.job_log_key(job_id)):
+            for key in (rdb.job_key(job_id), rdb.job_events_key(job_id),
+                        rdb.job_log_key(job_id)):
                 assert 0 < redis_client.pttl(key) <= 2000, key
-            wait_until(lambda: not redis_client.exists(protocol.job_key(job_id)), 30,
+            wait_until(lambda: not redis_client.exists(rdb.job_key(job_id)), 30,
                        "the job did not expire")
             assert client.get(f"/jobs/{job_id}").status_code == 404
             assert job_id not in [j["id"] for j in client.get("/jobs").json()["jobs"]]
-            assert redis_client.zscore(protocol.JOB_INDEX, job_id) is None
+            assert redis_client.zscore(rdb.JOB_INDEX, job_id) is None
     finally:
         api.stop()
 

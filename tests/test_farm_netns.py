@@ -19,6 +19,7 @@ import redis
 
 from conftest import CORNELL, Process, clean_env, start_api, start_worker, submit, wait_for_job
 from tessera import images, protocol
+from tessera import redis_schema as rdb
 from tessera.local import render_image
 from tessera.protocol import RenderSettings
 from tessera_renderer import load_scene
@@ -109,10 +110,10 @@ def test_workers_on_other_hosts_one_host_dies(hosts, tmp_path):
             r = submit(client, CORNELL, **form)
             assert r.status_code == 201, r.text
             job_id = r.json()["id"]
-            queue = protocol.job_queue_key(job_id)
+            queue = rdb.job_queue_key(job_id)
             deadline = time.monotonic() + 120
             while True:  # kill host w1 while it holds tiles of the job
-                held = sum(len(hub_redis.xpending_range(queue, protocol.WORKER_GROUP, "-", "+",
+                held = sum(len(hub_redis.xpending_range(queue, rdb.WORKER_GROUP, "-", "+",
                                                         10, consumername=w.name)) for w in w1)
                 status = client.get(f"/jobs/{job_id}").json()
                 if held and status["tiles_done"] > 0:
@@ -124,7 +125,7 @@ def test_workers_on_other_hosts_one_host_dies(hosts, tmp_path):
                 os.kill(w.pid, signal.SIGKILL)
             status = wait_for_job(client, job_id, timeout=180, processes=processes)
             assert status["state"] == "done", status
-            rendered_by_w2 = int(hub_redis.hget(protocol.worker_key("w2-0"), "tiles_done") or 0)
+            rendered_by_w2 = int(hub_redis.hget(rdb.worker_key("w2-0"), "tiles_done") or 0)
             assert rendered_by_w2 > 0
             r = client.get(f"/jobs/{job_id}/image.exr")
             assert r.status_code == 200

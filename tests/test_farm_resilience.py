@@ -23,6 +23,7 @@ import redis
 from conftest import (CORNELL, child_pids, clean_env, farm_image, is_running, local_reference, start_api,
                       start_worker, submit, wait_for_job)
 from tessera import images, protocol
+from tessera import redis_schema as rdb
 from tessera_service.embedded import free_port, redis_server as local_redis
 
 
@@ -65,14 +66,14 @@ def test_chaos_worker_kills_while_ten_jobs_run(farm, redis_client, tmp_path):
         r = submit(farm, scene, **form)
         assert r.status_code == 201, r.text
         ids.append(r.json()["id"])
-    queues = [protocol.job_queue_key(job_id) for job_id in ids]
-    reclaimed_before = int(redis_client.hget(protocol.STATS, "reclaimed") or 0)
+    queues = [rdb.job_queue_key(job_id) for job_id in ids]
+    reclaimed_before = int(redis_client.hget(rdb.STATS, "reclaimed") or 0)
     orphans: list[int] = []  # render processes of killed workers
     for kill in range(6):
         name = f"victim-{kill}"
         victim = start_worker(farm.redis_url, name, farm.log_dir, faults="hang:chaos*.usda")
         deadline = time.monotonic() + 60
-        while not any(redis_client.xpending_range(q, protocol.WORKER_GROUP, "-", "+", 1,
+        while not any(redis_client.xpending_range(q, rdb.WORKER_GROUP, "-", "+", 1,
                                                   consumername=name) for q in queues):
             assert time.monotonic() < deadline, f"{name} never took a tile\n" + victim.log()
             time.sleep(0.01)
@@ -92,7 +93,7 @@ def test_chaos_worker_kills_while_ten_jobs_run(farm, redis_client, tmp_path):
     for job_id, form in zip(ids, forms):
         assert_bit_identical(farm_image(farm, job_id, tmp_path), local_reference(form),
                              f"seed {form['seed']}")
-    assert int(redis_client.hget(protocol.STATS, "reclaimed") or 0) > reclaimed_before
+    assert int(redis_client.hget(rdb.STATS, "reclaimed") or 0) > reclaimed_before
     # No render process outlived its killed worker (they die with their parent).
     assert orphans
     deadline = time.monotonic() + 10
@@ -199,10 +200,10 @@ def test_restarting_redis_api_and_all_workers_loses_nothing(tmp_path):
             ids.append(r.json()["id"])
         rc = redis.Redis.from_url(url)
         deadline = time.monotonic() + 120
-        while sum(rc.hlen(protocol.job_tiles_key(j)) for j in ids) < 3:
+        while sum(rc.hlen(rdb.job_tiles_key(j)) for j in ids) < 3:
             assert time.monotonic() < deadline, "no tiles finished"
             time.sleep(0.02)
-        stored = {j: set(rc.hkeys(protocol.job_tiles_key(j))) for j in ids}
+        stored = {j: set(rc.hkeys(rdb.job_tiles_key(j))) for j in ids}
         rc.close()
 
         # 1. Redis dies (SIGKILL, no chance to flush anything more) and comes back.
@@ -211,8 +212,8 @@ def test_restarting_redis_api_and_all_workers_loses_nothing(tmp_path):
         stack.enter_context(local_redis(str(data), port=port, appendonly=True))
         rc = stack.enter_context(redis.Redis.from_url(url))
         for job_id in ids:
-            assert rc.exists(protocol.job_key(job_id)), "an accepted job was lost"
-            assert stored[job_id] <= set(rc.hkeys(protocol.job_tiles_key(job_id))), \
+            assert rc.exists(rdb.job_key(job_id)), "an accepted job was lost"
+            assert stored[job_id] <= set(rc.hkeys(rdb.job_tiles_key(job_id))), \
                 "a finished tile was lost"
 
         # 2. The API dies and a new one takes over.

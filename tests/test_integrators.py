@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from tessera_renderer import load_scene
-from tessera_renderer.film import new_splat_buffer, resolve_image
+from tessera.film import resolve_splats
+from tessera_renderer.film import new_splat_buffer
 
 W = H = 32
 # Family-wise false-alarm rate over the 2 agreement tests x 12 statistics (4 quadrants x 3
@@ -23,7 +24,7 @@ def render(scene, integrator, seed, spp, **kw):
         splats = new_splat_buffer(W, H)
         cam = scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, threads=2,
                                 integrator=integrator, splats=splats, **kw)
-        return resolve_image(cam, splats, W * H * spp, scene.splat_exponent)
+        return resolve_splats(cam, splats, W * H * spp, scene.splat_exponent)
     return scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, threads=2, **kw)
 
 
@@ -95,8 +96,8 @@ def test_splatting_integrators_are_invariant_to_tiles_threads_and_merge_order(co
     assert cam.tobytes() == whole.tobytes()
     assert np.array_equal(merged, whole_splats)
     assert np.count_nonzero(whole_splats) > 0.5 * whole_splats.size  # splats land all over
-    a = resolve_image(whole, whole_splats, Wi * Hi * spp, scene.splat_exponent)
-    b = resolve_image(cam, merged, Wi * Hi * spp, scene.splat_exponent)
+    a = resolve_splats(whole, whole_splats, Wi * Hi * spp, scene.splat_exponent)
+    b = resolve_splats(cam, merged, Wi * Hi * spp, scene.splat_exponent)
     assert a.tobytes() == b.tobytes()
 
 
@@ -185,7 +186,7 @@ def test_path_tracing_misses_a_point_light_caustic_that_bdpt_finds(tmp_path):
     W = H = 16
     path_img = scene.render_tile(0, 0, W, H, width=W, height=H, spp=64, max_depth=8)
     splats = new_splat_buffer(W, H)
-    bdpt_img = resolve_image(scene.render_tile(0, 0, W, H, width=W, height=H, spp=64, max_depth=8,
+    bdpt_img = resolve_splats(scene.render_tile(0, 0, W, H, width=W, height=H, spp=64, max_depth=8,
                                                integrator="bdpt", splats=splats), splats, W * H * 64,
                              scene.splat_exponent)
     assert path_img[..., :3].max() == 0.0          # the caustic does not exist for path tracing

@@ -8,6 +8,10 @@ import pytest
 from pydantic import ValidationError
 
 from tessera import protocol
+
+from tessera import redis_schema as rdb
+
+from tessera import film
 from tessera.protocol import RenderSettings, TileRect, TileTask, decode_tile, encode_tile, tile_grid
 
 
@@ -176,24 +180,24 @@ def test_noise_target_decision():
 
 
 def test_key_layout_is_namespaced():
-    keys = [protocol.READY, protocol.ACTIVE, protocol.STATS, protocol.WORKERS, protocol.DEAD_LETTER,
-            protocol.JOB_INDEX, *protocol.job_keys("j"), protocol.preflight_key("h"),
-            protocol.translated_scene_key("h", "v1.1"), protocol.scene_key("h"), protocol.worker_key("w")]
-    assert all(k.startswith(protocol.PREFIX + ":") for k in keys)
+    keys = [rdb.READY, rdb.ACTIVE, rdb.STATS, rdb.WORKERS, rdb.DEAD_LETTER,
+            rdb.JOB_INDEX, *rdb.job_keys("j"), rdb.preflight_key("h"),
+            rdb.scene_key("h"), rdb.scene_jobs_key("h"), rdb.worker_key("w")]
+    assert all(k.startswith(rdb.PREFIX + ":") for k in keys)
     assert len(set(keys)) == len(keys)
 
 
 def test_splat_scale_is_the_renderers():
-    """The farm normalises splats with protocol.SPLAT_SCALE; it must be the renderer's."""
+    """The farm normalises splats with film.SPLAT_SCALE; it must be the renderer's."""
     from tessera_renderer import _core
-    assert protocol.SPLAT_SCALE == _core.SPLAT_SCALE
+    assert film.SPLAT_SCALE == _core.SPLAT_SCALE
 
 
 def test_compressed_splat_layers_round_trip_and_merge_exactly():
     rng = np.random.default_rng(1)
     frame = np.zeros((30, 40, 3), np.int64)
     frame[5:20, 7:33] = rng.integers(0, 1 << 40, size=(15, 26, 3))
-    rect, layer = protocol.splat_layer(frame)
+    rect, layer = film.splat_layer(frame)
     assert rect == (7, 5, 26, 15)
     tile = protocol.TileRect(index=0, x0=0, y0=0, width=8, height=4)
     data = protocol.encode_tile(tile, np.zeros((4, 8, 4), np.float32), spp=2, splat_rect=rect, splat=layer,
@@ -202,13 +206,13 @@ def test_compressed_splat_layers_round_trip_and_merge_exactly():
     result = protocol.decode_tile(data)
     assert result.light_paths == 64 and result.splat_rect == rect
     total = np.zeros_like(frame)
-    protocol.add_splats(total, result.splat_rect, result.splat)
+    film.add_splats(total, result.splat_rect, result.splat)
     assert np.array_equal(total, frame)
     # A corrupted splat section is an error, not garbage pixels.
     with pytest.raises(ValueError):
         protocol.decode_tile(data[:-5] + b"xxxxx")
     # Nothing landed: an empty rectangle.
-    assert protocol.splat_layer(np.zeros((4, 4, 3), np.int64))[0] == (0, 0, 0, 0)
+    assert film.splat_layer(np.zeros((4, 4, 3), np.int64))[0] == (0, 0, 0, 0)
 
 
 def test_splat_unit_exponent_round_trips_and_scales_the_image():
@@ -221,12 +225,12 @@ def test_splat_unit_exponent_round_trips_and_scales_the_image():
                                     splat_exponent=exponent)
         r = protocol.decode_tile(data)
         assert r.splat_exponent == exponent
-        image = protocol.resolve_splats(np.zeros((1, 2, 4), np.float32), r.splat, 2, r.splat_exponent)
+        image = film.resolve_splats(np.zeros((1, 2, 4), np.float32), r.splat, 2, r.splat_exponent)
         assert np.allclose(image[..., :3], 2.0 ** exponent, rtol=1e-6)
         results.append(r)
-    assert protocol.splat_exponent_of(results[:1]) == -90
+    assert film.splat_exponent_of(results[:1]) == -90
     with pytest.raises(ValueError, match="splat unit"):
-        protocol.splat_exponent_of(results)
+        film.splat_exponent_of(results)
 
 
 def test_splatting_integrators_take_noise_targets_in_lockstep():
@@ -308,7 +312,7 @@ def test_variance_batches_round_trip_and_split_every_pass():
 
 
 def test_batch_variance_is_the_spread_of_batch_images():
-    """protocol.batch_variance of one tile without splats equals the weighted sample
+    """film.batch_variance of one tile without splats equals the weighted sample
     variance of its batch means divided by the batch count (equal batches)."""
     rng = np.random.default_rng(4)
     k, h, w = 6, 2, 3
@@ -316,6 +320,6 @@ def test_batch_variance_is_the_spread_of_batch_images():
     result = protocol.TileResult(0, 0, np.zeros((h, w, 4), np.float32), spp=4 * k, batches=[
         protocol.SplatBatch(4, means[j], (0, 0, 0, 0), np.zeros((0, 0, 3), np.int64), 4 * h * w)
         for j in range(k)])
-    var, batches = protocol.batch_variance(w, h, [result])
+    var, batches = film.batch_variance(w, h, [result])
     assert batches == k
     np.testing.assert_allclose(var, means.astype(np.float64).var(axis=0, ddof=1) / k, rtol=1e-5)

@@ -10,6 +10,7 @@ import pytest
 
 from conftest import CORNELL, start_api, submit
 from tessera import protocol
+from tessera import redis_schema as rdb
 
 UPLOAD_LIMIT = 64 * 1024
 
@@ -36,7 +37,7 @@ def test_healthz_says_degraded_when_the_queue_has_not_moved(api, redis_client):
     is a stalled queue beyond the default 600 s; cancelled, it no longer counts."""
     job = submit(api, CORNELL, spp=1, tile_size=256).json()["id"]
     try:
-        events = protocol.job_events_key(job)
+        events = rdb.job_events_key(job)
         redis_client.delete(events)
         redis_client.xadd(events, {"type": "state"}, id="1000-0")
         problems = api.get("/healthz").json()["problems"]
@@ -170,7 +171,7 @@ def test_submit_uses_scene_resolution_and_creates_tiles(api, redis_client):
     assert r.headers["location"] == f"/jobs/{job['id']}"
     assert (job["width"], job["height"]) == (512, 512)  # the example's RenderSettings
     assert job["state"] == "queued" and job["tiles_total"] == 36
-    assert redis_client.zscore(protocol.JOB_INDEX, job["id"]) is not None
+    assert redis_client.zscore(rdb.JOB_INDEX, job["id"]) is not None
     status = api.get(f"/jobs/{job['id']}").json()
     assert status["settings"] == {"width": 512, "height": 512, "spp": 4, "seed": 0,
                                   "max_depth": 64, "tile_size": 100, "target_error": None,
@@ -178,8 +179,8 @@ def test_submit_uses_scene_resolution_and_creates_tiles(api, redis_client):
                                   "integrator": "path", "aovs": []}
     assert status["priority"] == protocol.DEFAULT_PRIORITY
     # One queue entry per tile, and the job is ready to be served.
-    assert redis_client.xlen(protocol.job_queue_key(job["id"])) == 36
-    assert redis_client.zscore(protocol.READY, job["id"]) is not None
+    assert redis_client.xlen(rdb.job_queue_key(job["id"])) == 36
+    assert redis_client.zscore(rdb.READY, job["id"]) is not None
     assert status["tiles_done"] == 0 and status["scene_name"] == "cornell.usda"
     api.delete(f"/jobs/{job['id']}")
 

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from tessera_renderer import Scene
-from tessera_renderer.film import resolve_image
+from tessera.film import resolve_splats
 from tessera_renderer.usd_scene import PARAM_KEYS, CameraDesc, SceneData
 
 INTEGRATORS = ("path", "light", "bdpt", "local", "whitted")
@@ -106,7 +106,7 @@ def render(scene: Scene, integrator: str, spp: int = 4, seed: int = 0) -> np.nda
         splats = np.zeros((h, w, 3), np.int64)
         rgba = scene.render_tile(0, 0, w, h, spp=spp, seed=seed, threads=2, integrator=integrator,
                                  splats=splats)
-        rgb = resolve_image(rgba, splats, w * h * spp, scene.splat_exponent)[..., :3]
+        rgb = resolve_splats(rgba, splats, w * h * spp, scene.splat_exponent)[..., :3]
     else:
         rgb = scene.render_tile(0, 0, w, h, spp=spp, seed=seed, threads=2, integrator=integrator)[..., :3]
     assert np.isfinite(rgb).all(), f"{integrator}: {int((~np.isfinite(rgb)).sum())} non-finite values"

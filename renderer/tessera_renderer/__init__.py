@@ -81,7 +81,7 @@ class Scene:
     @property
     def splat_exponent(self) -> int:
         """Splats are fixed point in units of 2^splat_exponent, chosen from the lights'
-        power so that any emission scale fits (film.resolve_image)."""
+        power so that any emission scale fits (tessera.film.resolve_splats)."""
         return self._core.splat_exponent
 
     @property

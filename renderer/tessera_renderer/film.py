@@ -1,22 +1,11 @@
-"""Turning tile results into an image: the one place the splat normalisation is written.
-
-A tile rendered with the `light` integrator returns its own pixels' directly visible light
-(`rgba`) and adds its light paths' camera connections, wherever they land, to a full-frame
-int64 fixed-point buffer. Summing those buffers over all tiles is exact and order-free, so
-any tiling on any number of machines gives the same image. The image is
-
-    rgba + splats * 2^e * pixel_count / (SPLAT_SCALE * light_paths)
-
-with light_paths the total over all tiles (one per pixel sample) and e the scene's
-splat_exponent (the fixed point's unit, from its lights' power).
+"""The renderer's side of splats: a tile rendered by a splatting integrator adds its light
+paths' camera connections, wherever they land, to a full-frame int64 fixed-point buffer
+(`new_splat_buffer`); summing those buffers over tiles is exact and order-free. Turning
+them into an image (the splat normalisation) is written once, in tessera.film.resolve_splats.
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
-
-from ._core import SPLAT_SCALE
 
 INTEGRATORS = ("path", "light", "bdpt", "local", "whitted", "auto")
 SPLATTING_INTEGRATORS = ("light", "bdpt")
@@ -24,15 +13,3 @@ SPLATTING_INTEGRATORS = ("light", "bdpt")
 
 def new_splat_buffer(width: int, height: int) -> np.ndarray:
     return np.zeros((height, width, 3), dtype=np.int64)
-
-
-def resolve_image(rgba: np.ndarray, splats: np.ndarray | None, light_paths: int,
-                  exponent: int) -> np.ndarray:
-    """Full-frame float32 RGBA from the camera part and the summed splats (in units of
-    2^exponent: Scene.splat_exponent)."""
-    out = np.array(rgba, dtype=np.float32, copy=True)
-    if splats is not None and light_paths > 0:
-        height, width = out.shape[:2]
-        scale = math.ldexp(width * height / (SPLAT_SCALE * light_paths), exponent)
-        out[..., :3] += (splats.astype(np.float64) * scale).astype(np.float32)
-    return out

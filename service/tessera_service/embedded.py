@@ -82,6 +82,11 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
             signal.signal(sig, handler)
 
 
+# The embedded Redis's memory limit (bytes): twice the default per-job budget
+# (service settings' job_redis_budget), so one job at the budget leaves room for others.
+EMBEDDED_REDIS_MAXMEMORY = 2 << 30
+
+
 @dataclass
 class LocalRedis:
     process: subprocess.Popen
@@ -90,11 +95,14 @@ class LocalRedis:
 
 @contextmanager
 def redis_server(workdir: str, port: int | None = None, timeout: float = 10.0, *,
-                 appendonly: bool = False, bind: str = "127.0.0.1", netns: str | None = None):
+                 appendonly: bool = False, bind: str = "127.0.0.1", netns: str | None = None,
+                 maxmemory: int = EMBEDDED_REDIS_MAXMEMORY):
     """A redis-server on `bind` (default: a free port on 127.0.0.1) for the block. Without
     `appendonly` nothing is persisted; with it, an append-only file in workdir is fsynced
     on every write (as deploy/redis.conf does), so a restart in the same workdir resumes
-    exactly. `netns`: run it inside that network namespace (ip netns exec)."""
+    exactly. `netns`: run it inside that network namespace (ip netns exec). `maxmemory`
+    bytes with noeviction, as deploy/redis.conf: a full Redis refuses writes (workers
+    keep their tile and retry) and never drops accepted work."""
     exe = shutil.which("redis-server")
     if exe is None:
         raise RuntimeError("redis-server is not installed (apt-get install redis-server), "
@@ -106,6 +114,7 @@ def redis_server(workdir: str, port: int | None = None, timeout: float = 10.0, *
     prefix = ["ip", "netns", "exec", netns] if netns else []
     proc = subprocess.Popen(
         [*prefix, exe, "--port", str(port), "--bind", bind, "--save", "", *persistence,
+         "--maxmemory", str(maxmemory), "--maxmemory-policy", "noeviction",
          "--protected-mode", "no", "--dir", workdir, "--logfile", logfile, "--daemonize", "no"],
         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
         start_new_session=True, preexec_fn=die_with_parent)

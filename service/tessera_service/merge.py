@@ -8,9 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from tessera import images
-from tessera.protocol import (JobSpec, TileResult, add_splats, combine_aovs, combine_passes, decode_tile,
-                              batch_variance, new_aov_frame, resolve_splats, splat_exponent_of,
-                              tile_grid)
+from tessera.film import SplatSums, assemble_image
+from tessera.protocol import JobSpec, TileResult, decode_tile, tile_grid
 
 
 class MergeError(Exception):
@@ -18,12 +17,12 @@ class MergeError(Exception):
 
 
 def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes], *, partial: bool = False,
-                with_aovs: bool = False):
-    """Combines each tile's passes (protocol.combine_passes, as the local render does) and
-    pastes the tiles into a full float RGBA image; returns it as (h, w, 4) float32. With
-    `partial`, missing tiles stay black (a preview of a running job). With `with_aovs`,
-    returns (rgba, aovs): the job's AOVs (settings.aovs) merged like the local render's
-    (protocol.combine_aovs), as full-frame float32 (h, w, c) layers."""
+                with_aovs: bool = False, splats: dict[bytes | str, bytes] | None = None):
+    """Decodes and checks the stored results of a job and assembles them as the local
+    render does (tessera.film.assemble_image); returns the (h, w, 4) float32 image. `splats`
+    is the job's splat sums hash (redis_schema.job_splats_key). With `partial`, missing
+    tiles stay black (a preview of a running job). With `with_aovs`, returns (rgba, aovs):
+    the job's AOVs (settings.aovs) as full-frame float32 (h, w, c) layers."""
     s = spec.settings
     grid = tile_grid(s.width, s.height, s.tile_size)
     passes: dict[int, list[TileResult]] = {}
@@ -48,64 +47,16 @@ def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes], *, partial: bool
             raise MergeError(f"tile {index}: result of pass {result.pass_index} stored as "
                              f"pass {pass_index}")
         passes.setdefault(index, []).append(result)
-    if not partial and len(passes) != len(grid):
-        missing = sorted(set(range(len(grid))) - set(passes))
-        raise MergeError(f"{len(missing)} of {len(grid)} tiles are missing (first: {missing[:5]})")
-    full = np.zeros((s.height, s.width, 4), dtype=np.float32)
-    aovs = new_aov_frame(s) if with_aovs else {}
-    # Light-tracing splats from every result, summed exactly (integers) and normalised once
-    # by the light paths of all results (protocol.resolve_splats).
-    splats = None
-    light_paths = 0
-    for results in passes.values():
-        for r in results:
-            if r.splat is not None:
-                if splats is None:
-                    splats = np.zeros((s.height, s.width, 3), dtype=np.int64)
-                add_splats(splats, r.splat_rect, r.splat)
-                light_paths += r.light_paths
-    for index, results in passes.items():
-        rect = grid[index]
-        results.sort(key=lambda r: r.pass_index)
-        if [r.pass_index for r in results] != list(range(len(results))):
-            if not partial:
-                raise MergeError(f"tile {index} is missing a pass")
-            results = [r for i, r in enumerate(results) if r.pass_index == i]
-            if not results:
-                continue
-        try:
-            rgba, variance, _ = combine_passes(results)
-            layers = combine_aovs(results) if aovs else {}
-        except ValueError as e:
-            raise MergeError(f"tile {index}: {e}") from e
-        full[rect.y0:rect.y0 + rect.height, rect.x0:rect.x0 + rect.width] = rgba
-        if variance is not None:
-            layers["variance"] = variance
-        for name, buf in aovs.items():
-            if layers.get(name) is None:
-                raise MergeError(f"tile {index} has no {name} AOV (rendered by a worker without AOVs?)")
-            buf[rect.y0:rect.y0 + rect.height, rect.x0:rect.x0 + rect.width] = \
-                np.asarray(layers[name], np.float32).reshape(rect.height, rect.width, -1)
-    if splats is not None:
-        try:
-            exponent = splat_exponent_of([r for results in passes.values() for r in results])
-        except ValueError as e:
-            raise MergeError(str(e)) from e
-        full = resolve_splats(full, splats, light_paths, exponent)
-    if "variance" in aovs:
-        aovs = MergedLayers(aovs)
-        if splats is None:
-            aovs.variance_kind = images.VARIANCE_PER_SAMPLE
-        elif not partial:
-            # light and bdpt: the per-sample layer misses the splats; the batches replace it.
-            try:
-                estimate = batch_variance(s.width, s.height, [r for rs in passes.values() for r in rs])
-            except ValueError as e:
-                raise MergeError(str(e)) from e
-            if estimate is not None:
-                aovs["variance"], aovs.variance_kind = estimate[0], images.batch_means_kind(estimate[1])
-    image = full
-    return (image, aovs) if with_aovs else image
+    try:
+        sums = SplatSums.from_fields(s.width, s.height, splats or {})
+        image = assemble_image(s, passes, sums, partial=partial, with_aovs=with_aovs)
+    except ValueError as e:
+        raise MergeError(str(e)) from e
+    if not with_aovs:
+        return image.rgba
+    aovs = MergedLayers(image.aovs)
+    aovs.variance_kind = image.variance_kind
+    return image.rgba, aovs
 
 
 class MergedLayers(dict):

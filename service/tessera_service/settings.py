@@ -35,6 +35,11 @@ class Settings(BaseSettings):
         description="seconds an uploaded scene and its pre-flight result are kept after the "
                     "last job that used it was submitted (0: forever)")
 
+    job_redis_budget: int = Field(
+        default=1024 * MiB, ge=1,
+        description="most bytes one job may keep in Redis (its tile results, splat sums and "
+                    "images; estimated before it is queued: docs/farm.md, Memory per job)")
+
     stall_seconds: float = Field(
         default=600.0, gt=0,
         description="/healthz reports degraded when queued or running jobs have shown no "

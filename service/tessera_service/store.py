@@ -1,5 +1,5 @@
-"""The service's Redis operations on scenes, jobs, workers and their results (key layout,
-message schema and state machine: tessera.protocol)."""
+"""The service's Redis operations on scenes, jobs, workers and their results (keys, fields
+and the state machine: tessera.redis_schema; messages: tessera.protocol)."""
 from __future__ import annotations
 
 import json
@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import redis
 
 from tessera import protocol
+from tessera import redis_schema as rdb
 from tessera.protocol import FINAL_STATES, JobSpec
 
 
@@ -49,10 +50,7 @@ class JobStore:
         self.redis = client
         self.retention = retention
         self.scene_retention = scene_retention
-        self._make_ready = client.register_script(protocol.LUA_MAKE_READY)
-        self._cancel = client.register_script(protocol.LUA_CANCEL_JOB)
-        self._pause = client.register_script(protocol.LUA_PAUSE_JOB)
-        self._resume = client.register_script(protocol.LUA_RESUME_JOB)
+        self.scripts = rdb.Scripts(client)
 
     @classmethod
     def from_url(cls, url: str, **kwargs) -> "JobStore":
@@ -68,7 +66,7 @@ class JobStore:
     # ------------------------------------------------------------------ scenes
     def put_scene(self, scene_hash: str, name: str, data: bytes) -> None:
         """Stores a scene once per content hash; every use extends its retention."""
-        key = protocol.scene_key(scene_hash)
+        key = rdb.scene_key(scene_hash)
         if not self.redis.hexists(key, "data"):
             with self.redis.pipeline(transaction=True) as pipe:
                 pipe.hsetnx(key, "name", name)
@@ -77,18 +75,19 @@ class JobStore:
         self.touch_scene(scene_hash)
 
     def touch_scene(self, scene_hash: str) -> bool:
-        """Extends a stored scene's retention; False if it is not stored."""
-        ttl = int(self.scene_retention) if self.scene_retention > 0 else None
-        key = protocol.scene_key(scene_hash)
-        return bool(self.redis.expire(key, ttl) if ttl else self.redis.exists(key))
+        """Extends a stored scene's retention (a scene a job holds does not expire at all);
+        False if it is not stored."""
+        ttl = int(self.scene_retention) if self.scene_retention > 0 else 0
+        return bool(self.scripts.touch_scene(
+            keys=[rdb.scene_key(scene_hash), rdb.scene_jobs_key(scene_hash)], args=[ttl]))
 
     def preflight(self, scene_hash: str) -> dict | None:
-        raw = self.redis.get(protocol.preflight_key(scene_hash))
+        raw = self.redis.get(rdb.preflight_key(scene_hash))
         return json.loads(raw) if raw else None
 
     def remember_preflight(self, scene_hash: str, info: dict) -> None:
         ttl = int(self.scene_retention) if self.scene_retention > 0 else None
-        self.redis.set(protocol.preflight_key(scene_hash), json.dumps(info), ex=ttl)
+        self.redis.set(rdb.preflight_key(scene_hash), json.dumps(info), ex=ttl)
 
     # ------------------------------------------------------------------ jobs
     def create_job(self, spec: JobSpec, warnings: list[str]) -> int:
@@ -97,10 +96,11 @@ class JobStore:
         exist, nor a job with part of its tiles."""
         tasks = protocol.job_tasks(spec)
         now = time.time()
-        queue = protocol.job_queue_key(spec.job_id)
+        queue = rdb.job_queue_key(spec.job_id)
         with self.redis.pipeline(transaction=True) as pipe:
-            pipe.hset(protocol.job_key(spec.job_id), mapping={
+            pipe.hset(rdb.job_key(spec.job_id), mapping={
                 "spec": spec.model_dump_json(),
+                "scene_hash": spec.scene_hash,
                 "state": "queued",
                 "priority": spec.priority,
                 "created_at": repr(now),
@@ -111,22 +111,24 @@ class JobStore:
                 "retention": int(self.retention),
                 "warnings": json.dumps(warnings),
             })
-            pipe.zadd(protocol.JOB_INDEX, {spec.job_id: now})
-            pipe.sadd(protocol.ACTIVE, spec.job_id)
-            pipe.xgroup_create(queue, protocol.WORKER_GROUP, id="0", mkstream=True)
+            pipe.zadd(rdb.JOB_INDEX, {spec.job_id: now})
+            pipe.sadd(rdb.ACTIVE, spec.job_id)
+            pipe.xgroup_create(queue, rdb.WORKER_GROUP, id="0", mkstream=True)
             for task in tasks:
                 pipe.xadd(queue, task.to_fields())
-            pipe.rpush(protocol.job_log_key(spec.job_id),
+            pipe.rpush(rdb.job_log_key(spec.job_id),
                        f"{now!r} job queued: {len(tasks)} tiles, priority {spec.priority}")
             for w in warnings:
-                pipe.rpush(protocol.job_log_key(spec.job_id), f"{now!r} warning: {w}")
-            pipe.xadd(protocol.job_events_key(spec.job_id), {"type": "state", "state": "queued"})
-            self._make_ready(args=[spec.job_id, spec.priority], client=pipe)
+                pipe.rpush(rdb.job_log_key(spec.job_id), f"{now!r} warning: {w}")
+            pipe.xadd(rdb.job_events_key(spec.job_id),
+                      rdb.JobEvent(type="state", state="queued").to_fields())
+            self.scripts.admit_job(keys=rdb.job_script_keys(spec.job_id, spec.scene_hash),
+                                   args=[spec.job_id], client=pipe)
             pipe.execute()
         return len(tasks)
 
     def get(self, job_id: str) -> Job | None:
-        fields = self.redis.hgetall(protocol.job_key(job_id))
+        fields = self.redis.hgetall(rdb.job_key(job_id))
         return _job(fields) if fields else None
 
     def list(self, state: str | None = None, limit: int = 100, offset: int = 0) -> list[Job]:
@@ -136,17 +138,17 @@ class JobStore:
         start = 0
         batch = 200
         while len(out) < offset + limit:
-            ids = self.redis.zrevrange(protocol.JOB_INDEX, start, start + batch - 1)
+            ids = self.redis.zrevrange(rdb.JOB_INDEX, start, start + batch - 1)
             if not ids:
                 break
             start += batch
             with self.redis.pipeline(transaction=False) as pipe:
                 for job_id in ids:
-                    pipe.hgetall(protocol.job_key(job_id.decode()))
+                    pipe.hgetall(rdb.job_key(job_id.decode()))
                 rows = pipe.execute()
             gone = [job_id for job_id, fields in zip(ids, rows) if not fields]
             if gone:
-                self.redis.zrem(protocol.JOB_INDEX, *gone)
+                self.redis.zrem(rdb.JOB_INDEX, *gone)
                 start -= len(gone)
             for fields in rows:
                 if fields:
@@ -155,30 +157,38 @@ class JobStore:
                         out.append(job)
         return out[offset:offset + limit]
 
+    def _keys(self, job_id: str) -> list[str]:
+        scene_hash = self.redis.hget(rdb.job_key(job_id), "scene_hash")
+        return rdb.job_script_keys(job_id, scene_hash.decode() if scene_hash else "")
+
     def cancel(self, job_id: str) -> bool:
         """Cancels the job unless it is already final. False if there is no such job."""
-        return self._cancel(args=[job_id, repr(time.time())]) != b""
+        return self.scripts.cancel_job(keys=self._keys(job_id), args=[job_id, repr(time.time())]) != b""
 
     def pause(self, job_id: str) -> bool:
-        return self._pause(args=[job_id, repr(time.time())]) != b""
+        return self.scripts.pause_job(keys=self._keys(job_id), args=[job_id, repr(time.time())]) != b""
 
     def resume(self, job_id: str) -> bool:
-        return self._resume(args=[job_id, repr(time.time())]) != b""
+        return self.scripts.resume_job(keys=self._keys(job_id), args=[job_id, repr(time.time())]) != b""
 
     def tiles(self, job_id: str) -> dict[bytes, bytes]:
-        return self.redis.hgetall(protocol.job_tiles_key(job_id))
+        return self.redis.hgetall(rdb.job_tiles_key(job_id))
+
+    def splats(self, job_id: str) -> dict[bytes, bytes]:
+        """The job's splat sums (redis_schema.job_splats_key), for merging."""
+        return self.redis.hgetall(rdb.job_splats_key(job_id))
 
     def log(self, job_id: str) -> list[str]:
         return [line.decode(errors="replace")
-                for line in self.redis.lrange(protocol.job_log_key(job_id), 0, -1)]
+                for line in self.redis.lrange(rdb.job_log_key(job_id), 0, -1)]
 
     def cached_image(self, job_id: str, fmt: str) -> bytes | None:
-        return self.redis.get(protocol.job_image_key(job_id, fmt))
+        return self.redis.get(rdb.job_image_key(job_id, fmt))
 
     def cache_image(self, job_id: str, fmt: str, data: bytes) -> None:
         """Caches a done job's image for as long as the job itself is kept."""
-        ttl = self.redis.pttl(protocol.job_key(job_id))
-        key = protocol.job_image_key(job_id, fmt)
+        ttl = self.redis.pttl(rdb.job_key(job_id))
+        key = rdb.job_image_key(job_id, fmt)
         if ttl and ttl > 0:
             self.redis.set(key, data, px=ttl)
         else:
@@ -186,10 +196,10 @@ class JobStore:
 
     # ------------------------------------------------------------------ farm state
     def workers(self) -> list[WorkerInfo]:
-        names = sorted(n.decode() for n in self.redis.smembers(protocol.WORKERS))
+        names = sorted(n.decode() for n in self.redis.smembers(rdb.WORKERS))
         with self.redis.pipeline(transaction=False) as pipe:
             for name in names:
-                pipe.hgetall(protocol.worker_key(name))
+                pipe.hgetall(rdb.worker_key(name))
             rows = pipe.execute()
         out = []
         for name, fields in zip(names, rows):
@@ -208,11 +218,11 @@ class JobStore:
         """Seconds since the newest event of any queued or running job (a tile pass stored,
         a state change, a failure), or None when no such job exists: how long the queue has
         not moved while there is work in it."""
-        ids = [j.decode() for j in self.redis.smembers(protocol.ACTIVE)]
+        ids = [j.decode() for j in self.redis.smembers(rdb.ACTIVE)]
         with self.redis.pipeline(transaction=False) as pipe:
             for job_id in ids:
-                pipe.hget(protocol.job_key(job_id), "state")
-                pipe.xrevrange(protocol.job_events_key(job_id), count=1)
+                pipe.hget(rdb.job_key(job_id), "state")
+                pipe.xrevrange(rdb.job_events_key(job_id), count=1)
             rows = pipe.execute()
         newest = None
         for state, events in zip(rows[0::2], rows[1::2]):
@@ -226,15 +236,15 @@ class JobStore:
         return max(0.0, now_s + now_us / 1e6 - newest / 1000.0)
 
     def stats(self) -> dict[str, float]:
-        return {k.decode(): float(v) for k, v in self.redis.hgetall(protocol.STATS).items()}
+        return {k.decode(): float(v) for k, v in self.redis.hgetall(rdb.STATS).items()}
 
     def queue_depths(self) -> dict[int, int]:
         """Open tile passes (queued or being rendered) per priority, over active jobs."""
-        ids = [j.decode() for j in self.redis.smembers(protocol.ACTIVE)]
+        ids = [j.decode() for j in self.redis.smembers(rdb.ACTIVE)]
         with self.redis.pipeline(transaction=False) as pipe:
             for job_id in ids:
-                pipe.hget(protocol.job_key(job_id), "priority")
-                pipe.xlen(protocol.job_queue_key(job_id))
+                pipe.hget(rdb.job_key(job_id), "priority")
+                pipe.xlen(rdb.job_queue_key(job_id))
             rows = pipe.execute()
         depths = {p: 0 for p in range(protocol.MIN_PRIORITY, protocol.MAX_PRIORITY + 1)}
         for priority, length in zip(rows[::2], rows[1::2]):

@@ -8,14 +8,14 @@ starts a new child. It knows nothing of Redis.
 On start it sends ("hello", blob_version): the renderer's translated-scene blob version
 (None if this renderer has no blob API). Then, per request:
 
-Request: dict(serial, scene_path, blob_path, blob_out, x0, y0, w, h, width, height, spp,
-sample_start, seed, max_depth, threads, variance, aovs, fault). The scene comes from the blob
-file `blob_path` if given (no USD involved), else is translated from `scene_path`; with
-`blob_out`, the translation is also written there as a blob for other workers. Reply: ("ok", rgba, variance | None, seconds, splat | None, aovs | None, serial), splat =
-(rect, int64 layer, light paths, unit exponent) for the light and bdpt integrators, aovs = {name: layer}
-for the requested AOVs other than variance
-or ("error", kind, message, serial) with kind "scene" | "memory" | "other"; the serial
-lets the supervisor check that a reply answers its latest request.
+Request: dict(serial, scene_key, scene_path, blob_path, blob_out, settings (RenderSettings
+JSON), tile (TileRect fields), pass_index, threads, variance, batches, fault). The scene
+comes from the blob file `blob_path` if given (no USD involved), else is translated from
+`scene_path`; with `blob_out`, the translation is also written there as a blob for other
+workers. The pass is rendered by tessera.film.render_tile_pass, as local renders do.
+Reply: ("ok", TileResult, seconds, serial) or ("error", kind, message, serial) with kind
+"scene" | "memory" | "other"; the serial lets the supervisor check that a reply answers
+its latest request.
 """
 from __future__ import annotations
 
@@ -28,9 +28,8 @@ import time
 from collections import OrderedDict
 from multiprocessing.connection import Connection
 
-import numpy as np
-
-from tessera.protocol import splat_layer
+from tessera.film import render_tile_pass
+from tessera.protocol import RenderSettings, TileRect
 
 SCENE_CACHE_SIZE = 4
 
@@ -98,36 +97,14 @@ def serve(conn: Connection) -> None:
                 while len(scenes) > SCENE_CACHE_SIZE:
                     scenes.popitem(last=False)
             scenes.move_to_end(path)
-            kwargs = dict(width=req["width"], height=req["height"], spp=req["spp"],
-                          seed=req["seed"], max_depth=req["max_depth"], threads=req["threads"])
-            if req["variance"] or req["sample_start"]:
-                kwargs.update(sample_start=req["sample_start"], return_variance=req["variance"])
-            aovs = [a for a in req.get("aovs", ()) if a != "variance"]  # variance: req["variance"]
             # `auto` resolves from the scene alone, so every worker picks the same method.
-            integrator = scene.resolve_integrator(req.get("integrator", "path"))
-            splats = None
-            if integrator in ("light", "bdpt"):
-                splats = np.zeros((req["height"], req["width"], 3), dtype=np.int64)
-            started = time.perf_counter()
-            out = scene.render_tile(req["x0"], req["y0"], req["w"], req["h"], integrator=integrator,
-                                    splats=splats, aovs=aovs, **kwargs)
-            seconds = time.perf_counter() - started
-            layers = None
-            if aovs:
-                rgba, layers = out
-                variance = layers.pop("variance", None)
-            else:
-                rgba, variance = out if req["variance"] else (out, None)
-            splat = None
-            if splats is not None:
-                rect, layer = splat_layer(splats)
-                # One light path per sample; the scene's fixed-point unit goes with the layer.
-                splat = (rect, layer, req["w"] * req["h"] * req["spp"], scene.splat_exponent)
-            batches = None
-            if splats is not None and req.get("batches"):
-                batches = _variance_batches(scene, req, integrator, kwargs)
-            seconds = time.perf_counter() - started
-            reply = ("ok", rgba, variance, seconds, splat, layers, batches)
+            settings = RenderSettings.model_validate_json(req["settings"])
+            integrator = scene.resolve_integrator(settings.integrator)
+            result, seconds = render_tile_pass(scene, settings, TileRect(**req["tile"]),
+                                               req["pass_index"], integrator=integrator,
+                                               threads=req["threads"], variance=req["variance"],
+                                               batches=req["batches"])
+            reply = ("ok", result, seconds)
         except SceneError as e:
             reply = ("error", "scene", str(e))
         except MemoryError as e:
@@ -141,22 +118,6 @@ def serve(conn: Connection) -> None:
             return
         except MemoryError:
             conn.send(("error", "memory", "out of memory sending the tile", serial))
-
-
-def _variance_batches(scene, req: dict, integrator: str, kwargs: dict) -> list:
-    """The pass's samples again as protocol.batch_ranges, each with its own splats: the
-    SplatBatch list of the tile result (protocol.VARIANCE_BATCHES)."""
-    from tessera.protocol import SplatBatch, batch_ranges
-
-    out = []
-    for start, n in batch_ranges(req["sample_start"], req["spp"]):
-        splats = np.zeros((req["height"], req["width"], 3), dtype=np.int64)
-        args = dict(kwargs, spp=n, sample_start=start, return_variance=False)
-        rgba = scene.render_tile(req["x0"], req["y0"], req["w"], req["h"], integrator=integrator,
-                                 splats=splats, **args)
-        rect, layer = splat_layer(splats)
-        out.append(SplatBatch(n, np.ascontiguousarray(rgba[..., :3]), rect, layer, req["w"] * req["h"] * n))
-    return out
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -3,7 +3,7 @@ child process, stores the results.
 
 Scheduling: every open job has its own stream; the worker asks one Lua script for the next
 entry, which picks the highest-priority job and, among equal priorities, the job served
-least (see protocol.READY). Paused, cancelled and blocklisted jobs are skipped there.
+least (see rdb.READY). Paused, cancelled and blocklisted jobs are skipped there.
 
 Delivery is at-least-once. A worker stores a pass's result and only then acknowledges its
 entry; results are keyed by (tile, pass) and written with HSETNX, so a pass rendered twice
@@ -37,7 +37,8 @@ from pathlib import PurePosixPath
 
 import redis
 
-from tessera import protocol
+from tessera import film, protocol
+from tessera import redis_schema as rdb
 from tessera.process import die_with_parent, private_tempdir, remove_orphaned_tempdirs
 from tessera.protocol import TileTask
 
@@ -51,176 +52,10 @@ REAP_INTERVAL = 2.0        # seconds between looks for tiles held by dead worker
 CLAIM_MIN_IDLE_MS = 1000   # two reapers do not both claim a tile claimed within this time
 MAX_DEATH_DELIVERIES = 10  # a tile whose worker died this often is poisoned
 CHILD_START_TIMEOUT = 120.0
+OOM_BACKOFF_MIN = 0.25     # first wait after Redis refused a result for lack of memory
+OOM_BACKOFF_MAX = 10.0
 CANCEL_POLL = 0.5          # seconds between looks at the job's state during a render
 SCENE_FILES = 8            # scene files kept on local disk (least recently used go)
-
-_PICK = protocol.LUA_HELPERS + f"""
-local me = ARGV[1]
-local cands = redis.call('ZRANGE', '{protocol.READY}', 0, 15)
-for _, id in ipairs(cands) do
-  local key = jk(id)
-  local state = redis.call('HGET', key, 'state')
-  if state ~= 'queued' and state ~= 'running' then
-    redis.call('ZREM', '{protocol.READY}', id)
-  elseif redis.call('SISMEMBER', key .. ':blocklist', me) == 0 then
-    local q = key .. ':queue'
-    local got = false
-    if redis.call('EXISTS', q) == 1 then
-      local r = redis.call('XREADGROUP', 'GROUP', '{protocol.WORKER_GROUP}', me, 'COUNT', 1,
-                          'STREAMS', q, '>')
-      if r and r[1] and #r[1][2] > 0 then got = r[1][2][1] end
-    end
-    if got then
-      redis.call('ZINCRBY', '{protocol.READY}', 1, id)
-      if state == 'queued' then
-        redis.call('HSET', key, 'state', 'running')
-        event(id, 'type', 'state', 'state', 'running')
-        logline(id, ARGV[2], 'job running')
-      end
-      redis.call('HSETNX', key, 'started_at', ARGV[2])
-      return {{id, got[1], got[2][2], redis.call('HGET', key, 'started_at')}}
-    end
-    -- Drained: whoever queues more work for it puts it back.
-    redis.call('ZREM', '{protocol.READY}', id)
-  end
-end
-return false
-"""
-
-# ARGV: id, field, data, seconds, final, next_task, now, worker, entry, tile, pass, samples.
-# final: '1' the tile is done; '0' queue next_task (its next pass); '2' a lockstep pass:
-# count it, and the tile that completes the pass queues next_task (the pass's barrier).
-# Returns 1 if this completed the job, 0 if not, -1 if the job is gone or final (dropped).
-_STORE = protocol.LUA_HELPERS + f"""
-local id = ARGV[1]
-local key = jk(id)
-local q = key .. ':queue'
-local state = redis.call('HGET', key, 'state')
-local ret = 0
-if (not state) or is_final(state) then
-  ret = -1
-elseif redis.call('HSETNX', key .. ':tiles', ARGV[2], ARGV[3]) == 1 then
-  redis.call('HINCRBYFLOAT', key, 'render_seconds', ARGV[4])
-  redis.call('HINCRBY', key, 'passes_done', 1)
-  redis.call('HINCRBY', '{protocol.STATS}', 'passes', 1)
-  redis.call('HINCRBYFLOAT', '{protocol.STATS}', 'render_seconds', ARGV[4])
-  if ARGV[5] == '1' then
-    local done = redis.call('HINCRBY', key, 'tiles_done', 1)
-    redis.call('HINCRBY', '{protocol.STATS}', 'tiles', 1)
-    event(id, 'type', 'tile', 'tile', ARGV[10], 'pass_index', ARGV[11], 'samples', ARGV[12],
-          'tiles_done', done)
-    if done >= tonumber(redis.call('HGET', key, 'tiles_total')) then
-      redis.call('XACK', q, '{protocol.WORKER_GROUP}', ARGV[9])
-      finish(id, 'done', ARGV[7], nil)
-      ret = 1
-    end
-  elseif ARGV[5] == '2' then
-    event(id, 'type', 'pass', 'tile', ARGV[10], 'pass_index', ARGV[11], 'samples', ARGV[12])
-    local n = redis.call('HINCRBY', key, 'lockstep_tiles', 1)
-    if n % tonumber(redis.call('HGET', key, 'tiles_total')) == 0 then
-      redis.call('XADD', q, '*', 'task', ARGV[6])
-      if state ~= 'paused' then make_ready(id, redis.call('HGET', key, 'priority') or '5') end
-    end
-  else
-    redis.call('XADD', q, '*', 'task', ARGV[6])
-    if state ~= 'paused' then make_ready(id, redis.call('HGET', key, 'priority') or '5') end
-    event(id, 'type', 'pass', 'tile', ARGV[10], 'pass_index', ARGV[11], 'samples', ARGV[12])
-  end
-end
-if redis.call('EXISTS', q) == 1 then
-  redis.call('XACK', q, '{protocol.WORKER_GROUP}', ARGV[9])
-  redis.call('XDEL', q, ARGV[9])
-end
-local wk = P .. 'worker:' .. ARGV[8]
-if ret >= 0 and redis.call('EXISTS', wk) == 1 then redis.call('HINCRBY', wk, 'tiles_done', 1) end
-return ret
-"""
-
-# A lockstep pass barrier's outcome. ARGV: id, pass, finished ('1'/'0'), now, entry,
-# accumulator bytes, then the next pass's tasks. Applied once per pass (redeliveries of the
-# barrier are dropped). Returns 1 if this completed the job, 0 if it queued the next pass,
-# -1 if dropped.
-_DECIDE = protocol.LUA_HELPERS + f"""
-local id = ARGV[1]
-local key = jk(id)
-local q = key .. ':queue'
-local state = redis.call('HGET', key, 'state')
-local ret = -1
-if state and not is_final(state)
-   and tonumber(redis.call('HGET', key, 'decided_pass') or '-1') < tonumber(ARGV[2]) then
-  redis.call('HSET', key, 'decided_pass', ARGV[2])
-  redis.call('SET', key .. ':passes', ARGV[6])
-  if ARGV[3] == '1' then
-    local total = redis.call('HGET', key, 'tiles_total')
-    redis.call('HSET', key, 'tiles_done', total)
-    redis.call('HINCRBY', '{protocol.STATS}', 'tiles', tonumber(total))
-    event(id, 'type', 'tile', 'tile', -1, 'pass_index', ARGV[2], 'tiles_done', total)
-    redis.call('XACK', q, '{protocol.WORKER_GROUP}', ARGV[5])
-    finish(id, 'done', ARGV[4], nil)
-    ret = 1
-  else
-    for i = 7, #ARGV do redis.call('XADD', q, '*', 'task', ARGV[i]) end
-    if state ~= 'paused' then make_ready(id, redis.call('HGET', key, 'priority') or '5') end
-    logline(id, ARGV[4], 'pass ' .. ARGV[2] .. ' of every tile done; next pass queued')
-    ret = 0
-  end
-end
-if redis.call('EXISTS', q) == 1 then
-  redis.call('XACK', q, '{protocol.WORKER_GROUP}', ARGV[5])
-  redis.call('XDEL', q, ARGV[5])
-end
-return ret
-"""
-
-# One failed attempt at a tile pass. ARGV: id, field, tile, entry, worker, error, now,
-# max_attempts, blocklist_after, task. Returns 'final', 'retry', 'blocklisted' or 'poisoned'.
-_FAIL_TILE = protocol.LUA_HELPERS + f"""
-local id = ARGV[1]
-local key = jk(id)
-local q = key .. ':queue'
-local state = redis.call('HGET', key, 'state')
-if redis.call('EXISTS', q) == 1 then
-  redis.call('XACK', q, '{protocol.WORKER_GROUP}', ARGV[4])
-  redis.call('XDEL', q, ARGV[4])
-end
-if (not state) or is_final(state) then return 'final' end
-local n = redis.call('HINCRBY', key .. ':failures', 'tile:' .. ARGV[2], 1)
-local wf = redis.call('HINCRBY', key .. ':failures', 'worker:' .. ARGV[5], 1)
-redis.call('HINCRBY', '{protocol.STATS}', 'failures', 1)
-local wk = P .. 'worker:' .. ARGV[5]
-if redis.call('EXISTS', wk) == 1 then redis.call('HINCRBY', wk, 'failures', 1) end
-event(id, 'type', 'failure', 'tile', ARGV[3], 'message', ARGV[6])
-logline(id, ARGV[7], 'tile ' .. ARGV[3] .. ' attempt ' .. n .. ' failed on worker ' .. ARGV[5]
-        .. ': ' .. ARGV[6])
-local result = 'retry'
-if wf >= tonumber(ARGV[9]) and redis.call('SADD', key .. ':blocklist', ARGV[5]) == 1 then
-  logline(id, ARGV[7], 'worker ' .. ARGV[5] .. ' is blocklisted for this job after ' .. wf
-          .. ' failures')
-  result = 'blocklisted'
-end
-if n >= tonumber(ARGV[8]) then
-  redis.call('XADD', '{protocol.DEAD_LETTER}', 'MAXLEN', '~', {protocol.DEAD_LETTER_MAXLEN}, '*',
-             'job', id, 'tile', ARGV[3], 'attempts', n, 'error', ARGV[6], 'task', ARGV[10])
-  redis.call('HINCRBY', '{protocol.STATS}', 'poisoned', 1)
-  finish(id, 'failed', ARGV[7], 'tile ' .. ARGV[3] .. ' failed ' .. n .. ' times; last error: '
-         .. ARGV[6])
-  return 'poisoned'
-end
-redis.call('XADD', q, '*', 'task', ARGV[10])
-if state ~= 'paused' then make_ready(id, redis.call('HGET', key, 'priority') or '5') end
-return result
-"""
-
-# Removes a consumer from a queue's group only if it holds no pending entries (DELCONSUMER
-# would silently drop them). Returns 1 if removed.
-_DROP_IDLE_CONSUMER = """
-if redis.call('EXISTS', KEYS[1]) == 0 then return 0 end
-local pending = redis.call('XPENDING', KEYS[1], ARGV[1], '-', '+', 1, ARGV[2])
-if #pending > 0 then return 0 end
-redis.call('XGROUP', 'DELCONSUMER', KEYS[1], ARGV[1], ARGV[2])
-return 1
-"""
-
 
 class RenderFailed(Exception):
     """A failed attempt at a tile. `fatal`: the job fails at once (retrying elsewhere
@@ -401,22 +236,19 @@ class Worker:
         self.heartbeat_ttl = settings.heartbeat_ttl
         self.redis = redis.Redis.from_url(settings.redis_url, socket_connect_timeout=5,
                                           socket_timeout=30, health_check_interval=30)
-        self._pick = self.redis.register_script(_PICK)
-        self._store_tile = self.redis.register_script(_STORE)
-        self._fail_tile = self.redis.register_script(_FAIL_TILE)
-        self._decide_pass = self.redis.register_script(_DECIDE)
-        self._fail_job = self.redis.register_script(protocol.LUA_FAIL_JOB)
-        self._drop_idle_consumer = self.redis.register_script(_DROP_IDLE_CONSUMER)
+        self.scripts = rdb.Scripts(self.redis)
         self._faults = _parse_faults(settings.faults)
         self._scene_files: dict[str, str] = {}
         self._tmpdir: str | None = None
         self._child = RenderChild(settings.memory_limit)
         self.current = ""
+        self._stop: threading.Event | None = None
         self.tiles_rendered = 0
         self.started_at = time.time()
 
     # ----------------------------------------------------------------- main loop
     def run(self, stop: threading.Event) -> None:
+        self._stop = stop
         for path in remove_orphaned_tempdirs("worker"):
             log.warning("removed %s, left by a worker that was killed", path)
         self._tmpdir = private_tempdir("worker")
@@ -451,14 +283,15 @@ class Worker:
                     next_reap = time.monotonic() + REAP_INTERVAL
                 if stop.is_set():
                     break
-                picked = self._pick(args=[self.name, repr(time.time())])
+                picked = self.scripts.pick(keys=[rdb.READY],
+                                           args=[self.name, repr(time.time()), rdb.job_prefix()])
                 if redis_down:
                     log.info("redis is reachable again")
                     redis_down = False
                 if not picked:
                     # Queuing work pushes wake-up tokens; without one, look again anyway
                     # after IDLE_WAIT (and reap).
-                    self.redis.blpop([protocol.WAKE], timeout=IDLE_WAIT)
+                    self.redis.blpop([rdb.WAKE], timeout=IDLE_WAIT)
                     continue
                 job_id, entry_id, raw, started_at = picked
                 self._process(_text(job_id), entry_id, {b"task": raw}, _float(started_at))
@@ -480,12 +313,18 @@ class Worker:
             except (redis.ConnectionError, redis.TimeoutError) as e:
                 log.warning("cannot reach redis (%s); retrying", e)
                 stop.wait(1.0)
+            except redis.ResponseError as e:
+                if not _out_of_memory(e):
+                    raise
+                log.error("redis is out of memory (its maxmemory is reached) and refused this "
+                          "worker's registration; retrying")
+                stop.wait(1.0)
 
     # ----------------------------------------------------------------- one tile pass
     def _process(self, job_id: str, entry_id: bytes, fields: dict | None,
                  started_at: float | None = None) -> None:
         """Handles one stream entry; acknowledges it unless Redis itself fails."""
-        queue = protocol.job_queue_key(job_id)
+        queue = rdb.job_queue_key(job_id)
         if not fields:  # the entry was deleted from the stream while pending
             self._ack(queue, entry_id)
             return
@@ -498,7 +337,7 @@ class Worker:
         if task.decide:
             self._decide(task, entry_id, started_at)
             return
-        tiles_key = protocol.job_tiles_key(job_id)
+        tiles_key = rdb.job_tiles_key(job_id)
         if self.redis.hexists(tiles_key, task.field):  # a redelivery after a lost ack
             self._ack(queue, entry_id)
             return
@@ -508,11 +347,10 @@ class Worker:
                       task.pass_index, task.tile.index)
             self._ack(queue, entry_id)
             return
-        sample_start, spp = window
         self.current = f"{job_id}/{task.tile.index}/{task.pass_index}"
         try:
             try:
-                rgba, variance, seconds, splat, aovs, batches = self._render(task, sample_start, spp)
+                result, seconds = self._render(task)
             except Abandoned:
                 log.info("job %s ended while tile %d rendered; dropped it", job_id, task.tile.index)
                 self._ack(queue, entry_id)
@@ -520,36 +358,86 @@ class Worker:
             except RenderFailed as e:
                 self._failed(task, entry_id, str(e), e.fatal)
                 return
-            final, data = self._result(task, rgba, variance, sample_start, spp, started_at, splat, aovs,
-                                       batches)
+            final = self._tile_final(task, result, started_at)
         finally:
             self.current = ""
         if task.settings.lockstep:
             mode, follow = 2, task.decide_task().model_dump_json()
         else:
             mode, follow = (1, "") if final else (0, task.next_pass().model_dump_json())
-        completed = self._store_tile(args=[
-            job_id, task.field, data, repr(seconds), mode, follow, repr(time.time()), self.name,
-            entry_id, task.tile.index, task.pass_index, sample_start + spp])
+        args = [job_id, task.field, None, repr(seconds), mode, follow, None, self.name,
+                entry_id, task.tile.index, task.pass_index, result.sample_start + result.spp]
+        completed = self._store(task, result, args, self._stop)
+        if completed is None:
+            return  # stopping while Redis refuses writes: the entry stays pending
         self.tiles_rendered += 1
         log.debug("job %s tile %s pass %d rendered in %.3f s", job_id, task.tile.index,
                   task.pass_index, seconds)
         if completed == 1:
             log.info("job %s done", job_id)
 
-    def _render(self, task: TileTask, sample_start: int, spp: int):
+    def _store(self, task: TileTask, result, args: list, stop: threading.Event | None):
+        """Stores a rendered pass (store_tile.lua): the result with its splats folded into the
+        job's splat sums, in one transaction, so that a pass is summed exactly once however
+        often it is delivered. Redis refusing the write for lack of memory (maxmemory with
+        noeviction) does not lose the pass: it is kept here and stored again after a
+        backoff, until it fits or the worker stops (then the entry stays pending and is
+        rendered again). Returns the script's result, or None if it gave up."""
+        keys = self._keys(task.job_id, task.scene_hash) + [rdb.worker_key(self.name)]
+        names = film.SplatSums.fields_of(result)
+        s = task.settings
+        delay = OOM_BACKOFF_MIN
+        while True:
+            try:
+                if not names:
+                    data = protocol.encode_tile(task.tile, **_tile_fields(result))
+                    return self.scripts.store_tile(keys=keys, args=_store_args(args, data))
+                return self._store_folded(task, result, args, keys, names)
+            except redis.ResponseError as e:
+                if not _out_of_memory(e):
+                    raise
+                if stop is None or stop.is_set():
+                    log.error("redis is out of memory; leaving tile %d (pass %d) of job %s "
+                              "pending for a retry", task.tile.index, task.pass_index, task.job_id)
+                    return None
+                log.error("redis is out of memory (its maxmemory is reached) and refused tile %d "
+                          "(pass %d) of job %s, %dx%d; keeping it and trying again in %.1f s",
+                          task.tile.index, task.pass_index, task.job_id, s.width, s.height, delay)
+                if stop.wait(delay):
+                    return None
+                delay = min(2 * delay, OOM_BACKOFF_MAX)
+
+    def _store_folded(self, task: TileTask, result, args: list, keys: list, names: list[str]):
+        s = task.settings
+        splats_key = rdb.job_splats_key(task.job_id)
+        with self.redis.pipeline(transaction=True) as pipe:
+            while True:
+                try:
+                    pipe.watch(splats_key)
+                    stored = pipe.hmget(splats_key, names)
+                    sums = film.SplatSums(s.width, s.height)
+                    for name, data in zip(names, stored):
+                        if data is not None:
+                            sums.decode_into(name, data)
+                    light = sums.fold(result)
+                    pairs = [v for n in names for v in (n, sums.encode(n))]
+                    data = protocol.encode_tile(task.tile, **_tile_fields(light))
+                    pipe.multi()
+                    self.scripts.store_tile(keys=keys, args=_store_args(args, data, pairs),
+                                            client=pipe)
+                    return pipe.execute()[0]
+                except redis.WatchError:
+                    continue  # another tile of the job was stored meanwhile: add again
+
+    def _render(self, task: TileTask):
         s, rect = task.settings, task.tile
         self._child.ensure_started()
         scene = self._scene_source(task, self._child.blob_version)
-        request = dict(**scene, x0=rect.x0, y0=rect.y0,
-                       w=rect.width, h=rect.height, width=s.width, height=s.height, spp=spp,
-                       sample_start=sample_start, seed=s.seed, max_depth=s.max_depth,
-                       threads=self.threads, variance=s.adaptive or "variance" in s.aovs,
-                       aovs=list(s.aovs), integrator=s.integrator,
+        request = dict(**scene, settings=s.model_dump_json(), tile=rect.model_dump(),
+                       pass_index=task.pass_index, threads=self.threads, variance=s.adaptive,
                        # light and bdpt: the variance layer from batches (protocol.VARIANCE_BATCHES)
-                       batches="variance" in s.aovs,
-                       fault=self._fault_for(task))
-        job_key = protocol.job_key(task.job_id)
+                       batches="variance" in s.aovs, fault=self._fault_for(task))
+        job_key = rdb.job_key(task.job_id)
 
         def abandoned() -> bool:
             try:
@@ -562,7 +450,7 @@ class Worker:
         if reply[0] == "ok":
             if scene.get("blob_out"):
                 self._share_blob(task, scene["blob_out"])
-            return reply[1], reply[2], reply[3], reply[4], reply[5], reply[6] if len(reply) > 6 else None
+            return reply[1], reply[2]
         _, kind, message = reply
         if kind == "scene":
             raise RenderFailed(f"cannot load scene {task.scene_name!r}: {message}", fatal=True)
@@ -573,73 +461,72 @@ class Worker:
                                f"{_size(self.settings.memory_limit)} ({message})", fatal=True)
         raise RenderFailed(message, fatal=False)
 
-    def _result(self, task: TileTask, rgba, variance, sample_start: int, spp: int,
-                started_at: float | None, splat=None, aovs=None, batches=None) -> tuple[bool, bytes]:
-        """Encodes the pass and decides whether the tile needs another one."""
+    def _tile_final(self, task: TileTask, this, started_at: float | None) -> bool:
+        """Whether the tile needs no further pass (per-tile noise target)."""
         s, rect = task.settings, task.tile
-        splat_args = {}
-        if splat is not None:
-            splat_rect, layer, light_paths, exponent = splat
-            splat_args = dict(splat_rect=splat_rect, splat=layer, light_paths=light_paths,
-                              splat_exponent=exponent)
-        data = protocol.encode_tile(rect, rgba, pass_index=task.pass_index,
-                                    sample_start=sample_start, spp=spp, variance=variance, aovs=aovs,
-                                    batches=batches, **splat_args)
         if not s.adaptive or s.lockstep:
-            return True, data  # lockstep: the pass barrier decides (_decide)
+            return True  # lockstep: the pass barrier decides (_decide)
         earlier = []
         if task.pass_index > 0:
-            fields = [protocol.result_field(rect.index, p) for p in range(task.pass_index)]
-            stored = self.redis.hmget(protocol.job_tiles_key(task.job_id), fields)
+            fields = [rdb.result_field(rect.index, p) for p in range(task.pass_index)]
+            stored = self.redis.hmget(rdb.job_tiles_key(task.job_id), fields)
             if any(d is None for d in stored):
                 # Cannot happen (a pass is queued only after the previous one is stored)
                 # unless the job's results expired; finish the tile with what it has.
-                return True, data
+                return True
             earlier = [protocol.decode_tile(d) for d in stored]
-        this = protocol.TileResult(rect.x0, rect.y0, rgba, task.pass_index, sample_start, spp,
-                                   variance)
         mean, var, samples = protocol.combine_passes(earlier + [this])
         final = protocol.tile_finished(s, task.pass_index, mean, var, samples)
         if not final and s.time_limit is not None:
             if started_at is None:
-                started_at = _float(self.redis.hget(protocol.job_key(task.job_id), "started_at"))
+                started_at = _float(self.redis.hget(rdb.job_key(task.job_id), "started_at"))
             final = started_at is not None and time.time() - started_at >= s.time_limit
-        return final, data
+        return final
 
     def _decide(self, task: TileTask, entry_id: bytes, started_at: float | None) -> None:
         """A lockstep pass barrier: adds the pass's whole-image estimate to the job's
         accumulator and queues the next pass for every tile, or finishes the job. Tiles are
         read one at a time, so memory stays at a few full frames."""
         job_id, s, p = task.job_id, task.settings, task.pass_index
-        key = protocol.job_key(job_id)
+        key = rdb.job_key(job_id)
         decided = _text(self.redis.hget(key, "decided_pass"))
         if decided and int(decided) >= p:  # a redelivery
-            self._ack(protocol.job_queue_key(job_id), entry_id)
+            self._ack(rdb.job_queue_key(job_id), entry_id)
             return
-        acc = protocol.PassAccumulator.from_bytes(self.redis.get(protocol.job_passes_key(job_id)))
+        acc = protocol.PassAccumulator.from_bytes(self.redis.get(rdb.job_passes_key(job_id)))
         if acc.passes != p:
-            self._fail_job(args=[job_id, repr(time.time()),
-                                 f"pass barrier {p} found {acc.passes} passes accumulated"])
-            self._ack(protocol.job_queue_key(job_id), entry_id)
+            self._fail(job_id, f"pass barrier {p} found {acc.passes} passes accumulated",
+                       task.scene_hash)
+            self._ack(rdb.job_queue_key(job_id), entry_id)
             return
         grid = protocol.tile_grid(s.width, s.height, s.tile_size)
-        tiles_key = protocol.job_tiles_key(job_id)
+        tiles_key = rdb.job_tiles_key(job_id)
         results = []
         for rect in grid:
-            data = self.redis.hget(tiles_key, protocol.result_field(rect.index, p))
+            data = self.redis.hget(tiles_key, rdb.result_field(rect.index, p))
             if data is None:  # expired or the job was deleted under us
                 log.warning("job %s: pass %d of tile %d is gone; barrier dropped", job_id, p,
                             rect.index)
-                self._ack(protocol.job_queue_key(job_id), entry_id)
+                self._ack(rdb.job_queue_key(job_id), entry_id)
                 return
             try:
                 results.append(protocol.decode_tile(data))
             except ValueError as e:  # corrupt: the job cannot be merged either
-                self._fail_job(args=[job_id, repr(time.time()),
-                                     f"tile {rect.index} pass {p}: unreadable result: {e}"])
-                self._ack(protocol.job_queue_key(job_id), entry_id)
+                self._fail(job_id, f"tile {rect.index} pass {p}: unreadable result: {e}",
+                           task.scene_hash)
+                self._ack(rdb.job_queue_key(job_id), entry_id)
                 return
-        acc = acc.add(protocol.pass_image(s.width, s.height, results), results[0].spp)
+        sums = film.SplatSums(s.width, s.height)
+        name = film.SplatSums.pass_field(p)
+        stored = self.redis.hget(rdb.job_splats_key(job_id), name)
+        if stored is not None:
+            try:
+                sums.decode_into(name, stored)
+            except ValueError as e:
+                self._fail(job_id, f"pass {p}: unreadable splat sum: {e}", task.scene_hash)
+                self._ack(rdb.job_queue_key(job_id), entry_id)
+                return
+        acc = acc.add(film.pass_image(s.width, s.height, results, sums), results[0].spp)
         del results
         finished = protocol.image_finished(s, p, acc)
         if not finished and s.time_limit is not None:
@@ -650,8 +537,9 @@ class Worker:
         log.info("job %s: pass %d done, image noise %s; %s", job_id, p,
                  "unknown" if error is None else f"{error:.3%}", "finished" if finished else "next pass")
         tasks = [] if finished else [t.model_dump_json() for t in task.pass_tasks(p + 1)]
-        if self._decide_pass(args=[job_id, p, 1 if finished else 0, repr(time.time()), entry_id,
-                                   acc.to_bytes(), *tasks]) == 1:
+        if self.scripts.decide_pass(keys=self._keys(job_id, task.scene_hash),
+                                    args=[job_id, p, 1 if finished else 0, repr(time.time()),
+                                          entry_id, acc.to_bytes(), *tasks]) == 1:
             log.info("job %s done", job_id)
 
     def _failed(self, task: TileTask, entry_id: bytes, message: str, fatal: bool) -> None:
@@ -659,11 +547,12 @@ class Worker:
         if fatal:
             error = message if message.startswith("cannot load scene") else f"{where}: {message}"
             log.error("job %s failed: %s", task.job_id, error)
-            self._fail_job(args=[task.job_id, repr(time.time()), error])
-            self._ack(protocol.job_queue_key(task.job_id), entry_id)
+            self._fail(task.job_id, error, task.scene_hash)
+            self._ack(rdb.job_queue_key(task.job_id), entry_id)
             return
         log.warning("job %s: %s failed: %s", task.job_id, where, message)
-        outcome = _text(self._fail_tile(args=[
+        keys = self._keys(task.job_id, task.scene_hash) + [rdb.worker_key(self.name), rdb.DEAD_LETTER]
+        outcome = _text(self.scripts.fail_tile(keys=keys, args=[
             task.job_id, task.field, task.tile.index, entry_id, self.name, message,
             repr(time.time()), task.max_attempts, protocol.BLOCKLIST_AFTER,
             task.model_dump_json()]))
@@ -675,19 +564,28 @@ class Worker:
 
     def _fail_if_nobody_left(self, job_id: str, last_error: str) -> None:
         """A job every live worker is blocklisted for would wait forever: fail it."""
-        blocked = {_text(n) for n in self.redis.smembers(protocol.job_blocklist_key(job_id))}
-        for name in self.redis.smembers(protocol.WORKERS):
+        blocked = {_text(n) for n in self.redis.smembers(rdb.job_blocklist_key(job_id))}
+        for name in self.redis.smembers(rdb.WORKERS):
             name = _text(name)
-            if name not in blocked and self.redis.exists(protocol.worker_key(name)):
+            if name not in blocked and self.redis.exists(rdb.worker_key(name)):
                 return
-        self._fail_job(args=[job_id, repr(time.time()),
-                             f"every live worker is blocklisted for this job; last error: "
-                             f"{last_error}"])
+        self._fail(job_id, f"every live worker is blocklisted for this job; last error: "
+                           f"{last_error}")
+
+    def _keys(self, job_id: str, scene_hash: str | None = None) -> list[str]:
+        """The KEYS of the job's scripts (redis_schema.job_script_keys)."""
+        if scene_hash is None:
+            scene_hash = _text(self.redis.hget(rdb.job_key(job_id), "scene_hash"))
+        return rdb.job_script_keys(job_id, scene_hash)
+
+    def _fail(self, job_id: str, message: str, scene_hash: str | None = None) -> None:
+        self.scripts.fail_job(keys=self._keys(job_id, scene_hash),
+                              args=[job_id, repr(time.time()), message])
 
     def _ack(self, queue: str, entry_id: bytes) -> None:
         # Entries are removed once acknowledged, so the stream holds only open work.
         with self.redis.pipeline(transaction=True) as pipe:
-            pipe.xack(queue, protocol.WORKER_GROUP, entry_id)
+            pipe.xack(queue, rdb.WORKER_GROUP, entry_id)
             pipe.xdel(queue, entry_id)
             pipe.execute()
 
@@ -707,7 +605,7 @@ class Worker:
             self._scene_files[name] = self._scene_files.pop(name)
             source["blob_path"] = path
             return source
-        blob = self.redis.get(protocol.translated_scene_key(task.scene_hash, blob_version))
+        blob = self.redis.hget(rdb.scene_key(task.scene_hash), rdb.translated_field(blob_version))
         if blob is not None:
             source["blob_path"] = self._keep_file(name, blob)
             return source
@@ -716,17 +614,27 @@ class Worker:
         return source
 
     def _share_blob(self, task: TileTask, path: str) -> None:
-        """Stores a blob this worker translated, once (SET NX), for as long as the scene."""
+        """Stores a blob this worker translated, once (HSETNX), in the scene's hash."""
         if not os.path.exists(path):
             return
         name = os.path.basename(path)
         self._remember_file(name, path)
         blob_version = name[len(task.scene_hash) + 1:-len(".blob")]
-        ttl = self.redis.pttl(protocol.scene_key(task.scene_hash))
         with open(path, "rb") as f:
             data = f.read()
-        self.redis.set(protocol.translated_scene_key(task.scene_hash, blob_version), data,
-                       nx=True, px=ttl if ttl and ttl > 0 else None)
+        # In the scene's own hash, so that it lives exactly as long as the scene; only if
+        # the scene is still there (a blob of an expired scene would never expire).
+        key = rdb.scene_key(task.scene_hash)
+        with self.redis.pipeline(transaction=True) as pipe:
+            try:
+                pipe.watch(key)
+                if not pipe.exists(key):
+                    return
+                pipe.multi()
+                pipe.hsetnx(key, rdb.translated_field(blob_version), data)
+                pipe.execute()
+            except redis.WatchError:
+                pass  # the scene changed meanwhile (another blob, an expiry): skip sharing
 
     def _keep_file(self, name: str, data: bytes, relpath: str | None = None) -> str:
         path = os.path.join(self._tmpdir, relpath or name)
@@ -757,7 +665,7 @@ class Worker:
         if path is not None and os.path.exists(path):
             self._scene_files[key] = self._scene_files.pop(key)  # most recently used last
             return path
-        data = self.redis.hget(protocol.scene_key(task.scene_hash), "data")
+        data = self.redis.hget(rdb.scene_key(task.scene_hash), "data")
         if data is None:
             raise RenderFailed(f"cannot load scene {task.scene_name!r}: scene "
                                f"{task.scene_hash} is missing from the store", fatal=True)
@@ -772,7 +680,7 @@ class Worker:
 
     # ----------------------------------------------------------------- liveness
     def _beat(self) -> None:
-        key = protocol.worker_key(self.name)
+        key = rdb.worker_key(self.name)
         with self.redis.pipeline(transaction=True) as pipe:
             pipe.hset(key, mapping={"host": socket.gethostname(), "pid": os.getpid(),
                                     "started_at": repr(self.started_at),
@@ -780,7 +688,7 @@ class Worker:
             pipe.hsetnx(key, "tiles_done", 0)
             pipe.hsetnx(key, "failures", 0)
             pipe.pexpire(key, int(self.heartbeat_ttl * 1000))
-            pipe.sadd(protocol.WORKERS, self.name)
+            pipe.sadd(rdb.WORKERS, self.name)
             pipe.execute()
 
     def _heartbeat_loop(self, stop: threading.Event) -> None:
@@ -792,17 +700,17 @@ class Worker:
                 log.debug("heartbeat failed: %s", e)
 
     def _alive(self, name: str) -> bool:
-        return bool(self.redis.exists(protocol.worker_key(name)))
+        return bool(self.redis.exists(rdb.worker_key(name)))
 
     def _reap(self, stop: threading.Event) -> None:
         """Claims and renders the tiles held by workers whose heartbeat has expired, then
         removes those workers from the queues' groups."""
         # Counted so that /workers and the tests can tell that a reaper looked.
-        self.redis.hincrby(protocol.worker_key(self.name), "reaps", 1)
-        for job_id in [_text(j) for j in self.redis.smembers(protocol.ACTIVE)]:
-            queue = protocol.job_queue_key(job_id)
+        self.redis.hincrby(rdb.worker_key(self.name), "reaps", 1)
+        for job_id in [_text(j) for j in self.redis.smembers(rdb.ACTIVE)]:
+            queue = rdb.job_queue_key(job_id)
             try:
-                summary = self.redis.xpending(queue, protocol.WORKER_GROUP)
+                summary = self.redis.xpending(queue, rdb.WORKER_GROUP)
             except redis.ResponseError:  # the queue ended (job finished) meanwhile
                 continue
             for consumer in summary.get("consumers") or []:
@@ -818,27 +726,27 @@ class Worker:
                 else:
                     log.info("worker %s is gone; taking over its %s pending tile(s) of job %s",
                              dead, consumer["pending"], job_id)
-                for pending in self.redis.xpending_range(queue, protocol.WORKER_GROUP, min="-",
+                for pending in self.redis.xpending_range(queue, rdb.WORKER_GROUP, min="-",
                                                          max="+", count=100, consumername=dead):
                     if stop.is_set():
                         return
                     # One at a time, so that a tile is not held while others render.
-                    claimed = self.redis.xclaim(queue, protocol.WORKER_GROUP, self.name,
+                    claimed = self.redis.xclaim(queue, rdb.WORKER_GROUP, self.name,
                                                 CLAIM_MIN_IDLE_MS, [pending["message_id"]])
                     for entry_id, fields in claimed:
                         if not mine:
-                            self.redis.hincrby(protocol.STATS, "reclaimed", 1)
+                            self.redis.hincrby(rdb.STATS, "reclaimed", 1)
                         if pending["times_delivered"] >= MAX_DEATH_DELIVERIES:
                             self._poison_by_deaths(job_id, entry_id, fields,
                                                    pending["times_delivered"])
                         else:
                             self._process(job_id, entry_id, fields)
-                if not mine and self._drop_idle_consumer(keys=[queue],
-                                                         args=[protocol.WORKER_GROUP, dead]):
+                if not mine and self.scripts.drop_idle_consumer(keys=[queue],
+                                                         args=[rdb.WORKER_GROUP, dead]):
                     log.info("removed dead worker %s from job %s's queue", dead, job_id)
-        for name in [_text(n) for n in self.redis.smembers(protocol.WORKERS)]:
+        for name in [_text(n) for n in self.redis.smembers(rdb.WORKERS)]:
             if name != self.name and not self._alive(name):
-                self.redis.srem(protocol.WORKERS, name)
+                self.redis.srem(rdb.WORKERS, name)
 
     def _poison_by_deaths(self, job_id: str, entry_id: bytes, fields, deliveries: int) -> None:
         try:
@@ -847,17 +755,17 @@ class Worker:
             tile = "?"
         message = (f"tile {tile} was delivered {deliveries} times and the worker holding it "
                    f"died each time")
-        self._fail_job(args=[job_id, repr(time.time()), message])
-        self._ack(protocol.job_queue_key(job_id), entry_id)
+        self._fail(job_id, message)
+        self._ack(rdb.job_queue_key(job_id), entry_id)
 
     def _leave(self) -> None:
         """On a clean exit: stop counting as alive."""
         try:
-            self.redis.delete(protocol.worker_key(self.name))
-            self.redis.srem(protocol.WORKERS, self.name)
-            for job_id in [_text(j) for j in self.redis.smembers(protocol.ACTIVE)]:
-                self._drop_idle_consumer(keys=[protocol.job_queue_key(job_id)],
-                                         args=[protocol.WORKER_GROUP, self.name])
+            self.redis.delete(rdb.worker_key(self.name))
+            self.redis.srem(rdb.WORKERS, self.name)
+            for job_id in [_text(j) for j in self.redis.smembers(rdb.ACTIVE)]:
+                self.scripts.drop_idle_consumer(keys=[rdb.job_queue_key(job_id)],
+                                         args=[rdb.WORKER_GROUP, self.name])
         except redis.RedisError as e:
             log.debug("could not leave cleanly: %s", e)
 
@@ -888,3 +796,25 @@ def _text(value) -> str:
 def _float(value) -> float | None:
     text = _text(value)
     return float(text) if text else None
+
+
+def _out_of_memory(error: redis.ResponseError) -> bool:
+    """Redis refused a write at its maxmemory (noeviction); redis-py strips the OOM code
+    from some of these (errors inside scripts and transactions)."""
+    return isinstance(error, redis.exceptions.OutOfMemoryError) or "maxmemory" in str(error)
+
+
+def _tile_fields(result) -> dict:
+    """encode_tile's keyword arguments for a TileResult."""
+    return dict(rgba=result.rgba, pass_index=result.pass_index, sample_start=result.sample_start,
+                spp=result.spp, variance=result.variance, splat_rect=result.splat_rect,
+                splat=result.splat, light_paths=result.light_paths, aovs=result.aovs,
+                splat_exponent=result.splat_exponent, batches=result.batches)
+
+
+def _store_args(args: list, data: bytes, pairs: list = ()) -> list:
+    """store_tile.lua's ARGV: `args` with the encoded result and the time filled in, then
+    the splat sum (field, value) pairs."""
+    out = list(args)
+    out[2], out[6] = data, repr(time.time())
+    return out + [len(pairs) // 2, *pairs]

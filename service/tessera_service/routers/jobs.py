@@ -23,6 +23,7 @@ from fastapi.responses import StreamingResponse
 from pydantic import ValidationError
 
 from tessera import protocol
+from tessera import redis_schema as rdb
 from tessera.protocol import FINAL_STATES, JobSpec, JobState, RenderSettings
 
 from ..merge import MergeError, encode_image, merge_tiles
@@ -112,6 +113,13 @@ def create_job(
             raise HTTPException(422, f"{render.width}x{render.height} in tiles of {render.tile_size} "
                                      f"makes {tiles} tiles, more than the limit of "
                                      f"{settings.max_tiles}: use a larger tile_size")
+        footprint = rdb.job_storage_bound(render)
+        if footprint > settings.job_redis_budget:
+            raise HTTPException(422, f"this job would keep up to {_size(footprint)} in the farm's "
+                                     f"Redis ({render.width}x{render.height}, {render.integrator}, "
+                                     f"AOVs: {', '.join(render.aovs) or 'none'}), more than the "
+                                     f"per-job budget of {_size(settings.job_redis_budget)} "
+                                     f"(TESSERA_JOB_REDIS_BUDGET): render fewer pixels, passes or AOVs")
         if not store.touch_scene(scene_hash):
             store.put_scene(scene_hash, name, path.read_bytes())
 
@@ -193,7 +201,7 @@ async def job_events(job_id: str, request: Request,
     # neither a worker thread nor a pooled connection of the synchronous routes.
     _check_id(job_id)
     aredis = request.app.state.aredis
-    job_key, events_key = protocol.job_key(job_id), protocol.job_events_key(job_id)
+    job_key, events_key = rdb.job_key(job_id), rdb.job_events_key(job_id)
     if not await aredis.exists(job_key):
         raise _not_found(job_id)
     cursor = after or request.headers.get("last-event-id") or "0"
@@ -208,11 +216,13 @@ async def job_events(job_id: str, request: Request,
             events = reply[0][1] if reply else []
             for event_id, raw in events:
                 cursor = event_id.decode()
-                fields = {k.decode(): v.decode() for k, v in raw.items()}
-                data = {k: _event_value(k, v) for k, v in fields.items()}
-                yield (f"id: {cursor}\nevent: {fields.get('type', 'message')}\n"
-                       f"data: {json.dumps(data)}\n\n")
-                if fields.get("type") == "state" and fields.get("state") in FINAL_STATES:
+                try:
+                    event = rdb.JobEvent.from_fields(raw)
+                except ValidationError:
+                    continue  # not an event of ours: never break the stream over it
+                yield (f"id: {cursor}\nevent: {event.type}\n"
+                       f"data: {json.dumps(event.model_dump(exclude_none=True))}\n\n")
+                if event.type == "state" and event.state in FINAL_STATES:
                     return
             if not events:
                 idle += 1
@@ -244,7 +254,9 @@ def get_preview(job_id: str, request: Request) -> Response:
     job = _job(request, job_id)
     if job.state in ("queued", "running", "paused"):
         try:
-            rgba = merge_tiles(job.spec, request.app.state.store.tiles(job_id), partial=True)
+            store = request.app.state.store
+            rgba = merge_tiles(job.spec, store.tiles(job_id), partial=True,
+                               splats=store.splats(job_id))
         except MergeError as e:
             raise HTTPException(500, f"cannot assemble the preview of job {job_id}: {e}") from None
         data = encode_image(rgba, job.spec, "png")
@@ -284,7 +296,8 @@ def _image(request: Request, job_id: str, fmt: str) -> bytes:
     data = store.cached_image(job_id, fmt)
     if data is None:
         try:
-            rgba, aovs = merge_tiles(job.spec, store.tiles(job_id), with_aovs=True)
+            rgba, aovs = merge_tiles(job.spec, store.tiles(job_id), with_aovs=True,
+                                     splats=store.splats(job_id))
         except MergeError as e:
             raise HTTPException(500, f"cannot assemble the image of job {job_id}: {e}") from None
         data = encode_image(rgba, job.spec, fmt, aovs=aovs)
@@ -324,13 +337,6 @@ def _inspection_lock(scene_hash: str):
 
 
 _EVENT_ID = re.compile(r"^\d+(-\d+)?$")
-_INT_FIELDS = ("tile", "pass_index", "samples", "tiles_done")
-
-
-def _event_value(key: str, value: str):
-    return int(value) if key in _INT_FIELDS and value.lstrip("-").isdigit() else value
-
-
 def _render_settings(**values) -> RenderSettings:
     """RenderSettings from form values; invalid values are a 422 naming the field."""
     try:
