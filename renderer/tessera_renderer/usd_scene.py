@@ -117,6 +117,10 @@ class SceneData:
     # its camera sits at the origin (float32 precision follows distance from the camera);
     # world = these coordinates + world_offset.
     world_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # Lights for a stage that has none (see default_lighting), not yet part of the light
+    # tables above; Scene adds them unless default lighting is switched off. None when the
+    # stage has a light (emissive geometry counts) or they were applied already.
+    default_lights: dict | None = None
 
 
 @dataclass
@@ -1371,17 +1375,17 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     distant = np.array(tr.distant_lights, np.float32).reshape(-1, 7)
     point = np.array(tr.point_lights, np.float32).reshape(-1, 6)
     dome = tr.dome_light
-    has_light = bool(emission.any() or len(sphere_lights) or len(distant) or len(point) or dome)
+    has_light = bool(_emits(rows, tri_material, prototypes) or len(sphere_lights) or len(distant)
+                     or len(point) or dome)
+    default_lights = None
     if len(indices) == 0 and len(sphere_lights) == 0 and len(instances) == 0:
         warn("the scene has no renderable geometry")
     elif not has_light:
-        if default_light:
-            dome = {"radiance": [1.0, 1.0, 1.0], "texture": None,
-                    "world_to_light": np.eye(3).tolist(), "path": "default light"}
-            warn("the scene has no lights: added the default white dome light of radiance 1")
-        else:
-            warn("the scene has no lights: it renders black")
-
+        # Light-less assets are the rule for props and usdz files; viewers light them by
+        # default. What to add is recorded here and applied (or not) when the Scene is
+        # built, so one translation serves renders with and without it.
+        default_lights = default_lighting(camera)
+        warn(NO_LIGHT_WARNING)
     data = SceneData(positions=positions, indices=indices, triangle_material=tri_material,
                      albedo=albedo, emission=emission, two_sided_emission=two_sided,
                      sphere_lights=sphere_lights, camera=camera, resolution=resolution,
@@ -1391,9 +1395,59 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
                      distant_lights=distant, point_lights=point, dome_light=dome,
                      prototypes=prototypes, instances=instances, instance_transforms=instance_xforms,
                      meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)), up_axis=str(up_axis),
-                     world_offset=camera_offset)
+                     world_offset=camera_offset, default_lights=default_lights)
+    if default_light:
+        apply_default_lighting(data)
     data._native_prototype_lights = tr.native_prototype_lights
     return data
+
+
+# The one line a light-less stage gets; Scene rewrites it when default lighting is off.
+NO_LIGHT_WARNING = ("the scene has no lights: lit by the default lighting (a white dome of radiance "
+                    "0.5 and a key light from above and left of the camera; --no-default-light or "
+                    "the job setting default_light=false renders it unlit, i.e. black)")
+NO_LIGHT_OFF_WARNING = "the scene has no lights and default lighting is off: it renders black"
+DEFAULT_DOME_RADIANCE = 0.5
+# The key light's illuminance on a surface facing it, and its angular diameter (degrees):
+# a white surface facing it reflects E / pi = 0.8 on top of the dome's 0.5.
+DEFAULT_KEY_ILLUMINANCE = 0.8 * math.pi
+DEFAULT_KEY_ANGLE = 5.0
+
+
+def default_lighting(camera: CameraDesc) -> dict:
+    """What usdview and Quick Look do for a light-less stage, in Tessera's terms: a white
+    dome (uniform ambient light, so nothing is black) and one distant key light that comes
+    from above, left and behind the camera, so shapes read by their shading. The key
+    follows the camera, as a viewer's headlight does."""
+    forward, up, right = (np.array(v, np.float64) for v in (camera.forward, camera.up, camera.right))
+    toward_light = _unit(-forward + 0.8 * up - 0.6 * right)
+    half = math.radians(DEFAULT_KEY_ANGLE) / 2.0
+    radiance = DEFAULT_KEY_ILLUMINANCE / (math.pi * math.sin(half) ** 2)
+    return {"dome": {"radiance": [DEFAULT_DOME_RADIANCE] * 3, "texture": None,
+                     "world_to_light": np.eye(3).tolist(), "path": "default lighting (dome)"},
+            "distant": [[*(-toward_light), half, radiance, radiance, radiance]]}
+
+
+def apply_default_lighting(data: SceneData) -> SceneData:
+    """Moves data.default_lights into the light tables (once); returns data."""
+    lights = data.default_lights
+    if not lights:
+        return data
+    data.dome_light = lights["dome"]
+    data.distant_lights = np.concatenate([np.asarray(data.distant_lights, np.float32).reshape(-1, 7),
+                                          np.asarray(lights["distant"], np.float32).reshape(-1, 7)])
+    data.default_lights = None
+    return data
+
+
+def _emits(rows: list[dict], tri_material: np.ndarray, prototypes: list[dict]) -> bool:
+    """Whether any triangle's material emits: a constant emissiveColor above 0, or an
+    emissiveColor texture (whose constant is only its fallback, often 0)."""
+    used = set(np.unique(tri_material).tolist())
+    for proto in prototypes:
+        used.update(np.unique(proto["triangle_material"]).tolist())
+    return any(any(c > 0 for c in rows[m]["values"]["emissiveColor"]) or "emissiveColor" in rows[m]["textures"]
+               for m in used if m < len(rows))
 
 
 def _move_to_camera(tr, camera: CameraDesc) -> None:

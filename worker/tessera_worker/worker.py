@@ -545,7 +545,7 @@ class Worker:
                        w=rect.width, h=rect.height, width=s.width, height=s.height, spp=spp,
                        sample_start=sample_start, seed=s.seed, max_depth=s.max_depth,
                        threads=self.threads, variance=s.adaptive or "variance" in s.aovs,
-                       aovs=list(s.aovs), integrator=s.integrator,
+                       aovs=list(s.aovs), integrator=s.integrator, default_light=s.default_light,
                        # light and bdpt: the variance layer from batches (protocol.VARIANCE_BATCHES)
                        batches="variance" in s.aovs,
                        fault=self._fault_for(task))

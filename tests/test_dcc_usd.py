@@ -1,0 +1,148 @@
+"""USD as DCC tools and asset libraries write it (issue 11): light-less assets, UV sets by
+name, packages inside packages, variants, camera framing, partial opacity, skinning.
+
+Files are either real ones from ../shared/scenes or small stages written here that model
+what the named exporter writes; every image check is one a black or grey image fails."""
+from __future__ import annotations
+
+import math
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
+
+from tessera_renderer import Scene, load_scene
+from tessera_renderer.scene_blob import scene_from_blob, translate_to_blob
+from tessera_renderer.usd_scene import translate_stage
+from usd_fixtures import add_material, add_mesh, new_stage
+
+SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
+
+
+def _save(stage) -> str:
+    stage.GetRootLayer().Save()
+    return stage.GetRootLayer().realPath
+
+
+def _quad(stage, path="/Quad", size=1.0, z=0.0, material=None, display=None):
+    s = size
+    mesh = add_mesh(stage, path, [(-s, -s, z), (s, -s, z), (s, s, z), (-s, s, z)], [4], [0, 1, 2, 3],
+                    material=material)
+    if display is not None:
+        mesh.CreateDisplayColorAttr([Gf.Vec3f(*display)])
+    return mesh
+
+
+def _mean_and_error(scene, w, h, spp, seed, albedo):
+    """Mean of the red channel over the pixels wholly covered by a surface of the given
+    albedo (from the albedo AOV) and its standard error (from the per-pixel sample
+    variance)."""
+    rgba, aov = scene.render_tile(0, 0, w, h, width=w, height=h, spp=spp, seed=seed,
+                                  aovs=("albedo", "variance"))
+    mask = np.abs(aov["albedo"][:, :, 0] - albedo) < 1e-4
+    assert mask.sum() >= 50, "the surface must cover the frame's centre"
+    px = rgba[:, :, 0][mask]
+    v = aov["variance"][:, :, 0][mask] / spp
+    return float(px.mean()), float(math.sqrt(v.sum()) / len(px))
+
+
+def _agrees(mean, se, expected):
+    return abs(mean - expected) < 4.0 * se + 1e-6 * expected
+
+
+# -- 1. light-less stages get default lighting ------------------------------------------
+def _lightless_quad(tmp_path, albedo=0.5):
+    stage = new_stage(tmp_path / "prop.usda")
+    _quad(stage, display=(albedo, albedo, albedo))
+    return _save(stage)
+
+
+def test_lightless_stage_is_lit_by_a_dome_and_a_camera_key_light(tmp_path):
+    path = _lightless_quad(tmp_path)
+    scene = load_scene(path)
+    light_lines = [w for w in scene.warnings if "light" in w]
+    assert len(light_lines) == 1 and "default lighting" in light_lines[0]
+    # Closed form for a Lambertian quad (albedo a) facing the camera, open to the sky:
+    # dome radiance 0.5 gives a * 0.5; the key light (illuminance 0.8 pi, from the
+    # documented direction -forward + 0.8 up - 0.6 right) adds a * 0.8 * cos(theta).
+    c = scene.data.camera
+    toward = -np.array(c.forward) + 0.8 * np.array(c.up) - 0.6 * np.array(c.right)
+    toward /= np.linalg.norm(toward)
+    normal = np.array([0.0, 0.0, 1.0])
+    expected = 0.5 * (0.5 + 0.8 * max(float(normal @ toward), 0.0))
+    mean, se = _mean_and_error(scene, 96, 96, 256, 1, 0.5)
+    assert 0.02 * expected > 8 * se, "the check must detect a 2 % error"
+    assert _agrees(mean, se, expected), (mean, se, expected)
+    assert not _agrees(mean, se, expected * 1.02)  # negative control: 2 % off fails
+
+
+def test_default_lighting_can_be_switched_off_and_then_says_black(tmp_path):
+    path = _lightless_quad(tmp_path)
+    dark = load_scene(path, default_light=False)
+    assert [w for w in dark.warnings if "light" in w] == [
+        "the scene has no lights and default lighting is off: it renders black"]
+    assert dark.render_tile(0, 0, 16, 16, width=16, height=16, spp=4)[..., :3].max() == 0.0
+    # The blob carries the default lights unapplied: one translation serves both renders.
+    blob = translate_to_blob(path)
+    lit = scene_from_blob(blob)
+    unlit = scene_from_blob(blob, default_light=False)
+    assert lit.render_tile(0, 0, 16, 16, width=16, height=16, spp=4)[8, 8, 0] > 0.2
+    assert unlit.render_tile(0, 0, 16, 16, width=16, height=16, spp=4)[..., :3].max() == 0.0
+
+
+def test_cli_no_default_light(tmp_path):
+    import OpenImageIO as oiio
+
+    from tessera.cli import main
+
+    path = _lightless_quad(tmp_path)
+    for flag, lit in (([], True), (["--no-default-light"], False)):
+        out = tmp_path / f"o{len(flag)}.exr"
+        assert main(["render", path, "--res", "16x16", "--spp", "2", "-q", "-o", str(out)] + flag) == 0
+        px = oiio.ImageBuf(str(out)).get_pixels(oiio.FLOAT)
+        assert (float(px[8, 8, 0]) > 0.2) if lit else (float(px[..., :3].max()) == 0.0)
+
+
+def test_job_setting_default_light():
+    from tessera.protocol import RenderSettings
+
+    assert RenderSettings(width=8, height=8).default_light is True
+    assert RenderSettings.model_validate_json(
+        RenderSettings(width=8, height=8, default_light=False).model_dump_json()).default_light is False
+
+
+def test_emissive_only_stage_is_not_lightless(tmp_path):
+    import OpenImageIO as oiio
+
+    stage = new_stage(tmp_path / "emit.usda")
+    _quad(stage, material=add_material(stage, "/Looks/E", (0, 0, 0), emissive=(2.0, 2.0, 2.0)))
+    data = translate_stage(_save(stage))
+    assert data.default_lights is None and not any("no lights" in w for w in data.warnings)
+    # Emission from a texture (constant emissiveColor is only the fallback, 0 here).
+    oiio.ImageBuf(np.full((2, 2, 3), 255, np.uint8)).write(str(tmp_path / "e.png"))
+    stage = new_stage(tmp_path / "emit_tex.usda")
+    mat = add_material(stage, "/Looks/E", (0, 0, 0))
+    tex = UsdShade.Shader.Define(stage, "/Looks/E/T")
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("./e.png")
+    UsdShade.Shader(stage.GetPrimAtPath("/Looks/E/Surface")).GetInput("emissiveColor").ConnectToSource(
+        tex.ConnectableAPI(), "rgb")
+    _quad(stage, material=mat)
+    scene = load_scene(_save(stage))
+    assert scene.data.default_lights is None and scene.data.dome_light is None
+    assert not any("no lights" in w for w in scene.warnings)
+    # The quad emits the texture (white, radiance 1): the image shows it, not black.
+    assert scene.render_tile(0, 0, 16, 16, width=16, height=16, spp=4)[8, 8, 0] == pytest.approx(1.0, abs=0.02)
+
+
+def test_preflight_reports_the_unlit_warnings_for_a_lightless_stage(tmp_path, capsys):
+    import json
+
+    from tessera_renderer import inspect
+
+    assert inspect.main([_lightless_quad(tmp_path)]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert any("default lighting" in w for w in info["warnings"])
+    assert "the scene has no lights and default lighting is off: it renders black" in info["unlit_warnings"]
