@@ -146,3 +146,74 @@ def test_preflight_reports_the_unlit_warnings_for_a_lightless_stage(tmp_path, ca
     info = json.loads(capsys.readouterr().out)
     assert any("default lighting" in w for w in info["warnings"])
     assert "the scene has no lights and default lighting is off: it renders black" in info["unlit_warnings"]
+
+
+# -- 2. UV sets by name ------------------------------------------------------------------
+def _pixel_of(scene, world_point, w, h):
+    """(row, column) of the pixel a world point projects to (pinhole camera)."""
+    c = scene.data.camera
+    p = np.asarray(world_point, float) - np.asarray(scene.data.world_offset) - np.asarray(c.origin)
+    tan_w, tan_h = c.tan_half_angles(w, h)
+    depth = p @ np.asarray(c.forward)
+    x = (0.5 + 0.5 * (p @ np.asarray(c.right)) / depth / tan_w) * w
+    y = (0.5 - 0.5 * (p @ np.asarray(c.up)) / depth / tan_h) * h
+    return int(y), int(x)
+
+
+def _four_texel_png(path):
+    """2 x 2 texels, rows top to bottom: red, green / blue, white. In st (t up):
+    (0.25, 0.25) is blue, (0.75, 0.75) green, (0.75, 0.25) white, (0.25, 0.75) red."""
+    import OpenImageIO as oiio
+
+    px = np.array([[[255, 0, 0], [0, 255, 0]], [[0, 0, 255], [255, 255, 255]]], np.uint8)
+    oiio.ImageBuf(px).write(str(path))
+
+
+def _emissive_textured_material(stage, path, uv_name, via_interface):
+    """What Apple's usdz converter writes: UsdUVTexture <- UsdPrimvarReader_float2 whose
+    varname is connected to the material's interface input frame:stPrimvarName."""
+    mat = add_material(stage, path, (0, 0, 0))
+    reader = UsdShade.Shader.Define(stage, path + "/Reader")
+    reader.CreateIdAttr("UsdPrimvarReader_float2")
+    var = reader.CreateInput("varname", Sdf.ValueTypeNames.Token)
+    if via_interface:
+        iface = mat.CreateInput("frame:stPrimvarName", Sdf.ValueTypeNames.Token)
+        iface.Set(uv_name)
+        var.ConnectToSource(iface)
+    else:
+        var.Set(uv_name)
+    tex = UsdShade.Shader.Define(stage, path + "/Tex")
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("./four.png")
+    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")
+    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+    UsdShade.Shader(stage.GetPrimAtPath(path + "/Surface")).GetInput("emissiveColor").ConnectToSource(
+        tex.ConnectableAPI(), "rgb")
+    return mat
+
+
+def test_uv_sets_by_name_per_subset_through_interface_inputs(tmp_path):
+    _four_texel_png(tmp_path / "four.png")
+    stage = new_stage(tmp_path / "uvsets.usda")
+    # Three unit quads in a row, one mesh; each face is a GeomSubset with its own material.
+    pts = [(x + dx, y, 0) for x in (-3, -1, 1) for dx, y in ((0, -1), (2, -1), (2, 1), (0, 1))]
+    mesh = add_mesh(stage, "/Mesh", pts, [4, 4, 4], list(range(12)))
+    api = UsdGeom.PrimvarsAPI(mesh)
+    for name, st in (("Texture_uv", (0.25, 0.25)), ("st1", (0.75, 0.75)), ("st", (0.75, 0.25))):
+        api.CreatePrimvar(name, Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying).Set(
+            [Gf.Vec2f(*st)] * 12)
+    mats = [_emissive_textured_material(stage, "/Looks/A", "Texture_uv", via_interface=True),
+            _emissive_textured_material(stage, "/Looks/B", "st1", via_interface=False),
+            _emissive_textured_material(stage, "/Looks/C", "Missing_uv", via_interface=True)]
+    binding = UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim())
+    for face, mat in enumerate(mats):
+        subset = binding.CreateMaterialBindSubset(f"face{face}", [face])
+        UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(mat)
+    scene = load_scene(_save(stage))
+    assert any("'Missing_uv'" in w and "default set" in w for w in scene.warnings)
+    w, h = 96, 48
+    img = scene.render_tile(0, 0, w, h, width=w, height=h, spp=4)
+    expected = {-2: (0, 0, 1), 0: (0, 1, 0), 2: (1, 1, 1)}  # blue (Texture_uv), green (st1), white (st)
+    for x, rgb in expected.items():
+        row, col = _pixel_of(scene, (x, 0, 0), w, h)
+        np.testing.assert_allclose(img[row, col, :3], rgb, atol=0.02, err_msg=f"face at x={x}")

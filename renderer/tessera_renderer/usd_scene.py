@@ -45,6 +45,9 @@ _STRUCTURAL_TYPES = {
     "Sphere", "Cube", "Cylinder", "Cone", "Capsule", "Plane",
 }
 _GPRIMS = ("Sphere", "Cube", "Cylinder", "Cone", "Capsule", "Plane")
+# UV sets read when no UsdPrimvarReader_float2 names one: the common names of DCC exporters
+# (USD's st, Blender's UVMap, Maya's map1, ...), first found wins.
+DEFAULT_UV_SETS = ("st", "st0", "UVMap", "uv", "map1")
 
 # UsdPreviewSurface inputs carried per material row, with the SceneData key they fill.
 _SCALAR_INPUTS = {"metallic": "metallic", "roughness": "roughness", "ior": "ior",
@@ -324,7 +327,7 @@ class _Translator:
                 self._geometry_cache[key] = geo
         if geo is None:
             return None
-        points, tris, face_of_tri, normals, uvs, n_faces = geo
+        points, tris, face_of_tri, normals, uv_set, n_faces = geo
         mesh = UsdGeom.Mesh(prim)
         t = self.time
         materials = np.zeros(len(tris), dtype=np.uint32)
@@ -343,7 +346,46 @@ class _Translator:
                 face_row[idx] = self.material_row(subset.GetPrim(), prim, double_sided)
             materials = face_row[face_of_tri]
 
-        return _Chunk(points, tris, materials, normals, uvs)
+        return _Chunk(points, tris, materials, normals, self._uvs_by_material(prim, materials, uv_set))
+
+    def _uvs_by_material(self, prim, materials, uv_set):
+        """Per-corner st of each triangle from the UV set its material's textures name
+        (UsdPrimvarReader_float2 varname), so subsets bound to materials reading different
+        sets each get theirs; the mesh's default set (DEFAULT_UV_SETS) where a material
+        names none or names one the mesh lacks (with a warning)."""
+        rows = np.unique(materials)
+        wanted = {int(r): self._uv_set_of_row(int(r)) for r in rows}
+        names = set(wanted.values())
+        if names <= {None}:
+            return uv_set(None)
+        uvs = None
+        for name in names:
+            values = uv_set(name)
+            if values is None and name is not None:
+                fallback = uv_set(None)
+                self._count_note(f"meshes lack the UV set {name!r} that their material's textures read "
+                                 f"(UsdPrimvarReader_float2 varname); "
+                                 + ("the mesh's default set is used" if fallback is not None
+                                    else "those textures are sampled at st = (0, 0)"))
+                values = fallback
+            if values is None:
+                continue
+            if uvs is None:
+                uvs = np.zeros((len(materials), 3, 2), np.float32)
+            sel = np.isin(materials, [r for r, n in wanted.items() if n == name])
+            uvs[sel] = values[sel]
+        return uvs
+
+    def _uv_set_of_row(self, row: int) -> str | None:
+        """The UV set a material row's textures read (None: no reader, the default set).
+        One set per material: textures reading several get the first, with a warning."""
+        textures = self.materials.rows[row]["textures"]
+        names = [self.materials.textures[t].get("st_primvar") for _, t in sorted(textures.items())]
+        names = list(dict.fromkeys(n for n in names if n))
+        if len(names) > 1:
+            self._count_note(f"materials whose textures read several UV sets ({', '.join(names)}) are "
+                             f"rendered with the first for all of them")
+        return names[0] if names else None
 
     def _mesh_geometry(self, prim):
         from pxr import UsdGeom
@@ -416,15 +458,22 @@ class _Translator:
                     self.warn(f"{path}: normals have {len(raw)} values, wrong for {interp}; ignored")
         if normals is None and scheme not in (None, UsdGeom.Tokens.none):
             normals = _vertex_normals(points, tris)  # smooth look for the unsubdivided cage
-        uvs = self.mesh_uvs(prim, api, corners, tris, face_of_tri, shape, path)
-        return points, tris, face_of_tri, normals, uvs, len(counts)
+        sets: dict = {}
 
-    def mesh_uvs(self, prim, api, corners, tris, face_of_tri, shape, path):
-        names = [n for n in ("st", "st0", "UVMap", "uv", "map1") if api.HasPrimvar(n)]
-        if not names:
-            return None
-        pv = api.GetPrimvar(names[0])
-        return self.corner_primvar(pv, corners, tris, face_of_tri, shape, 2, path)
+        def uv_set(name: str | None):
+            """Per-corner values of a named UV set, or of the default set for None;
+            None when the mesh has no such primvar. Read once per name."""
+            if name not in sets:
+                if name is None:
+                    found = [n for n in DEFAULT_UV_SETS if api.HasPrimvar(n)]
+                    pv = api.GetPrimvar(found[0]) if found else None
+                else:
+                    pv = api.GetPrimvar(name) if api.HasPrimvar(name) else None
+                sets[name] = self.corner_primvar(pv, corners, tris, face_of_tri, shape, 2, path) \
+                    if pv is not None else None
+            return sets[name]
+
+        return points, tris, face_of_tri, normals, uv_set, len(counts)
 
     def corner_primvar(self, pv, corners, tris, face_of_tri, shape, width, path):
         """A primvar of any interpolation, indexed or not, expanded to (T, 3, width)."""
@@ -740,7 +789,7 @@ class _Translator:
         """Which primvar feeds the texture's st, and any UsdTransform2d on the way."""
         from pxr import UsdShade
 
-        out = {"st_primvar": "st", "transform2d": None}
+        out = {"st_primvar": None, "transform2d": None}
         inp = tex_shader.GetInput("st")
         if not inp:
             return out
@@ -761,9 +810,12 @@ class _Translator:
                         if a2.GetName().startswith("outputs:"):
                             node = UsdShade.Shader(a2.GetPrim())
             if node and (node.GetIdAttr().Get() or "").startswith("UsdPrimvarReader"):
+                # varname may come through a connection to a material interface input
+                # (e.g. inputs:frame:stPrimvarName): GetValueProducingAttributes follows it.
                 var = _input_value(node, "varname", self.time)
                 if var:
-                    out["st_primvar"] = str(var)
+                    var = str(var)
+                    out["st_primvar"] = var[len("primvars:"):] if var.startswith("primvars:") else var
         return out
 
     def _clamped_albedo(self, color, path) -> tuple:
