@@ -217,3 +217,89 @@ def test_uv_sets_by_name_per_subset_through_interface_inputs(tmp_path):
     for x, rgb in expected.items():
         row, col = _pixel_of(scene, (x, 0, 0), w, h)
         np.testing.assert_allclose(img[row, col, :3], rgb, atol=0.02, err_msg=f"face at x={x}")
+
+
+# -- 3. packages inside packages ---------------------------------------------------------
+def _red_asset_layer(folder: Path, texture="./tex.png") -> Path:
+    """An asset layer as usdz exporters write one: a quad emitting its texture."""
+    import OpenImageIO as oiio
+
+    folder.mkdir(parents=True, exist_ok=True)
+    oiio.ImageBuf(np.full((2, 2, 3), (255, 0, 0), np.uint8)).write(str(folder / "tex.png"))
+    stage = new_stage(folder / "asset.usda")
+    mat = add_material(stage, "/Asset/Looks/M", (0, 0, 0))
+    tex = UsdShade.Shader.Define(stage, "/Asset/Looks/M/T")
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(texture)
+    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")
+    UsdShade.Shader(stage.GetPrimAtPath("/Asset/Looks/M/Surface")).GetInput("emissiveColor").ConnectToSource(
+        tex.ConnectableAPI(), "rgb")
+    _quad(stage, "/Asset/Quad", material=mat)
+    stage.SetDefaultPrim(stage.GetPrimAtPath("/Asset"))
+    _save(stage)
+    return folder / "asset.usda"
+
+
+def _usdz(path: Path, members: list[tuple[Path, str]]) -> Path:
+    writer = Sdf.ZipFileWriter.CreateNew(str(path))
+    for src, name in members:
+        writer.AddFile(str(src), name)
+    writer.Save()
+    return path
+
+
+def _set_referencing(path: Path, asset: str) -> str:
+    stage = new_stage(path)
+    stage.DefinePrim("/Set/A").GetReferences().AddReference(asset)
+    stage.SetDefaultPrim(stage.GetPrimAtPath("/Set"))
+    return _save(stage)
+
+
+def _centre_is_red(scene):
+    img = scene.render_tile(0, 0, 16, 16, width=16, height=16, spp=2)
+    np.testing.assert_allclose(img[8, 8, :3], (1.0, 0.0, 0.0), atol=0.01)
+
+
+def test_textures_of_a_usdz_referenced_from_a_layer(tmp_path):
+    layer = _red_asset_layer(tmp_path / "src")
+    _usdz(tmp_path / "asset.usdz", [(layer, "asset.usda"), (layer.parent / "tex.png", "tex.png")])
+    path = _set_referencing(tmp_path / "set.usda", "./asset.usdz")
+    scene = load_scene(path)
+    assert not any("missing" in w for w in scene.warnings), scene.warnings
+    _centre_is_red(scene)
+    # The same set as a farm bundle (.zip of set + package) through the blob.
+    bundle = tmp_path / "bundle.zip"
+    with zipfile.ZipFile(bundle, "w") as zf:
+        zf.write(path, "set.usda")
+        zf.write(tmp_path / "asset.usdz", "asset.usdz")
+    _centre_is_red(scene_from_blob(translate_to_blob(bundle)))
+
+
+def test_textures_of_a_package_nested_in_a_package(tmp_path):
+    layer = _red_asset_layer(tmp_path / "src")
+    inner = _usdz(tmp_path / "src" / "inner.usdz", [(layer, "asset.usda"), (layer.parent / "tex.png", "tex.png")])
+    outer_layer = tmp_path / "src" / "outer.usda"
+    _set_referencing(outer_layer, "./inner.usdz")
+    _usdz(tmp_path / "outer.usdz", [(outer_layer, "outer.usda"), (inner, "inner.usdz")])
+    scene = load_scene(_set_referencing(tmp_path / "set.usda", "./outer.usdz"))
+    assert not any("missing" in w or "composition" in w for w in scene.warnings), scene.warnings
+    _centre_is_red(scene)
+    # Submitted as the bundle itself, the outer package is unpacked; the inner stays a package.
+    _centre_is_red(load_scene(tmp_path / "outer.usdz"))
+
+
+def test_package_members_obey_the_sandbox(tmp_path):
+    from tessera_renderer import SceneError
+
+    # A member climbing out of its package to a file beside it is refused, not read.
+    layer = _red_asset_layer(tmp_path / "src", texture="../tex.png")
+    (tmp_path / "tex.png").write_bytes((layer.parent / "tex.png").read_bytes())
+    _usdz(tmp_path / "asset.usdz", [(layer, "asset.usda")])
+    path = _set_referencing(tmp_path / "set.usda", "./asset.usdz")
+    with pytest.raises(SceneError, match="outside its package"):
+        load_scene(path)
+    # A member that is not in the package is reported missing (and the quad falls back).
+    layer = _red_asset_layer(tmp_path / "src2", texture="./absent.png")
+    _usdz(tmp_path / "asset2.usdz", [(layer, "asset.usda")])
+    data = translate_stage(_set_referencing(tmp_path / "set2.usda", "./asset2.usdz"))
+    assert any("absent.png" in w and "missing" in w for w in data.warnings)
