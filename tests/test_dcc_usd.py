@@ -303,3 +303,56 @@ def test_package_members_obey_the_sandbox(tmp_path):
     _usdz(tmp_path / "asset2.usdz", [(layer, "asset.usda")])
     data = translate_stage(_set_referencing(tmp_path / "set2.usda", "./asset2.usdz"))
     assert any("absent.png" in w and "missing" in w for w in data.warnings)
+
+
+# -- 4. variants: what the composed stage uses ---------------------------------------------
+@pytest.fixture()
+def car_kit(tmp_path):
+    import shutil
+
+    src = SCENES / "usdwg_mini_car_kit"
+    if not src.is_dir():
+        pytest.skip("shared scenes missing")
+    work = tmp_path / "kit"
+    shutil.copytree(src, work)
+    return work
+
+
+def _lit_fraction(scene, w=32, h=24):
+    img = scene.render_tile(0, 0, w, h, width=w, height=h, spp=4, max_depth=3)
+    return float((img[..., :3].max(axis=2) > 0.05).mean())
+
+
+def test_layer_of_an_unselected_variant_may_be_missing(car_kit):
+    from tessera_renderer import SceneError
+
+    vehicles = car_kit / "USD_Mini_Car_Kit" / "assets" / "vehicles"
+    # The real kit selects the tractor; the ambulance's layers are only in another variant.
+    import shutil
+    shutil.rmtree(vehicles / "ambulance")
+    scene = load_scene(vehicles / "vehicleVariants.usda", root=car_kit)
+    info = [w for w in scene.warnings if w.startswith("information:")]
+    assert len(info) == 1 and "ambulanceFullAsset.usda" in info[0] and "not used" in info[0]
+    assert scene.num_triangles == 1988  # the tractor, as with the complete kit
+    assert _lit_fraction(scene) > 0.1
+    # A stronger layer selecting the ambulance asks for the missing layer: fatal, named.
+    shot = car_kit / "shot.usda"
+    shot.write_text('#usda 1.0\n(defaultPrim = "Car")\n'
+                    'def "Car" (references = @./USD_Mini_Car_Kit/assets/vehicles/vehicleVariants.usda@\n'
+                    '           variants = {string wheels = "sedan"})\n{}\n')
+    assert load_scene(shot, root=car_kit).num_triangles > 0  # sedan: present
+    shot.write_text(shot.read_text().replace('"sedan"', '"ambulance"'))
+    with pytest.raises(SceneError, match="ambulanceFullAsset.usda' is not in the bundle"):
+        load_scene(shot, root=car_kit)
+
+
+def test_missing_layer_of_the_selected_variant_or_a_sublayer_is_fatal(car_kit, tmp_path):
+    from tessera_renderer import SceneError
+
+    vehicles = car_kit / "USD_Mini_Car_Kit" / "assets" / "vehicles"
+    (vehicles / "tractor" / "asset" / "tractorFullAsset.usda").unlink()
+    with pytest.raises(SceneError, match="tractorFullAsset.usda' is not in the bundle"):
+        load_scene(vehicles / "vehicleVariants.usda", root=car_kit)
+    (tmp_path / "sub.usda").write_text('#usda 1.0\n(subLayers = [@./gone.usda@])\n')
+    with pytest.raises(SceneError, match="gone.usda' is not in the bundle"):
+        load_scene(tmp_path / "sub.usda")

@@ -69,6 +69,10 @@ class Bundle:
     limits: Limits = DEFAULT_LIMITS
     warnings: list[str] = field(default_factory=list)
     _tmp: str | None = None
+    # Layers some asset path names but the bundle lacks, as (authored, anchored path,
+    # where): whether that is fatal depends on whether the composed stage uses them
+    # (an unselected variant's layer is not used); open_stage decides.
+    unresolved_layers: list[tuple[str, str, str]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         if self._tmp:
@@ -388,7 +392,11 @@ def preflight(bundle: Bundle) -> None:
             member_missing = "[" in target and os.path.exists(probe) and not is_layer and \
                 read_package_member(target, bundle.limits, where, exists_only=True) is None
             if not os.path.exists(probe) or member_missing:
-                if is_layer:
+                if is_layer and authored.startswith(("./", "../")) and "[" not in target:
+                    bundle.unresolved_layers.append((authored, target, where))
+                elif is_layer:
+                    # Refused even when unused: USD would look such a path up relative to
+                    # the working directory (outside the bundle) when composing.
                     problems.append(f"{where}: layer {authored!r} is not in the bundle"
                                     + ("" if authored.startswith(("./", "../")) else
                                        " (search-path lookups are not allowed)"))
@@ -470,11 +478,29 @@ def open_stage(bundle: Bundle):
         real = os.path.realpath((layer.realPath or layer.identifier).split("[", 1)[0])
         if os.path.commonpath([real, root]) != root:
             raise SceneError(f"layer {layer.identifier} lies outside the bundle")
-    for err in stage.GetCompositionErrors():
-        text = str(err.GetMessage()) if hasattr(err, "GetMessage") else str(err)
+    errors = [str(err.GetMessage()) if hasattr(err, "GetMessage") else str(err)
+              for err in stage.GetCompositionErrors()]
+    # A missing layer is fatal only when the composed stage (with its variant selections)
+    # asks for it; one only an unselected variant names is information.
+    used, unused = [], []
+    for authored, target, where in bundle.unresolved_layers:
+        asked = any(f"@{target}@" in text or f"@{authored}@" in text for text in errors)
+        (used if asked else unused).append(f"{where}: layer {authored!r} is not in the bundle")
+    if used:
+        unique = list(dict.fromkeys(used))
+        raise SceneError("; ".join(unique[:5]) + (f" (and {len(unique) - 5} more)" if len(unique) > 5 else ""))
+    if unused:
+        unique = list(dict.fromkeys(unused))
+        bundle.warnings.append(f"information: {len(unique)} layer(s) missing from the bundle are not used "
+                               f"by the composed stage (e.g. only by unselected variants): "
+                               + "; ".join(unique[:4]) + (" ..." if len(unique) > 4 else ""))
+    missing_targets = {t for _, t, _ in bundle.unresolved_layers} | {a for a, _, _ in bundle.unresolved_layers}
+    for text in errors:
         if "cycle" in text.lower():
             raise SceneError(f"composition cycle: {_first_line(text)}")
-        bundle.warnings.append(f"composition: {_first_line(text)}")
+        if any(f"@{m}@" in text for m in missing_targets):
+            continue  # reported above
+        bundle.warnings.append(f"composition: {_first_line(user_terms(text, bundle.root))}")
     return stage
 
 
