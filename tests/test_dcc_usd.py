@@ -356,3 +356,48 @@ def test_missing_layer_of_the_selected_variant_or_a_sublayer_is_fatal(car_kit, t
     (tmp_path / "sub.usda").write_text('#usda 1.0\n(subLayers = [@./gone.usda@])\n')
     with pytest.raises(SceneError, match="gone.usda' is not in the bundle"):
         load_scene(tmp_path / "sub.usda")
+
+
+# -- 8. default camera: a tight three-quarter view ----------------------------------------
+def _coverage_box(alpha):
+    """(top, bottom, left, right) margins in pixels of the geometry's silhouette."""
+    rows, cols = np.nonzero(alpha > 0.5)
+    h, w = alpha.shape
+    return rows.min(), h - 1 - rows.max(), cols.min(), w - 1 - cols.max()
+
+
+@pytest.mark.parametrize("up,faces", [("Y", [(1, 0, 0), (0, 1, 0), (0, 0, 1)]),
+                                      ("Z", [(1, 0, 0), (0, -1, 0), (0, 0, 1)])])
+def test_camera_less_stage_is_framed_tightly_from_three_quarters(tmp_path, up, faces):
+    stage = new_stage(tmp_path / "cube.usda")
+    UsdGeom.SetStageUpAxis(stage, up)
+    cube = UsdGeom.Cube.Define(stage, "/Cube")
+    cube.CreateSizeAttr(2.0)
+    cube.AddTranslateOp().Set(Gf.Vec3d(10, -4, 3))  # framing follows the bounds, wherever
+    scene = load_scene(_save(stage))
+    assert any("three-quarter" in w for w in scene.warnings)
+    w, h = 64, 48
+    rgba, aov = scene.render_tile(0, 0, w, h, width=w, height=h, spp=4, aovs=("normal",))
+    # Three faces show, each over 10 % of the frame: front, side and top.
+    n = aov["normal"].reshape(-1, 3)
+    for face in faces:
+        share = float((n @ np.array(face, float) > 0.99).mean())
+        assert share > 0.10, (face, share)
+    # Tight: the silhouette fills the frame's height to within 5 % + a pixel at each end,
+    # centred (margins differ by at most 2 pixels).
+    top, bottom, left, right = _coverage_box(rgba[..., 3])
+    assert top <= 0.025 * h + 1 and bottom <= 0.025 * h + 1 and abs(top - bottom) <= 2, (top, bottom)
+    assert abs(left - right) <= 2, (left, right)
+
+
+def test_real_teapot_fills_the_frame(tmp_path):
+    if not (SCENES / "usdwg_teapot").is_dir():
+        pytest.skip("shared scenes missing")
+    scene = load_scene(SCENES / "usdwg_teapot" / "Teapot.usd")
+    w, h = 64, 64
+    rgba = scene.render_tile(0, 0, w, h, width=w, height=h, spp=2, max_depth=2)
+    top, bottom, left, right = _coverage_box(rgba[..., 3])
+    # The silhouette reaches within 5 % of two opposite edges (the old front view at the
+    # bounding sphere's distance left a third of the frame empty on every side).
+    assert min(top + bottom, left + right) <= 0.05 * w + 2, (top, bottom, left, right)
+    assert float((rgba[..., 3] > 0.5).mean()) > 0.3

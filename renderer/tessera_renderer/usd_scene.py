@@ -1273,25 +1273,57 @@ def _camera_from_prim(prim, xform_cache, time, warn) -> CameraDesc:
                       clip_near=near, clip_far=far)
 
 
-def _default_camera(positions: np.ndarray, sphere_lights: np.ndarray, up_axis: str) -> CameraDesc:
-    """Frames the bounding sphere of the geometry from the front (+Z for Y-up stages,
-    -Y for Z-up), 50 mm lens on a 36 x 24 mm aperture."""
-    pts = positions if len(positions) else np.zeros((1, 3))
-    if len(sphere_lights):
-        pts = np.concatenate([pts, sphere_lights[:, :3]])
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    center = (lo + hi) / 2
-    radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-3)
+# The default camera's view: a three-quarter view from the front-right, above (degrees),
+# and the share of the frame the scene's extent may fill in its limiting direction.
+DEFAULT_VIEW_AZIMUTH = 45.0
+DEFAULT_VIEW_ELEVATION = 30.0
+DEFAULT_VIEW_FILL = 0.95
+
+
+def _default_camera(points: np.ndarray, up_axis: str, resolution: tuple[int, int]) -> CameraDesc:
+    """Frames `points` (world space) tightly from a three-quarter view, as usdview's "frame
+    all" fits the scene to its view: looking at the centre of their bounds from
+    DEFAULT_VIEW_AZIMUTH degrees right of the front (+Z on Y-up stages, -Y on Z-up) and
+    DEFAULT_VIEW_ELEVATION above, at the distance where every point projects inside
+    DEFAULT_VIEW_FILL of the frame, re-aimed once so the projected extent is centred. A
+    50 mm lens with a 24 mm vertical aperture, the horizontal one matching the
+    resolution's aspect ratio (so the fit holds for the image rendered)."""
+    pts = points if len(points) else np.zeros((1, 3))
     if up_axis == "Z":
-        forward, up = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
+        front, up_w = np.array([0.0, -1.0, 0.0]), np.array([0.0, 0.0, 1.0])
     else:
-        forward, up = np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0])
-    half_fov = math.atan(24.0 / (2 * 50.0))  # the narrower (vertical) half angle
-    distance = radius / math.sin(half_fov) * 1.05
-    origin = center - forward * distance
-    right = np.cross(forward, up)
-    return CameraDesc(_floats(origin), _floats(right), _floats(up), _floats(forward), 36.0, 24.0, 50.0,
-                      "default camera framing the scene bounds")
+        front, up_w = np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])
+    right_w = np.cross(up_w, front)  # +X on both
+    az, el = math.radians(DEFAULT_VIEW_AZIMUTH), math.radians(DEFAULT_VIEW_ELEVATION)
+    eye_dir = math.cos(el) * (math.cos(az) * front + math.sin(az) * right_w) + math.sin(el) * up_w
+    forward = -eye_dir
+    right = _unit(np.cross(forward, up_w))
+    up = np.cross(right, forward)
+    aspect = resolution[0] / resolution[1]
+    vap, focal = 24.0, 50.0
+    hap = vap * aspect
+    tan_w, tan_h = hap / (2 * focal) * DEFAULT_VIEW_FILL, vap / (2 * focal) * DEFAULT_VIEW_FILL
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    target = (lo + hi) / 2
+    size = max(float(np.linalg.norm(hi - lo)), 1e-3)
+    q = pts - target
+    x, y, z = q @ right, q @ up, q @ forward
+
+    def distance(sx, sy):  # camera distance fitting every point, target shifted by (sx, sy)
+        return float(max(np.max(np.abs(x - sx) / tan_w - z), np.max(np.abs(y - sy) / tan_h - z)))
+
+    sx = sy = 0.0
+    d = distance(sx, sy)
+    depth = np.maximum(d + z, 1e-9)
+    u, v = (x - sx) / depth, (y - sy) / depth
+    # Centre the projected extent: shift the aim by the middle of the extent at the
+    # target's depth, then fit again.
+    sx += (u.max() + u.min()) / 2 * d
+    sy += (v.max() + v.min()) / 2 * d
+    d = max(distance(sx, sy), size * 1e-3)
+    origin = target + sx * right + sy * up - forward * d
+    return CameraDesc(_floats(origin), _floats(right), _floats(up), _floats(forward), hap, vap, focal,
+                      "default camera: three-quarter view framing the scene")
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -1381,16 +1413,19 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     if camera_prim is not None:
         camera = _camera_from_prim(camera_prim, tr.xform_cache, time, warn)
     else:
-        corners = [np.stack([c.points.min(axis=0), c.points.max(axis=0)]) for c in tr.chunks if len(c.points)]
+        # Every point (not the chunks' boxes): the fit is to what is seen.
+        corners = [c.points for c in tr.chunks if len(c.points)]
         all_instances = np.concatenate(tr.instances) if tr.instances else np.zeros(0, np.uint32)
         if len(all_instances):
             mats = np.concatenate(tr.instance_xforms)
             corners += [_instance_corners(proto["chunks"], mats[all_instances == k])
                         for k, proto in enumerate(tr.prototypes) if any(len(c.points) for c in proto["chunks"])]
+        spheres = np.array([row[:4] for row in tr.sphere_lights], np.float64).reshape(-1, 4)
+        signs = np.array([(a, b, c) for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], np.float64)
+        corners += [(spheres[:, None, :3] + spheres[:, None, 3:4] * signs[None]).reshape(-1, 3)]
         bound_pts = np.concatenate(corners) if corners else np.zeros((0, 3))
-        spheres = np.array([row[:3] for row in tr.sphere_lights], np.float64).reshape(-1, 3)
-        camera = _default_camera(bound_pts, spheres, up_axis)
-        warn("the scene has no camera: using a default camera framing its bounds")
+        camera = _default_camera(bound_pts, up_axis, resolution)
+        warn("the scene has no camera: using a default camera, a three-quarter view framing the scene")
     camera_offset = (0.0, 0.0, 0.0)
     if camera_relative:
         _move_to_camera(tr, camera)
