@@ -401,3 +401,51 @@ def test_real_teapot_fills_the_frame(tmp_path):
     # bounding sphere's distance left a third of the frame empty on every side).
     assert min(top + bottom, left + right) <= 0.05 * w + 2, (top, bottom, left, right)
     assert float((rgba[..., 3] > 0.5).mean()) > 0.3
+
+
+# -- 10. opacity as exporters mean it -----------------------------------------------------
+def _pane_scene(tmp_path, name, **inputs):
+    """A black UsdPreviewSurface pane (half size 1, z = 0) in front of a backdrop emitting
+    radiance 1 toward the camera (z = -1), seen by a camera at z = 5 looking down -Z.
+    Nothing lights the pane's front, so a pixel through it shows exactly the share of the
+    backdrop that passes the pane."""
+    from usd_fixtures import add_camera
+
+    stage = new_stage(tmp_path / f"{name}.usda")
+    _quad(stage, "/Backdrop", size=4.0, z=-1.0, material=add_material(stage, "/Looks/Bd", (0, 0, 0), (1, 1, 1)))
+    glass = add_material(stage, "/Looks/Glass", (0, 0, 0))
+    shader = UsdShade.Shader(stage.GetPrimAtPath("/Looks/Glass/Surface"))
+    for key, value in inputs.items():
+        kind = Sdf.ValueTypeNames.Token if isinstance(value, str) else Sdf.ValueTypeNames.Float
+        shader.CreateInput(key, kind).Set(value)
+    _quad(stage, "/Pane", size=1.0, z=0.0, material=glass)
+    add_camera(stage, "/Camera", translate=(0, 0, 5), focal=50.0, haperture=36.0, vaperture=36.0)
+    return load_scene(_save(stage))
+
+
+def test_partial_opacity_is_presence_as_usdview_shows_it(tmp_path):
+    scene = _pane_scene(tmp_path, "mineways_glass", opacity=0.57)  # Mineways writes 0.57, no ior
+    assert scene.data.material_params["opacity_threshold"].min() < 0  # presence row
+    assert any("presence" in w for w in scene.warnings)
+    w = h = 64
+    rgba, var = scene.render_tile(0, 0, w, h, width=w, height=h, spp=512, seed=3, return_variance=True)
+    box = (slice(20, 44), slice(20, 44))  # well inside the pane (it covers the central 55 %)
+    px, v = rgba[box][..., 0].ravel(), var[box][..., 0].ravel() / 512
+    mean, se = float(px.mean()), float(math.sqrt(v.sum()) / len(px))
+    expected = 1.0 - 0.57  # the transmitted share, no Fresnel loss, no refraction
+    assert 0.02 * expected > 8 * se, "the check must detect a 2 % error"
+    assert _agrees(mean, se, expected), (mean, se, expected)
+    assert not _agrees(mean, se, expected * 1.02) and not _agrees(mean, se, expected * 0.98)
+    # Outside the pane the backdrop shows unattenuated.
+    assert rgba[2, 2, 0] == pytest.approx(1.0, abs=1e-3)
+
+
+def test_refraction_only_where_authored_and_presence_mode(tmp_path):
+    glass = _pane_scene(tmp_path, "ior", opacity=0.57, ior=1.5).data.material_params
+    assert glass["opacity_threshold"].max() == 0.0 and glass["opacity"].min() == pytest.approx(0.57)
+    clear = _pane_scene(tmp_path, "clear", opacity=0.0).data.material_params  # clear glass stays glass
+    assert clear["opacity_threshold"].max() == 0.0
+    presence = _pane_scene(tmp_path, "presence", opacity=0.3, ior=1.5, opacityMode="presence")
+    assert presence.data.material_params["opacity_threshold"].min() < 0
+    cutout = _pane_scene(tmp_path, "cutout", opacity=0.3, opacityThreshold=0.5).data.material_params
+    assert cutout["opacity_threshold"].max() == pytest.approx(0.5)

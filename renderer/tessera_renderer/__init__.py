@@ -130,7 +130,7 @@ class Scene:
         used[np.unique(self.data.triangle_material)] = True
         for proto in getattr(self.data, "prototypes", None) or []:
             used[np.unique(proto["triangle_material"])] = True
-        transmits = (opacity < 1.0) & (threshold <= 0.0)
+        transmits = (opacity < 1.0) & (threshold == 0.0)  # < 0: presence, passes straight
         smooth = ((roughness < AUTO_SMOOTH_ROUGHNESS) & (metallic > 0.0)) | \
                  ((clearcoat > 0.0) & (coat_roughness < AUTO_SMOOTH_ROUGHNESS))
         return "bdpt" if np.any(preview & used & (transmits | smooth)) else "path"

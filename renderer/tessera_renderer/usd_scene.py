@@ -55,6 +55,10 @@ _SCALAR_INPUTS = {"metallic": "metallic", "roughness": "roughness", "ior": "ior"
                   "opacity": "opacity", "opacityThreshold": "opacity_threshold",
                   "useSpecularWorkflow": "use_specular_workflow"}
 _COLOR_INPUTS = ("diffuseColor", "emissiveColor", "specularColor")
+# opacity_threshold of a row whose opacity is presence (see _Translator._is_presence): a
+# value USD cannot author (the threshold is >= 0), read by the core as "a hit is a surface
+# with probability opacity, else passed straight through".
+PRESENCE_MODE = -1.0
 PARAM_KEYS = ("specular_color",) + tuple(_SCALAR_INPUTS.values()) + ("preview_surface",)
 
 
@@ -699,7 +703,33 @@ class _Translator:
                                      "asks the file to set them")
         values["diffuseColor"] = self._clamped_albedo(values["diffuseColor"], path)
         values["emissiveColor"] = _non_negative(values["emissiveColor"])
+        if self._is_presence(shader, values, "opacity" in textures):
+            values["opacityThreshold"] = (PRESENCE_MODE,)
         return {"values": values, "textures": textures, "preview": True}
+
+    def _is_presence(self, shader, values, textured_opacity: bool) -> bool:
+        """Whether the surface's opacity means presence (partial coverage, no refraction)
+        rather than glass. UsdPreviewSurface's reference viewer (Storm) blends a partial
+        opacity as translucency and refracts nothing; a path tracer refracting every
+        partially opaque surface turns exporters' window panes (Mineways' glass at 0.57)
+        into dark glass with fireflies. So: a cutout (opacityThreshold > 0) stays one;
+        opacityMode "presence" is presence; otherwise a partial or textured opacity is
+        presence unless the author asks for refraction by authoring `ior`; opacity 0
+        (clear glass, whose specular response the spec keeps) stays glass."""
+        threshold, opacity = values["opacityThreshold"][0], values["opacity"][0]
+        if threshold > 0:
+            return False
+        partial = textured_opacity or 0.0 < opacity < 1.0
+        if str(_input_value(shader, "opacityMode", self.time) or "transparent") == "presence":
+            return partial or opacity < 1.0
+        if not partial:
+            return False
+        ior = shader.GetInput("ior")
+        if ior and (ior.GetAttr().HasAuthoredValue() or ior.HasConnectedSource()):
+            return False
+        self._count_note("partial opacity without an authored ior renders as presence (translucent "
+                         "without refraction, as usdview shows it); author ior to make it refract")
+        return True
 
     def _input(self, shader, name, default, path, display):
         """(value, texture description or None) of a UsdPreviewSurface input."""
