@@ -449,3 +449,24 @@ def test_refraction_only_where_authored_and_presence_mode(tmp_path):
     assert presence.data.material_params["opacity_threshold"].min() < 0
     cutout = _pane_scene(tmp_path, "cutout", opacity=0.3, opacityThreshold=0.5).data.material_params
     assert cutout["opacity_threshold"].max() == pytest.approx(0.5)
+
+
+def test_normal_maps_without_scale_and_bias_warn_once_per_asset(tmp_path):
+    import OpenImageIO as oiio
+
+    oiio.ImageBuf(np.full((2, 2, 3), (128, 128, 255), np.uint8)).write(str(tmp_path / "n.png"))
+    stage = new_stage(tmp_path / "normals.usda")
+    for k in range(3):  # three materials, each with an unscaled normal map
+        mat = add_material(stage, f"/Looks/M{k}", (0.2 * k, 0.5, 0.5))
+        tex = UsdShade.Shader.Define(stage, f"/Looks/M{k}/N")
+        tex.CreateIdAttr("UsdUVTexture")
+        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("./n.png")
+        UsdShade.Shader(stage.GetPrimAtPath(f"/Looks/M{k}/Surface")).CreateInput(
+            "normal", Sdf.ValueTypeNames.Normal3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
+        _quad(stage, f"/Q{k}", z=float(k), material=mat)
+    data = translate_stage(_save(stage))
+    lines = [w for w in data.warnings if "normal maps" in w]
+    assert len(lines) == 1 and "usdview" in lines[0], data.warnings
+    # Read as authored: the texture's scale and bias stay the schema's (1, 0).
+    normal_textures = [data.textures[t] for (m, name), t in data.material_textures.items() if name == "normal"]
+    assert len(normal_textures) >= 1 and all(t["scale"][:3] == [1.0, 1.0, 1.0] for t in normal_textures)

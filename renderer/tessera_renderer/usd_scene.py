@@ -698,9 +698,11 @@ class _Translator:
                 textures[name] = self.materials.add_texture(tex)
                 if name == "normal" and tex["scale"][:3] == [1.0, 1.0, 1.0] and tex["bias"][:3] == [0.0, 0.0, 0.0]:
                     # Read as authored (the spec's rule), which tilts every normal: say so.
+                    # One line for the scene however many maps: Storm (the spec's reference
+                    # viewer) does not remap either, so the image matches usdview's.
                     self._count_note("normal maps without scale (2, 2, 2) and bias (-1, -1, -1) are read as "
-                                     "authored (values in [0, 1] tilt every normal); the UsdPreviewSurface spec "
-                                     "asks the file to set them")
+                                     "authored, as the UsdPreviewSurface spec and usdview do (values in [0, 1] "
+                                     "tilt every normal); set them in the file to decode 8-bit maps")
         values["diffuseColor"] = self._clamped_albedo(values["diffuseColor"], path)
         values["emissiveColor"] = _non_negative(values["emissiveColor"])
         if self._is_presence(shader, values, "opacity" in textures):
