@@ -470,3 +470,80 @@ def test_normal_maps_without_scale_and_bias_warn_once_per_asset(tmp_path):
     # Read as authored: the texture's scale and bias stay the schema's (1, 0).
     normal_textures = [data.textures[t] for (m, name), t in data.material_textures.items() if name == "normal"]
     assert len(normal_textures) >= 1 and all(t["scale"][:3] == [1.0, 1.0, 1.0] for t in normal_textures)
+
+
+# -- 9a. skinned meshes (UsdSkel) -----------------------------------------------------------
+def _skinned_bar(tmp_path):
+    """What Blender's and Maya's exporters write for a rigged bar: SkelRoot > Skeleton (two
+    joints: root at the origin, tip 1 up the bar) + Mesh bound with jointIndices/
+    jointWeights (vertex interpolation, one influence), and a SkelAnimation that bends the
+    tip 90° about +Z between frames 1 and 10. The bar is 0.2 thick, 2 long along +Y: the
+    lower half is bound to the root, the upper half to the tip."""
+    from pxr import UsdSkel
+
+    stage = new_stage(tmp_path / "rig.usda")
+    stage.SetStartTimeCode(1)
+    stage.SetEndTimeCode(10)
+    root = UsdSkel.Root.Define(stage, "/Rig")
+    root.GetPrim().CreateAttribute("xformOp:translate", Sdf.ValueTypeNames.Double3).Set(Gf.Vec3d(5, 0, 0))
+    UsdGeom.Xformable(root.GetPrim()).CreateXformOpOrderAttr().Set(["xformOp:translate"])
+    skel = UsdSkel.Skeleton.Define(stage, "/Rig/Skel")
+    skel.CreateJointsAttr(["root", "root/tip"])
+    identity = Gf.Matrix4d(1)
+    tip_rest = Gf.Matrix4d(1).SetTranslate(Gf.Vec3d(0, 1, 0))
+    skel.CreateBindTransformsAttr([identity, tip_rest])         # world-space bind pose
+    skel.CreateRestTransformsAttr([identity, tip_rest])         # joint-local rest pose
+    anim = UsdSkel.Animation.Define(stage, "/Rig/Skel/Anim")
+    anim.CreateJointsAttr(["root", "root/tip"])
+    anim.CreateTranslationsAttr().Set([Gf.Vec3f(0, 0, 0), Gf.Vec3f(0, 1, 0)])
+    anim.CreateScalesAttr().Set([Gf.Vec3h(1, 1, 1), Gf.Vec3h(1, 1, 1)])
+    rot = anim.CreateRotationsAttr()
+    bent = Gf.Quatf(math.cos(math.pi / 4), 0, 0, math.sin(math.pi / 4))  # 90° about +Z
+    rot.Set([Gf.Quatf(1, 0, 0, 0), Gf.Quatf(1, 0, 0, 0)], 1)
+    rot.Set([Gf.Quatf(1, 0, 0, 0), bent], 10)
+    UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
+    # A 2 x 1 x 1 grid of boxes along y: rows at y = 0, 1, 2.
+    pts, t = [], 0.1
+    for y in (0.0, 1.0, 2.0):
+        pts += [(-t, y, -t), (t, y, -t), (t, y, t), (-t, y, t)]
+    quads = []
+    for r in range(2):
+        a, b = 4 * r, 4 * r + 4
+        quads += [(a + i, a + (i + 1) % 4, b + (i + 1) % 4, b + i) for i in range(4)]
+    quads += [(0, 3, 2, 1), (8, 9, 10, 11)]
+    mesh = add_mesh(stage, "/Rig/Bar", pts, [4] * len(quads), [i for q in quads for i in q])
+    mesh.CreateDisplayColorAttr([Gf.Vec3f(0.8, 0.8, 0.8)])
+    binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
+    binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
+    binding.CreateJointIndicesPrimvar(False, 1).Set([0] * 4 + [1] * 8)  # rows at y >= 1: the tip
+    binding.CreateJointWeightsPrimvar(False, 1).Set([1.0] * 12)
+    binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1))
+    return _save(stage)
+
+
+def test_skinned_mesh_is_posed_at_the_render_frame(tmp_path):
+    path = _skinned_bar(tmp_path)
+    rest = translate_stage(path, frame=1, camera_relative=False)
+    bent = translate_stage(path, frame=10, camera_relative=False)
+    assert not any("skipped" in w or "not supported" in w for w in bent.warnings), bent.warnings
+    # Rest pose: the bar stands along +Y from y = 0 to 2 at x = 5 (the SkelRoot's offset).
+    np.testing.assert_allclose(rest.positions.min(axis=0), (4.9, 0.0, -0.1), atol=1e-5)
+    np.testing.assert_allclose(rest.positions.max(axis=0), (5.1, 2.0, 0.1), atol=1e-5)
+    # Frame 10: the tip half turns 90° about +Z around the joint at (5, 1, 0): its top row
+    # (y = 2, x = 5 +- 0.1) goes to x = 5 - 1 = 4, y = 1 +- 0.1 (closed form).
+    top = bent.positions[np.abs(bent.positions[:, 0] - 4.0) < 1e-4]
+    assert len(top) >= 4
+    np.testing.assert_allclose(sorted(set(np.round(top[:, 1], 5))), [0.9, 1.1], atol=1e-5)
+    assert bent.positions[:, 0].min() == pytest.approx(4.0, abs=1e-5)
+    assert bent.positions[:, 1].max() == pytest.approx(1.1, abs=1e-5)
+    # The render shows the bent bar: the bent tip is covered where the rest pose has none.
+    from usd_fixtures import add_camera
+    stage = Usd.Stage.Open(path)
+    add_camera(stage, "/Camera", translate=(4.5, 1.0, 10), focal=50.0, haperture=36.0, vaperture=36.0)
+    _save(stage)
+    w = h = 48
+    for frame, tip_covered in ((1, False), (10, True)):
+        scene = load_scene(path, frame=frame)
+        alpha = scene.render_tile(0, 0, w, h, width=w, height=h, spp=4)[..., 3]
+        row, col = _pixel_of(scene, (4.2, 1.0, 0.0), w, h)  # on the bent tip, off the rest bar
+        assert (alpha[row, col] > 0.5) == tip_covered, (frame, alpha[row, col])

@@ -43,6 +43,8 @@ _STRUCTURAL_TYPES = {
     "RenderSettings", "RenderProduct", "RenderVar", "RenderPass", "Mesh", "RectLight",
     "SphereLight", "DiskLight", "CylinderLight", "DistantLight", "DomeLight", "PointInstancer",
     "Sphere", "Cube", "Cylinder", "Cone", "Capsule", "Plane",
+    # UsdSkel: the skeleton deforms the meshes under its SkelRoot (see _Translator.skin).
+    "SkelRoot", "Skeleton", "SkelAnimation", "BlendShape",
 }
 _GPRIMS = ("Sphere", "Cube", "Cylinder", "Cone", "Capsule", "Plane")
 # UV sets read when no UsdPrimvarReader_float2 names one: the common names of DCC exporters
@@ -222,6 +224,9 @@ class _Translator:
         self._surface_cache: dict[Any, dict] = {}
         self._geometry_cache: dict[str, Any] = {}
         self._notes: Counter = Counter()  # repeated warnings, reported once with a count
+        # Skinned meshes: prim path -> (points in skeleton space at the frame, the
+        # skeleton's local-to-world matrix). Filled by skin() before the walk.
+        self.skinned: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         node = Sdr.Registry().GetShaderNodeByIdentifier("UsdPreviewSurface")
         # UsdPreviewSurface defaults come from its registered definition, not from here.
         self.defaults = {name: _as_tuple(node.GetShaderInput(name).GetDefaultValue())
@@ -261,6 +266,9 @@ class _Translator:
                 it.PruneChildren()  # prototypes render only through the instancer
                 continue
             m = self.world_matrix(prim) if (prim.IsA(UsdGeom.Gprim)) else None
+            skinned = self.skinned.get(str(prim.GetPath())) if self.skinned else None
+            if skinned is not None:
+                m = skinned[1]  # skinned points are in the skeleton's space
             if m is not None and base_inv is not None:
                 m = m @ base_inv
             if prim.IsA(UsdGeom.Mesh):
@@ -316,13 +324,55 @@ class _Translator:
             raise SceneError(f"{path}: the scene has more than {self.limits.triangles} triangles (limit)")
         sink.append(chunk)
 
+    # -- skinning -------------------------------------------------------------------
+    def skin(self) -> None:
+        """Poses every skinned mesh at the render frame, as UsdSkel.BakeSkinning would: the
+        skeleton's animation (SkelAnimation, else its rest pose) gives the skinning
+        transforms, UsdSkel's skinning query applies them with each mesh's joint
+        influences and geomBindTransform (linear blend or dual quaternion, as authored;
+        rigid bindings as one transform). The posed points are in the skeleton's space."""
+        from pxr import Usd, UsdSkel
+
+        predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
+        roots = [p for p in Usd.PrimRange.Stage(self.stage, predicate) if p.IsA(UsdSkel.Root)]
+        if not roots:
+            return
+        cache = UsdSkel.Cache()
+        for root_prim in roots:
+            root = UsdSkel.Root(root_prim)
+            cache.Populate(root, predicate)
+            for binding in cache.ComputeSkelBindings(root, predicate):
+                skel_query = cache.GetSkelQuery(binding.GetSkeleton())
+                skel_world = self.world_matrix(skel_query.GetPrim())
+                xforms = skel_query.ComputeSkinningTransforms(self.time)
+                for query in binding.GetSkinningTargets():
+                    prim = query.GetPrim()
+                    path = str(prim.GetPath())
+                    points = _skinnable_points(prim, self.time)
+                    if points is None or xforms is None:
+                        continue
+                    if query.HasBlendShapes():
+                        self._count_note("UsdSkel blend shapes are not applied (skinning is)")
+                    if query.IsRigidlyDeformed():
+                        m = np.array(query.ComputeSkinnedTransform(xforms, self.time), np.float64)
+                        posed = np.asarray(points, np.float64) @ m[:3, :3] + m[3, :3]
+                    else:
+                        if not query.ComputeSkinnedPoints(xforms, points, self.time):
+                            self.warn(f"{path}: UsdSkel could not skin this mesh; rendered in its rest pose")
+                            continue
+                        posed = np.asarray(points, np.float64)
+                    self.skinned[path] = (posed, skel_world)
+        if self.skinned:
+            self._count_note(f"UsdSkel: {len(self.skinned)} skinned mesh(es) posed at the render frame")
+
     # -- meshes ---------------------------------------------------------------------
     def mesh_chunk(self, prim) -> _Chunk | None:
         from pxr import UsdGeom, UsdShade
 
         # Instance proxies of one prototype prim share its geometry: read it once; only
-        # the material binding can differ per instance.
-        key = str(prim.GetPrimInPrototype().GetPath()) if prim.IsInstanceProxy() else None
+        # the material binding can differ per instance (skinned meshes are posed per prim).
+        key = str(prim.GetPrimInPrototype().GetPath()) \
+            if prim.IsInstanceProxy() and str(prim.GetPath()) not in self.skinned else None
         if key is not None and key in self._geometry_cache:
             geo = self._geometry_cache[key]
         else:
@@ -398,6 +448,9 @@ class _Translator:
         path = str(prim.GetPath())
         t = self.time
         points = mesh.GetPointsAttr().Get(t)
+        skinned = self.skinned.get(path)
+        if skinned is not None:
+            points = skinned[0]
         counts = mesh.GetFaceVertexCountsAttr().Get(t)
         face_indices = mesh.GetFaceVertexIndicesAttr().Get(t)
         if points is None or counts is None or face_indices is None:
@@ -460,6 +513,11 @@ class _Translator:
                                   corners, tris, face_of_tri, shape)
                 if normals is None:
                     self.warn(f"{path}: normals have {len(raw)} values, wrong for {interp}; ignored")
+        if normals is not None and skinned is not None:
+            # Authored normals are the rest pose's: shade the posed surface smoothly.
+            self._count_note("skinned meshes get smooth normals of the posed surface (their authored "
+                             "normals are the rest pose's)")
+            normals = _vertex_normals(points, tris)
         if normals is None and scheme not in (None, UsdGeom.Tokens.none):
             normals = _vertex_normals(points, tris)  # smooth look for the unsubdivided cage
         sets: dict = {}
@@ -1034,6 +1092,14 @@ class _Translator:
             self.warn(message + (f" ({count} times)" if count > 1 else ""))
 
 
+def _skinnable_points(prim, time):
+    """A mesh's points at `time` as a mutable Vt array (the skinning query writes into it)."""
+    from pxr import UsdGeom, Vt
+
+    value = UsdGeom.PointBased(prim).GetPointsAttr().Get(time) if UsdGeom.PointBased(prim) else None
+    return Vt.Vec3fArray(value) if value is not None else None
+
+
 def _authoring_layer(attr):
     """The layer whose opinion gives an attribute its value (for anchoring asset paths)."""
     for spec in attr.GetPropertyStack():
@@ -1411,6 +1477,7 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     warn = warnings.append
     time = Usd.TimeCode(frame) if frame is not None else Usd.TimeCode.Default()
     tr = _Translator(stage, time, warn, bundle, limits, instancing)
+    tr.skin()
     predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate) if instancing == "flatten" \
         else Usd.PrimDefaultPredicate
     tr.walk(Usd.PrimRange.Stage(stage, predicate), None, tr.chunks, top_level=True)
