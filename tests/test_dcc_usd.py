@@ -547,3 +547,139 @@ def test_skinned_mesh_is_posed_at_the_render_frame(tmp_path):
         alpha = scene.render_tile(0, 0, w, h, width=w, height=h, spp=4)[..., 3]
         row, col = _pixel_of(scene, (4.2, 1.0, 0.0), w, h)  # on the bent tip, off the rest bar
         assert (alpha[row, col] > 0.5) == tip_covered, (frame, alpha[row, col])
+
+
+# -- 5. MaterialX looks ---------------------------------------------------------------------
+def _mtlx_node(stage, path, ident, **inputs):
+    node = UsdShade.Shader.Define(stage, path)
+    node.CreateIdAttr(ident)
+    for name, (kind, value) in inputs.items():
+        node.CreateInput(name, kind).Set(value)
+    return node
+
+
+def test_inline_materialx_standard_surface_with_an_image_node(tmp_path):
+    """What Houdini's Karma material builder and Omniverse write: outputs:mtlx:surface ->
+    ND_standard_surface_surfaceshader, base and emission colour from ND_image_color3 in a
+    NodeGraph whose texcoord is a ND_geompropvalue_vector2 naming the UV set."""
+    _four_texel_png(tmp_path / "four.png")
+    stage = new_stage(tmp_path / "houdini.usda")
+    mat = UsdShade.Material.Define(stage, "/Looks/M")
+    graph = UsdShade.NodeGraph.Define(stage, "/Looks/M/NG")
+    uv = _mtlx_node(stage, "/Looks/M/NG/uv", "ND_geompropvalue_vector2",
+                    geomprop=(Sdf.ValueTypeNames.String, "uv_houdini"))
+    img = _mtlx_node(stage, "/Looks/M/NG/img", "ND_image_color3")
+    img.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("./four.png")
+    img.GetInput("file").GetAttr().SetColorSpace("lin_rec709")
+    img.CreateInput("texcoord", Sdf.ValueTypeNames.Float2).ConnectToSource(uv.ConnectableAPI(), "out")
+    graph.CreateOutput("color", Sdf.ValueTypeNames.Color3f).ConnectToSource(img.ConnectableAPI(), "out")
+    surf = _mtlx_node(stage, "/Looks/M/Surface", "ND_standard_surface_surfaceshader",
+                      base=(Sdf.ValueTypeNames.Float, 0.0), emission=(Sdf.ValueTypeNames.Float, 1.0),
+                      specular=(Sdf.ValueTypeNames.Float, 0.0), metalness=(Sdf.ValueTypeNames.Float, 0.25))
+    surf.CreateInput("emission_color", Sdf.ValueTypeNames.Color3f).ConnectToSource(graph.GetOutput("color"))
+    surf.CreateOutput("surface", Sdf.ValueTypeNames.Token)
+    mat.CreateSurfaceOutput("mtlx").ConnectToSource(surf.ConnectableAPI(), "surface")
+    mesh = _quad(stage, material=mat)
+    UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("uv_houdini", Sdf.ValueTypeNames.TexCoord2fArray,
+                                            UsdGeom.Tokens.vertex).Set([Gf.Vec2f(0.75, 0.75)] * 4)
+    scene = load_scene(_save(stage))
+    assert not any("grey" in w for w in scene.warnings), scene.warnings
+    assert scene.data.material_params["metallic"].max() == pytest.approx(0.25)
+    img = scene.render_tile(0, 0, 16, 16, width=16, height=16, spp=2)
+    np.testing.assert_allclose(img[8, 8, :3], (0.0, 1.0, 0.0), atol=0.01)  # the green texel
+
+
+def test_inline_open_pbr_constants_map_to_the_bsdf(tmp_path):
+    stage = new_stage(tmp_path / "openpbr.usda")
+    mat = UsdShade.Material.Define(stage, "/Looks/M")
+    surf = _mtlx_node(stage, "/Looks/M/S", "ND_open_pbr_surface_surfaceshader",
+                      base_color=(Sdf.ValueTypeNames.Color3f, Gf.Vec3f(0.2, 0.4, 0.6)),
+                      base_weight=(Sdf.ValueTypeNames.Float, 0.5),
+                      specular_roughness=(Sdf.ValueTypeNames.Float, 0.7),
+                      coat_weight=(Sdf.ValueTypeNames.Float, 0.3),
+                      geometry_opacity=(Sdf.ValueTypeNames.Float, 0.6))
+    surf.CreateOutput("surface", Sdf.ValueTypeNames.Token)
+    mat.CreateSurfaceOutput("mtlx").ConnectToSource(surf.ConnectableAPI(), "surface")
+    _quad(stage, material=mat)
+    d = translate_stage(_save(stage))
+    np.testing.assert_allclose(d.albedo[0], (0.1, 0.2, 0.3), atol=1e-6)  # base_color x base_weight
+    p = d.material_params
+    assert p["roughness"][0] == pytest.approx(0.7) and p["clearcoat"][0] == pytest.approx(0.3)
+    assert p["ior"][0] == pytest.approx(1.5)  # the node definition's default specular_ior
+    assert p["opacity"][0] == pytest.approx(0.6) and p["opacity_threshold"][0] < 0  # coverage: presence
+    assert p["preview_surface"][0] == 1.0
+
+
+def test_materialx_document_referenced_from_usd(tmp_path):
+    """The usdMtlx convention (OpenChessSet-style looks): a Material prim references a
+    .mtlx document's material; usd-core cannot compose it, Tessera reads it itself."""
+    import MaterialX as mx
+
+    _four_texel_png(tmp_path / "four.png")
+    doc = mx.createDocument()
+    graph = doc.addNodeGraph("NG_look")
+    image = graph.addNode("image", "img", "color3")
+    image.setInputValue("file", "four.png", "filename")
+    image.getInput("file").setColorSpace("lin_rec709")
+    graph.addOutput("out", "color3").setConnectedNode(image)
+    shader = doc.addNode("standard_surface", "SR_look", "surfaceshader")
+    shader.setInputValue("base", 0.0)
+    shader.setInputValue("specular", 0.0)
+    shader.setInputValue("emission", 1.0)
+    emission = shader.addInput("emission_color", "color3")
+    emission.setNodeGraphString("NG_look")
+    emission.setOutputString("out")
+    doc.addMaterialNode("Look", shader)
+    mx.writeToXmlFile(doc, str(tmp_path / "look.mtlx"))
+    stage = new_stage(tmp_path / "chess.usda")
+    mat = UsdShade.Material.Define(stage, "/Looks/Look")
+    mat.GetPrim().GetReferences().AddReference("./look.mtlx", "/MaterialX/Materials/Look")
+    mesh = _quad(stage, material=mat)
+    UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                            UsdGeom.Tokens.vertex).Set([Gf.Vec2f(0.25, 0.25)] * 4)
+    scene = load_scene(_save(stage))
+    assert not any("grey" in w for w in scene.warnings), scene.warnings
+    img = scene.render_tile(0, 0, 16, 16, width=16, height=16, spp=2)
+    np.testing.assert_allclose(img[8, 8, :3], (0.0, 0.0, 1.0), atol=0.01)  # the blue texel
+
+
+def test_one_summary_line_names_every_grey_material(tmp_path):
+    stage = new_stage(tmp_path / "grey.usda")
+    odd = UsdShade.Material.Define(stage, "/Looks/Odd")
+    s = _mtlx_node(stage, "/Looks/Odd/S", "ND_gltf_pbr_surfaceshader")
+    s.CreateOutput("surface", Sdf.ValueTypeNames.Token)
+    odd.CreateSurfaceOutput("mtlx").ConnectToSource(s.ConnectableAPI(), "surface")
+    empty = UsdShade.Material.Define(stage, "/Looks/Empty")
+    _quad(stage, "/A", material=odd)
+    _quad(stage, "/B", z=1.0, material=empty)
+    data = translate_stage(_save(stage))
+    lines = [w for w in data.warnings if "grey" in w]
+    assert lines == ["2 material(s) fell back to the default grey: /Looks/Empty (no surface shader), "
+                     "/Looks/Odd (ND_gltf_pbr_surfaceshader)"], data.warnings
+
+
+def test_real_teapot_keeps_its_universal_preview_surface():
+    path = SCENES / "usdwg_intent_vfx_instancing" / "assets" / "teapot" / "mtl.usd"
+    if not path.is_file():
+        pytest.skip("shared scenes missing")
+    data = translate_stage(str(path), root=str(SCENES / "usdwg_intent_vfx_instancing"))
+    # Both surfaces are authored; the universal UsdPreviewSurface (green) wins, as in Storm.
+    assert any(np.allclose(a, (0.107700236, 0.90119886, 0.038153667), atol=1e-6) for a in data.albedo)
+
+
+def test_a_referenced_mtlx_is_not_reported_as_a_composition_error(tmp_path):
+    import MaterialX as mx
+
+    doc = mx.createDocument()
+    shader = doc.addNode("standard_surface", "SR", "surfaceshader")
+    shader.setInputValue("base_color", mx.Color3(0.1, 0.2, 0.3))
+    doc.addMaterialNode("Look", shader)
+    mx.writeToXmlFile(doc, str(tmp_path / "look.mtlx"))
+    stage = new_stage(tmp_path / "s.usda")
+    mat = UsdShade.Material.Define(stage, "/Looks/Look")
+    mat.GetPrim().GetReferences().AddReference("./look.mtlx", "/MaterialX/Materials/Look")
+    _quad(stage, material=mat)
+    data = translate_stage(_save(stage))
+    assert not any(w.startswith("composition") for w in data.warnings), data.warnings
+    # standard_surface: base (default 1) x base_color
+    np.testing.assert_allclose(data.albedo[0], (0.1, 0.2, 0.3), atol=1e-6)

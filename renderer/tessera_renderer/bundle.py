@@ -500,6 +500,8 @@ def open_stage(bundle: Bundle):
             raise SceneError(f"composition cycle: {_first_line(text)}")
         if any(f"@{m}@" in text for m in missing_targets):
             continue  # reported above
+        if ".mtlx@" in text:
+            continue  # usd-core has no .mtlx format; the translator reads such looks itself
         bundle.warnings.append(f"composition: {_first_line(user_terms(text, bundle.root))}")
     return stage
 

@@ -227,6 +227,8 @@ class _Translator:
         # Skinned meshes: prim path -> (points in skeleton space at the frame, the
         # skeleton's local-to-world matrix). Filled by skin() before the walk.
         self.skinned: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        # Materials rendered with the default grey: path -> their shader id or why.
+        self.grey_materials: dict[str, str] = {}
         node = Sdr.Registry().GetShaderNodeByIdentifier("UsdPreviewSurface")
         # UsdPreviewSurface defaults come from its registered definition, not from here.
         self.defaults = {name: _as_tuple(node.GetShaderInput(name).GetDefaultValue())
@@ -739,12 +741,25 @@ class _Translator:
         return {"values": values, "textures": {}}
 
     def _read_preview_surface(self, material, display) -> dict:
+        from . import mtlx
+
         path = str(material.GetPath())
+        # The universal surface first (what Storm, the reference viewer, shows too), then
+        # a MaterialX one (outputs:mtlx:surface), then a referenced .mtlx document.
         shader, _, _ = material.ComputeSurfaceSource()
-        if not shader or shader.GetIdAttr().Get() != "UsdPreviewSurface":
-            ident = shader.GetIdAttr().Get() if shader else None
-            self._count_note(f"materials whose surface is not UsdPreviewSurface ({ident or 'none'}) "
-                             f"use the default grey")
+        if not shader:
+            shader, _, _ = material.ComputeSurfaceSource("mtlx")
+        ident = shader.GetIdAttr().Get() if shader else None
+        if ident != "UsdPreviewSurface":
+            if mtlx.category_of(ident) in mtlx.SURFACE_CATEGORIES:
+                return self._mtlx_surface(mtlx.UsdNode(shader, self.time), path)
+            reason = ident or "no surface shader"
+            if not shader:
+                node, why = self._referenced_mtlx(material)
+                if node is not None and node.category in mtlx.SURFACE_CATEGORIES:
+                    return self._mtlx_surface(node, path)
+                reason = why or (f"MaterialX {node.category}" if node is not None else reason)
+            self.grey_materials[path] = reason
             return self._plain_surface(None, path)
         values, textures = {}, {}
         for name in _COLOR_INPUTS + tuple(_SCALAR_INPUTS) + ("normal", "occlusion"):
@@ -790,6 +805,49 @@ class _Translator:
         self._count_note("partial opacity without an authored ior renders as presence (translucent "
                          "without refraction, as usdview shows it); author ior to make it refract")
         return True
+
+    def _mtlx_surface(self, node, path) -> dict:
+        """A MaterialX surface (inline or from a .mtlx file) as UsdPreviewSurface values."""
+        from . import mtlx
+
+        values, textures, presence = mtlx.surface(node, self.defaults, self._texture_from, self._count_note)
+        values = {k: v for k, v in values.items() if k in self.defaults}
+        values["diffuseColor"] = self._clamped_albedo(values["diffuseColor"], path)
+        values["emissiveColor"] = _non_negative(values["emissiveColor"])
+        if presence is None:  # MaterialX's UsdPreviewSurface node: the UsdPreviewSurface rule
+            partial = "opacity" in textures or 0.0 < values["opacity"][0] < 1.0
+            presence = values["opacityThreshold"][0] <= 0 and partial and node.value("ior") is None
+        if presence:
+            values["opacityThreshold"] = (PRESENCE_MODE,)
+        return {"values": values, "textures": {k: self.materials.add_texture(t) for k, t in textures.items()},
+                "preview": True}
+
+    def _referenced_mtlx(self, material):
+        """(MxNode of the surface, None) for a Material prim that references or payloads a
+        .mtlx document (the usdMtlx convention), (None, reason) when that fails, (None,
+        None) when it names none."""
+        import os
+
+        from . import mtlx
+
+        prim = material.GetPrim()
+        for spec in prim.GetPrimStack():
+            arcs = list(spec.referenceList.GetAddedOrExplicitItems()) + \
+                list(spec.payloadList.GetAddedOrExplicitItems())
+            for arc in arcs:
+                if not arc.assetPath.lower().endswith(".mtlx"):
+                    continue
+                anchor = os.path.dirname(spec.layer.realPath)
+                where = f"{prim.GetPath()}: {arc.assetPath}"
+                if self.bundle is not None:
+                    file = self.bundle.check_asset(arc.assetPath, anchor, what=where)
+                else:
+                    file = os.path.join(anchor, arc.assetPath)
+                if not os.path.isfile(file):
+                    return None, f"{arc.assetPath} missing"
+                name = arc.primPath.name if not arc.primPath.isEmpty else prim.GetName()
+                return mtlx.read_mtlx_material(str(file), name, where)
+        return None, None
 
     def _input(self, shader, name, default, path, display):
         """(value, texture description or None) of a UsdPreviewSurface input."""
@@ -847,33 +905,58 @@ class _Translator:
             self._count_note("UsdUVTexture without a file uses its fallback")
             return value, None
         where = f"{tex_shader.GetPath()}"
-        file_path = self.bundle.resolve_texture(asset, layer_dir, where) if self.bundle else None
-        if file_path is None:
-            self.warn(f"{where}: texture {asset.path!r} is missing from the bundle; using its fallback")
+        tex = self._texture_from(
+            asset=asset, anchor=layer_dir, where=where, input_name=input_name, channel=channel,
+            fallback=list(_vec4(fallback, self.tex_defaults["fallback"])),
+            wrap_s=_wrap(_input_value(tex_shader, "wrapS", t)), wrap_t=_wrap(_input_value(tex_shader, "wrapT", t)),
+            scale=list(_vec4(_input_value(tex_shader, "scale", t), self.tex_defaults["scale"])),
+            bias=list(_vec4(_input_value(tex_shader, "bias", t), self.tex_defaults["bias"])),
+            color_space=str(_input_value(tex_shader, "sourceColorSpace", t) or "auto"), st_primvar=None,
+            transform2d=None)
+        if tex is None:
             return value, None
-        color_space = str(_input_value(tex_shader, "sourceColorSpace", t) or "auto")
+        tex.update(self._st_source(tex_shader))
+        return value, tex
+
+    def _texture_from(self, *, asset, anchor, where, input_name, channel, fallback, wrap_s, wrap_t, scale,
+                      bias, color_space, st_primvar, transform2d) -> dict | None:
+        """A texture description for an image file named in the scene (an Sdf.AssetPath,
+        or a path relative to `anchor` from a .mtlx document), checked by the sandbox and
+        the pixel limit; None (with a warning) when it is missing or unreadable."""
+        from pxr import Sdf
+
+        authored = asset.path if isinstance(asset, Sdf.AssetPath) else str(asset or "")
+        if not authored:
+            self._count_note("textures without a file use their fallback")
+            return None
+        if self.bundle is None:
+            file_path = None
+        elif isinstance(asset, Sdf.AssetPath):
+            file_path = self.bundle.resolve_texture(asset, anchor, where)
+        else:
+            file_path = self.bundle.check_asset(authored, anchor, what=f"texture of {where}")
+            file_path = file_path if file_path.is_file() else None
+        if file_path is None:
+            self.warn(f"{where}: texture {authored!r} is missing from the bundle; using its fallback")
+            return None
         info = _texture_info(file_path)
         if info is None:
-            self.warn(f"{where}: texture {asset.path!r} cannot be read; using its fallback")
-            return value, None
+            self.warn(f"{where}: texture {authored!r} cannot be read; using its fallback")
+            return None
         w, h, bits, channels = info
         if w * h > self.limits.texture_pixels:
-            raise SceneError(f"{where}: texture {asset.path!r} is {w}x{h}, more than the limit of "
+            raise SceneError(f"{where}: texture {authored!r} is {w}x{h}, more than the limit of "
                              f"{self.limits.texture_pixels} pixels")
         if color_space == "auto":
             # 8-bit colour images (3 or 4 channels) feeding a colour input are sRGB-encoded
             # by convention; deeper images, grey images and data (roughness, normals, ...)
             # are linear.
             color_space = "sRGB" if bits <= 8 and channels >= 3 and input_name in _COLOR_INPUTS else "raw"
-        tex = {"file": str(file_path), "wrap_s": _wrap(_input_value(tex_shader, "wrapS", t)),
-               "wrap_t": _wrap(_input_value(tex_shader, "wrapT", t)),
-               "scale": list(_vec4(_input_value(tex_shader, "scale", t), self.tex_defaults["scale"])),
-               "bias": list(_vec4(_input_value(tex_shader, "bias", t), self.tex_defaults["bias"])),
-               "fallback": list(_vec4(fallback, self.tex_defaults["fallback"])),
-               "color_space": "sRGB" if color_space.lower() == "srgb" else "raw",
-               "channel": channel, "width": w, "height": h, "udim": "<UDIM>" in asset.path}
-        tex.update(self._st_source(tex_shader))
-        return value, tex
+        return {"file": str(file_path), "wrap_s": wrap_s, "wrap_t": wrap_t, "scale": list(scale),
+                "bias": list(bias), "fallback": list(fallback),
+                "color_space": "sRGB" if color_space.lower() == "srgb" else "raw",
+                "channel": channel, "width": w, "height": h, "udim": "<UDIM>" in authored,
+                "st_primvar": st_primvar, "transform2d": transform2d}
 
     def _st_source(self, tex_shader) -> dict:
         """Which primvar feeds the texture's st, and any UsdTransform2d on the way."""
@@ -1088,6 +1171,10 @@ class _Translator:
         self._notes[message] += 1
 
     def flush_notes(self) -> None:
+        if self.grey_materials:
+            items = [f"{p} ({why})" for p, why in sorted(self.grey_materials.items())]
+            self.warn(f"{len(items)} material(s) fell back to the default grey: " + ", ".join(items[:20])
+                      + (f" and {len(items) - 20} more" if len(items) > 20 else ""))
         for message, count in self._notes.items():
             self.warn(message + (f" ({count} times)" if count > 1 else ""))
 
