@@ -683,3 +683,16 @@ def test_a_referenced_mtlx_is_not_reported_as_a_composition_error(tmp_path):
     assert not any(w.startswith("composition") for w in data.warnings), data.warnings
     # standard_surface: base (default 1) x base_color
     np.testing.assert_allclose(data.albedo[0], (0.1, 0.2, 0.3), atol=1e-6)
+
+
+def test_render_child_honours_the_job_setting(tmp_path):
+    """The worker's render process builds the Scene from one blob with or without the
+    default lighting, as the task's settings say."""
+    from tessera_worker.render_child import _blob_api, _load
+
+    path = _lightless_quad(tmp_path)
+    api, _ = _blob_api()
+    lit = _load({"scene_path": path, "default_light": True}, api)
+    unlit = _load({"scene_path": path, "default_light": False}, api)
+    assert lit.render_tile(0, 0, 8, 8, width=8, height=8, spp=2)[4, 4, 0] > 0.2
+    assert unlit.render_tile(0, 0, 8, 8, width=8, height=8, spp=2)[..., :3].max() == 0.0
