@@ -27,10 +27,6 @@ float PresenceHash(const SurfaceHit& hit) {
     return float(h >> 40) * 0x1p-24f;
 }
 
-}  // namespace
-
-namespace {
-
 void CheckDevice(RTCDevice device, const char* what) {
     RTCError err = rtcGetDeviceError(device);
     if (err != RTC_ERROR_NONE)
