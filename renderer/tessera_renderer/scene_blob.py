@@ -42,7 +42,8 @@ BLOB_VERSION = 1
 # inputs, NaN st replaced, and instancing "auto" (Embree instances) by default;
 # 4: coordinates relative to the camera (SceneData.world_offset); 5: default lighting for
 # light-less stages (SceneData.default_lights), UV sets by name, nested packages, tight
-# three-quarter default camera.
+# three-quarter default camera, partial opacity as presence (opacity_threshold -1),
+# UsdSkel skinning, MaterialX looks.
 TRANSLATOR_VERSION = 5
 _ALIGN = 64
 _PROTO_FIELDS = ("positions", "indices", "triangle_material", "shading_normals", "uvs")
