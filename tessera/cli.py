@@ -54,7 +54,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     scene_path = Path(args.scene)
     output = Path(args.output) if args.output else Path(scene_path.stem + ".exr")
     try:
-        scene = load_scene(scene_path, frame=args.frame, root=args.root)
+        scene = load_scene(scene_path, frame=args.frame, root=args.root,
+                           default_light=not args.no_default_light)
     except SceneError as exc:
         hint = ("; if that folder is yours, let assets resolve within it with --root DIR"
                 if "outside the bundle" in str(exc) and not args.root else "")
@@ -120,6 +121,12 @@ def _add_aov_option(parser: argparse.ArgumentParser) -> None:
                              "or all (default none; see docs/aovs.md)")
 
 
+def _add_default_light_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--no-default-light", action="store_true",
+                        help="a scene without any light renders black instead of getting the "
+                             "default lighting (white dome + camera key light)")
+
+
 def _add_noise_target_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--target-error", type=float, nargs="?", const=0.01, default=None,
                         metavar="REL", help="render to a relative noise target instead of a "
@@ -156,6 +163,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
     form = {k: v for k, v in dict(spp=args.spp, seed=args.seed, max_depth=args.max_depth,
                                   tile_size=args.tile, priority=args.priority, integrator=args.integrator,
                                   max_attempts=args.max_attempts, aovs=args.aovs,
+                                  default_light="false" if args.no_default_light else None,
                                   **_noise_target(args)).items() if v is not None}
     if args.res:
         form["width"], form["height"] = args.res
@@ -295,6 +303,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_noise_target_options(r)
     _add_integrator_option(r)
     _add_aov_option(r)
+    _add_default_light_option(r)
     r.add_argument("--no-variance", action="store_true",
                    help="write no variance layer: light and bdpt then render each sample once "
                         "instead of twice (their variance comes from a second render in "
@@ -324,6 +333,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--max-attempts", type=_positive,
                    help="failed attempts at one tile before the job fails (default 3)")
     m.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    _add_default_light_option(m)
     _add_noise_target_options(m)
     _add_integrator_option(m)
     _add_aov_option(m)

@@ -88,6 +88,11 @@ class RenderSettings(BaseModel):
         description="extra per-pixel outputs written as EXR layers beside RGBA "
                     "(docs/aovs.md): albedo, normal, depth, spp, variance")
 
+    default_light: bool = Field(
+        default=True, description="light a stage that has no light (emissive geometry counts) with "
+                                  "the default lighting: a white dome and a camera-relative key light "
+                                  "(docs/scene-translation.md); false renders such a stage black")
+
     @field_validator("aovs", mode="before")
     @classmethod
     def _aov_list(cls, value):

@@ -51,10 +51,6 @@ KNOWN_BAD = {
     **{("openusd_testenv", f"testUsdImagingGLMaterialXvsNative/native{n}.usda"):
        "camera inside a sphere light sees a constant image" for n in
        ("Clearcoat", "Default", "Metallic", "Opacity", "Workflow")},
-    # The default camera frames the 1,000 teapots' bounds from ~1,170 away along -z: they
-    # cover under 0.1 % of a 32 x 24 image, which shows the bare dome.
-    ("usdwg_intent_vfx_instancing", "scenes/teapotScene_layout.usd"): "default camera sees almost no geometry",
-    ("usdwg_intent_vfx_instancing", "scenes/simpleAssetScene.usd"): "default camera sees almost no geometry",
 }
 
 

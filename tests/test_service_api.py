@@ -176,7 +176,7 @@ def test_submit_uses_scene_resolution_and_creates_tiles(api, redis_client):
     assert status["settings"] == {"width": 512, "height": 512, "spp": 4, "seed": 0,
                                   "max_depth": 64, "tile_size": 100, "target_error": None,
                                   "min_spp": 16, "max_spp": 1024, "time_limit": None,
-                                  "integrator": "path", "aovs": []}
+                                  "integrator": "path", "aovs": [], "default_light": True}
     assert status["priority"] == protocol.DEFAULT_PRIORITY
     # One queue entry per tile, and the job is ready to be served.
     assert redis_client.xlen(rdb.job_queue_key(job["id"])) == 36
@@ -216,3 +216,22 @@ def test_service_does_not_import_renderer_or_usd():
             "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('pxr', 'tessera_renderer')); "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_default_light_job_setting_and_its_warning(api, tmp_path):
+    """A light-less scene: by default the job is lit by the default lighting and says so;
+    with default_light=false its one light warning says it renders black."""
+    scene = tmp_path / "prop.usda"
+    scene.write_text('#usda 1.0\ndef Mesh "Tri" {\n  point3f[] points = [(0,0,0), (1,0,0), (0,1,0)]\n'
+                     '  int[] faceVertexCounts = [3]\n  int[] faceVertexIndices = [0, 1, 2]\n}\n')
+    for form, expected in (({}, "lit by the default lighting"),
+                           ({"default_light": "false"}, "default lighting is off: it renders black")):
+        r = submit(api, scene, spp=1, tile_size=256, **form)
+        assert r.status_code == 201, r.text
+        job = r.json()
+        try:
+            lines = [w for w in job["warnings"] if "no lights" in w]
+            assert len(lines) == 1 and expected in lines[0], job["warnings"]
+            assert api.get(f"/jobs/{job['id']}").json()["settings"]["default_light"] is (not form)
+        finally:
+            api.delete(f"/jobs/{job['id']}")

@@ -393,18 +393,21 @@ def test_native_instances(tmp_path):
 
 
 # -- stage metrics, defaults ------------------------------------------------------------
-def test_z_up_default_camera_and_opt_in_default_light(tmp_path):
+def test_z_up_default_camera_and_default_lighting_recorded_unapplied(tmp_path):
     stage = new_stage(tmp_path / "z.usda")
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
     UsdGeom.SetStageMetersPerUnit(stage, 0.01)
     add_mesh(stage, "/M", [(0, 0, 0), (1, 0, 0), (0, 0, 1)], [3], [0, 1, 2])
     path = save(stage)
     data = translate_stage(path)
-    assert data.camera.forward == pytest.approx((0, 1, 0)) and data.camera.up == pytest.approx((0, 0, 1))
+    # Z-up: the three-quarter view looks from front-right (-Y, +X) and above (+Z).
+    fwd = np.array(data.camera.forward)
+    assert fwd[1] > 0 and fwd[0] < 0 and fwd[2] < 0 and data.camera.up[2] > 0.8
     assert data.meters_per_unit == 0.01 and data.up_axis == "Z"
     assert data.dome_light is None and any("no lights" in w for w in data.warnings)
+    assert data.default_lights["dome"]["radiance"] == [0.5, 0.5, 0.5]
     lit = translate_stage(path, default_light=True)
-    assert lit.dome_light["radiance"] == [1.0, 1.0, 1.0]
+    assert lit.dome_light["radiance"] == [0.5, 0.5, 0.5] and len(lit.distant_lights) == 1
 
 
 # -- translate once -----------------------------------------------------------------------

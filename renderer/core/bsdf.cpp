@@ -289,7 +289,7 @@ PreviewSurfaceBSDF::PreviewSurfaceBSDF(const MaterialParams& p, TransportMode mo
     : spec_{TrowbridgeReitz(0.f), Color(0.f), Color(0.f)},
       coat_{TrowbridgeReitz(TrowbridgeReitz::RoughnessToAlpha(p.clearcoat_roughness)), Color(kCoatF0), Color(1.f)},
       clearcoat_(Clamp01(p.clearcoat)),
-      opacity_(p.opacity_threshold > 0.f ? 1.f : Clamp01(p.opacity)),
+      opacity_(p.opacity_threshold != 0.f ? 1.f : Clamp01(p.opacity)),  // cutout or presence: opaque
       glass_(std::isfinite(p.ior) && p.ior > 0.f ? p.ior : 1.5f, TrowbridgeReitz::RoughnessToAlpha(p.roughness), mode) {
     const float alpha = TrowbridgeReitz::RoughnessToAlpha(p.roughness);
     const Color base = Clamp01(p.diffuse_color);
@@ -463,7 +463,7 @@ std::optional<BSDFSample> PreviewSurfaceBSDF::Sample_f(Vec3 wo, float uc, Vec2 u
 // ---------------------------------------------------------------------------------------
 
 BSDF MakePreviewSurfaceBSDF(const MaterialParams& p, TransportMode mode) {
-    const bool cutout_mode = p.opacity_threshold > 0.f;
+    const bool cutout_mode = p.opacity_threshold != 0.f;  // or presence mode: opaque where hit
     const float opacity = cutout_mode ? 1.f : Clamp01(p.opacity);
     const float ior = std::isfinite(p.ior) && p.ior > 0.f ? p.ior : 1.5f;
     const float alpha = TrowbridgeReitz::RoughnessToAlpha(p.roughness);

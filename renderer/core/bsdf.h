@@ -253,4 +253,10 @@ inline bool IsCutout(const MaterialParams& p, float opacity) {
     return p.opacity_threshold > 0.f && opacity < p.opacity_threshold;
 }
 
+// Presence mode (opacity_threshold < 0, which USD cannot mean: the translator's mark for a
+// partial opacity that asks for no refraction): opacity is the probability that a hit is a
+// surface at all, and the BSDF of the hits that are is opaque. The other hits pass
+// straight through, camera and shadow rays alike (Scene::IsCutoutHit decides each one).
+inline bool IsPresenceMode(const MaterialParams& p) { return p.opacity_threshold < 0.f; }
+
 }  // namespace tessera

@@ -3,6 +3,7 @@
 #include <algorithm>
 
 #include <atomic>
+#include <cstring>
 #include <limits>
 #include <stdexcept>
 #include <string>
@@ -13,6 +14,18 @@
 namespace tessera {
 
 namespace {
+
+// A uniform number in [0, 1) from a hit's position and triangle: the presence decision of
+// a partially present surface. Rays of different samples meet a surface at different
+// points, so over samples the pass-through fraction is 1 - opacity, without a sampler
+// dimension (shadow rays have none) and the same for every integrator.
+float PresenceHash(const SurfaceHit& hit) {
+    auto bits = [](float f) { uint32_t u; std::memcpy(&u, &f, 4); return uint64_t(u); };
+    uint64_t h = bits(hit.p.x) ^ (bits(hit.p.y) << 21) ^ (bits(hit.p.z) << 42) ^
+                 (uint64_t(hit.prim_id) * 0x9E3779B97F4A7C15ull) ^ (uint64_t(hit.mesh) << 32);
+    h ^= h >> 33; h *= 0xFF51AFD7ED558CCDull; h ^= h >> 33; h *= 0xC4CEB9FE1A85EC53ull; h ^= h >> 33;
+    return float(h >> 40) * 0x1p-24f;
+}
 
 void CheckDevice(RTCDevice device, const char* what) {
     RTCError err = rtcGetDeviceError(device);
@@ -75,8 +88,10 @@ Scene::Scene(const SceneDesc& desc)
         // decided per hit in IsCutoutHit).
         const auto& pv = materials_[m].preview;
         const bool textured_opacity = materials_[m].textures[kSlotOpacity] >= 0;
-        material_is_cutout_.push_back(pv && (textured_opacity ? pv->opacity_threshold > 0.f
-                                                              : IsCutout(*pv, pv->opacity)));
+        material_is_cutout_.push_back(
+            pv && (IsPresenceMode(*pv) ? textured_opacity || pv->opacity < 1.f
+                                       : textured_opacity ? pv->opacity_threshold > 0.f
+                                                          : IsCutout(*pv, pv->opacity)));
         has_cutouts_ = has_cutouts_ || material_is_cutout_.back();
     }
     for (size_t s = 0; s < spheres_.size(); ++s)
@@ -518,6 +533,10 @@ bool Scene::IsCutoutHit(const SurfaceHit& hit) const {
     if (!material_is_cutout_[mi]) return false;
     const Material& m = materials_[mi];
     const int32_t t = m.textures[kSlotOpacity];
+    if (IsPresenceMode(*m.preview)) {
+        const float opacity = t < 0 ? m.preview->opacity : textures_.EvaluateFloat(uint32_t(t), hit.st);
+        return PresenceHash(hit) >= opacity;
+    }
     return t < 0 || IsCutout(*m.preview, textures_.EvaluateFloat(uint32_t(t), hit.st));
 }
 

@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from . import _core
-from .usd_scene import SceneData, SceneError, translate_stage
+from .usd_scene import (NO_LIGHT_OFF_WARNING, NO_LIGHT_WARNING, SceneData, SceneError, apply_default_lighting,
+                        translate_stage)
 
 __all__ = ["Scene", "SceneError", "load_scene", "NonFiniteSampleError", "AOV_NAMES"]
 
@@ -33,7 +34,13 @@ class NonFiniteSampleError(RuntimeError):
 class Scene:
     """A translated scene with its BVH built, ready to render tiles of any size."""
 
-    def __init__(self, data: SceneData):
+    def __init__(self, data: SceneData, default_light: bool = True):
+        """`default_light`: light a stage that has no light with the default lighting
+        (usd_scene.default_lighting, announced in the warnings); off, it renders black."""
+        # What a render with default lighting off would warn (the pre-flight reports it).
+        self.lit_by_default = bool(default_light and getattr(data, "default_lights", None))
+        self.unlit_warnings = _with_default_lighting(data, False).warnings if self.lit_by_default else None
+        data = _with_default_lighting(data, default_light)
         self.data = data
         try:
             # Light tables added to SceneData later are optional here: absent means none.
@@ -123,7 +130,7 @@ class Scene:
         used[np.unique(self.data.triangle_material)] = True
         for proto in getattr(self.data, "prototypes", None) or []:
             used[np.unique(proto["triangle_material"])] = True
-        transmits = (opacity < 1.0) & (threshold <= 0.0)
+        transmits = (opacity < 1.0) & (threshold == 0.0)  # < 0: presence, passes straight
         smooth = ((roughness < AUTO_SMOOTH_ROUGHNESS) & (metallic > 0.0)) | \
                  ((clearcoat > 0.0) & (coat_roughness < AUTO_SMOOTH_ROUGHNESS))
         return "bdpt" if np.any(preview & used & (transmits | smooth)) else "path"
@@ -182,6 +189,23 @@ class Scene:
                 out["variance"] = info["variance"]
             return rgba, out
         return (rgba, info["variance"]) if return_variance else rgba
+
+
+def _with_default_lighting(data: SceneData, on: bool) -> SceneData:
+    """A shallow copy of a light-less stage's data with its default lights applied (on)
+    or its warning saying it renders black (off); other data as it is."""
+    if not getattr(data, "default_lights", None):
+        return data
+    import dataclasses
+
+    extra = {k: v for k, v in vars(data).items() if k.startswith("_")}  # bundle, blob files
+    copy = dataclasses.replace(data, warnings=list(data.warnings))
+    copy.__dict__.update(extra)
+    if on:
+        return apply_default_lighting(copy)
+    copy.warnings = [NO_LIGHT_OFF_WARNING if w == NO_LIGHT_WARNING else w for w in copy.warnings]
+    copy.default_lights = None
+    return copy
 
 
 # Column order of the core's UsdPreviewSurface table (renderer/python/module.cpp).
@@ -353,17 +377,20 @@ def _rows(table, columns: int) -> np.ndarray:
 
 
 def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path | None = None,
-               instancing: str = "auto", default_light: bool = False) -> Scene:
+               instancing: str = "auto", default_light: bool = True) -> Scene:
     """Reads a bundle (.usda/.usdc/.usd, .usdz or .zip) through the sandbox and builds it.
     For a loose layer, `root` (default: its directory) is the bundle every asset must stay
     in. `instancing`: "auto" (default: Embree instances, one BVH per prototype, unless
     lights sit inside native-instance prototypes), "instances" or "flatten" (every
-    instance copied). Raises SceneError for bad input."""
+    instance copied). `default_light`: a stage without any light (emissive geometry
+    counts as light) gets the default lighting, announced in one warning; off, it renders
+    black. Raises SceneError for bad input."""
     path = Path(path)
     if not path.is_file():
         raise SceneError(f"scene file not found: {path}")
     data = translate_stage(str(path), frame, root=None if root is None else str(root),
-                           instancing=instancing, default_light=default_light)
-    for w in data.warnings:
+                           instancing=instancing)
+    scene = Scene(data, default_light=default_light)
+    for w in scene.warnings:
         log.warning("%s: %s", path.name, w)
-    return Scene(data)
+    return scene

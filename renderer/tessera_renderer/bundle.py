@@ -4,13 +4,14 @@ A bundle is one of
 - a loose .usda/.usdc/.usd file: the bundle is the directory holding it (or `root`),
 - a .usdz package or a .zip archive: unpacked into a fresh private directory first.
 
-`open_bundle` unpacks (with a zip-bomb guard) and pre-flights every dependency with
-`UsdUtils.ComputeAllDependencies`, whose processing callback sees each authored asset path
-*before* the layer it names is opened: a path that is a URI, absolute, escapes the bundle
-(`..`, or a symlink on disk), or needs a search-path lookup is dropped there and reported,
-so no file outside the bundle is ever opened. `open_stage` then opens the stage with
-resolver search paths cleared and checks again that every layer the stage used lies
-inside; `Bundle.resolve_texture` does the same for each texture the translator reads.
+`open_bundle` unpacks (with a zip-bomb guard) and pre-flights every dependency with our
+own breadth-first walk (`preflight`): each authored asset path is checked before the layer
+it names is opened; a path that is a URI, absolute, escapes the bundle (`..`, or a symlink
+on disk), or needs a search-path lookup is refused, so no file outside the bundle is ever
+opened. `open_stage` then opens the stage with resolver search paths cleared and checks
+again that every layer the stage used lies inside; `Bundle.resolve_texture` does the same
+for each texture the translator reads, reading textures inside referenced (or nested)
+packages from their zip members.
 
 Every rejection is a SceneError whose message names the offending path.
 """
@@ -68,6 +69,10 @@ class Bundle:
     limits: Limits = DEFAULT_LIMITS
     warnings: list[str] = field(default_factory=list)
     _tmp: str | None = None
+    # Layers some asset path names but the bundle lacks, as (authored, anchored path,
+    # where): whether that is fatal depends on whether the composed stage uses them
+    # (an unselected variant's layer is not used); open_stage decides.
+    unresolved_layers: list[tuple[str, str, str]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         if self._tmp:
@@ -78,6 +83,34 @@ class Bundle:
     def cleanup(self) -> None:
         if self._tmp:
             self._finalizer()
+        if getattr(self, "_members", None) is not None:
+            self._members_finalizer()
+
+    def package_member(self, package_path: str, where: str) -> Path | None:
+        """A file inside a (possibly nested) package, `pkg.usdz[dir/tex.png]` or
+        `a.usdz[b.usdz[tex.png]]`, copied out into this bundle's private directory so
+        image readers can open it; None when the member does not exist. The outermost
+        package must lie inside the bundle and no member path may climb out of its
+        package; member sizes obey the unpacking limits."""
+        if getattr(self, "_members", None) is None:
+            self._members = tempfile.mkdtemp(prefix="tessera-members-")
+            self._members_finalizer = weakref.finalize(self, shutil.rmtree, self._members, True)
+            self._member_files: dict[str, Path] = {}
+        if package_path in self._member_files:
+            return self._member_files[package_path]
+        outer, _ = split_package_path(package_path)
+        _contained(outer, str(self.root), self.root, f"texture of {where}")
+        data = read_package_member(package_path, self.limits, where)
+        if data is None:
+            return None
+        inner_name = package_path.rstrip("]").rsplit("[", 1)[-1]
+        target = Path(self._members, str(len(self._member_files)), PurePosixPath(inner_name).name)
+        target.parent.mkdir()
+        fd = os.open(target, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
+        with os.fdopen(fd, "wb") as out:
+            out.write(data)
+        self._member_files[package_path] = target
+        return target
 
     # -- containment ---------------------------------------------------------------
     def check_asset(self, authored: str, anchor_dir: str, *, what: str) -> Path:
@@ -92,7 +125,11 @@ class Bundle:
         if not authored:
             return None
         resolved = getattr(asset, "resolvedPath", "") or ""
-        if resolved and "[" not in resolved:
+        if "[" in resolved:
+            # Inside a package that is not the bundle itself (a .usdz referenced or
+            # sublayered from another layer, possibly nested): read from the package.
+            return self.package_member(resolved, where)
+        if resolved:
             path = _contained(resolved, str(self.root), self.root, f"texture of {where}")
         else:
             path = _contained(authored, layer_dir or str(self.root), self.root, f"texture of {where}")
@@ -103,6 +140,56 @@ class Bundle:
                 _contained(str(tile), str(self.root), self.root, f"texture of {where}")
             return path if tiles else None
         return path if probe.is_file() else None
+
+
+def split_package_path(path: str) -> tuple[str, str]:
+    """`a.usdz[b.usdz[c.png]]` -> ("a.usdz", "b.usdz[c.png]"); no brackets: (path, "")."""
+    if "[" not in path:
+        return path, ""
+    outer, _, rest = path.partition("[")
+    if not rest.endswith("]"):
+        raise SceneError(f"asset path {path!r} is not a valid path inside a package")
+    return outer, rest[:-1]
+
+
+def _member_name(inner: str, what: str) -> str:
+    name = os.path.normpath(inner.replace("\\", "/"))
+    if name.startswith("..") or os.path.isabs(name) or "\x00" in name:
+        raise SceneError(f"{what}: {inner!r} climbs out of its package")
+    return name
+
+
+def read_package_member(path: str, limits: Limits, what: str, exists_only: bool = False) -> bytes | None:
+    """The bytes of `outer.usdz[member]`, following nested packages; None when a member
+    is missing (with `exists_only`, b"" when it is there, without reading it). Only zip
+    members are read (nothing is unpacked onto disk)."""
+    import io
+
+    outer, inner = split_package_path(path)
+    source: object = outer
+    while inner:
+        head, rest = split_package_path(inner) if "[" in inner else (inner, "")
+        name = _member_name(head, what)
+        try:
+            with zipfile.ZipFile(source) as zf:
+                try:
+                    info = zf.getinfo(name)
+                except KeyError:
+                    return None
+                if info.file_size > limits.unpacked_bytes or (
+                        info.compress_size and info.file_size > limits.compression_ratio * max(info.compress_size, 1024)):
+                    raise SceneError(f"{what}: package member {name!r} is too large (zip bomb guard)")
+                if info.flag_bits & 0x1:
+                    raise SceneError(f"{what}: package member {name!r} is encrypted")
+                if exists_only and not rest:
+                    return b""
+                data = zf.read(info)
+        except (zipfile.BadZipFile, zlib.error, OSError, EOFError, NotImplementedError) as exc:
+            raise SceneError(f"{what}: cannot read package member {name!r} ({exc})") from None
+        if not rest:
+            return data
+        source, inner = io.BytesIO(data), rest
+    return None
 
 
 def _contained(path: str, anchor_dir: str, root: Path, what: str) -> Path:
@@ -302,8 +389,14 @@ def preflight(bundle: Bundle) -> None:
             probe = outer.replace("<UDIM>", "1001")
             if "<UDIM>" in outer:
                 continue  # texture tiles: checked for containment, read by the translator
-            if not os.path.exists(probe):
-                if is_layer:
+            member_missing = "[" in target and os.path.exists(probe) and not is_layer and \
+                read_package_member(target, bundle.limits, where, exists_only=True) is None
+            if not os.path.exists(probe) or member_missing:
+                if is_layer and authored.startswith(("./", "../")) and "[" not in target:
+                    bundle.unresolved_layers.append((authored, target, where))
+                elif is_layer:
+                    # Refused even when unused: USD would look such a path up relative to
+                    # the working directory (outside the bundle) when composing.
                     problems.append(f"{where}: layer {authored!r} is not in the bundle"
                                     + ("" if authored.startswith(("./", "../")) else
                                        " (search-path lookups are not allowed)"))
@@ -353,8 +446,9 @@ def _check_dependency(bundle: Bundle, layer, authored: str, where: str) -> str |
         anchor = os.path.dirname(real.split("[", 1)[0])
         package = bundle.check_asset(outer, anchor, what=where)
         return f"{package}[{inner_norm}]"
-    if "[" in real:
-        # Inside a nested package: anchored within it, and must not climb out of it.
+    if "[" in real or real.lower().endswith(".usdz"):
+        # Inside a package that is not the bundle itself (a referenced .usdz, or one
+        # nested in it): anchored within it, and must not climb out of it.
         anchored = Sdf.ComputeAssetPathRelativeToLayer(layer, authored)
         outer, _, inner = anchored.partition("[")
         inner_norm = os.path.normpath(inner.rstrip("]").replace("\\", "/"))
@@ -384,11 +478,31 @@ def open_stage(bundle: Bundle):
         real = os.path.realpath((layer.realPath or layer.identifier).split("[", 1)[0])
         if os.path.commonpath([real, root]) != root:
             raise SceneError(f"layer {layer.identifier} lies outside the bundle")
-    for err in stage.GetCompositionErrors():
-        text = str(err.GetMessage()) if hasattr(err, "GetMessage") else str(err)
+    errors = [str(err.GetMessage()) if hasattr(err, "GetMessage") else str(err)
+              for err in stage.GetCompositionErrors()]
+    # A missing layer is fatal only when the composed stage (with its variant selections)
+    # asks for it; one only an unselected variant names is information.
+    used, unused = [], []
+    for authored, target, where in bundle.unresolved_layers:
+        asked = any(f"@{target}@" in text or f"@{authored}@" in text for text in errors)
+        (used if asked else unused).append(f"{where}: layer {authored!r} is not in the bundle")
+    if used:
+        unique = list(dict.fromkeys(used))
+        raise SceneError("; ".join(unique[:5]) + (f" (and {len(unique) - 5} more)" if len(unique) > 5 else ""))
+    if unused:
+        unique = list(dict.fromkeys(unused))
+        bundle.warnings.append(f"information: {len(unique)} layer(s) missing from the bundle are not used "
+                               f"by the composed stage (e.g. only by unselected variants): "
+                               + "; ".join(unique[:4]) + (" ..." if len(unique) > 4 else ""))
+    missing_targets = {t for _, t, _ in bundle.unresolved_layers} | {a for a, _, _ in bundle.unresolved_layers}
+    for text in errors:
         if "cycle" in text.lower():
             raise SceneError(f"composition cycle: {_first_line(text)}")
-        bundle.warnings.append(f"composition: {_first_line(text)}")
+        if any(f"@{m}@" in text for m in missing_targets):
+            continue  # reported above
+        if ".mtlx@" in text:
+            continue  # usd-core has no .mtlx format; the translator reads such looks itself
+        bundle.warnings.append(f"composition: {_first_line(user_terms(text, bundle.root))}")
     return stage
 
 

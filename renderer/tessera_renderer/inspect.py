@@ -2,7 +2,9 @@
 
     python -m tessera_renderer.inspect FILE
 
-Prints one JSON object: {"ok": true, "width", "height", "warnings", "triangles", "lights"}
+Prints one JSON object: {"ok": true, "width", "height", "warnings", "triangles", "lights",
+"unlit_warnings"}, the last present for a stage without any light: the warnings of a
+render with default lighting off (the job setting default_light=false),
 and exits 0, or {"ok": false, "error": "..."} and exits 2. A crash of the USD parser takes
 only this process with it.
 """
@@ -27,9 +29,11 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # a parser bug is still the file's fault to the user
         print(json.dumps({"ok": False, "error": f"cannot translate the scene: {type(exc).__name__}: {exc}"}))
         return 2
-    print(json.dumps({"ok": True, "width": scene.width, "height": scene.height,
-                      "warnings": scene.warnings, "triangles": scene.num_triangles,
-                      "lights": scene.num_emitters}))
+    info = {"ok": True, "width": scene.width, "height": scene.height, "warnings": scene.warnings,
+            "triangles": scene.num_triangles, "lights": scene.num_emitters}
+    if scene.lit_by_default:
+        info["unlit_warnings"] = scene.unlit_warnings
+    print(json.dumps(info))
     return 0
 
 

@@ -40,8 +40,11 @@ BLOB_VERSION = 1
 # Bumped whenever translation output changes for the same input.
 # 2: camera lens and clipping range; 3: sRGB only for 8-bit colour images on colour
 # inputs, NaN st replaced, and instancing "auto" (Embree instances) by default;
-# 4: coordinates relative to the camera (SceneData.world_offset).
-TRANSLATOR_VERSION = 4
+# 4: coordinates relative to the camera (SceneData.world_offset); 5: default lighting for
+# light-less stages (SceneData.default_lights), UV sets by name, nested packages, tight
+# three-quarter default camera, partial opacity as presence (opacity_threshold -1),
+# UsdSkel skinning, MaterialX looks.
+TRANSLATOR_VERSION = 5
 _ALIGN = 64
 _PROTO_FIELDS = ("positions", "indices", "triangle_material", "shading_normals", "uvs")
 
@@ -53,13 +56,14 @@ def format_tag() -> str:
 
 
 def translate_to_blob(path: str | Path, frame: float | None = None, *, root: str | Path | None = None,
-                      instancing: str = "auto", default_light: bool = False) -> bytes:
+                      instancing: str = "auto") -> bytes:
     """Sandboxes, pre-flights and translates a bundle; returns the blob. SceneError for
-    bad input."""
+    bad input. A light-less stage's default lighting travels in the blob unapplied:
+    scene_from_blob(blob, default_light=...) decides."""
     from .usd_scene import translate_stage
 
     data = translate_stage(str(path), frame, root=None if root is None else str(root),
-                           instancing=instancing, default_light=default_light)
+                           instancing=instancing)
     try:
         return scene_data_to_blob(data)
     finally:
@@ -123,7 +127,7 @@ def scene_data_to_blob(data: SceneData) -> bytes:
         "warnings": data.warnings, "textures": textures,
         "material_textures": [[m, name, t] for (m, name), t in data.material_textures.items()],
         "dome_light": dome, "meters_per_unit": data.meters_per_unit, "up_axis": data.up_axis,
-        "world_offset": list(data.world_offset),
+        "world_offset": list(data.world_offset), "default_lights": data.default_lights,
         "prototypes": len(data.prototypes), "translator_version": TRANSLATOR_VERSION,
     }
     table, offset = {}, 0
@@ -212,17 +216,17 @@ def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
         distant_lights=arrays["distant_lights"], point_lights=arrays["point_lights"], dome_light=dome,
         prototypes=prototypes, instances=arrays["instances"], instance_transforms=arrays["instance_transforms"],
         meters_per_unit=meta["meters_per_unit"], up_axis=meta["up_axis"],
-        world_offset=tuple(meta["world_offset"]))
+        world_offset=tuple(meta["world_offset"]), default_lights=meta.get("default_lights"))
     if tmp:
         data._blob_files = _Dir(tmp)
     return data
 
 
-def scene_from_blob(blob: bytes | bytearray | memoryview):
-    """The Scene (BVH built) for a blob from translate_to_blob."""
+def scene_from_blob(blob: bytes | bytearray | memoryview, default_light: bool = True):
+    """The Scene (BVH built) for a blob from translate_to_blob; `default_light` as in Scene."""
     from . import Scene
 
-    return Scene(scene_data_from_blob(blob))
+    return Scene(scene_data_from_blob(blob), default_light=default_light)
 
 
 class _Dir:

@@ -43,8 +43,13 @@ _STRUCTURAL_TYPES = {
     "RenderSettings", "RenderProduct", "RenderVar", "RenderPass", "Mesh", "RectLight",
     "SphereLight", "DiskLight", "CylinderLight", "DistantLight", "DomeLight", "PointInstancer",
     "Sphere", "Cube", "Cylinder", "Cone", "Capsule", "Plane",
+    # UsdSkel: the skeleton deforms the meshes under its SkelRoot (see _Translator.skin).
+    "SkelRoot", "Skeleton", "SkelAnimation", "BlendShape",
 }
 _GPRIMS = ("Sphere", "Cube", "Cylinder", "Cone", "Capsule", "Plane")
+# UV sets read when no UsdPrimvarReader_float2 names one: the common names of DCC exporters
+# (USD's st, Blender's UVMap, Maya's map1, ...), first found wins.
+DEFAULT_UV_SETS = ("st", "st0", "UVMap", "uv", "map1")
 
 # UsdPreviewSurface inputs carried per material row, with the SceneData key they fill.
 _SCALAR_INPUTS = {"metallic": "metallic", "roughness": "roughness", "ior": "ior",
@@ -52,6 +57,10 @@ _SCALAR_INPUTS = {"metallic": "metallic", "roughness": "roughness", "ior": "ior"
                   "opacity": "opacity", "opacityThreshold": "opacity_threshold",
                   "useSpecularWorkflow": "use_specular_workflow"}
 _COLOR_INPUTS = ("diffuseColor", "emissiveColor", "specularColor")
+# opacity_threshold of a row whose opacity is presence (see _Translator._is_presence): a
+# value USD cannot author (the threshold is >= 0), read by the core as "a hit is a surface
+# with probability opacity, else passed straight through".
+PRESENCE_MODE = -1.0
 PARAM_KEYS = ("specular_color",) + tuple(_SCALAR_INPUTS.values()) + ("preview_surface",)
 
 
@@ -117,6 +126,10 @@ class SceneData:
     # its camera sits at the origin (float32 precision follows distance from the camera);
     # world = these coordinates + world_offset.
     world_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # Lights for a stage that has none (see default_lighting), not yet part of the light
+    # tables above; Scene adds them unless default lighting is switched off. None when the
+    # stage has a light (emissive geometry counts) or they were applied already.
+    default_lights: dict | None = None
 
 
 @dataclass
@@ -211,6 +224,11 @@ class _Translator:
         self._surface_cache: dict[Any, dict] = {}
         self._geometry_cache: dict[str, Any] = {}
         self._notes: Counter = Counter()  # repeated warnings, reported once with a count
+        # Skinned meshes: prim path -> (points in skeleton space at the frame, the
+        # skeleton's local-to-world matrix). Filled by skin() before the walk.
+        self.skinned: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        # Materials rendered with the default grey: path -> their shader id or why.
+        self.grey_materials: dict[str, str] = {}
         node = Sdr.Registry().GetShaderNodeByIdentifier("UsdPreviewSurface")
         # UsdPreviewSurface defaults come from its registered definition, not from here.
         self.defaults = {name: _as_tuple(node.GetShaderInput(name).GetDefaultValue())
@@ -250,6 +268,9 @@ class _Translator:
                 it.PruneChildren()  # prototypes render only through the instancer
                 continue
             m = self.world_matrix(prim) if (prim.IsA(UsdGeom.Gprim)) else None
+            skinned = self.skinned.get(str(prim.GetPath())) if self.skinned else None
+            if skinned is not None:
+                m = skinned[1]  # skinned points are in the skeleton's space
             if m is not None and base_inv is not None:
                 m = m @ base_inv
             if prim.IsA(UsdGeom.Mesh):
@@ -305,13 +326,55 @@ class _Translator:
             raise SceneError(f"{path}: the scene has more than {self.limits.triangles} triangles (limit)")
         sink.append(chunk)
 
+    # -- skinning -------------------------------------------------------------------
+    def skin(self) -> None:
+        """Poses every skinned mesh at the render frame, as UsdSkel.BakeSkinning would: the
+        skeleton's animation (SkelAnimation, else its rest pose) gives the skinning
+        transforms, UsdSkel's skinning query applies them with each mesh's joint
+        influences and geomBindTransform (linear blend or dual quaternion, as authored;
+        rigid bindings as one transform). The posed points are in the skeleton's space."""
+        from pxr import Usd, UsdSkel
+
+        predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
+        roots = [p for p in Usd.PrimRange.Stage(self.stage, predicate) if p.IsA(UsdSkel.Root)]
+        if not roots:
+            return
+        cache = UsdSkel.Cache()
+        for root_prim in roots:
+            root = UsdSkel.Root(root_prim)
+            cache.Populate(root, predicate)
+            for binding in cache.ComputeSkelBindings(root, predicate):
+                skel_query = cache.GetSkelQuery(binding.GetSkeleton())
+                skel_world = self.world_matrix(skel_query.GetPrim())
+                xforms = skel_query.ComputeSkinningTransforms(self.time)
+                for query in binding.GetSkinningTargets():
+                    prim = query.GetPrim()
+                    path = str(prim.GetPath())
+                    points = _skinnable_points(prim, self.time)
+                    if points is None or xforms is None:
+                        continue
+                    if query.HasBlendShapes():
+                        self._count_note("UsdSkel blend shapes are not applied (skinning is)")
+                    if query.IsRigidlyDeformed():
+                        m = np.array(query.ComputeSkinnedTransform(xforms, self.time), np.float64)
+                        posed = np.asarray(points, np.float64) @ m[:3, :3] + m[3, :3]
+                    else:
+                        if not query.ComputeSkinnedPoints(xforms, points, self.time):
+                            self.warn(f"{path}: UsdSkel could not skin this mesh; rendered in its rest pose")
+                            continue
+                        posed = np.asarray(points, np.float64)
+                    self.skinned[path] = (posed, skel_world)
+        if self.skinned:
+            self._count_note(f"UsdSkel: {len(self.skinned)} skinned mesh(es) posed at the render frame")
+
     # -- meshes ---------------------------------------------------------------------
     def mesh_chunk(self, prim) -> _Chunk | None:
         from pxr import UsdGeom, UsdShade
 
         # Instance proxies of one prototype prim share its geometry: read it once; only
-        # the material binding can differ per instance.
-        key = str(prim.GetPrimInPrototype().GetPath()) if prim.IsInstanceProxy() else None
+        # the material binding can differ per instance (skinned meshes are posed per prim).
+        key = str(prim.GetPrimInPrototype().GetPath()) \
+            if prim.IsInstanceProxy() and str(prim.GetPath()) not in self.skinned else None
         if key is not None and key in self._geometry_cache:
             geo = self._geometry_cache[key]
         else:
@@ -320,7 +383,7 @@ class _Translator:
                 self._geometry_cache[key] = geo
         if geo is None:
             return None
-        points, tris, face_of_tri, normals, uvs, n_faces = geo
+        points, tris, face_of_tri, normals, uv_set, n_faces = geo
         mesh = UsdGeom.Mesh(prim)
         t = self.time
         materials = np.zeros(len(tris), dtype=np.uint32)
@@ -339,7 +402,46 @@ class _Translator:
                 face_row[idx] = self.material_row(subset.GetPrim(), prim, double_sided)
             materials = face_row[face_of_tri]
 
-        return _Chunk(points, tris, materials, normals, uvs)
+        return _Chunk(points, tris, materials, normals, self._uvs_by_material(prim, materials, uv_set))
+
+    def _uvs_by_material(self, prim, materials, uv_set):
+        """Per-corner st of each triangle from the UV set its material's textures name
+        (UsdPrimvarReader_float2 varname), so subsets bound to materials reading different
+        sets each get theirs; the mesh's default set (DEFAULT_UV_SETS) where a material
+        names none or names one the mesh lacks (with a warning)."""
+        rows = np.unique(materials)
+        wanted = {int(r): self._uv_set_of_row(int(r)) for r in rows}
+        names = set(wanted.values())
+        if names <= {None}:
+            return uv_set(None)
+        uvs = None
+        for name in names:
+            values = uv_set(name)
+            if values is None and name is not None:
+                fallback = uv_set(None)
+                self._count_note(f"meshes lack the UV set {name!r} that their material's textures read "
+                                 f"(UsdPrimvarReader_float2 varname); "
+                                 + ("the mesh's default set is used" if fallback is not None
+                                    else "those textures are sampled at st = (0, 0)"))
+                values = fallback
+            if values is None:
+                continue
+            if uvs is None:
+                uvs = np.zeros((len(materials), 3, 2), np.float32)
+            sel = np.isin(materials, [r for r, n in wanted.items() if n == name])
+            uvs[sel] = values[sel]
+        return uvs
+
+    def _uv_set_of_row(self, row: int) -> str | None:
+        """The UV set a material row's textures read (None: no reader, the default set).
+        One set per material: textures reading several get the first, with a warning."""
+        textures = self.materials.rows[row]["textures"]
+        names = [self.materials.textures[t].get("st_primvar") for _, t in sorted(textures.items())]
+        names = list(dict.fromkeys(n for n in names if n))
+        if len(names) > 1:
+            self._count_note(f"materials whose textures read several UV sets ({', '.join(names)}) are "
+                             f"rendered with the first for all of them")
+        return names[0] if names else None
 
     def _mesh_geometry(self, prim):
         from pxr import UsdGeom
@@ -348,6 +450,9 @@ class _Translator:
         path = str(prim.GetPath())
         t = self.time
         points = mesh.GetPointsAttr().Get(t)
+        skinned = self.skinned.get(path)
+        if skinned is not None:
+            points = skinned[0]
         counts = mesh.GetFaceVertexCountsAttr().Get(t)
         face_indices = mesh.GetFaceVertexIndicesAttr().Get(t)
         if points is None or counts is None or face_indices is None:
@@ -410,17 +515,29 @@ class _Translator:
                                   corners, tris, face_of_tri, shape)
                 if normals is None:
                     self.warn(f"{path}: normals have {len(raw)} values, wrong for {interp}; ignored")
+        if normals is not None and skinned is not None:
+            # Authored normals are the rest pose's: shade the posed surface smoothly.
+            self._count_note("skinned meshes get smooth normals of the posed surface (their authored "
+                             "normals are the rest pose's)")
+            normals = _vertex_normals(points, tris)
         if normals is None and scheme not in (None, UsdGeom.Tokens.none):
             normals = _vertex_normals(points, tris)  # smooth look for the unsubdivided cage
-        uvs = self.mesh_uvs(prim, api, corners, tris, face_of_tri, shape, path)
-        return points, tris, face_of_tri, normals, uvs, len(counts)
+        sets: dict = {}
 
-    def mesh_uvs(self, prim, api, corners, tris, face_of_tri, shape, path):
-        names = [n for n in ("st", "st0", "UVMap", "uv", "map1") if api.HasPrimvar(n)]
-        if not names:
-            return None
-        pv = api.GetPrimvar(names[0])
-        return self.corner_primvar(pv, corners, tris, face_of_tri, shape, 2, path)
+        def uv_set(name: str | None):
+            """Per-corner values of a named UV set, or of the default set for None;
+            None when the mesh has no such primvar. Read once per name."""
+            if name not in sets:
+                if name is None:
+                    found = [n for n in DEFAULT_UV_SETS if api.HasPrimvar(n)]
+                    pv = api.GetPrimvar(found[0]) if found else None
+                else:
+                    pv = api.GetPrimvar(name) if api.HasPrimvar(name) else None
+                sets[name] = self.corner_primvar(pv, corners, tris, face_of_tri, shape, 2, path) \
+                    if pv is not None else None
+            return sets[name]
+
+        return points, tris, face_of_tri, normals, uv_set, len(counts)
 
     def corner_primvar(self, pv, corners, tris, face_of_tri, shape, width, path):
         """A primvar of any interpolation, indexed or not, expanded to (T, 3, width)."""
@@ -624,12 +741,25 @@ class _Translator:
         return {"values": values, "textures": {}}
 
     def _read_preview_surface(self, material, display) -> dict:
+        from . import mtlx
+
         path = str(material.GetPath())
+        # The universal surface first (what Storm, the reference viewer, shows too), then
+        # a MaterialX one (outputs:mtlx:surface), then a referenced .mtlx document.
         shader, _, _ = material.ComputeSurfaceSource()
-        if not shader or shader.GetIdAttr().Get() != "UsdPreviewSurface":
-            ident = shader.GetIdAttr().Get() if shader else None
-            self._count_note(f"materials whose surface is not UsdPreviewSurface ({ident or 'none'}) "
-                             f"use the default grey")
+        if not shader:
+            shader, _, _ = material.ComputeSurfaceSource("mtlx")
+        ident = shader.GetIdAttr().Get() if shader else None
+        if ident != "UsdPreviewSurface":
+            if mtlx.category_of(ident) in mtlx.SURFACE_CATEGORIES:
+                return self._mtlx_surface(mtlx.UsdNode(shader, self.time), path)
+            reason = ident or "no surface shader"
+            if not shader:
+                node, why = self._referenced_mtlx(material)
+                if node is not None and node.category in mtlx.SURFACE_CATEGORIES:
+                    return self._mtlx_surface(node, path)
+                reason = why or (f"MaterialX {node.category}" if node is not None else reason)
+            self.grey_materials[path] = reason
             return self._plain_surface(None, path)
         values, textures = {}, {}
         for name in _COLOR_INPUTS + tuple(_SCALAR_INPUTS) + ("normal", "occlusion"):
@@ -641,12 +771,83 @@ class _Translator:
                 textures[name] = self.materials.add_texture(tex)
                 if name == "normal" and tex["scale"][:3] == [1.0, 1.0, 1.0] and tex["bias"][:3] == [0.0, 0.0, 0.0]:
                     # Read as authored (the spec's rule), which tilts every normal: say so.
+                    # One line for the scene however many maps: Storm (the spec's reference
+                    # viewer) does not remap either, so the image matches usdview's.
                     self._count_note("normal maps without scale (2, 2, 2) and bias (-1, -1, -1) are read as "
-                                     "authored (values in [0, 1] tilt every normal); the UsdPreviewSurface spec "
-                                     "asks the file to set them")
+                                     "authored, as the UsdPreviewSurface spec and usdview do (values in [0, 1] "
+                                     "tilt every normal); set them in the file to decode 8-bit maps")
         values["diffuseColor"] = self._clamped_albedo(values["diffuseColor"], path)
         values["emissiveColor"] = _non_negative(values["emissiveColor"])
+        if self._is_presence(shader, values, "opacity" in textures):
+            values["opacityThreshold"] = (PRESENCE_MODE,)
         return {"values": values, "textures": textures, "preview": True}
+
+    def _is_presence(self, shader, values, textured_opacity: bool) -> bool:
+        """Whether the surface's opacity means presence (partial coverage, no refraction)
+        rather than glass. UsdPreviewSurface's reference viewer (Storm) blends a partial
+        opacity as translucency and refracts nothing; a path tracer refracting every
+        partially opaque surface turns exporters' window panes (Mineways' glass at 0.57)
+        into dark glass with fireflies. So: a cutout (opacityThreshold > 0) stays one;
+        opacityMode "presence" is presence; otherwise a partial or textured opacity is
+        presence unless the author asks for refraction by authoring `ior`; opacity 0
+        (clear glass, whose specular response the spec keeps) stays glass."""
+        threshold, opacity = values["opacityThreshold"][0], values["opacity"][0]
+        if threshold > 0:
+            return False
+        partial = textured_opacity or 0.0 < opacity < 1.0
+        if str(_input_value(shader, "opacityMode", self.time) or "transparent") == "presence":
+            return partial or opacity < 1.0
+        if not partial:
+            return False
+        ior = shader.GetInput("ior")
+        if ior and (ior.GetAttr().HasAuthoredValue() or ior.HasConnectedSource()):
+            return False
+        self._count_note("partial opacity without an authored ior renders as presence (translucent "
+                         "without refraction, as usdview shows it); author ior to make it refract")
+        return True
+
+    def _mtlx_surface(self, node, path) -> dict:
+        """A MaterialX surface (inline or from a .mtlx file) as UsdPreviewSurface values."""
+        from . import mtlx
+
+        values, textures, presence = mtlx.surface(node, self.defaults, self._texture_from, self._count_note)
+        values = {k: v for k, v in values.items() if k in self.defaults}
+        values["diffuseColor"] = self._clamped_albedo(values["diffuseColor"], path)
+        values["emissiveColor"] = _non_negative(values["emissiveColor"])
+        if presence is None:  # MaterialX's UsdPreviewSurface node: the UsdPreviewSurface rule
+            partial = "opacity" in textures or 0.0 < values["opacity"][0] < 1.0
+            presence = values["opacityThreshold"][0] <= 0 and partial and node.value("ior") is None
+        if presence:
+            values["opacityThreshold"] = (PRESENCE_MODE,)
+        return {"values": values, "textures": {k: self.materials.add_texture(t) for k, t in textures.items()},
+                "preview": True}
+
+    def _referenced_mtlx(self, material):
+        """(MxNode of the surface, None) for a Material prim that references or payloads a
+        .mtlx document (the usdMtlx convention), (None, reason) when that fails, (None,
+        None) when it names none."""
+        import os
+
+        from . import mtlx
+
+        prim = material.GetPrim()
+        for spec in prim.GetPrimStack():
+            arcs = list(spec.referenceList.GetAddedOrExplicitItems()) + \
+                list(spec.payloadList.GetAddedOrExplicitItems())
+            for arc in arcs:
+                if not arc.assetPath.lower().endswith(".mtlx"):
+                    continue
+                anchor = os.path.dirname(spec.layer.realPath)
+                where = f"{prim.GetPath()}: {arc.assetPath}"
+                if self.bundle is not None:
+                    file = self.bundle.check_asset(arc.assetPath, anchor, what=where)
+                else:
+                    file = os.path.join(anchor, arc.assetPath)
+                if not os.path.isfile(file):
+                    return None, f"{arc.assetPath} missing"
+                name = arc.primPath.name if not arc.primPath.isEmpty else prim.GetName()
+                return mtlx.read_mtlx_material(str(file), name, where)
+        return None, None
 
     def _input(self, shader, name, default, path, display):
         """(value, texture description or None) of a UsdPreviewSurface input."""
@@ -704,39 +905,64 @@ class _Translator:
             self._count_note("UsdUVTexture without a file uses its fallback")
             return value, None
         where = f"{tex_shader.GetPath()}"
-        file_path = self.bundle.resolve_texture(asset, layer_dir, where) if self.bundle else None
-        if file_path is None:
-            self.warn(f"{where}: texture {asset.path!r} is missing from the bundle; using its fallback")
+        tex = self._texture_from(
+            asset=asset, anchor=layer_dir, where=where, input_name=input_name, channel=channel,
+            fallback=list(_vec4(fallback, self.tex_defaults["fallback"])),
+            wrap_s=_wrap(_input_value(tex_shader, "wrapS", t)), wrap_t=_wrap(_input_value(tex_shader, "wrapT", t)),
+            scale=list(_vec4(_input_value(tex_shader, "scale", t), self.tex_defaults["scale"])),
+            bias=list(_vec4(_input_value(tex_shader, "bias", t), self.tex_defaults["bias"])),
+            color_space=str(_input_value(tex_shader, "sourceColorSpace", t) or "auto"), st_primvar=None,
+            transform2d=None)
+        if tex is None:
             return value, None
-        color_space = str(_input_value(tex_shader, "sourceColorSpace", t) or "auto")
+        tex.update(self._st_source(tex_shader))
+        return value, tex
+
+    def _texture_from(self, *, asset, anchor, where, input_name, channel, fallback, wrap_s, wrap_t, scale,
+                      bias, color_space, st_primvar, transform2d) -> dict | None:
+        """A texture description for an image file named in the scene (an Sdf.AssetPath,
+        or a path relative to `anchor` from a .mtlx document), checked by the sandbox and
+        the pixel limit; None (with a warning) when it is missing or unreadable."""
+        from pxr import Sdf
+
+        authored = asset.path if isinstance(asset, Sdf.AssetPath) else str(asset or "")
+        if not authored:
+            self._count_note("textures without a file use their fallback")
+            return None
+        if self.bundle is None:
+            file_path = None
+        elif isinstance(asset, Sdf.AssetPath):
+            file_path = self.bundle.resolve_texture(asset, anchor, where)
+        else:
+            file_path = self.bundle.check_asset(authored, anchor, what=f"texture of {where}")
+            file_path = file_path if file_path.is_file() else None
+        if file_path is None:
+            self.warn(f"{where}: texture {authored!r} is missing from the bundle; using its fallback")
+            return None
         info = _texture_info(file_path)
         if info is None:
-            self.warn(f"{where}: texture {asset.path!r} cannot be read; using its fallback")
-            return value, None
+            self.warn(f"{where}: texture {authored!r} cannot be read; using its fallback")
+            return None
         w, h, bits, channels = info
         if w * h > self.limits.texture_pixels:
-            raise SceneError(f"{where}: texture {asset.path!r} is {w}x{h}, more than the limit of "
+            raise SceneError(f"{where}: texture {authored!r} is {w}x{h}, more than the limit of "
                              f"{self.limits.texture_pixels} pixels")
         if color_space == "auto":
             # 8-bit colour images (3 or 4 channels) feeding a colour input are sRGB-encoded
             # by convention; deeper images, grey images and data (roughness, normals, ...)
             # are linear.
             color_space = "sRGB" if bits <= 8 and channels >= 3 and input_name in _COLOR_INPUTS else "raw"
-        tex = {"file": str(file_path), "wrap_s": _wrap(_input_value(tex_shader, "wrapS", t)),
-               "wrap_t": _wrap(_input_value(tex_shader, "wrapT", t)),
-               "scale": list(_vec4(_input_value(tex_shader, "scale", t), self.tex_defaults["scale"])),
-               "bias": list(_vec4(_input_value(tex_shader, "bias", t), self.tex_defaults["bias"])),
-               "fallback": list(_vec4(fallback, self.tex_defaults["fallback"])),
-               "color_space": "sRGB" if color_space.lower() == "srgb" else "raw",
-               "channel": channel, "width": w, "height": h, "udim": "<UDIM>" in asset.path}
-        tex.update(self._st_source(tex_shader))
-        return value, tex
+        return {"file": str(file_path), "wrap_s": wrap_s, "wrap_t": wrap_t, "scale": list(scale),
+                "bias": list(bias), "fallback": list(fallback),
+                "color_space": "sRGB" if color_space.lower() == "srgb" else "raw",
+                "channel": channel, "width": w, "height": h, "udim": "<UDIM>" in authored,
+                "st_primvar": st_primvar, "transform2d": transform2d}
 
     def _st_source(self, tex_shader) -> dict:
         """Which primvar feeds the texture's st, and any UsdTransform2d on the way."""
         from pxr import UsdShade
 
-        out = {"st_primvar": "st", "transform2d": None}
+        out = {"st_primvar": None, "transform2d": None}
         inp = tex_shader.GetInput("st")
         if not inp:
             return out
@@ -757,9 +983,12 @@ class _Translator:
                         if a2.GetName().startswith("outputs:"):
                             node = UsdShade.Shader(a2.GetPrim())
             if node and (node.GetIdAttr().Get() or "").startswith("UsdPrimvarReader"):
+                # varname may come through a connection to a material interface input
+                # (e.g. inputs:frame:stPrimvarName): GetValueProducingAttributes follows it.
                 var = _input_value(node, "varname", self.time)
                 if var:
-                    out["st_primvar"] = str(var)
+                    var = str(var)
+                    out["st_primvar"] = var[len("primvars:"):] if var.startswith("primvars:") else var
         return out
 
     def _clamped_albedo(self, color, path) -> tuple:
@@ -942,8 +1171,20 @@ class _Translator:
         self._notes[message] += 1
 
     def flush_notes(self) -> None:
+        if self.grey_materials:
+            items = [f"{p} ({why})" for p, why in sorted(self.grey_materials.items())]
+            self.warn(f"{len(items)} material(s) fell back to the default grey: " + ", ".join(items[:20])
+                      + (f" and {len(items) - 20} more" if len(items) > 20 else ""))
         for message, count in self._notes.items():
             self.warn(message + (f" ({count} times)" if count > 1 else ""))
+
+
+def _skinnable_points(prim, time):
+    """A mesh's points at `time` as a mutable Vt array (the skinning query writes into it)."""
+    from pxr import UsdGeom, Vt
+
+    value = UsdGeom.PointBased(prim).GetPointsAttr().Get(time) if UsdGeom.PointBased(prim) else None
+    return Vt.Vec3fArray(value) if value is not None else None
 
 
 def _authoring_layer(attr):
@@ -1217,25 +1458,57 @@ def _camera_from_prim(prim, xform_cache, time, warn) -> CameraDesc:
                       clip_near=near, clip_far=far)
 
 
-def _default_camera(positions: np.ndarray, sphere_lights: np.ndarray, up_axis: str) -> CameraDesc:
-    """Frames the bounding sphere of the geometry from the front (+Z for Y-up stages,
-    -Y for Z-up), 50 mm lens on a 36 x 24 mm aperture."""
-    pts = positions if len(positions) else np.zeros((1, 3))
-    if len(sphere_lights):
-        pts = np.concatenate([pts, sphere_lights[:, :3]])
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    center = (lo + hi) / 2
-    radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-3)
+# The default camera's view: a three-quarter view from the front-right, above (degrees),
+# and the share of the frame the scene's extent may fill in its limiting direction.
+DEFAULT_VIEW_AZIMUTH = 45.0
+DEFAULT_VIEW_ELEVATION = 30.0
+DEFAULT_VIEW_FILL = 0.95
+
+
+def _default_camera(points: np.ndarray, up_axis: str, resolution: tuple[int, int]) -> CameraDesc:
+    """Frames `points` (world space) tightly from a three-quarter view, as usdview's "frame
+    all" fits the scene to its view: looking at the centre of their bounds from
+    DEFAULT_VIEW_AZIMUTH degrees right of the front (+Z on Y-up stages, -Y on Z-up) and
+    DEFAULT_VIEW_ELEVATION above, at the distance where every point projects inside
+    DEFAULT_VIEW_FILL of the frame, re-aimed once so the projected extent is centred. A
+    50 mm lens with a 24 mm vertical aperture, the horizontal one matching the
+    resolution's aspect ratio (so the fit holds for the image rendered)."""
+    pts = points if len(points) else np.zeros((1, 3))
     if up_axis == "Z":
-        forward, up = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
+        front, up_w = np.array([0.0, -1.0, 0.0]), np.array([0.0, 0.0, 1.0])
     else:
-        forward, up = np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0])
-    half_fov = math.atan(24.0 / (2 * 50.0))  # the narrower (vertical) half angle
-    distance = radius / math.sin(half_fov) * 1.05
-    origin = center - forward * distance
-    right = np.cross(forward, up)
-    return CameraDesc(_floats(origin), _floats(right), _floats(up), _floats(forward), 36.0, 24.0, 50.0,
-                      "default camera framing the scene bounds")
+        front, up_w = np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])
+    right_w = np.cross(up_w, front)  # +X on both
+    az, el = math.radians(DEFAULT_VIEW_AZIMUTH), math.radians(DEFAULT_VIEW_ELEVATION)
+    eye_dir = math.cos(el) * (math.cos(az) * front + math.sin(az) * right_w) + math.sin(el) * up_w
+    forward = -eye_dir
+    right = _unit(np.cross(forward, up_w))
+    up = np.cross(right, forward)
+    aspect = resolution[0] / resolution[1]
+    vap, focal = 24.0, 50.0
+    hap = vap * aspect
+    tan_w, tan_h = hap / (2 * focal) * DEFAULT_VIEW_FILL, vap / (2 * focal) * DEFAULT_VIEW_FILL
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    target = (lo + hi) / 2
+    size = max(float(np.linalg.norm(hi - lo)), 1e-3)
+    q = pts - target
+    x, y, z = q @ right, q @ up, q @ forward
+
+    def distance(sx, sy):  # camera distance fitting every point, target shifted by (sx, sy)
+        return float(max(np.max(np.abs(x - sx) / tan_w - z), np.max(np.abs(y - sy) / tan_h - z)))
+
+    sx = sy = 0.0
+    d = distance(sx, sy)
+    depth = np.maximum(d + z, 1e-9)
+    u, v = (x - sx) / depth, (y - sy) / depth
+    # Centre the projected extent: shift the aim by the middle of the extent at the
+    # target's depth, then fit again.
+    sx += (u.max() + u.min()) / 2 * d
+    sy += (v.max() + v.min()) / 2 * d
+    d = max(distance(sx, sy), size * 1e-3)
+    origin = target + sx * right + sy * up - forward * d
+    return CameraDesc(_floats(origin), _floats(right), _floats(up), _floats(forward), hap, vap, focal,
+                      "default camera: three-quarter view framing the scene")
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -1291,6 +1564,7 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     warn = warnings.append
     time = Usd.TimeCode(frame) if frame is not None else Usd.TimeCode.Default()
     tr = _Translator(stage, time, warn, bundle, limits, instancing)
+    tr.skin()
     predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate) if instancing == "flatten" \
         else Usd.PrimDefaultPredicate
     tr.walk(Usd.PrimRange.Stage(stage, predicate), None, tr.chunks, top_level=True)
@@ -1325,16 +1599,19 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     if camera_prim is not None:
         camera = _camera_from_prim(camera_prim, tr.xform_cache, time, warn)
     else:
-        corners = [np.stack([c.points.min(axis=0), c.points.max(axis=0)]) for c in tr.chunks if len(c.points)]
+        # Every point (not the chunks' boxes): the fit is to what is seen.
+        corners = [c.points for c in tr.chunks if len(c.points)]
         all_instances = np.concatenate(tr.instances) if tr.instances else np.zeros(0, np.uint32)
         if len(all_instances):
             mats = np.concatenate(tr.instance_xforms)
             corners += [_instance_corners(proto["chunks"], mats[all_instances == k])
                         for k, proto in enumerate(tr.prototypes) if any(len(c.points) for c in proto["chunks"])]
+        spheres = np.array([row[:4] for row in tr.sphere_lights], np.float64).reshape(-1, 4)
+        signs = np.array([(a, b, c) for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], np.float64)
+        corners += [(spheres[:, None, :3] + spheres[:, None, 3:4] * signs[None]).reshape(-1, 3)]
         bound_pts = np.concatenate(corners) if corners else np.zeros((0, 3))
-        spheres = np.array([row[:3] for row in tr.sphere_lights], np.float64).reshape(-1, 3)
-        camera = _default_camera(bound_pts, spheres, up_axis)
-        warn("the scene has no camera: using a default camera framing its bounds")
+        camera = _default_camera(bound_pts, up_axis, resolution)
+        warn("the scene has no camera: using a default camera, a three-quarter view framing the scene")
     camera_offset = (0.0, 0.0, 0.0)
     if camera_relative:
         _move_to_camera(tr, camera)
@@ -1371,17 +1648,17 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     distant = np.array(tr.distant_lights, np.float32).reshape(-1, 7)
     point = np.array(tr.point_lights, np.float32).reshape(-1, 6)
     dome = tr.dome_light
-    has_light = bool(emission.any() or len(sphere_lights) or len(distant) or len(point) or dome)
+    has_light = bool(_emits(rows, tri_material, prototypes) or len(sphere_lights) or len(distant)
+                     or len(point) or dome)
+    default_lights = None
     if len(indices) == 0 and len(sphere_lights) == 0 and len(instances) == 0:
         warn("the scene has no renderable geometry")
     elif not has_light:
-        if default_light:
-            dome = {"radiance": [1.0, 1.0, 1.0], "texture": None,
-                    "world_to_light": np.eye(3).tolist(), "path": "default light"}
-            warn("the scene has no lights: added the default white dome light of radiance 1")
-        else:
-            warn("the scene has no lights: it renders black")
-
+        # Light-less assets are the rule for props and usdz files; viewers light them by
+        # default. What to add is recorded here and applied (or not) when the Scene is
+        # built, so one translation serves renders with and without it.
+        default_lights = default_lighting(camera)
+        warn(NO_LIGHT_WARNING)
     data = SceneData(positions=positions, indices=indices, triangle_material=tri_material,
                      albedo=albedo, emission=emission, two_sided_emission=two_sided,
                      sphere_lights=sphere_lights, camera=camera, resolution=resolution,
@@ -1391,9 +1668,59 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
                      distant_lights=distant, point_lights=point, dome_light=dome,
                      prototypes=prototypes, instances=instances, instance_transforms=instance_xforms,
                      meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)), up_axis=str(up_axis),
-                     world_offset=camera_offset)
+                     world_offset=camera_offset, default_lights=default_lights)
+    if default_light:
+        apply_default_lighting(data)
     data._native_prototype_lights = tr.native_prototype_lights
     return data
+
+
+# The one line a light-less stage gets; Scene rewrites it when default lighting is off.
+NO_LIGHT_WARNING = ("the scene has no lights: lit by the default lighting (a white dome of radiance "
+                    "0.5 and a key light from above and left of the camera; --no-default-light or "
+                    "the job setting default_light=false renders it unlit, i.e. black)")
+NO_LIGHT_OFF_WARNING = "the scene has no lights and default lighting is off: it renders black"
+DEFAULT_DOME_RADIANCE = 0.5
+# The key light's illuminance on a surface facing it, and its angular diameter (degrees):
+# a white surface facing it reflects E / pi = 0.8 on top of the dome's 0.5.
+DEFAULT_KEY_ILLUMINANCE = 0.8 * math.pi
+DEFAULT_KEY_ANGLE = 5.0
+
+
+def default_lighting(camera: CameraDesc) -> dict:
+    """What usdview and Quick Look do for a light-less stage, in Tessera's terms: a white
+    dome (uniform ambient light, so nothing is black) and one distant key light that comes
+    from above, left and behind the camera, so shapes read by their shading. The key
+    follows the camera, as a viewer's headlight does."""
+    forward, up, right = (np.array(v, np.float64) for v in (camera.forward, camera.up, camera.right))
+    toward_light = _unit(-forward + 0.8 * up - 0.6 * right)
+    half = math.radians(DEFAULT_KEY_ANGLE) / 2.0
+    radiance = DEFAULT_KEY_ILLUMINANCE / (math.pi * math.sin(half) ** 2)
+    return {"dome": {"radiance": [DEFAULT_DOME_RADIANCE] * 3, "texture": None,
+                     "world_to_light": np.eye(3).tolist(), "path": "default lighting (dome)"},
+            "distant": [[*(-toward_light), half, radiance, radiance, radiance]]}
+
+
+def apply_default_lighting(data: SceneData) -> SceneData:
+    """Moves data.default_lights into the light tables (once); returns data."""
+    lights = data.default_lights
+    if not lights:
+        return data
+    data.dome_light = lights["dome"]
+    data.distant_lights = np.concatenate([np.asarray(data.distant_lights, np.float32).reshape(-1, 7),
+                                          np.asarray(lights["distant"], np.float32).reshape(-1, 7)])
+    data.default_lights = None
+    return data
+
+
+def _emits(rows: list[dict], tri_material: np.ndarray, prototypes: list[dict]) -> bool:
+    """Whether any triangle's material emits: a constant emissiveColor above 0, or an
+    emissiveColor texture (whose constant is only its fallback, often 0)."""
+    used = set(np.unique(tri_material).tolist())
+    for proto in prototypes:
+        used.update(np.unique(proto["triangle_material"]).tolist())
+    return any(any(c > 0 for c in rows[m]["values"]["emissiveColor"]) or "emissiveColor" in rows[m]["textures"]
+               for m in used if m < len(rows))
 
 
 def _move_to_camera(tr, camera: CameraDesc) -> None:

@@ -200,6 +200,42 @@ TEST(Textures, CutoutOpacityTextureLetsRaysThroughWhereItIsBelowTheThreshold) {
     }
 }
 
+// Presence mode (opacity_threshold < 0, the translator's mark for a partial opacity that
+// does not refract): a hit is a surface with probability opacity, for camera and shadow
+// rays alike, and the rest pass straight on. Over 100,000 rays through a quad of opacity
+// 0.3 the pass-through share is 0.7 within 4 binomial sigmas (0.0058), a bound that a 2 %
+// error (0.014) exceeds, which the negative control checks.
+TEST(Textures, PresenceModeLetsOneMinusOpacityOfRaysThrough) {
+    SceneDesc d;
+    MaterialParams p = LambertLike(Color(0.5f));
+    p.opacity = 0.3f;
+    p.opacity_threshold = -1.f;
+    AddQuadST(d, {-1, -1, -1}, {1, -1, -1}, {1, 1, -1}, {-1, 1, -1}, AddPreviewMaterial(d, p, Color(0.f), NoTextures()),
+              {0, 0}, {1, 0}, {1, 1}, {0, 1});
+    AddQuadST(d, {-5, -5, -2}, {5, -5, -2}, {5, 5, -2}, {-5, 5, -2}, AddMaterial(d, Color(0.f), Color(1.f)),
+              {0, 0}, {0, 0}, {0, 0}, {0, 0});
+    Scene scene(d);
+    const int n = 100000;
+    int through = 0, unoccluded = 0;
+    for (int i = 0; i < n; ++i) {
+        // A stratified spread of directions through the quad (|x|, |y| < 0.9 at z = -1).
+        const float x = -0.9f + 1.8f * ((i % 317) + 0.5f) / 317.f;
+        const float y = -0.9f + 1.8f * ((i / 317) + 0.5f) / float(n / 317 + 1);
+        const Vec3 dir = Normalize(Vec3(x, y, -1.f));
+        SurfaceHit hit;
+        ASSERT_TRUE(scene.Intersect({Vec3(0.f), dir}, &hit));
+        through += hit.p.z < -1.5f;
+        unoccluded += !scene.Occluded(Vec3(0.f), dir, 1.9f);  // before the backdrop (t >= 2)
+    }
+    const double sigma = std::sqrt(0.7 * 0.3 / n);
+    const double f = double(through) / n, g = double(unoccluded) / n;
+    EXPECT_LT(std::abs(f - 0.7), 4 * sigma) << f;
+    EXPECT_LT(std::abs(g - 0.7), 4 * sigma) << g;
+    EXPECT_GT(std::abs(f - 0.7 * 1.02), 4 * sigma) << "negative control: a 2 % error must show";
+    // Where it is a surface, the BSDF is opaque (no glass lobe).
+    EXPECT_FALSE(MakePreviewSurfaceBSDF(p, TransportMode::Radiance).HasTransmission());
+}
+
 namespace {
 
 // Two emitting quads side by side at z = -1 facing the camera (+z): the left one's st

@@ -30,6 +30,8 @@ class SceneInfo:
     warnings: list[str] = field(default_factory=list)
     triangles: int = 0
     lights: int = 0
+    # For a stage without any light: the warnings when default lighting is off.
+    unlit_warnings: list[str] | None = None
 
 
 def _limits(memory_bytes: int):
@@ -57,7 +59,9 @@ def inspect_scene(path: str, *, timeout: float, memory_bytes: int) -> SceneInfo:
             return SceneInfo(width=int(result["width"]), height=int(result["height"]),
                              warnings=[str(w) for w in result.get("warnings", [])],
                              triangles=int(result.get("triangles", 0)),
-                             lights=int(result.get("lights", 0)))
+                             lights=int(result.get("lights", 0)),
+                             unlit_warnings=([str(w) for w in result["unlit_warnings"]]
+                                             if result.get("unlit_warnings") is not None else None))
         except (KeyError, TypeError, ValueError) as e:
             raise PreflightBroken(f"scene inspection returned an unexpected answer: {result!r}") from e
 

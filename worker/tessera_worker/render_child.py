@@ -9,7 +9,7 @@ On start it sends ("hello", blob_version): the renderer's translated-scene blob 
 (None if this renderer has no blob API). Then, per request:
 
 Request: dict(serial, scene_key, scene_path, blob_path, blob_out, settings (RenderSettings
-JSON), tile (TileRect fields), pass_index, threads, variance, batches, fault). The scene
+JSON), tile (TileRect fields), pass_index, threads, variance, batches, default_light, fault). The scene
 comes from the blob file `blob_path` if given (no USD involved), else is translated from
 `scene_path`; with `blob_out`, the translation is also written there as a blob for other
 workers. The pass is rendered by tessera.film.render_tile_pass, as local renders do.
@@ -61,18 +61,19 @@ def _blob_api():
 def _load(req: dict, blob_api):
     from tessera_renderer import load_scene
 
+    lit = req.get("default_light", True)
     if blob_api is None:
-        return load_scene(req["scene_path"])
+        return load_scene(req["scene_path"], default_light=lit)
     if req.get("blob_path"):
         with open(req["blob_path"], "rb") as f:
-            return blob_api.scene_from_blob(f.read())
+            return blob_api.scene_from_blob(f.read(), default_light=lit)
     blob = blob_api.translate_to_blob(req["scene_path"])
     if req.get("blob_out"):
         tmp = req["blob_out"] + ".part"
         with open(tmp, "wb") as f:
             f.write(blob)
         os.replace(tmp, req["blob_out"])
-    return blob_api.scene_from_blob(blob)
+    return blob_api.scene_from_blob(blob, default_light=lit)
 
 
 def serve(conn: Connection) -> None:
@@ -89,7 +90,8 @@ def serve(conn: Connection) -> None:
         try:
             if req.get("fault"):
                 _inject(req["fault"])
-            path = req["scene_key"]
+            # One translation (blob) serves both; the built Scene differs.
+            path = req["scene_key"] + ("" if req.get("default_light", True) else ":unlit")
             scene = scenes.get(path)
             if scene is None:
                 scene = _load(req, blob_api)

@@ -435,6 +435,7 @@ class Worker:
         scene = self._scene_source(task, self._child.blob_version)
         request = dict(**scene, settings=s.model_dump_json(), tile=rect.model_dump(),
                        pass_index=task.pass_index, threads=self.threads, variance=s.adaptive,
+                       default_light=s.default_light,
                        # light and bdpt: the variance layer from batches (protocol.VARIANCE_BATCHES)
                        batches="variance" in s.aovs, fault=self._fault_for(task))
         job_key = rdb.job_key(task.job_id)

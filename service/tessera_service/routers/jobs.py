@@ -71,6 +71,9 @@ def create_job(
     max_attempts: Annotated[int, Form(ge=1, le=100, description=(
         "failed deliveries of one tile pass (errors, crashes, dead workers) before the job "
         "fails naming the tile"))] = protocol.DEFAULT_MAX_ATTEMPTS,
+    default_light: Annotated[bool, Form(description="light a scene that has no light with the default "
+                                                   "lighting (white dome + camera key light); false: "
+                                                   "it renders black")] = True,
     aovs: Annotated[str, Form(description="comma-separated extra EXR layers: albedo, normal, depth, "
                                           "spp, variance, or all (docs/aovs.md)")] = "",
 ) -> JobCreated:
@@ -84,7 +87,7 @@ def create_job(
                                  f"upload a {', '.join(SCENE_SUFFIXES)} file")
     params = dict(spp=spp, seed=seed, max_depth=max_depth, tile_size=tile_size, integrator=integrator,
                   target_error=target_error, min_spp=min_spp, max_spp=max_spp,
-                  time_limit=time_limit, aovs=aovs)
+                  time_limit=time_limit, aovs=aovs, default_light=default_light)
     # Check what can be checked before the (slow) inspection; resolution comes later.
     _render_settings(width=width if width is not None else 1,
                      height=height if height is not None else 1, **params)
@@ -125,11 +128,12 @@ def create_job(
 
     spec = JobSpec(job_id=uuid.uuid4().hex, scene_hash=scene_hash, scene_name=name,
                    settings=render, priority=priority, max_attempts=max_attempts)
-    tiles_total = store.create_job(spec, info.warnings)
+    warnings = info.warnings if render.default_light or info.unlit_warnings is None else info.unlit_warnings
+    tiles_total = store.create_job(spec, warnings)
     response.headers["Location"] = f"/jobs/{spec.job_id}"
     return JobCreated(id=spec.job_id, state="queued", tiles_total=tiles_total,
                       width=render.width, height=render.height, priority=priority,
-                      warnings=info.warnings)
+                      warnings=warnings)
 
 
 @router.get("", response_model=JobList)
