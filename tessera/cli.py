@@ -64,8 +64,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     try:
         settings = RenderSettings(width=width, height=height, spp=args.spp, seed=args.seed,
                                   max_depth=args.max_depth, tile_size=args.tile,
-                                  integrator=args.integrator, aovs=args.aovs or [],
-                                  **_noise_target(args))
+                                  aovs=args.aovs or [], **_noise_target(args),
+                                  **({"integrator": args.integrator} if args.integrator else {}))
     except ValidationError as exc:
         print(f"tessera render: invalid settings: {exc}", file=sys.stderr)
         return 2
@@ -108,10 +108,25 @@ def _noise_target(args: argparse.Namespace) -> dict:
             if v is not None}
 
 
+class _IntegratorOption(argparse.Action):
+    """--integrator NAME, checked against the renderer's registry before anything is
+    loaded; `--integrator help` lists the integrators and exits."""
+
+    def __call__(self, parser, namespace, value, option_string=None):
+        from . import integrators
+        if value == "help":
+            print(integrators.help_text())
+            parser.exit(0)
+        try:
+            setattr(namespace, self.dest, integrators.validate(value))
+        except ValueError as exc:
+            parser.error(str(exc))
+
+
 def _add_integrator_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--integrator", default="path",
-                        choices=("path", "bdpt", "light", "whitted", "local", "auto"),
-                        help="light transport method (default path; see docs/integrators.md)")
+    parser.add_argument("--integrator", default=None, action=_IntegratorOption, metavar="NAME",
+                        help="light transport method (default: the registry's first; `help` lists "
+                             "them; see docs/integrators.md)")
 
 
 def _add_aov_option(parser: argparse.ArgumentParser) -> None:

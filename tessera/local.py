@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from . import images
+from . import images, integrators
 
 from .protocol import (AOV_CHANNELS, BatchMeans, PassAccumulator, RenderSettings, TileRect, TileResult,
                        batch_ranges, combine_aovs, combine_passes, image_finished, new_aov_frame, pass_range,
@@ -42,13 +42,14 @@ class LocalRenderResult:
 
 
 def render_tile_passes(scene, settings: RenderSettings, rect: TileRect, threads: int = 0,
-                       deadline: float | None = None, integrator: str = "path",
+                       deadline: float | None = None, integrator: str | None = None,
                        aovs_out: dict | None = None) -> tuple[np.ndarray, int, int]:
     """One tile, pass after pass as the farm renders it, combined as the farm combines it.
     Returns (rgba, samples, passes). `deadline` (time.monotonic()) plays the time_limit.
-    With settings.aovs, their combined tile layers go into `aovs_out` (name -> array)."""
-    mean, _, samples, passes = _tile_passes(scene, settings, rect, threads, deadline, integrator,
-                                            False, aovs_out)
+    With settings.aovs, their combined tile layers go into `aovs_out` (name -> array).
+    `integrator` defaults to the registry's first."""
+    mean, _, samples, passes = _tile_passes(scene, settings, rect, threads, deadline,
+                                            integrator or integrators.default(), False, aovs_out)
     return mean, samples, passes
 
 
@@ -109,9 +110,9 @@ def render_image(scene, settings: RenderSettings, threads: int = 0, progress: bo
     spp = np.zeros((settings.height, settings.width), dtype=np.float32)
     tiles = tile_grid(settings.width, settings.height, settings.tile_size)
     integrator = scene.resolve_integrator(settings.integrator)
-    if settings.lockstep or integrator in ("light", "bdpt"):
+    if settings.lockstep or integrators.splats(integrator):
         result = _render_lockstep(scene, settings, integrator, tiles, threads, progress)
-        if want_variance and integrator in ("light", "bdpt"):
+        if want_variance and integrators.splats(integrator):
             started = time.perf_counter()
             result.variance, result.variance_kind = batch_variance(scene, settings, integrator, tiles,
                                                                    threads, result.passes)
@@ -195,7 +196,7 @@ def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, th
     passes combine with combine_passes and all splats are normalised once by all light
     paths, exactly as the farm's merge does, so the images are equal bit for bit."""
     height, width = settings.height, settings.width
-    splatting = integrator in ("light", "bdpt")
+    splatting = integrators.splats(integrator)
     per_tile: list[list[TileResult]] = [[] for _ in tiles]
     total_splats = np.zeros((height, width, 3), dtype=np.int64) if splatting else None
     total_paths = samples = 0

@@ -22,6 +22,8 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, Field, field_validator, model_validator
 
+from . import integrators
+
 SCHEMA_VERSION = 2
 
 # Per-pixel outputs besides RGBA (docs/aovs.md), in canonical order, with their channel
@@ -188,13 +190,20 @@ class RenderSettings(BaseModel):
         default=None, gt=0, le=7 * 86400, allow_inf_nan=False,
         description="seconds after the job starts when no further passes begin "
                     "(noise-target mode; makes the image depend on timing)")
-    integrator: Literal["path", "bdpt", "light", "whitted", "local", "auto"] = Field(
-        default="path", description="light transport method (docs/integrators.md)")
+    integrator: str = Field(
+        default_factory=integrators.default,
+        description="light transport method: a name from the renderer's registry, or auto "
+                    "(`tessera render --integrator help`, docs/integrators.md)")
     # Added within schema 2: optional with an empty default, so earlier messages stay valid.
     aovs: list[Literal["albedo", "normal", "depth", "spp", "variance"]] = Field(
         default_factory=list,
         description="extra per-pixel outputs written as EXR layers beside RGBA "
                     "(docs/aovs.md): albedo, normal, depth, spp, variance")
+
+    @field_validator("integrator")
+    @classmethod
+    def _integrator_name(cls, value: str) -> str:
+        return integrators.validate(value)
 
     @field_validator("aovs", mode="before")
     @classmethod
@@ -225,13 +234,14 @@ class RenderSettings(BaseModel):
     @property
     def lockstep(self) -> bool:
         """Noise-target mode in which the whole image advances pass by pass together and
-        stops together (see `image_finished`). Splatting integrators need it: their light
-        paths land on every tile's pixels, so a tile's noise is not its own to judge, and
-        bdpt's MIS weights assume every pixel has as many camera samples as there are light
-        paths per pixel, which per-tile stopping would break. `auto` may resolve to bdpt,
+        stops together (see `image_finished`). Integrators that cannot stop per tile (their
+        stop_per_tile capability; today the splatting ones) need it: their light paths land
+        on every tile's pixels, so a tile's noise is not its own to judge, and bdpt's MIS
+        weights assume every pixel has as many camera samples as there are light paths per
+        pixel, which per-tile stopping would break. `auto` may resolve to such an integrator,
         and a farm cannot know before it loads the scene, so it is scheduled the same way
         (local renders follow the same rule, so farm and local images stay identical)."""
-        return self.adaptive and self.integrator in SPLATTING_INTEGRATORS
+        return self.adaptive and not integrators.stops_per_tile(self.integrator)
 
 
 def pass_range(settings: RenderSettings, pass_index: int) -> tuple[int, int] | None:
@@ -362,11 +372,9 @@ FLAG_SPLAT_EXPONENT = 16  # the splat section's unit exponent
 FLAG_BATCHES = 32      # variance batches of a splatting integrator (see VARIANCE_BATCHES)
 RESULT_VERSION_AOVS = 3
 
-# Integrators whose light paths splat onto the whole frame (and `auto`, which may be one).
-SPLATTING_INTEGRATORS = ("light", "bdpt", "auto")
-# The renderer's fixed-point splat scale (tessera_renderer film; kSplatScale in C++). The
-# farm normalises merged splats with it; tests/test_protocol.py pins the two together.
-SPLAT_SCALE = float(1 << 24)
+# The splat normalisation (one function for local renders and the farm); which integrators
+# splat is their capability (tessera.integrators).
+from .splats import SPLAT_SCALE, resolve_splats  # noqa: E402,F401
 
 
 @dataclass
@@ -627,19 +635,6 @@ def add_splats(total: np.ndarray, rect: tuple[int, int, int, int], layer: np.nda
     x0, y0, w, h = rect
     if w and h:
         total[y0:y0 + h, x0:x0 + w] += layer
-
-
-def resolve_splats(rgba: np.ndarray, splats: np.ndarray | None, light_paths: int,
-                   exponent: int) -> np.ndarray:
-    """Full-frame float32 RGBA = camera part + splats * 2^exponent * pixel_count /
-    (SPLAT_SCALE * light paths of all tiles). The renderer's film.resolve_image, for the
-    farm's side."""
-    out = np.array(rgba, dtype=np.float32, copy=True)
-    if splats is not None and light_paths > 0:
-        height, width = out.shape[:2]
-        scale = math.ldexp(width * height / (SPLAT_SCALE * light_paths), exponent)
-        out[..., :3] += (splats.astype(np.float64) * scale).astype(np.float32)
-    return out
 
 
 def splat_exponent_of(results) -> int:

@@ -1,38 +1,10 @@
-"""Turning tile results into an image: the one place the splat normalisation is written.
-
-A tile rendered with the `light` integrator returns its own pixels' directly visible light
-(`rgba`) and adds its light paths' camera connections, wherever they land, to a full-frame
-int64 fixed-point buffer. Summing those buffers over all tiles is exact and order-free, so
-any tiling on any number of machines gives the same image. The image is
-
-    rgba + splats * 2^e * pixel_count / (SPLAT_SCALE * light_paths)
-
-with light_paths the total over all tiles (one per pixel sample) and e the scene's
-splat_exponent (the fixed point's unit, from its lights' power).
+"""Turning tile results into an image, for callers of the renderer: the splat
+normalisation itself is written once, in tessera/splats.py, which the farm's merge uses
+too. Which integrators splat is a capability in the core's registry
+(tessera.integrators.splats), not a list here.
 """
 from __future__ import annotations
 
-import math
+from tessera.splats import new_splat_buffer, resolve_splats as resolve_image
 
-import numpy as np
-
-from ._core import SPLAT_SCALE
-
-INTEGRATORS = ("path", "light", "bdpt", "local", "whitted", "auto")
-SPLATTING_INTEGRATORS = ("light", "bdpt")
-
-
-def new_splat_buffer(width: int, height: int) -> np.ndarray:
-    return np.zeros((height, width, 3), dtype=np.int64)
-
-
-def resolve_image(rgba: np.ndarray, splats: np.ndarray | None, light_paths: int,
-                  exponent: int) -> np.ndarray:
-    """Full-frame float32 RGBA from the camera part and the summed splats (in units of
-    2^exponent: Scene.splat_exponent)."""
-    out = np.array(rgba, dtype=np.float32, copy=True)
-    if splats is not None and light_paths > 0:
-        height, width = out.shape[:2]
-        scale = math.ldexp(width * height / (SPLAT_SCALE * light_paths), exponent)
-        out[..., :3] += (splats.astype(np.float64) * scale).astype(np.float32)
-    return out
+__all__ = ["new_splat_buffer", "resolve_image"]

@@ -12,7 +12,7 @@ Request: dict(serial, scene_path, blob_path, blob_out, x0, y0, w, h, width, heig
 sample_start, seed, max_depth, threads, variance, aovs, fault). The scene comes from the blob
 file `blob_path` if given (no USD involved), else is translated from `scene_path`; with
 `blob_out`, the translation is also written there as a blob for other workers. Reply: ("ok", rgba, variance | None, seconds, splat | None, aovs | None, serial), splat =
-(rect, int64 layer, light paths, unit exponent) for the light and bdpt integrators, aovs = {name: layer}
+(rect, int64 layer, light paths, unit exponent) for integrators that splat, aovs = {name: layer}
 for the requested AOVs other than variance
 or ("error", kind, message, serial) with kind "scene" | "memory" | "other"; the serial
 lets the supervisor check that a reply answers its latest request.
@@ -104,9 +104,9 @@ def serve(conn: Connection) -> None:
                 kwargs.update(sample_start=req["sample_start"], return_variance=req["variance"])
             aovs = [a for a in req.get("aovs", ()) if a != "variance"]  # variance: req["variance"]
             # `auto` resolves from the scene alone, so every worker picks the same method.
-            integrator = scene.resolve_integrator(req.get("integrator", "path"))
+            integrator = scene.resolve_integrator(req.get("integrator") or integrators.default())
             splats = None
-            if integrator in ("light", "bdpt"):
+            if integrators.splats(integrator):
                 splats = np.zeros((req["height"], req["width"], 3), dtype=np.int64)
             started = time.perf_counter()
             out = scene.render_tile(req["x0"], req["y0"], req["w"], req["h"], integrator=integrator,
