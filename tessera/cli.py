@@ -110,9 +110,16 @@ def _noise_target(args: argparse.Namespace) -> dict:
 
 class _IntegratorOption(argparse.Action):
     """--integrator NAME, checked against the renderer's registry before anything is
-    loaded; `--integrator help` lists the integrators and exits."""
+    loaded; `--integrator help` lists the integrators and exits. With `renders` (the
+    command loads the renderer anyway) the registry is read in process, not from a child."""
+
+    def __init__(self, *args, renders: bool = False, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.renders = renders
 
     def __call__(self, parser, namespace, value, option_string=None):
+        if self.renders:
+            import tessera_renderer  # noqa: F401
         from . import integrators
         if value == "help":
             print(integrators.help_text())
@@ -123,8 +130,8 @@ class _IntegratorOption(argparse.Action):
             parser.error(str(exc))
 
 
-def _add_integrator_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--integrator", default=None, action=_IntegratorOption, metavar="NAME",
+def _add_integrator_option(parser: argparse.ArgumentParser, renders: bool = False) -> None:
+    parser.add_argument("--integrator", default=None, action=_IntegratorOption, renders=renders, metavar="NAME",
                         help="light transport method (default: the registry's first; `help` lists "
                              "them; see docs/integrators.md)")
 
@@ -308,7 +315,7 @@ def build_parser() -> argparse.ArgumentParser:
                                   "folder); e.g. the project folder when layers reference ../assets")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     _add_noise_target_options(r)
-    _add_integrator_option(r)
+    _add_integrator_option(r, renders=True)
     _add_aov_option(r)
     r.add_argument("--no-variance", action="store_true",
                    help="write no variance layer: light and bdpt then render each sample once "

@@ -218,7 +218,7 @@ def _preview_table(params: dict | None, rows: int):
     return table, np.asarray(params["preview_surface"], bool).reshape(rows)
 
 
-# Order of the core's texture slots (renderer/core/scene.h TextureSlot).
+# Order of the core's texture slots (renderer/core/scene/scene.h TextureSlot).
 TEXTURE_SLOTS = ("diffuseColor", "emissiveColor", "specularColor", "metallic", "roughness", "clearcoat",
                  "clearcoatRoughness", "opacity", "ior", "normal")
 _WRAP_CODES = {"repeat": 0, "useMetadata": 0, "clamp": 1, "mirror": 2, "black": 3}
