@@ -30,6 +30,7 @@ from multiprocessing.connection import Connection
 
 import numpy as np
 
+from tessera import integrators
 from tessera.protocol import splat_layer
 
 SCENE_CACHE_SIZE = 4
