@@ -425,7 +425,8 @@ def run(scene_names, integrators, cfg: Config, out: Path, peer_variants=("scalar
                 f"{agree['worst_mean_deviation']:.2%}, regions within {agree['worst_region_deviation']:.2%} "
                 f"(relMSE {rel_mse(cc, ref):.3g}) -> {'agree' if agree['agree'] else 'DISAGREE'}")
 
-        series = [Series(name, "tessera", i, cfg.ladders[i]) for i in integrators
+        # An integrator without a tuned ladder gets the peer's (the plain one).
+        series = [Series(name, "tessera", i, cfg.ladders.get(i, cfg.ladders["mitsuba"])) for i in integrators
                   if bs.integrators is None or i in bs.integrators]
         # Peer: converged images must agree before any ratio is quoted.
         if bs.peer and peers:
@@ -742,7 +743,8 @@ def main(args: argparse.Namespace) -> int:
         print(f"tessera bench: unknown scene(s) {', '.join(unknown)}; known: {', '.join(SCENES)}", file=sys.stderr)
         return 2
     integrators = [i for i in args.integrators.split(",") if i]
-    bad = [i for i in integrators if i not in cfg.ladders or i == "mitsuba"]
+    from . import integrators as registry
+    bad = [i for i in integrators if i not in [r["name"] for r in registry.integrators()]]
     if bad:
         print(f"tessera bench: unknown integrator(s) {', '.join(bad)}", file=sys.stderr)
         return 2

@@ -65,8 +65,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     try:
         settings = RenderSettings(width=width, height=height, spp=args.spp, seed=args.seed,
                                   max_depth=args.max_depth, tile_size=args.tile,
-                                  integrator=args.integrator, aovs=args.aovs or [],
-                                  **_noise_target(args))
+                                  aovs=args.aovs or [], **_noise_target(args),
+                                  **({"integrator": args.integrator} if args.integrator else {}))
     except ValidationError as exc:
         print(f"tessera render: invalid settings: {exc}", file=sys.stderr)
         return 2
@@ -109,10 +109,32 @@ def _noise_target(args: argparse.Namespace) -> dict:
             if v is not None}
 
 
-def _add_integrator_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--integrator", default="path",
-                        choices=("path", "bdpt", "light", "whitted", "local", "auto"),
-                        help="light transport method (default path; see docs/integrators.md)")
+class _IntegratorOption(argparse.Action):
+    """--integrator NAME, checked against the renderer's registry before anything is
+    loaded; `--integrator help` lists the integrators and exits. With `renders` (the
+    command loads the renderer anyway) the registry is read in process, not from a child."""
+
+    def __init__(self, *args, renders: bool = False, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.renders = renders
+
+    def __call__(self, parser, namespace, value, option_string=None):
+        if self.renders:
+            import tessera_renderer  # noqa: F401
+        from . import integrators
+        if value == "help":
+            print(integrators.help_text())
+            parser.exit(0)
+        try:
+            setattr(namespace, self.dest, integrators.validate(value))
+        except ValueError as exc:
+            parser.error(str(exc))
+
+
+def _add_integrator_option(parser: argparse.ArgumentParser, renders: bool = False) -> None:
+    parser.add_argument("--integrator", default=None, action=_IntegratorOption, renders=renders, metavar="NAME",
+                        help="light transport method (default: the registry's first; `help` lists "
+                             "them; see docs/integrators.md)")
 
 
 def _add_aov_option(parser: argparse.ArgumentParser) -> None:
@@ -301,7 +323,7 @@ def build_parser() -> argparse.ArgumentParser:
                                   "folder); e.g. the project folder when layers reference ../assets")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     _add_noise_target_options(r)
-    _add_integrator_option(r)
+    _add_integrator_option(r, renders=True)
     _add_aov_option(r)
     _add_default_light_option(r)
     r.add_argument("--no-variance", action="store_true",

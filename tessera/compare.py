@@ -49,7 +49,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
-from . import images
+from . import images, integrators
 
 ALPHA = 0.01
 BLOCK_SIZES = (1, 4, 16, 0)      # pixels per block side; 0: the whole image
@@ -145,9 +145,6 @@ def load(path: str | Path, role: str) -> images.RenderImage:
     return image
 
 
-SPLATTING = ("light", "bdpt")
-
-
 def _check_variance(image: images.RenderImage, role: str) -> tuple[str, int | None]:
     """The image's variance kind (images.parse_variance_kind); CompareError when the
     image cannot be judged: no variance, no or an unknown tessera:variance kind, or a
@@ -165,7 +162,8 @@ def _check_variance(image: images.RenderImage, role: str) -> tuple[str, int | No
     except ValueError as exc:
         raise CompareError(f"{role}: {exc}; render it again with this version") from None
     integrator = image.metadata.get("tessera:integrator", "")
-    if parsed[0] == images.VARIANCE_PER_SAMPLE and integrator in SPLATTING:
+    splatting = integrator in integrators.names() and integrators.splats(integrator)
+    if parsed[0] == images.VARIANCE_PER_SAMPLE and splatting:
         raise CompareError(f"{role} was rendered with {integrator} but carries a per-sample "
                            f"variance, which misses its splats; render it again with this version")
     return parsed

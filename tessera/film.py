@@ -29,7 +29,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .integrators import integrator_splats
+from . import integrators
 from .protocol import (AOV_CHANNELS, BatchMeans, RenderSettings, SplatBatch, TileRect, TileResult,
                        batch_ranges, combine_aovs, combine_passes, new_aov_frame, pass_range,
                        tile_grid)
@@ -215,7 +215,7 @@ def render_tile_pass(scene, settings: RenderSettings, rect: TileRect, pass_index
     sample_start, spp = pass_range(settings, pass_index)
     core_aovs = [a for a in settings.aovs if a in AOV_CHANNELS]
     want_variance = variance or "variance" in settings.aovs
-    splatting = integrator_splats(integrator)
+    splatting = integrators.splats(integrator)
     splats = np.zeros((settings.height, settings.width, 3), np.int64) if splatting else None
     common = dict(width=settings.width, height=settings.height, seed=settings.seed,
                   max_depth=settings.max_depth, threads=threads, integrator=integrator)

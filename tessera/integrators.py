@@ -1,10 +1,90 @@
-"""What the farm and the local renderer need to know about an integrator, asked in one
-place (so that it can come from the renderer's own registry)."""
+"""The renderer's integrators, for every part of Tessera: names, descriptions and the
+capabilities that decide how a job is scheduled and its image assembled.
+
+The one list is the renderer core's registry (renderer/core/integrators/registry.cpp);
+nothing in Python names an integrator. A process that has the renderer loaded reads it
+directly; the service and the worker's main process never load the renderer (it parses
+untrusted scenes), so they ask a child process once (`python -m tessera_renderer.registry`).
+
+`auto` is not an integrator but a rule the renderer applies per scene (a delta light
+shining through caustic-forming materials needs an integrator with `delta_caustics`);
+before the scene is loaded, `auto` can be any of the integrators it may pick.
+"""
 from __future__ import annotations
 
+import functools
+import json
+import subprocess
+import sys
 
-def integrator_splats(name: str) -> bool:
-    """Whether the integrator `name` splats light paths onto other tiles' pixels (light,
-    bdpt). `auto` counts as splatting: it may resolve to bdpt, and the farm schedules a job
-    before any worker has loaded the scene (the local renderer follows the same rule)."""
-    return name in ("light", "bdpt", "auto")
+AUTO = "auto"
+
+
+class RegistryError(RuntimeError):
+    """The renderer's integrator list could not be read (the renderer is not installed)."""
+
+
+@functools.cache
+def _registry() -> dict:
+    if "tessera_renderer._core" in sys.modules:
+        from tessera_renderer.registry import describe
+        return describe()
+    try:
+        out = subprocess.run([sys.executable, "-m", "tessera_renderer.registry"], capture_output=True,
+                             text=True, timeout=120, check=False)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise RegistryError(f"cannot list the renderer's integrators: {exc}") from None
+    if out.returncode != 0:
+        last = (out.stderr.strip().splitlines() or ["no output"])[-1]
+        raise RegistryError(f"cannot list the renderer's integrators: {last}")
+    return json.loads(out.stdout)
+
+
+def integrators() -> list[dict]:
+    """Every integrator in registry order: name, description, capabilities, params."""
+    return _registry()["integrators"]
+
+
+def names() -> tuple[str, ...]:
+    """What a user may ask for: every integrator's name, then `auto`."""
+    return tuple(i["name"] for i in integrators()) + (AUTO,)
+
+
+def default() -> str:
+    """The integrator used when none is asked for: the registry's first."""
+    return integrators()[0]["name"]
+
+
+def validate(name: str) -> str:
+    """`name` if an integrator (or `auto`) has it; else ValueError listing the known ones."""
+    if name not in names():
+        raise ValueError(f"unknown integrator {name!r} (known: {', '.join(names())})")
+    return name
+
+
+def _candidates(name: str) -> list[dict]:
+    """The integrators `name` may turn out to be once the scene is known."""
+    validate(name)
+    picks = set(_registry()["auto"]) if name == AUTO else {name}
+    return [i for i in integrators() if i["name"] in picks]
+
+
+def splats(name: str) -> bool:
+    """Whether images rendered with `name` carry light-path splats across tiles, to be
+    normalised by the light paths traced (tessera/film.py). For `auto`: whether it may."""
+    return any(i["splats"] for i in _candidates(name))
+
+
+def stops_per_tile(name: str) -> bool:
+    """Whether a tile may stop on a noise target on its own (else the whole image advances
+    in lockstep). For `auto`: only if every integrator it may pick can."""
+    return all(i["stop_per_tile"] for i in _candidates(name))
+
+
+def help_text() -> str:
+    """One line per integrator, for `tessera render --integrator help`."""
+    width = max(len(n) for n in names())
+    lines = [f"{i['name']:<{width}}  {i['description']}" for i in integrators()]
+    picks = " or ".join(dict.fromkeys(_registry()["auto"]))
+    lines.append(f"{AUTO:<{width}}  per scene: {picks} (see docs/integrators.md)")
+    return "\n".join(lines)

@@ -14,9 +14,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from . import images
+from . import images, integrators
 from .film import SplatSums, assemble_image, pass_image, render_tile_pass
-from .integrators import integrator_splats
 from .protocol import (PassAccumulator, RenderSettings, TileRect, TileResult, combine_passes,
                        image_finished, pass_range, tile_finished, tile_grid)
 
@@ -44,7 +43,7 @@ class LocalRenderResult:
 
 
 def render_tile_passes(scene, settings: RenderSettings, rect: TileRect, threads: int = 0,
-                       deadline: float | None = None, integrator: str = "path",
+                       deadline: float | None = None, integrator: str | None = None,
                        aovs_out: dict | None = None) -> tuple[np.ndarray, int, int]:
     """One tile, pass after pass as the farm renders it, combined as the farm combines it.
     Returns (rgba, samples, passes). `deadline` (time.monotonic()) plays the time_limit.
@@ -82,7 +81,7 @@ def render_image(scene, settings: RenderSettings, threads: int = 0, progress: bo
     that renders every sample a second time, in batches (protocol.VARIANCE_BATCHES)."""
     tiles = tile_grid(settings.width, settings.height, settings.tile_size)
     integrator = scene.resolve_integrator(settings.integrator)
-    if settings.lockstep or integrator_splats(integrator):
+    if settings.lockstep or integrators.splats(integrator):
         result = _render_lockstep(scene, settings, integrator, tiles, threads, progress, variance)
         result.integrator = integrator
         return result
@@ -110,7 +109,7 @@ def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, th
     `image_finished` decides on another pass for every tile (fixed spp: one pass). The
     image is assembled from the same results and sums as the farm's merge assembles it."""
     height, width = settings.height, settings.width
-    splatting = integrator_splats(integrator)
+    splatting = integrators.splats(integrator)
     batches = want_variance and splatting
     per_tile: dict[int, list[TileResult]] = {t.index: [] for t in tiles}
     sums = SplatSums(width, height)

@@ -19,7 +19,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, Field, field_validator, model_validator
 
-from .integrators import integrator_splats
+from . import integrators
 
 SCHEMA_VERSION = 2
 
@@ -80,8 +80,10 @@ class RenderSettings(BaseModel):
         default=None, gt=0, le=7 * 86400, allow_inf_nan=False,
         description="seconds after the job starts when no further passes begin "
                     "(noise-target mode; makes the image depend on timing)")
-    integrator: Literal["path", "bdpt", "light", "whitted", "local", "auto"] = Field(
-        default="path", description="light transport method (docs/integrators.md)")
+    integrator: str = Field(
+        default_factory=integrators.default,
+        description="light transport method: a name from the renderer's registry, or auto "
+                    "(`tessera render --integrator help`, docs/integrators.md)")
     # Added within schema 2: optional with an empty default, so earlier messages stay valid.
     aovs: list[Literal["albedo", "normal", "depth", "spp", "variance"]] = Field(
         default_factory=list,
@@ -92,6 +94,11 @@ class RenderSettings(BaseModel):
         default=True, description="light a stage that has no light (emissive geometry counts) with "
                                   "the default lighting: a white dome and a camera-relative key light "
                                   "(docs/scene-translation.md); false renders such a stage black")
+
+    @field_validator("integrator")
+    @classmethod
+    def _integrator_name(cls, value: str) -> str:
+        return integrators.validate(value)
 
     @field_validator("aovs", mode="before")
     @classmethod
@@ -122,13 +129,14 @@ class RenderSettings(BaseModel):
     @property
     def lockstep(self) -> bool:
         """Noise-target mode in which the whole image advances pass by pass together and
-        stops together (see `image_finished`). Splatting integrators need it: their light
-        paths land on every tile's pixels, so a tile's noise is not its own to judge, and
-        bdpt's MIS weights assume every pixel has as many camera samples as there are light
-        paths per pixel, which per-tile stopping would break. `auto` may resolve to bdpt,
+        stops together (see `image_finished`). Integrators that cannot stop per tile (their
+        stop_per_tile capability; today the splatting ones) need it: their light paths land
+        on every tile's pixels, so a tile's noise is not its own to judge, and bdpt's MIS
+        weights assume every pixel has as many camera samples as there are light paths per
+        pixel, which per-tile stopping would break. `auto` may resolve to such an integrator,
         and a farm cannot know before it loads the scene, so it is scheduled the same way
         (local renders follow the same rule, so farm and local images stay identical)."""
-        return self.adaptive and integrator_splats(self.integrator)
+        return self.adaptive and not integrators.stops_per_tile(self.integrator)
 
 
 def pass_range(settings: RenderSettings, pass_index: int) -> tuple[int, int] | None:

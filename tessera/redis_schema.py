@@ -34,7 +34,7 @@ from typing import Literal
 import redis
 from pydantic import BaseModel, ConfigDict
 
-from .integrators import integrator_splats
+from . import integrators
 from .protocol import (AOV_CHANNELS, DEFAULT_PRIORITY, MAX_PRIORITY, VARIANCE_BATCHES, JobState,
                        RenderSettings, pass_range)
 
@@ -202,7 +202,7 @@ def job_storage_bound(settings: RenderSettings) -> int:
     while pass_range(s, passes) is not None:
         passes += 1
     channels = sum(AOV_CHANNELS[a] for a in s.aovs if a in AOV_CHANNELS)
-    splats = integrator_splats(s.integrator)
+    splats = integrators.splats(s.integrator)
     batches = VARIANCE_BATCHES if splats and "variance" in s.aovs else 0
     variance = 12 if (s.adaptive or "variance" in s.aovs) else 0
     results = passes * (pixels * (16 + variance + 4 * channels + 12 * batches)

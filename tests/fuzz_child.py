@@ -96,7 +96,7 @@ def scene_campaign(n: int) -> None:
             outcomes[f"refused: {type(exc).__name__}"] += 1
             return
         outcomes["built"] += 1
-        for integrator in ("path", "light", "bdpt", "local", "whitted"):
+        for integrator in [i["name"] for i in _core.integrators()]:
             splats = np.zeros((4, 4, 3), np.int64)
             rgba, stats = _core.render_tile(scene, camera, 0, 0, 4, 4, 2, 0, 8, 1, 0, True, integrator, splats)
             assert np.isfinite(rgba).all() or stats["nonfinite_samples"], "NaN pixels the counter missed"

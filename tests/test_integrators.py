@@ -7,6 +7,7 @@ between them is a test of both against physics, not against yesterday's output.
 import numpy as np
 import pytest
 
+from tessera import integrators
 from tessera_renderer import load_scene
 from tessera.film import resolve_splats
 from tessera_renderer.film import new_splat_buffer
@@ -20,7 +21,7 @@ POWER = 0.02  # the relative difference every statistic must detect
 
 
 def render(scene, integrator, seed, spp, **kw):
-    if integrator in ("light", "bdpt"):
+    if integrators.splats(integrator):
         splats = new_splat_buffer(W, H)
         cam = scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, threads=2,
                                 integrator=integrator, splats=splats, **kw)
@@ -191,3 +192,24 @@ def test_path_tracing_misses_a_point_light_caustic_that_bdpt_finds(tmp_path):
                              scene.splat_exponent)
     assert path_img[..., :3].max() == 0.0          # the caustic does not exist for path tracing
     assert bdpt_img[..., :3].mean() > 0.05         # it does for bdpt
+
+
+def test_cli_lists_the_registry_with_descriptions():
+    """`tessera render --integrator help` prints every registered integrator and its
+    one-line description (from the core, not a Python list), then auto."""
+    import subprocess
+    import sys
+
+    from tessera_renderer import integrators as registry
+    out = subprocess.run([sys.executable, "-m", "tessera", "render", "--integrator", "help"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    entries = registry()
+    assert len(lines) == len(entries) + 1
+    for line, info in zip(lines, entries):
+        assert line.split()[0] == info["name"] and line.endswith(info["description"])
+    assert lines[-1].startswith("auto")
+    refused = subprocess.run([sys.executable, "-m", "tessera", "render", "x.usda", "--integrator", "pathh"],
+                             capture_output=True, text=True, timeout=120)
+    assert refused.returncode == 2 and "unknown integrator 'pathh'" in refused.stderr

@@ -233,14 +233,29 @@ def test_splat_unit_exponent_round_trips_and_scales_the_image():
         film.splat_exponent_of(results)
 
 
-def test_splatting_integrators_take_noise_targets_in_lockstep():
-    for name in ("light", "bdpt", "auto"):
-        s = protocol.RenderSettings(width=8, height=8, target_error=0.05, integrator=name)
-        assert s.adaptive and s.lockstep
-    for name in ("path", "whitted", "local"):
-        assert not protocol.RenderSettings(width=8, height=8, target_error=0.05,
-                                           integrator=name).lockstep
-    assert not protocol.RenderSettings(width=8, height=8, integrator="bdpt").lockstep
+def test_integrators_that_cannot_stop_per_tile_take_noise_targets_in_lockstep():
+    """Lockstep follows the registry's stop_per_tile capability; `auto` is scheduled in
+    lockstep because one of the integrators it may pick cannot stop per tile."""
+    from tessera_renderer import _core
+    registry = _core.integrators()
+    assert {i["stop_per_tile"] for i in registry} == {True, False}  # both kinds are exercised
+    for info in registry:
+        s = protocol.RenderSettings(width=8, height=8, target_error=0.05, integrator=info["name"])
+        assert s.adaptive and s.lockstep == (not info["stop_per_tile"]), info["name"]
+        assert not protocol.RenderSettings(width=8, height=8, integrator=info["name"]).lockstep
+    auto_picks = {_core.auto_integrator(False), _core.auto_integrator(True)}
+    assert not all(i["stop_per_tile"] for i in registry if i["name"] in auto_picks)
+    assert protocol.RenderSettings(width=8, height=8, target_error=0.05, integrator="auto").lockstep
+
+
+def test_integrator_names_come_from_the_registry():
+    from tessera_renderer import _core
+    names = [i["name"] for i in _core.integrators()]
+    assert protocol.RenderSettings(width=8, height=8).integrator == names[0]
+    for name in names + ["auto"]:
+        assert protocol.RenderSettings(width=8, height=8, integrator=name).integrator == name
+    with pytest.raises(ValueError, match="unknown integrator 'pathh'.*known: " + ", ".join(names)):
+        protocol.RenderSettings(width=8, height=8, integrator="pathh")
 
 
 def test_pass_accumulator_estimates_the_variance_of_the_mean():

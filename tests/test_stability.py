@@ -17,6 +17,7 @@ import math
 import numpy as np
 import pytest
 
+from tessera import integrators
 from tessera_renderer import Scene
 from tessera.film import resolve_splats
 from tessera_renderer.usd_scene import PARAM_KEYS, CameraDesc, SceneData
@@ -102,7 +103,7 @@ class Builder:
 def render(scene: Scene, integrator: str, spp: int = 4, seed: int = 0) -> np.ndarray:
     """The full image's RGB. NonFiniteSampleError (the renderer's counter) fails the test."""
     w, h = scene.width, scene.height
-    if integrator in ("light", "bdpt"):
+    if integrators.splats(integrator):
         splats = np.zeros((h, w, 3), np.int64)
         rgba = scene.render_tile(0, 0, w, h, spp=spp, seed=seed, threads=2, integrator=integrator,
                                  splats=splats)

@@ -11,14 +11,11 @@
 #include <mutex>
 #include <stdexcept>
 
-#include "bdpt.h"
 #include "bsdf.h"
-#include "light_tracer.h"
+#include "integrator.h"
 #include "ray_counters.h"
-#include "path_integrator.h"
-#include "splat_film.h"
-#include "whitted_integrator.h"
 #include "sampler.h"
+#include "splat_film.h"
 
 namespace tessera {
 
@@ -38,19 +35,6 @@ private:
 }  // namespace
 
 namespace {
-
-// What a pinhole sees without scattering: emitters and lights at infinity along the ray.
-PathSample DirectlyVisibleLight(const Scene& scene, const Ray& ray, float t_min, float t_max) {
-    PathSample result;
-    SurfaceHit hit;
-    if (scene.Intersect(ray, &hit, t_min, t_max)) {
-        result.alpha = 1.f;
-        if (int32_t e = scene.EmitterAt(hit); e != Scene::kNoEmitter) result.radiance = scene.Emitted(e, hit, -ray.d);
-    } else {
-        scene.ForEachEnvironmentLight(ray.d, [&](uint32_t, Color Le, float) { result.radiance += Le; });
-    }
-    return result;
-}
 
 // One sample of the AOVs along a camera ray (definitions in render.h).
 struct AOVSample {
@@ -108,15 +92,12 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
         throw std::invalid_argument("sample indices must stay below 2^32");
     if (options.max_depth < 0) throw std::invalid_argument("max_depth must be >= 0");
 
-    const bool light_tracing = options.integrator == Integrator::kLight;
-    const bool bidirectional = options.integrator == Integrator::kBDPT;
-    if ((light_tracing || bidirectional) && !splats)
-        throw std::invalid_argument("light tracing and bdpt need a full-frame splat buffer");
-    const BDPTIntegrator bdpt(options.max_depth);
-    const PathIntegrator integrator(options.integrator == Integrator::kLocal ? std::min(options.max_depth, 1)
-                                                                              : options.max_depth);
-    const WhittedIntegrator whitted(options.max_depth);
-    const LightTracer light_tracer(options.max_depth);
+    const std::unique_ptr<Integrator> integrator =
+        Integrator::Create(options.integrator, {options.max_depth, options.integrator_params}, scene);
+    const IntegratorInfo& info = integrator->info();
+    if (info.splats && !splats)
+        throw std::invalid_argument("integrator '" + options.integrator +
+                                    "' splats across tiles and needs a full-frame splat buffer");
     SplatFilm film(splats, camera.width, camera.height, scene.splat_exponent());
     std::atomic<uint64_t> nonfinite{0}, rejected_splats{0}, closest_rays{0}, shadow_rays{0};
     const bool want_aovs = aovs.any();
@@ -126,7 +107,7 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
 
     auto render_range = [&](const tbb::blocked_range<uint32_t>& range) {
         ScopedFlushDenormals ftz;
-        LightTraceStats light_stats;
+        IntegratorCounters counters;
         const RayCounters rays_before = tls_ray_counters;
         RayCounters aov_rays;  // traced for the AOVs: not the integrators' rays
         for (uint32_t i = range.begin(); i != range.end(); ++i) {
@@ -163,19 +144,8 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                         ++aov_hits;
                     }
                 }
-                PathSample ps;
-                if (light_tracing) {
-                    ps = DirectlyVisibleLight(scene, ray, t_min, t_max);
-                    PixelSampler light_sampler(options.seed, pixel_index, s, /*stream=*/1, options.sampler);
-                    light_tracer.Trace(scene, camera, light_sampler, film, &light_stats);
-                } else if (bidirectional) {
-                    PixelSampler light_sampler(options.seed, pixel_index, s, /*stream=*/1, options.sampler);
-                    ps = bdpt.Sample(scene, camera, ray, sampler, light_sampler, film, &light_stats.rejected_splats);
-                } else if (options.integrator == Integrator::kWhitted) {
-                    ps = whitted.Li(scene, ray, sampler, t_min, t_max);
-                } else {
-                    ps = integrator.Li(scene, ray, sampler, t_min, t_max);  // path, or local (depth 1)
-                }
+                const CameraSample cs{ray, t_min, t_max, options.seed, pixel_index, s, options.sampler};
+                const PathSample ps = integrator->Sample(scene, camera, cs, sampler, film, &counters);
                 if (!IsFinite(ps.radiance)) {
                     if (nonfinite.fetch_add(1) == 0) {
                         std::lock_guard<std::mutex> lock(first_mutex);
@@ -220,7 +190,7 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                 if (aovs.samples) aovs.samples[i] = float(options.spp);
             }
         }
-        if (light_stats.rejected_splats) rejected_splats.fetch_add(light_stats.rejected_splats);
+        if (counters.rejected_splats) rejected_splats.fetch_add(counters.rejected_splats);
         closest_rays.fetch_add(tls_ray_counters.closest - rays_before.closest - aov_rays.closest,
                                std::memory_order_relaxed);
         shadow_rays.fetch_add(tls_ray_counters.shadow - rays_before.shadow - aov_rays.shadow,
@@ -233,7 +203,7 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
 
     stats.samples = uint64_t(n_pixels) * options.spp;
     stats.nonfinite_samples = nonfinite.load();
-    stats.light_paths = (light_tracing || bidirectional) ? stats.samples : 0;
+    stats.light_paths = info.splats ? stats.samples : 0;
     stats.rejected_splats = rejected_splats.load();
     stats.closest_rays = closest_rays.load();
     stats.shadow_rays = shadow_rays.load();

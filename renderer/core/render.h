@@ -4,6 +4,8 @@
 #pragma once
 
 #include <cstdint>
+#include <map>
+#include <string>
 #include <vector>
 
 #include "camera.h"
@@ -12,21 +14,14 @@
 
 namespace tessera {
 
-enum class Integrator : uint8_t {
-    kPath,   // path tracing with NEE, MIS and Russian roulette
-    kLight,  // light tracing: light paths splat onto the full frame through the camera
-    kBDPT,   // bidirectional path tracing; its t = 1 strategies splat like kLight
-    kLocal,    // direct light only (one bounce): the lecture's local shading, L (D|S) E
-    kWhitted,  // direct light + ideal mirror/refraction recursion, L [D|S] S_M* E
-};
-
 struct RenderOptions {
     uint32_t spp = 16;  // samples per pixel in this call
     uint32_t seed = 0;
     int max_depth = 64;
     int threads = 0;            // 0: all hardware threads
     uint32_t sample_start = 0;  // index of the first sample: passes [a, b) and [b, c) compose into [a, c)
-    Integrator integrator = Integrator::kPath;
+    std::string integrator = "path";  // a registered name (integrators/integrator.h)
+    std::map<std::string, float> integrator_params;  // the extra settings its info declares
     SamplerKind sampler = SamplerKind::kOwenSobol;
 };
 
@@ -40,7 +35,7 @@ struct RenderStats {
     // one located, so that it is reported rather than silently dropped.
     uint64_t nonfinite_samples = 0;
     int64_t first_nonfinite_pixel_x = -1, first_nonfinite_pixel_y = -1, first_nonfinite_sample = -1;
-    uint64_t light_paths = 0;      // light subpaths traced (one per pixel sample for kLight)
+    uint64_t light_paths = 0;      // light subpaths traced (one per pixel sample if the integrator splats)
     uint64_t rejected_splats = 0;  // splats that were not finite and >= 0: a bug if > 0
     // Rays the integrators traced (Scene::Intersect / Scene::Occluded calls, counted per
     // thread): closest-hit rays and shadow (any-hit) rays. AOV rays are not included.
@@ -76,7 +71,8 @@ struct AOVBuffers {
 // floats per pixel: the unbiased sample variance of each RGB channel over those samples
 // (divide by spp for the variance of the mean).
 //
-// kLight and kBDPT also add every light path's camera connections, anywhere in the frame, to
+// An integrator that splats (IntegratorInfo::splats: light, bdpt) also adds every light
+// path's camera connections, anywhere in the frame, to
 // `splats` (camera.width * camera.height * 3 int64, fixed point, see splat_film.h); `rgba`
 // then holds only the light that reaches the camera unscattered. The final image is
 // rgba + splats * pixel_count / (SplatScale(scene.splat_exponent()) * total light paths of all tiles).

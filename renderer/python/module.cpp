@@ -3,6 +3,7 @@
 #include <nanobind/nanobind.h>
 #include <nanobind/ndarray.h>
 #include <nanobind/stl/array.h>
+#include <nanobind/stl/map.h>
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/vector.h>
@@ -17,9 +18,10 @@
 #include <limits>
 #include <memory>
 
-#include "../core/render.h"
-#include "../core/splat_film.h"
-#include "../core/scene.h"
+#include "integrator.h"
+#include "render.h"
+#include "scene.h"
+#include "splat_film.h"
 
 namespace nb = nanobind;
 using namespace nb::literals;
@@ -163,15 +165,6 @@ SamplerKind ParseSampler(const std::string& name) {
     if (name == "sobol") return SamplerKind::kOwenSobol;
     if (name == "independent") return SamplerKind::kIndependent;
     throw std::invalid_argument("unknown sampler '" + name + "' (known: sobol, independent)");
-}
-
-Integrator ParseIntegrator(const std::string& name) {
-    if (name == "path") return Integrator::kPath;
-    if (name == "light") return Integrator::kLight;
-    if (name == "bdpt") return Integrator::kBDPT;
-    if (name == "local") return Integrator::kLocal;
-    if (name == "whitted") return Integrator::kWhitted;
-    throw std::invalid_argument("unknown integrator '" + name + "' (known: path, light, bdpt, local, whitted)");
 }
 
 // Hands a heap buffer to numpy, which frees it with the array.
@@ -343,14 +336,42 @@ NB_MODULE(_core, m) {
     m.attr("AOV_NAMES") = nb::make_tuple("albedo", "normal", "depth", "spp");
 
     m.def(
+        "integrators",
+        [] {
+            nb::list out;
+            for (const IntegratorInfo& info : RegisteredIntegrators()) {
+                nb::dict d, params;
+                d["name"] = std::string(info.name);
+                d["description"] = std::string(info.description);
+                d["splats"] = info.splats;
+                d["scene_passes"] = info.scene_passes;
+                d["stop_per_tile"] = info.stop_per_tile;
+                d["complete"] = info.complete;
+                d["delta_caustics"] = info.delta_caustics;
+                for (const IntegratorParam& p : info.params) params[std::string(p.name).c_str()] = std::string(p.description);
+                d["params"] = params;
+                out.append(d);
+            }
+            return out;
+        },
+        "The registered integrators in registry order: dicts of name, description, the capabilities "
+        "(splats, scene_passes, stop_per_tile, complete, delta_caustics; integrators/integrator.h) and "
+        "params (setting name -> description).");
+    m.def(
+        "auto_integrator", [](bool scene_has_delta_caustics) { return std::string(AutoIntegrator(scene_has_delta_caustics)); },
+        "scene_has_delta_caustics"_a,
+        "The `auto` rule: the first complete integrator, among those that find delta-light caustics if "
+        "the scene has them.");
+
+    m.def(
         "render_tile",
         [](const Scene& scene, const Camera& camera, uint32_t x0, uint32_t y0, uint32_t width, uint32_t height,
            uint32_t spp, uint32_t seed, int max_depth, int threads, uint32_t sample_start, bool with_variance,
            const std::string& integrator, std::optional<SplatArray> splats, const std::string& sampler,
-           const std::vector<std::string>& aovs) {
+           const std::vector<std::string>& aovs, const std::map<std::string, float>& integrator_params) {
             RenderOptions options{.spp = spp, .seed = seed, .max_depth = max_depth, .threads = threads,
-                                  .sample_start = sample_start, .integrator = ParseIntegrator(integrator),
-                                  .sampler = ParseSampler(sampler)};
+                                  .sample_start = sample_start, .integrator = integrator,
+                                  .integrator_params = integrator_params, .sampler = ParseSampler(sampler)};
             int64_t* splat_data = nullptr;
             if (splats) {
                 if (splats->shape(0) != camera.height || splats->shape(1) != camera.width)
@@ -405,9 +426,11 @@ NB_MODULE(_core, m) {
         "scene"_a, "camera"_a, "x0"_a, "y0"_a, "width"_a, "height"_a, "spp"_a, "seed"_a = 0, "max_depth"_a = 64,
         "threads"_a = 0, "sample_start"_a = 0, "with_variance"_a = false, "integrator"_a = "path",
         "splats"_a = nb::none(), "sampler"_a = "sobol", "aovs"_a = std::vector<std::string>{},
+        "integrator_params"_a = std::map<std::string, float>{},
         "Renders samples [sample_start, sample_start + spp) of a tile; returns (rgba float32 [h, w, 4] mean, "
         "stats dict). With with_variance, stats['variance'] is float32 [h, w, 3]: the per-channel sample "
-        "variance. integrator: 'path', 'light', 'bdpt', 'local' or 'whitted'; 'light' and 'bdpt' add its camera connections to `splats`, an int64 "
+        "variance. integrator: a name from integrators(), integrator_params its extra settings; one that "
+        "splats adds its camera connections to `splats`, an int64 "
         "(height, width, 3) full-frame fixed-point buffer (scale 2^24) owned by the caller. sampler: 'sobol' "
         "(padded Owen-scrambled Sobol, default) or 'independent'. aovs: names from AOV_NAMES; each adds "
         "stats[name] (albedo, normal float32 [h, w, 3]; depth, spp float32 [h, w]; see render.h). "

@@ -15,7 +15,7 @@ from . import _core
 from .usd_scene import (NO_LIGHT_OFF_WARNING, NO_LIGHT_WARNING, SceneData, SceneError, apply_default_lighting,
                         translate_stage)
 
-__all__ = ["Scene", "SceneError", "load_scene", "NonFiniteSampleError", "AOV_NAMES"]
+__all__ = ["Scene", "SceneError", "load_scene", "NonFiniteSampleError", "AOV_NAMES", "integrators"]
 
 log = logging.getLogger("tessera.renderer")
 
@@ -25,6 +25,13 @@ AOV_NAMES = ("albedo", "normal", "depth", "spp", "variance")
 # Below this UsdPreviewSurface roughness a metal or clearcoat reflects sharply enough to
 # form caustics that path tracing finds only by chance (see docs/integrators.md).
 AUTO_SMOOTH_ROUGHNESS = 0.3
+
+
+def integrators() -> list[dict]:
+    """The core's registered integrators, in registry order (the first is the default):
+    dicts of name, description, capabilities (splats, scene_passes, stop_per_tile,
+    complete, delta_caustics) and params (extra setting -> description). See registry.py."""
+    return [dict(i) for i in _core.integrators()]
 
 
 class NonFiniteSampleError(RuntimeError):
@@ -101,24 +108,30 @@ class Scene:
         return self._core.num_stored_triangles
 
     def resolve_integrator(self, name: str) -> str:
-        """`auto` -> `bdpt` when a delta light (point, or distant with angle 0) can shine
-        through or off a material that forms caustics (transmission, or a metal/clearcoat
-        smoother than AUTO_SMOOTH_ROUGHNESS): path tracing cannot find those paths at all.
-        Otherwise `path`, which measured more efficient per unit time even on a caustic
-        scene lit by an area light (docs/benchmarks/integrators.md). A pure function of the
-        scene, so every worker resolves it the same way. Other names pass through."""
+        """`auto` -> the core's choice (its AutoIntegrator rule reads the capabilities: the
+        first complete integrator, one with delta_caustics if the scene needs it) given
+        whether the scene has delta-light caustics (has_delta_caustics). A pure function of
+        the scene, so every worker resolves it the same way. Other names pass through."""
         if name != "auto":
             return name
+        return _core.auto_integrator(self.has_delta_caustics())
+
+    def has_delta_caustics(self) -> bool:
+        """Whether a delta light (point, or distant with angle 0) can shine through or off a
+        material that forms caustics (transmission, or a metal/clearcoat smoother than
+        AUTO_SMOOTH_ROUGHNESS): path tracing cannot find those paths at all. Where it is
+        false, path tracing measured more efficient per unit time even on a caustic scene
+        lit by an area light (docs/benchmarks/integrators.md)."""
         point = getattr(self.data, "point_lights", None)
         distant = getattr(self.data, "distant_lights", None)
         has_delta_light = (point is not None and len(point) > 0) or \
             (distant is not None and len(distant) > 0 and bool(np.any(np.asarray(distant)[:, 3] == 0.0)))
         if not has_delta_light:
-            return "path"
+            return False
         params = getattr(self.data, "material_params", None) or {}
         flags = params.get("preview_surface")
         if flags is None:
-            return "path"
+            return False
         preview = np.asarray(flags, bool).reshape(-1)
         opacity = np.asarray(params["opacity"], np.float32).reshape(-1)
         threshold = np.asarray(params["opacity_threshold"], np.float32).reshape(-1)
@@ -133,7 +146,7 @@ class Scene:
         transmits = (opacity < 1.0) & (threshold == 0.0)  # < 0: presence, passes straight
         smooth = ((roughness < AUTO_SMOOTH_ROUGHNESS) & (metallic > 0.0)) | \
                  ((clearcoat > 0.0) & (coat_roughness < AUTO_SMOOTH_ROUGHNESS))
-        return "bdpt" if np.any(preview & used & (transmits | smooth)) else "path"
+        return bool(np.any(preview & used & (transmits | smooth)))
 
     def camera(self, width: int, height: int) -> "_core.Camera":
         c = self.data.camera
@@ -145,15 +158,18 @@ class Scene:
     def render_tile(self, x0: int, y0: int, w: int, h: int, *, width: int | None = None,
                     height: int | None = None, spp: int = 64, seed: int = 0, max_depth: int = 64,
                     threads: int = 0, sample_start: int = 0, return_variance: bool = False,
-                    integrator: str = "path", splats: np.ndarray | None = None,
-                    sampler: str = "sobol", aovs=(), stats: dict | None = None):
+                    integrator: str | None = None, splats: np.ndarray | None = None,
+                    sampler: str = "sobol", aovs=(), stats: dict | None = None,
+                    integrator_params: dict[str, float] | None = None):
         """Renders pixels [x0, x0+w) x [y0, y0+h) of a width x height image, averaging samples
         [sample_start, sample_start + spp) of each pixel. Returns float32 linear RGBA of shape
         (h, w, 4); with return_variance, (rgba, variance) where variance is float32 (h, w, 3),
         the per-channel sample variance (divide by spp for the variance of the mean).
-        integrator "light" also adds the tile's light-path splats to `splats`, an int64
-        (height, width, 3) full-frame buffer (see film.py for turning it into an image); the
-        tile traced w * h * spp light paths. sampler: "sobol" (Owen-scrambled, default) or
+        integrator: a name from integrators() (default: the first) or "auto";
+        integrator_params: the extra settings its entry's params declare. An integrator that
+        splats also adds the tile's light-path splats to `splats`, an int64 (height, width,
+        3) full-frame buffer (see film.py for turning it into an image); the tile traced
+        w * h * spp light paths. sampler: "sobol" (Owen-scrambled, default) or
         "independent".
 
         aovs: names from AOV_NAMES (albedo, normal, depth, spp, variance; docs/aovs.md).
@@ -163,7 +179,7 @@ class Scene:
         (samples, closest_rays, shadow_rays, ...). Releases the GIL."""
         width = width or self.width
         height = height or self.height
-        integrator = self.resolve_integrator(integrator)
+        integrator = self.resolve_integrator(integrator or _core.integrators()[0]["name"])
         aovs = [aovs] if isinstance(aovs, str) else list(aovs)
         unknown = [a for a in aovs if a not in AOV_NAMES]
         if unknown:
@@ -172,7 +188,8 @@ class Scene:
         core_aovs = [a for a in aovs if a != "variance"]
         rgba, info = _core.render_tile(self._core, self.camera(width, height), x0, y0, w, h,
                                        spp, seed, max_depth, threads, sample_start, want_variance,
-                                       integrator, splats, sampler, core_aovs)
+                                       integrator, splats, sampler, core_aovs,
+                                       {k: float(v) for k, v in (integrator_params or {}).items()})
         if stats is not None:
             stats.update({k: v for k, v in info.items() if not isinstance(v, np.ndarray)})
         if info["rejected_splats"]:
@@ -225,7 +242,7 @@ def _preview_table(params: dict | None, rows: int):
     return table, np.asarray(params["preview_surface"], bool).reshape(rows)
 
 
-# Order of the core's texture slots (renderer/core/scene.h TextureSlot).
+# Order of the core's texture slots (renderer/core/scene/scene.h TextureSlot).
 TEXTURE_SLOTS = ("diffuseColor", "emissiveColor", "specularColor", "metallic", "roughness", "clearcoat",
                  "clearcoatRoughness", "opacity", "ior", "normal")
 _WRAP_CODES = {"repeat": 0, "useMetadata": 0, "clamp": 1, "mirror": 2, "black": 3}

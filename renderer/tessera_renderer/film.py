@@ -7,8 +7,6 @@ from __future__ import annotations
 
 import numpy as np
 
-INTEGRATORS = ("path", "light", "bdpt", "local", "whitted", "auto")
-SPLATTING_INTEGRATORS = ("light", "bdpt")
 
 
 def new_splat_buffer(width: int, height: int) -> np.ndarray:

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
-"""Tabulates the directional albedo of the GGX reflection lobe for renderer/core/ggx_albedo.h.
+"""Tabulates the directional albedo of the GGX reflection lobe for renderer/core/bsdfs/ggx_albedo.h.
 
-The lobe is the one in renderer/core/microfacet.h: Trowbridge-Reitz D, height-correlated
+The lobe is the one in renderer/core/bsdfs/microfacet.h: Trowbridge-Reitz D, height-correlated
 Smith G = 1 / (1 + L(wo) + L(wi)), alpha = roughness^2 (at least 1e-3). Schlick's Fresnel is
 linear in (F0, F90), so the single-scattering albedo is
 
@@ -17,7 +17,7 @@ Grid: NMU nodes in t = sqrt(mu) (denser near grazing) and NR nodes in roughness,
 E_avg(r) = 2 int E(mu) mu dmu is integrated EXACTLY for the piecewise-linear-in-t interpolant
 the renderer uses, so the albedo-scaled layers integrate to the tabulated values exactly.
 
-Usage: python renderer/tools/gen_ggx_albedo.py > renderer/core/ggx_albedo_table.h
+Usage: python renderer/tools/gen_ggx_albedo.py > renderer/core/bsdfs/ggx_albedo_table.h
        python renderer/tools/gen_ggx_albedo.py --check   (interpolation error at cell midpoints)
 """
 import sys

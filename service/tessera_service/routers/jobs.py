@@ -66,8 +66,9 @@ def create_job(
         description="seconds after start when no further passes begin (noise-target mode)")] = None,
     priority: Annotated[int, Form(ge=protocol.MIN_PRIORITY, le=protocol.MAX_PRIORITY,
                                   description="0-9; higher goes first")] = protocol.DEFAULT_PRIORITY,
-    integrator: Annotated[str, Form(description="path, bdpt, light, whitted, local or auto "
-                                                "(docs/integrators.md)")] = _DEFAULTS["integrator"],
+    integrator: Annotated[str | None, Form(description="a name from the renderer's registry "
+                                                       "(`tessera render --integrator help`) or auto; "
+                                                       "default: the registry's first")] = None,
     max_attempts: Annotated[int, Form(ge=1, le=100, description=(
         "failed deliveries of one tile pass (errors, crashes, dead workers) before the job "
         "fails naming the tile"))] = protocol.DEFAULT_MAX_ATTEMPTS,
@@ -88,6 +89,8 @@ def create_job(
     params = dict(spp=spp, seed=seed, max_depth=max_depth, tile_size=tile_size, integrator=integrator,
                   target_error=target_error, min_spp=min_spp, max_spp=max_spp,
                   time_limit=time_limit, aovs=aovs, default_light=default_light)
+    if integrator is None:
+        del params["integrator"]  # RenderSettings' default: the registry's first
     # Check what can be checked before the (slow) inspection; resolution comes later.
     _render_settings(width=width if width is not None else 1,
                      height=height if height is not None else 1, **params)

@@ -1,9 +1,24 @@
-#include "whitted_integrator.h"
+#include "whitted.h"
 
 #include "bsdf.h"
+#include "direct_light.h"
 #include "sampling.h"
 
 namespace tessera {
+
+const IntegratorInfo& WhittedIntegrator::Info() {
+    static const IntegratorInfo info{
+        .name = "whitted",
+        .description = "Whitted ray tracing: direct light everywhere, recursion along ideal mirrors and refraction only",
+    };
+    return info;
+}
+
+IntegratorEntry WhittedIntegratorEntry() {
+    return {WhittedIntegrator::Info, [](const IntegratorSettings& s, const Scene&) -> std::unique_ptr<Integrator> {
+                return std::make_unique<WhittedIntegrator>(s.max_depth);
+            }};
+}
 
 PathSample WhittedIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const {
     PathSample result;

@@ -13,10 +13,15 @@
 #include <vector>
 
 #include "bsdf.h"
-#include "distribution_2d.h"
+#include "distant_light.h"
+#include "dome_light.h"
+#include "light.h"
 #include "light_sampler.h"
 #include "math.h"
+#include "point_light.h"
+#include "sphere_light.h"
 #include "texture.h"
+#include "triangle_light.h"
 
 namespace tessera {
 
@@ -50,27 +55,6 @@ struct Material {
     std::optional<MaterialParams> preview;
     // Texture index per TextureSlot (-1: the constant above). Only preview materials use them.
     std::array<int32_t, kNumTextureSlots> textures = NoTextures();
-};
-
-struct SphereLight {
-    Vec3 center;
-    float radius = 0.f;
-    Color radiance;
-};
-
-// An isotropic point: `intensity` in W/sr per channel (a delta light, never hit by rays).
-struct PointLight {
-    Vec3 position;
-    Color intensity;
-};
-
-// Light from a direction at infinity. `direction` is where the light travels (unit). With
-// half_angle > 0 it is a cone of directions of constant `radiance` (the sun's disk); with
-// half_angle == 0 a delta light, and `radiance` holds the irradiance on a facing surface.
-struct DistantLight {
-    Vec3 direction;
-    float half_angle = 0.f;
-    Color radiance;
 };
 
 // A triangle mesh as flat arrays: the world's, or an instancing prototype's (in its own space).
@@ -140,36 +124,6 @@ inline float ImportanceShadingCorrection(Vec3 wo, Vec3 wi, Vec3 ns, Vec3 ng) {
     float denom = std::abs(Dot(wo, ng)) * std::abs(Dot(wi, ns));
     return denom > 0.f ? std::abs(Dot(wo, ns)) * std::abs(Dot(wi, ng)) / denom : 0.f;
 }
-
-struct LightSample {
-    Color radiance;  // arriving at the reference point (for delta lights, already / distance^2)
-    Vec3 wi;         // unit direction from the reference point to the light
-    float distance = 0.f;  // infinity for lights at infinity
-    float pdf = 0.f;       // solid-angle density at the reference point, light already chosen
-    bool is_delta = false; // point or delta-distant light: pdf is a probability, no MIS
-    Vec3 n;                // the light's surface normal at the sample (zero for points, infinity)
-    // The sampled point (finite distance only) and its error bound as SurfaceHit::p_error:
-    // the shadow ray stops short of the light's own surface by that bound (Scene::Unoccluded).
-    Vec3 p;
-    float p_error = 0.f;
-};
-
-// The start of a light subpath: a ray leaving a light, and its throughput
-// Le |cos| / (pdf_position pdf_direction), not yet divided by the light's selection pmf.
-struct EmissionSample {
-    Vec3 p;
-    float p_error = 0.f;      // as SurfaceHit::p_error (surface samples)
-    Vec3 wo;     // unit direction the light travels
-    Color beta;
-    bool on_surface = false;  // p lies on a surface (offset the ray); not for points and infinite lights
-    Vec3 n;                   // that surface's normal on the emitting side
-    // The factors of beta, for bidirectional MIS: beta = Le |cos| / (pdf_pos pdf_dir).
-    Color Le;                 // radiance (intensity for points, irradiance for delta-distant)
-    float pdf_pos = 0.f;      // area density (1 for points; the bounding disk's for infinity)
-    float pdf_dir = 0.f;      // solid-angle density (1 for delta-distant)
-    bool infinite = false;    // a light at infinity: p is on the bounding disk, not the light
-    bool delta_light = false; // point or delta-distant: no path can hit it
-};
 
 class Scene {
 public:
@@ -247,7 +201,6 @@ public:
 private:
     void BuildGeometryAndLights(const SceneDesc& desc);
     void ReleaseEmbree() noexcept;
-    enum class LightKind : uint8_t { kTriangle, kSphere, kPoint, kDistant, kDome };
     struct Emitter {
         LightKind kind = LightKind::kTriangle;
         uint32_t index = 0;  // into triangles (of `mesh`), spheres, point or distant lights
@@ -280,6 +233,8 @@ private:
     static constexpr uint32_t kFirstInstanceGeometry = 2;
 
     Color EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const;
+    // Emitter e (a triangle) as its light kind sees it, in world space.
+    TriangleLight TriangleLightOf(const Emitter& e) const;
     void BuildMesh(Mesh* mesh, const float* positions, size_t num_vertices, const uint32_t* indices,
                    size_t num_triangles, const std::vector<uint32_t>& material, const std::vector<float>& normals,
                    const std::vector<float>& uvs, RTCScene target, uint32_t geom_id, const std::string& what);
@@ -312,16 +267,7 @@ private:
     std::vector<SphereLight> spheres_;
     std::vector<PointLight> points_;
     std::vector<DistantLight> distants_;
-    Color dome_radiance_;
-    // Textured dome: texels, the rotation into its lat-long frame, and a sampling
-    // distribution proportional to luminance * sin(theta) over (u, v).
-    uint32_t dome_w_ = 0, dome_h_ = 0;
-    std::vector<float> dome_rgb_;
-    float dome_m_[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
-    Distribution2D dome_distribution_;
-    bool DomeTextured() const { return dome_w_ > 0; }
-    Color DomeRadiance(Vec3 w, float* pdf) const;          // w toward the dome
-    Vec3 SampleDome(Vec2 u, float* pdf, Color* L) const;   // returns w toward the dome
+    DomeLight dome_;
     Vec3 scene_center_;
     float scene_radius_ = 1.f;
     int splat_exponent_ = 0;  // bounding sphere: the power of lights at infinity

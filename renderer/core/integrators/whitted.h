@@ -6,16 +6,19 @@
 
 #include <limits>
 
-#include "camera.h"
-#include "path_integrator.h"
-#include "sampler.h"
-#include "scene.h"
+#include "integrator.h"
 
 namespace tessera {
 
-class WhittedIntegrator {
+class WhittedIntegrator final : public Integrator {
 public:
     explicit WhittedIntegrator(int max_depth) : max_depth_(max_depth) {}
+    static const IntegratorInfo& Info();
+    const IntegratorInfo& info() const override { return Info(); }
+    PathSample Sample(const Scene& scene, const Camera&, const CameraSample& cs, PixelSampler& sampler, SplatFilm&,
+                      IntegratorCounters*) const override {
+        return Li(scene, cs.ray, sampler, cs.t_min, cs.t_max);
+    }
     // [t_min, t_max] limits the first segment (the camera's clipping range).
     PathSample Li(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min = 0.f,
                   float t_max = std::numeric_limits<float>::infinity()) const;

@@ -5,6 +5,43 @@
 
 namespace tessera {
 
+const IntegratorInfo& LightTracer::Info() {
+    static const IntegratorInfo info{
+        .name = "light",
+        .description = "light tracing: paths start on lights and splat onto the whole frame through the camera",
+        .splats = true,
+        .stop_per_tile = false,
+        .delta_caustics = true,
+    };
+    return info;
+}
+
+IntegratorEntry LightTracerEntry() {
+    return {LightTracer::Info, [](const IntegratorSettings& s, const Scene&) -> std::unique_ptr<Integrator> {
+                return std::make_unique<LightTracer>(s.max_depth);
+            }};
+}
+
+PathSample DirectlyVisibleLight(const Scene& scene, const Ray& ray, float t_min, float t_max) {
+    PathSample result;
+    SurfaceHit hit;
+    if (scene.Intersect(ray, &hit, t_min, t_max)) {
+        result.alpha = 1.f;
+        if (int32_t e = scene.EmitterAt(hit); e != Scene::kNoEmitter) result.radiance = scene.Emitted(e, hit, -ray.d);
+    } else {
+        scene.ForEachEnvironmentLight(ray.d, [&](uint32_t, Color Le, float) { result.radiance += Le; });
+    }
+    return result;
+}
+
+PathSample LightTracer::Sample(const Scene& scene, const Camera& camera, const CameraSample& cs, PixelSampler&,
+                               SplatFilm& film, IntegratorCounters* counters) const {
+    PathSample ps = DirectlyVisibleLight(scene, cs.ray, cs.t_min, cs.t_max);
+    PixelSampler light_sampler = cs.Stream(1);
+    Trace(scene, camera, light_sampler, film, counters);
+    return ps;
+}
+
 bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, float p_error, Vec3 ng, Vec2 u_lens, float* px, float* py,
                      Vec3* wc, float* importance_over_d2, Vec3* lens_point) {
     const Vec3 lens = camera.LensPoint(u_lens);
@@ -23,7 +60,7 @@ bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, float p_e
 }
 
 void LightTracer::Trace(const Scene& scene, const Camera& camera, PixelSampler& sampler, SplatFilm& film,
-                        LightTraceStats* stats) const {
+                        IntegratorCounters* counters) const {
     const LightSampler& lights = scene.light_sampler();
     if (lights.empty()) return;
     float pmf = 0.f;
@@ -57,7 +94,7 @@ void LightTracer::Trace(const Scene& scene, const Camera& camera, PixelSampler& 
             if (SidesAgree(wo, wc, hit.ng, wo_local, wc_local))
                 contribution = beta * bsdf.f(wo_local, wc_local) *
                                (std::abs(wc_local.z) * importance * ImportanceShadingCorrection(wo, wc, hit.ns, hit.ng));
-            if (!IsBlack(contribution) && !film.Add(px, py, contribution) && stats) ++stats->rejected_splats;
+            if (!IsBlack(contribution) && !film.Add(px, py, contribution) && counters) ++counters->rejected_splats;
         }
         if (depth == max_depth_) break;
 

@@ -1,28 +1,24 @@
-#include "path_integrator.h"
+#include "path.h"
 
 #include "bsdf.h"
+#include "direct_light.h"
 #include "sampling.h"
 
 namespace tessera {
 
-Color SampleDirectLight(const Scene& scene, const SurfaceHit& hit, const BSDF& bsdf, const Frame& frame, Vec3 wo,
-                        PixelSampler& sampler, bool mis) {
-    const LightSampler& lights = scene.light_sampler();
-    float pmf = 0.f;
-    const uint32_t light = lights.Sample(sampler.Get1D(), &pmf);
-    const Vec2 u = sampler.Get2D();
-    LightSample ls;
-    if (!scene.SampleEmitter(light, hit.p, u, &ls)) return Color(0.f);
-    const float light_pdf = pmf * ls.pdf;
-    if (!(light_pdf > 0.f)) return Color(0.f);
-    const Vec3 wo_local = frame.ToLocal(wo), wi_local = frame.ToLocal(ls.wi);
-    if (!SidesAgree(wo, ls.wi, hit.ng, wo_local, wi_local)) return Color(0.f);
-    const Color f = bsdf.f(wo_local, wi_local) * std::abs(wi_local.z);
-    if (IsBlack(f) || !scene.Unoccluded(hit.p, hit.p_error, hit.ng, ls))
-        return Color(0.f);
-    // A delta light cannot be hit by BSDF sampling: light sampling takes it all.
-    const float w = (mis && !ls.is_delta) ? PowerHeuristic(light_pdf, bsdf.PDF(wo_local, wi_local)) : 1.f;
-    return f * ls.radiance * (w / light_pdf);
+const IntegratorInfo& PathIntegrator::Info() {
+    static const IntegratorInfo info{
+        .name = "path",
+        .description = "path tracing: next event estimation, MIS with BSDF sampling, Russian roulette",
+        .complete = true,
+    };
+    return info;
+}
+
+IntegratorEntry PathIntegratorEntry() {
+    return {PathIntegrator::Info, [](const IntegratorSettings& s, const Scene&) -> std::unique_ptr<Integrator> {
+                return std::make_unique<PathIntegrator>(s.max_depth);
+            }};
 }
 
 PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const {

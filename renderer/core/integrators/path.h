@@ -5,26 +5,19 @@
 
 #include <limits>
 
-#include "camera.h"
-#include "sampler.h"
-#include "scene.h"
+#include "integrator.h"
 
 namespace tessera {
 
-struct PathSample {
-    Color radiance;
-    float alpha = 0.f;  // 1 where the camera ray hit geometry
-};
-
-// One light sample at a surface: Le f |cos| / pdf through the BSDF's non-delta lobes, with
-// a shadow ray. With `mis`, weighted by the power heuristic against BSDF sampling of the
-// same direction (delta lights always get weight 1).
-Color SampleDirectLight(const Scene& scene, const SurfaceHit& hit, const BSDF& bsdf, const Frame& frame, Vec3 wo,
-                        PixelSampler& sampler, bool mis);
-
-class PathIntegrator {
+class PathIntegrator final : public Integrator {
 public:
     explicit PathIntegrator(int max_depth) : max_depth_(max_depth) {}
+    static const IntegratorInfo& Info();
+    const IntegratorInfo& info() const override { return Info(); }
+    PathSample Sample(const Scene& scene, const Camera&, const CameraSample& cs, PixelSampler& sampler, SplatFilm&,
+                      IntegratorCounters*) const override {
+        return Li(scene, cs.ray, sampler, cs.t_min, cs.t_max);
+    }
     // Radiance arriving along `ray`; max_depth bounds the number of scattering events.
     // [t_min, t_max] limits the first segment (the camera's clipping range).
     PathSample Li(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min = 0.f,

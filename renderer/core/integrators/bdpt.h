@@ -10,23 +10,29 @@
 // throughputs; MIS weights stay a partition of unity computed from the path alone.
 #pragma once
 
-#include "camera.h"
-#include "path_integrator.h"
-#include "sampler.h"
-#include "scene.h"
-#include "splat_film.h"
+#include "integrator.h"
 
 namespace tessera {
 
-class BDPTIntegrator {
+class BDPTIntegrator final : public Integrator {
 public:
     explicit BDPTIntegrator(int max_depth) : max_depth_(max_depth) {}
+    static const IntegratorInfo& Info();
+    const IntegratorInfo& info() const override { return Info(); }
+    // The light subpath uses stream 1 of the sample.
+    PathSample Sample(const Scene& scene, const Camera& camera, const CameraSample& cs, PixelSampler& sampler,
+                      SplatFilm& film, IntegratorCounters* counters) const override {
+        PixelSampler light_sampler = cs.Stream(1);
+        return SampleStrategies(scene, camera, cs.ray, sampler, light_sampler, film,
+                                counters ? &counters->rejected_splats : nullptr);
+    }
 
     // One pixel sample: returns the camera-side estimate for the pixel and splats the
     // t = 1 strategies onto `film`. `camera_sampler` and `light_sampler` must be distinct
     // streams of the same pixel sample.
-    PathSample Sample(const Scene& scene, const Camera& camera, const Ray& camera_ray, PixelSampler& camera_sampler,
-                      PixelSampler& light_sampler, SplatFilm& film, uint64_t* rejected_splats) const;
+    PathSample SampleStrategies(const Scene& scene, const Camera& camera, const Ray& camera_ray,
+                                PixelSampler& camera_sampler, PixelSampler& light_sampler, SplatFilm& film,
+                                uint64_t* rejected_splats) const;
 
 private:
     int max_depth_;

@@ -4,14 +4,12 @@
 // without scattering (emitters and the sky seen directly) comes from the camera rays of
 // the tile's own pixels instead, as a pinhole can never be hit by a light path.
 //
-// Normalisation (see ResolveLightTracing): with We = 1 / (A cos^4 theta) over the image
-// plane at distance 1 of area A, a pixel's value is sum(splats) * pixel_count / light_paths.
+// Normalisation (the one formula is in render.h and tessera_renderer/film.py): with
+// We = 1 / (A cos^4 theta) over the image plane at distance 1 of area A, a pixel's value
+// is sum(splats) * pixel_count / light_paths.
 #pragma once
 
-#include "camera.h"
-#include "sampler.h"
-#include "scene.h"
-#include "splat_film.h"
+#include "integrator.h"
 
 namespace tessera {
 
@@ -24,16 +22,22 @@ namespace tessera {
 bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, float p_error, Vec3 ng, Vec2 u_lens, float* px, float* py,
                      Vec3* wc, float* importance_over_d2, Vec3* lens_point = nullptr);
 
-struct LightTraceStats {
-    uint64_t rejected_splats = 0;  // non-finite, negative or unrepresentable: a bug if > 0
-};
+// What a pinhole sees without scattering: emitters and lights at infinity along the ray.
+PathSample DirectlyVisibleLight(const Scene& scene, const Ray& ray, float t_min, float t_max);
 
-class LightTracer {
+class LightTracer final : public Integrator {
 public:
     explicit LightTracer(int max_depth) : max_depth_(max_depth) {}
+    static const IntegratorInfo& Info();
+    const IntegratorInfo& info() const override { return Info(); }
+    // The camera ray gives the light seen unscattered; one light path (stream 1 of the
+    // sample) is traced and splatted.
+    PathSample Sample(const Scene& scene, const Camera& camera, const CameraSample& cs, PixelSampler& sampler,
+                      SplatFilm& film, IntegratorCounters* counters) const override;
     // Traces one light path with the given sampler and splats its camera connections.
+    // Splats that are non-finite, negative or unrepresentable are counted (a bug if any).
     void Trace(const Scene& scene, const Camera& camera, PixelSampler& sampler, SplatFilm& film,
-               LightTraceStats* stats) const;
+               IntegratorCounters* counters) const;
 
 private:
     int max_depth_;

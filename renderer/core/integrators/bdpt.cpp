@@ -8,9 +8,27 @@ namespace tessera {
 
 using namespace bdpt_internal;
 
-PathSample BDPTIntegrator::Sample(const Scene& scene, const Camera& camera, const Ray& camera_ray,
-                                  PixelSampler& camera_sampler, PixelSampler& light_sampler, SplatFilm& film,
-                                  uint64_t* rejected_splats) const {
+const IntegratorInfo& BDPTIntegrator::Info() {
+    static const IntegratorInfo info{
+        .name = "bdpt",
+        .description = "bidirectional path tracing: every (s, t) strategy, power-heuristic MIS; t = 1 splats",
+        .splats = true,
+        .stop_per_tile = false,
+        .complete = true,
+        .delta_caustics = true,
+    };
+    return info;
+}
+
+IntegratorEntry BDPTIntegratorEntry() {
+    return {BDPTIntegrator::Info, [](const IntegratorSettings& s, const Scene&) -> std::unique_ptr<Integrator> {
+                return std::make_unique<BDPTIntegrator>(s.max_depth);
+            }};
+}
+
+PathSample BDPTIntegrator::SampleStrategies(const Scene& scene, const Camera& camera, const Ray& camera_ray,
+                                            PixelSampler& camera_sampler, PixelSampler& light_sampler,
+                                            SplatFilm& film, uint64_t* rejected_splats) const {
     // Per-thread vertex storage, reused: no allocation per sample.
     thread_local std::vector<Vertex> camera_path, light_path;
     if (camera_path.size() < size_t(max_depth_) + 2) camera_path.resize(size_t(max_depth_) + 2);

@@ -67,8 +67,7 @@ Scene::Scene(const SceneDesc& desc)
     : materials_(desc.materials),
       spheres_(desc.sphere_lights),
       points_(desc.point_lights),
-      distants_(desc.distant_lights),
-      dome_radiance_(desc.dome_radiance) {
+      distants_(desc.distant_lights) {
     textures_ = TextureSet(desc.images, desc.textures);
     for (size_t m = 0; m < materials_.size(); ++m) {
         if (!IsNonNegativeFinite(materials_[m].albedo) || !IsNonNegativeFinite(materials_[m].emission) ||
@@ -110,26 +109,8 @@ Scene::Scene(const SceneDesc& desc)
                                         " needs a direction, a half angle in [0, pi/2) and radiance >= 0");
         d.direction = d.direction / len;
     }
-    if (!IsNonNegativeFinite(dome_radiance_)) throw std::invalid_argument("dome radiance must be finite and >= 0");
-    if (desc.dome_width > 0) {
-        if (desc.dome_rgb.size() != size_t(desc.dome_width) * desc.dome_height * 3 || desc.dome_height == 0)
-            throw std::invalid_argument("dome texture size does not match its pixels");
-        for (float v : desc.dome_rgb)
-            if (!(v >= 0.f) || !std::isfinite(v)) throw std::invalid_argument("dome texture has negative or non-finite texels");
-        dome_w_ = desc.dome_width;
-        dome_h_ = desc.dome_height;
-        dome_rgb_ = desc.dome_rgb;
-        std::copy(desc.dome_world_to_light, desc.dome_world_to_light + 9, dome_m_);
-        std::vector<float> weights(size_t(dome_w_) * dome_h_);
-        for (uint32_t y = 0; y < dome_h_; ++y) {
-            const float sin_theta = std::sin(kPi * (float(y) + 0.5f) / float(dome_h_));
-            for (uint32_t x = 0; x < dome_w_; ++x) {
-                const float* t = &dome_rgb_[3 * (size_t(y) * dome_w_ + x)];
-                weights[size_t(y) * dome_w_ + x] = Luminance(Color(t[0], t[1], t[2])) * sin_theta;
-            }
-        }
-        dome_distribution_ = Distribution2D(weights, dome_w_, dome_h_);
-    }
+    if (!IsNonNegativeFinite(desc.dome_radiance)) throw std::invalid_argument("dome radiance must be finite and >= 0");
+    dome_ = DomeLight(desc.dome_radiance, desc.dome_width, desc.dome_height, desc.dome_rgb, desc.dome_world_to_light);
 
     // From here on Embree objects exist: a throw must release them, since a constructor
     // that throws never runs its destructor.
@@ -312,23 +293,11 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
         double irradiance = double(Luminance(d.radiance)) * (omc > 0.f ? kPi * sin_half * sin_half : 1.0);
         power.push_back(irradiance * disk_area);
     }
-    if (!IsBlack(dome_radiance_) && (!DomeTextured() || !dome_distribution_.empty())) {
-        double mean = 1.0;  // solid-angle mean of the texture's luminance
-        if (DomeTextured()) {
-            double sum = 0.0, weight = 0.0;
-            for (uint32_t y = 0; y < dome_h_; ++y) {
-                double sin_theta = std::sin(kPi * (y + 0.5) / dome_h_);
-                for (uint32_t x = 0; x < dome_w_; ++x) {
-                    const float* t = &dome_rgb_[3 * (size_t(y) * dome_w_ + x)];
-                    sum += Luminance(Color(t[0], t[1], t[2])) * sin_theta;
-                    weight += sin_theta;
-                }
-            }
-            mean = sum / weight;
-        }
+    if (dome_.active()) {
+        const double mean = dome_.MeanLuminance();  // solid-angle mean of the texture's luminance
         environment_lights_.push_back(uint32_t(emitters_.size()));
         emitters_.push_back({LightKind::kDome, 0, 0.f, 0.f});
-        power.push_back(4.0 * kPi * disk_area * double(Luminance(dome_radiance_)) * mean);
+        power.push_back(4.0 * kPi * disk_area * double(Luminance(dome_.radiance())) * mean);
     }
     light_sampler_ = LightSampler(power);
 
@@ -713,191 +682,56 @@ Color Scene::Emitted(int32_t emitter, const SurfaceHit& hit, Vec3 wo) const {
     return TriangleEmission(e.mesh, e.index, hit.b1, hit.b2);
 }
 
+TriangleLight Scene::TriangleLightOf(const Emitter& e) const {
+    TriangleLight t;
+    Vec3 tri[3];
+    t.orientation = TriangleVertices(e.mesh, e.index, e.instance, tri);
+    t.p0 = tri[0];
+    t.p1 = tri[1];
+    t.p2 = tri[2];
+    t.area = e.area;
+    t.two_sided = MaterialOf(e.mesh, e.index).two_sided_emission;
+    t.instanced = e.instance != kNoInstance;
+    return t;
+}
+
 bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) const {
     const Emitter& e = emitters_[emitter];
     out->is_delta = false;
     switch (e.kind) {
-        case LightKind::kPoint: {
-            const PointLight& p = points_[e.index];
-            Vec3 to_light = p.position - ref;
-            float d2 = LengthSquared(to_light);
-            if (!(d2 > 0.f)) return false;
-            out->distance = std::sqrt(d2);
-            out->wi = to_light / out->distance;
-            out->radiance = p.intensity / d2;  // inverse-square law
-            out->pdf = 1.f;
-            out->is_delta = true;
-            out->n = Vec3(0.f);
-            out->p = p.position;
-            out->p_error = 0.f;
-            return true;
-        }
-        case LightKind::kDistant: {
-            const DistantLight& d = distants_[e.index];
-            out->distance = std::numeric_limits<float>::infinity();
-            out->radiance = d.radiance;
-            out->n = Vec3(0.f);
-            if (e.one_minus_cos == 0.f) {  // delta: the stored value is the irradiance
-                out->wi = -d.direction;
-                out->pdf = 1.f;
-                out->is_delta = true;
-                return true;
-            }
-            out->wi = Normalize(Frame::FromZ(-d.direction).FromLocal(SampleUniformCone(u, e.one_minus_cos)));
-            out->pdf = 1.f / (2.f * kPi * e.one_minus_cos);
-            return true;
-        }
-        case LightKind::kDome: {
-            out->wi = SampleDome(u, &out->pdf, &out->radiance);
-            out->distance = std::numeric_limits<float>::infinity();
-            out->n = Vec3(0.f);
-            return out->pdf > 0.f;
-        }
-        case LightKind::kSphere:
+        case LightKind::kPoint: return points_[e.index].Sample(ref, out);
+        case LightKind::kDistant: return distants_[e.index].Sample(u, e.one_minus_cos, out);
+        case LightKind::kDome: return dome_.SampleLight(u, out);
+        case LightKind::kSphere: return spheres_[e.index].Sample(ref, u, out);
         case LightKind::kTriangle:
-            break;
+            return TriangleLightOf(e).Sample(
+                ref, u, [&](float b1, float b2) { return TriangleEmission(e.mesh, e.index, b1, b2); }, out);
     }
-    if (e.kind == LightKind::kSphere) {
-        // Uniform in the cone the sphere subtends (pbrt-v4 4.2 / 12.2.2): no samples wasted
-        // on the hidden back side. From inside the sphere there is no light sampling.
-        const SphereLight& s = spheres_[e.index];
-        Vec3 to_center = s.center - ref;
-        float d2 = LengthSquared(to_center);
-        float r2 = s.radius * s.radius;
-        if (d2 <= r2) return false;
-        float d = std::sqrt(d2);
-        float one_minus_cos = ConeOneMinusCos(r2 / d2);
-        Vec3 local = SampleUniformCone(u, one_minus_cos);
-        Vec3 wi = Normalize(Frame::FromZ(to_center / d).FromLocal(local));
-        // Nearest intersection of ref + t wi with the sphere.
-        float b = Dot(to_center, wi);
-        float disc = std::max(0.f, r2 - (d2 - b * b));
-        out->distance = b - std::sqrt(disc);
-        out->wi = wi;
-        out->radiance = s.radiance;
-        out->pdf = 1.f / (2.f * kPi * one_minus_cos);
-        out->p = ref + wi * out->distance;
-        out->n = Normalize(out->p - s.center);
-        // ref + t wi: the error of t (from b, d2 and r2) and of the product and sum.
-        out->p_error = Gamma(8) * (MaxAbsComponent(ref) + std::abs(b) + d + s.radius) + Gamma(5) * MaxAbsComponent(s.center);
-        return out->distance > 0.f;
-    }
-    Vec3 b = SampleUniformTriangle(u);
-    Vec3 tri[3];
-    const float orientation = TriangleVertices(e.mesh, e.index, e.instance, tri);
-    const Vec3 p0 = tri[0], p1 = tri[1], p2 = tri[2];
-    float p_error;
-    const Vec3 p = TrianglePoint(p0, p1, p2, b.y, b.z, &p_error);
-    Vec3 ng = Normalize(Cross(p1 - p0, p2 - p0)) * orientation;
-    Vec3 to_light = p - ref;
-    float d2 = LengthSquared(to_light);
-    if (!(d2 > 0.f)) return false;
-    float d = std::sqrt(d2);
-    Vec3 wi = to_light / d;
-    float cos_light = Dot(ng, -wi);
-    const Material& m = MaterialOf(e.mesh, e.index);
-    if (!m.two_sided_emission && cos_light <= 0.f) return false;
-    cos_light = std::abs(cos_light);
-    if (cos_light < 1e-7f) return false;
-    out->wi = wi;
-    out->distance = d;
-    out->radiance = TriangleEmission(e.mesh, e.index, b.y, b.z);
-    out->pdf = d2 / (cos_light * e.area);  // area measure 1/A converted to solid angle
-    out->n = ng;
-    out->p = p;
-    out->p_error = p_error;
-    if (e.instance != kNoInstance)  // the corners carry the transform's rounding
-        out->p_error += Gamma(3) * std::max(MaxAbsComponent(p0), std::max(MaxAbsComponent(p1), MaxAbsComponent(p2)));
-    return true;
+    return false;
 }
 
 bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_side, EmissionSample* out) const {
     const Emitter& e = emitters_[emitter];
     out->on_surface = false;
     switch (e.kind) {
-        case LightKind::kTriangle: {
-            const Material& m = MaterialOf(e.mesh, e.index);
-            Vec3 tri[3];
-            const float orientation = TriangleVertices(e.mesh, e.index, e.instance, tri);
-            const Vec3 p0 = tri[0], p1 = tri[1], p2 = tri[2];
-            Vec3 b = SampleUniformTriangle(u_pos);
-            Vec3 n = Normalize(Cross(p1 - p0, p2 - p0)) * orientation;
-            const Color Le = TriangleEmission(e.mesh, e.index, b.y, b.z);
-            float sides = 1.f;
-            if (m.two_sided_emission) {
-                sides = 2.f;
-                if (u_side < 0.5f) n = -n;
-            }
-            out->p = TrianglePoint(p0, p1, p2, b.y, b.z, &out->p_error);
-            if (e.instance != kNoInstance)  // the corners carry the transform's rounding
-                out->p_error += Gamma(3) * std::max(MaxAbsComponent(p0), std::max(MaxAbsComponent(p1), MaxAbsComponent(p2)));
-            out->n = n;
-            out->wo = Normalize(Frame::FromZ(n).FromLocal(SampleCosineHemisphere(u_dir)));
-            // Le cos / ((1/A) (cos/pi) (1/sides)) = Le pi A sides
-            out->beta = Le * (kPi * e.area * sides);
-            out->on_surface = true;
-            out->Le = Le;
-            out->pdf_pos = 1.f / e.area;
-            out->pdf_dir = std::abs(Dot(out->wo, n)) * kInvPi / sides;
-            out->infinite = out->delta_light = false;
-            return true;
-        }
-        case LightKind::kSphere: {
-            const SphereLight& s = spheres_[e.index];
-            float z = 1.f - 2.f * u_pos.x, r = std::sqrt(std::max(0.f, 1.f - z * z)), phi = 2.f * kPi * u_pos.y;
-            Vec3 n(r * std::cos(phi), r * std::sin(phi), z);
-            out->p = s.center + n * s.radius;
-            out->p_error = Gamma(5) * (MaxAbsComponent(s.center) + s.radius);
-            out->n = n;
-            out->wo = Normalize(Frame::FromZ(n).FromLocal(SampleCosineHemisphere(u_dir)));
-            out->beta = s.radiance * (kPi * e.area);
-            out->on_surface = true;
-            out->Le = s.radiance;
-            out->pdf_pos = 1.f / e.area;
-            out->pdf_dir = std::abs(Dot(out->wo, n)) * kInvPi;
-            out->infinite = out->delta_light = false;
-            return true;
-        }
-        case LightKind::kPoint: {
-            const PointLight& pl = points_[e.index];
-            float z = 1.f - 2.f * u_dir.x, r = std::sqrt(std::max(0.f, 1.f - z * z)), phi = 2.f * kPi * u_dir.y;
-            out->p = pl.position;
-            out->wo = Vec3(r * std::cos(phi), r * std::sin(phi), z);
-            out->beta = pl.intensity * (4.f * kPi);  // I / (1 / 4 pi)
-            out->Le = pl.intensity;
-            out->pdf_pos = 1.f;
-            out->pdf_dir = 1.f / (4.f * kPi);
-            out->infinite = false;
-            out->delta_light = true;
-            return true;
-        }
+        case LightKind::kTriangle:
+            return TriangleLightOf(e).SampleEmission(
+                u_pos, u_dir, u_side, [&](float b1, float b2) { return TriangleEmission(e.mesh, e.index, b1, b2); },
+                out);
+        case LightKind::kSphere: return spheres_[e.index].SampleEmission(u_pos, u_dir, e.area, out);
+        case LightKind::kPoint: return points_[e.index].SampleEmission(u_dir, out);
         case LightKind::kDistant:
         case LightKind::kDome: {
             float pdf_dir = 1.f;
             Color L;
+            Vec3 wo;
             if (e.kind == LightKind::kDome) {
-                out->wo = -SampleDome(u_dir, &pdf_dir, &L);  // light travels away from the dome
+                wo = -dome_.Sample(u_dir, &pdf_dir, &L);  // light travels away from the dome
                 if (!(pdf_dir > 0.f)) return false;
             } else {
-                const DistantLight& d = distants_[e.index];
-                L = d.radiance;
-                if (e.one_minus_cos > 0.f) {
-                    out->wo = Normalize(Frame::FromZ(d.direction).FromLocal(SampleUniformCone(u_dir, e.one_minus_cos)));
-                    pdf_dir = 1.f / (2.f * kPi * e.one_minus_cos);
-                } else {
-                    out->wo = d.direction;  // delta: L holds the irradiance
-                }
+                distants_[e.index].SampleEmissionDirection(u_dir, e.one_minus_cos, &wo, &pdf_dir, &L);
             }
-            // A point on the disk of the bounding sphere facing wo, upstream of the scene.
-            Vec2 disk = SampleUniformDiskConcentric(u_pos);
-            Frame f = Frame::FromZ(out->wo);
-            out->p = scene_center_ + (f.s * disk.x + f.t * disk.y - out->wo) * scene_radius_;
-            float pdf_pos = 1.f / (kPi * scene_radius_ * scene_radius_);
-            out->beta = L / (pdf_pos * pdf_dir);
-            out->Le = L;
-            out->pdf_pos = pdf_pos;
-            out->pdf_dir = pdf_dir;
-            out->infinite = true;
+            SampleInfiniteEmission(wo, pdf_dir, L, u_pos, scene_center_, scene_radius_, out);
             out->delta_light = e.kind == LightKind::kDistant && e.one_minus_cos == 0.f;
             return true;
         }
@@ -908,22 +742,12 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
 float Scene::EmissionPdfDirection(uint32_t emitter, Vec3 n, Vec3 w) const {
     const Emitter& e = emitters_[emitter];
     switch (e.kind) {
-        case LightKind::kPoint:
-            return 1.f / (4.f * kPi);
-        case LightKind::kSphere:
-            return std::max(0.f, Dot(n, w)) * kInvPi;
-        case LightKind::kTriangle: {
-            const Material& m = MaterialOf(e.mesh, e.index);
-            if (m.two_sided_emission) return std::abs(Dot(n, w)) * kInvPi * 0.5f;
-            return std::max(0.f, Dot(n, w)) * kInvPi;
-        }
-        case LightKind::kDistant:
-            return e.one_minus_cos > 0.f ? 1.f / (2.f * kPi * e.one_minus_cos) : 0.f;
-        case LightKind::kDome: {
-            float pdf;
-            DomeRadiance(-w, &pdf);
-            return pdf;
-        }
+        case LightKind::kPoint: return PointLight::PdfDirection();
+        case LightKind::kSphere: return SphereLight::PdfDirection(n, w);
+        case LightKind::kTriangle:
+            return TriangleLightPdfDirection(MaterialOf(e.mesh, e.index).two_sided_emission, n, w);
+        case LightKind::kDistant: return DistantLight::PdfDirection(e.one_minus_cos);
+        case LightKind::kDome: return dome_.PdfDirection(w);
     }
     return 0.f;
 }
@@ -931,14 +755,11 @@ float Scene::EmissionPdfDirection(uint32_t emitter, Vec3 n, Vec3 w) const {
 float Scene::EmissionPdfPosition(uint32_t emitter) const {
     const Emitter& e = emitters_[emitter];
     switch (e.kind) {
-        case LightKind::kPoint:
-            return 1.f;
+        case LightKind::kPoint: return PointLight::PdfPosition();
         case LightKind::kSphere:
-        case LightKind::kTriangle:
-            return 1.f / e.area;
+        case LightKind::kTriangle: return 1.f / e.area;
         case LightKind::kDistant:
-        case LightKind::kDome:
-            return 1.f / (kPi * scene_radius_ * scene_radius_);
+        case LightKind::kDome: return InfiniteEmissionPdfPosition(scene_radius_);
     }
     return 0.f;
 }
@@ -963,74 +784,15 @@ bool Scene::IsDeltaLight(uint32_t emitter) const {
     return e.kind == LightKind::kPoint || (e.kind == LightKind::kDistant && e.one_minus_cos == 0.f);
 }
 
-Color Scene::DomeRadiance(Vec3 w, float* pdf) const {
-    if (!DomeTextured()) {
-        *pdf = 1.f / (4.f * kPi);
-        return dome_radiance_;
-    }
-    const float* m = dome_m_;
-    Vec3 l(m[0] * w.x + m[1] * w.y + m[2] * w.z, m[3] * w.x + m[4] * w.y + m[5] * w.z,
-           m[6] * w.x + m[7] * w.y + m[8] * w.z);
-    // OpenEXR lat-long: longitude +pi..-pi across, latitude +pi/2..-pi/2 down; (lat 0,
-    // lon 0) is +z and (0, pi/2) is +x.
-    const float lat = std::asin(std::clamp(l.y, -1.f, 1.f)), lon = std::atan2(l.x, l.z);
-    const Vec2 uv{0.5f - lon * kInv2Pi, 0.5f - lat * kInvPi};
-    const float cos_lat = std::cos(lat);
-    *pdf = cos_lat > 0.f ? dome_distribution_.Pdf(uv) / (2.f * kPi * kPi * cos_lat) : 0.f;
-    uint32_t x = std::min(dome_w_ - 1, uint32_t(std::max(0.f, uv.x) * float(dome_w_)));
-    uint32_t y = std::min(dome_h_ - 1, uint32_t(std::max(0.f, uv.y) * float(dome_h_)));
-    const float* t = &dome_rgb_[3 * (size_t(y) * dome_w_ + x)];
-    return dome_radiance_ * Color(t[0], t[1], t[2]);
-}
-
-Vec3 Scene::SampleDome(Vec2 u, float* pdf, Color* L) const {
-    if (!DomeTextured()) {
-        float z = 1.f - 2.f * u.x, r = std::sqrt(std::max(0.f, 1.f - z * z)), phi = 2.f * kPi * u.y;
-        *pdf = 1.f / (4.f * kPi);
-        *L = dome_radiance_;
-        return Vec3(r * std::cos(phi), r * std::sin(phi), z);
-    }
-    float pdf_uv;
-    const Vec2 uv = dome_distribution_.Sample(u, &pdf_uv);
-    const float lon = kPi * (1.f - 2.f * uv.x), lat = kPi * (0.5f - uv.y);
-    const float cos_lat = std::cos(lat);
-    const Vec3 l(cos_lat * std::sin(lon), std::sin(lat), cos_lat * std::cos(lon));
-    const float* m = dome_m_;  // world = M^T l (M is a rotation)
-    const Vec3 w = Normalize(Vec3(m[0] * l.x + m[3] * l.y + m[6] * l.z, m[1] * l.x + m[4] * l.y + m[7] * l.z,
-                                  m[2] * l.x + m[5] * l.y + m[8] * l.z));
-    *pdf = cos_lat > 0.f ? pdf_uv / (2.f * kPi * kPi * cos_lat) : 0.f;
-    // The radiance of the texel the direction falls in (as DomeRadiance looks it up).
-    float unused;
-    *L = DomeRadiance(w, &unused);
-    return w;
-}
-
 Color Scene::EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const {
-    if (e.kind == LightKind::kDome) return DomeRadiance(dir, pdf);
-    const DistantLight& d = distants_[e.index];
-    // Inside the cone: 1 - cos(angle to the axis) <= 1 - cos(half angle).
-    if (1.f - Dot(dir, -d.direction) <= e.one_minus_cos) {
-        *pdf = 1.f / (2.f * kPi * e.one_minus_cos);
-        return d.radiance;
-    }
-    *pdf = 0.f;
-    return Color(0.f);
+    if (e.kind == LightKind::kDome) return dome_.Radiance(dir, pdf);
+    return distants_[e.index].Radiance(dir, e.one_minus_cos, pdf);
 }
 
 float Scene::EmitterPdf(uint32_t emitter, Vec3 ref, const SurfaceHit& hit) const {
     const Emitter& e = emitters_[emitter];
-    if (e.kind == LightKind::kSphere) {
-        const SphereLight& s = spheres_[e.index];
-        float d2 = LengthSquared(s.center - ref);
-        float r2 = s.radius * s.radius;
-        if (d2 <= r2) return 0.f;
-        return 1.f / (2.f * kPi * ConeOneMinusCos(r2 / d2));
-    }
-    Vec3 to_light = hit.p - ref;
-    float d2 = LengthSquared(to_light);
-    float cos_light = std::abs(Dot(hit.ng, to_light)) / std::sqrt(d2);
-    if (cos_light < 1e-7f) return 0.f;
-    return d2 / (cos_light * e.area);
+    if (e.kind == LightKind::kSphere) return spheres_[e.index].Pdf(ref);
+    return TriangleLightPdf(ref, hit.p, hit.ng, e.area);
 }
 
 }  // namespace tessera

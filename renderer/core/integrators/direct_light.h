@@ -1,0 +1,36 @@
+// Next event estimation at one surface point, shared by the integrators that shade with
+// light sampling (path, local, whitted).
+#pragma once
+
+#include "bsdf.h"
+#include "sampler.h"
+#include "sampling.h"
+#include "scene.h"
+
+namespace tessera {
+
+// One light sample at a surface: Le f |cos| / pdf through the BSDF's non-delta lobes, with
+// a shadow ray. With `mis`, weighted by the power heuristic against BSDF sampling of the
+// same direction (delta lights always get weight 1). Inline, as it could be when it shared
+// the path tracer's file: it runs at every vertex of the hot loops.
+inline Color SampleDirectLight(const Scene& scene, const SurfaceHit& hit, const BSDF& bsdf, const Frame& frame, Vec3 wo,
+                               PixelSampler& sampler, bool mis) {
+    const LightSampler& lights = scene.light_sampler();
+    float pmf = 0.f;
+    const uint32_t light = lights.Sample(sampler.Get1D(), &pmf);
+    const Vec2 u = sampler.Get2D();
+    LightSample ls;
+    if (!scene.SampleEmitter(light, hit.p, u, &ls)) return Color(0.f);
+    const float light_pdf = pmf * ls.pdf;
+    if (!(light_pdf > 0.f)) return Color(0.f);
+    const Vec3 wo_local = frame.ToLocal(wo), wi_local = frame.ToLocal(ls.wi);
+    if (!SidesAgree(wo, ls.wi, hit.ng, wo_local, wi_local)) return Color(0.f);
+    const Color f = bsdf.f(wo_local, wi_local) * std::abs(wi_local.z);
+    if (IsBlack(f) || !scene.Unoccluded(hit.p, hit.p_error, hit.ng, ls))
+        return Color(0.f);
+    // A delta light cannot be hit by BSDF sampling: light sampling takes it all.
+    const float w = (mis && !ls.is_delta) ? PowerHeuristic(light_pdf, bsdf.PDF(wo_local, wi_local)) : 1.f;
+    return f * ls.radiance * (w / light_pdf);
+}
+
+}  // namespace tessera

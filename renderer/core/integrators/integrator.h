@@ -1,0 +1,115 @@
+// The one interface every light-transport method implements, and the registry that names
+// them (after pbrt-v4's Integrator::Create and Mitsuba 3's plugin table).
+//
+// The renderer loops over pixel samples (render.cpp); an integrator turns one camera
+// sample into an estimate for its pixel and, if it splats, into contributions anywhere on
+// the frame. Everything a caller outside the core needs to know about an integrator
+// (whether its image needs the splat normalisation, whether tiles may stop on their own)
+// is in its IntegratorInfo, so no caller lists integrators by name.
+#pragma once
+
+#include <limits>
+#include <map>
+#include <memory>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "camera.h"
+#include "sampler.h"
+#include "scene.h"
+#include "splat_film.h"
+
+namespace tessera {
+
+struct PathSample {
+    Color radiance;
+    float alpha = 0.f;  // 1 where the camera ray hit geometry
+};
+
+// A setting an integrator accepts besides the common ones (IntegratorSettings).
+struct IntegratorParam {
+    std::string_view name;
+    std::string_view description;
+};
+
+struct IntegratorInfo {
+    std::string_view name;
+    std::string_view description;  // one line, for `tessera render --integrator help`
+    // Writes across tiles: light paths land anywhere on the frame (SplatFilm), and the image
+    // is the tiles' own pixels plus the summed splats normalised by the light paths traced.
+    bool splats = false;
+    // Needs work done once per scene before tiles (none does yet).
+    bool scene_passes = false;
+    // A tile may stop on a noise target on its own; otherwise the whole image advances in
+    // lockstep (splats land on other tiles, so a tile's noise is not its own to judge).
+    bool stop_per_tile = true;
+    // Estimates every light path (the full transport, unbiased): `auto` chooses among these.
+    bool complete = false;
+    // Finds caustics of delta lights through delta or near-delta lobes (L S+ D E from a
+    // point): path tracing cannot, so `auto` needs such an integrator for those scenes.
+    bool delta_caustics = false;
+    std::vector<IntegratorParam> params = {};
+};
+
+// Settings common to every integrator, plus the named extras its info declares.
+struct IntegratorSettings {
+    int max_depth = 64;
+    std::map<std::string, float> params;
+    // The value of an extra setting, or `fallback` if it was not given.
+    float Param(const std::string& name, float fallback) const {
+        auto it = params.find(name);
+        return it == params.end() ? fallback : it->second;
+    }
+};
+
+// One pixel sample as the renderer hands it over: the camera ray, its clipping range, and
+// the identity of the sample, from which further sampler streams are opened (stream 0 is
+// the camera's and is passed separately; light subpaths use stream 1; the AOVs stream 2).
+struct CameraSample {
+    Ray ray;
+    float t_min = 0.f, t_max = std::numeric_limits<float>::infinity();
+    uint32_t seed = 0;
+    uint64_t pixel_index = 0;
+    uint32_t sample_index = 0;
+    SamplerKind sampler_kind = SamplerKind::kOwenSobol;
+    PixelSampler Stream(uint32_t stream) const {
+        return PixelSampler(seed, pixel_index, sample_index, stream, sampler_kind);
+    }
+};
+
+// Per-thread counters an integrator may add to.
+struct IntegratorCounters {
+    uint64_t rejected_splats = 0;  // splats that were not finite and >= 0: a bug if > 0
+};
+
+class Integrator {
+public:
+    virtual ~Integrator() = default;
+    virtual const IntegratorInfo& info() const = 0;
+    // One pixel sample: the estimate for its own pixel. `sampler` is stream 0, past the
+    // camera's dimensions. A splatting integrator also adds to `film` (full frame).
+    virtual PathSample Sample(const Scene& scene, const Camera& camera, const CameraSample& cs,
+                              PixelSampler& sampler, SplatFilm& film, IntegratorCounters* counters) const = 0;
+
+    // The registered integrator of that name, built for one render; throws
+    // std::invalid_argument for an unknown name or a setting it does not take.
+    static std::unique_ptr<Integrator> Create(std::string_view name, const IntegratorSettings& settings,
+                                              const Scene& scene);
+};
+
+// Every registered integrator, in registry order (integrators/registry.cpp).
+const std::vector<IntegratorInfo>& RegisteredIntegrators();
+// nullptr if no integrator has that name.
+const IntegratorInfo* FindIntegrator(std::string_view name);
+// The `auto` rule: the first complete integrator in registry order, among those that find
+// delta-light caustics if the scene has them.
+std::string_view AutoIntegrator(bool scene_has_delta_caustics);
+
+// What an integrator's file hands the registry.
+struct IntegratorEntry {
+    const IntegratorInfo& (*info)();
+    std::unique_ptr<Integrator> (*create)(const IntegratorSettings& settings, const Scene& scene);
+};
+
+}  // namespace tessera

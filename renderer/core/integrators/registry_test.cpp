@@ -1,0 +1,62 @@
+// The registry: names are unique, the `auto` rule follows the capabilities, and the
+// splatting capability is what RenderTile actually enforces.
+#include <gtest/gtest.h>
+
+#include <set>
+#include <string>
+#include <vector>
+
+#include "integrator.h"
+#include "render.h"
+#include "scene_helpers.h"
+
+namespace {
+
+using namespace tessera;
+using namespace tessera_test;
+
+TEST(Registry, NamesAreUniqueAndEveryEntryBuildsItsOwnIntegrator) {
+    const Scene scene(FloorScene(0.5f));
+    std::set<std::string> names;
+    for (const IntegratorInfo& info : RegisteredIntegrators()) {
+        EXPECT_TRUE(names.insert(std::string(info.name)).second) << info.name;
+        EXPECT_FALSE(info.description.empty()) << info.name;
+        EXPECT_EQ(FindIntegrator(info.name), &*FindIntegrator(info.name));
+        EXPECT_EQ(Integrator::Create(info.name, {}, scene)->info().name, info.name);
+        // Nothing may stop per tile while its splats land on other tiles.
+        EXPECT_FALSE(info.splats && info.stop_per_tile) << info.name;
+    }
+    EXPECT_EQ(FindIntegrator("auto"), nullptr);  // a rule, not an integrator
+}
+
+TEST(Registry, AutoPicksTheFirstCompleteIntegratorThatHandlesTheScene) {
+    for (bool caustics : {false, true}) {
+        const IntegratorInfo* chosen = FindIntegrator(AutoIntegrator(caustics));
+        ASSERT_NE(chosen, nullptr);
+        EXPECT_TRUE(chosen->complete);
+        if (caustics) EXPECT_TRUE(chosen->delta_caustics);
+        for (const IntegratorInfo& info : RegisteredIntegrators()) {  // none earlier qualifies
+            if (&info == &*std::find_if(RegisteredIntegrators().begin(), RegisteredIntegrators().end(),
+                                        [&](const IntegratorInfo& i) { return i.name == chosen->name; }))
+                break;
+            EXPECT_FALSE(info.complete && (info.delta_caustics || !caustics)) << info.name;
+        }
+    }
+}
+
+TEST(Registry, SplattingIntegratorsRefuseToRenderWithoutASplatBuffer) {
+    const Scene scene(FloorScene(0.5f));
+    const Camera camera = LookDownAtOrigin(1.f, 4);
+    std::vector<float> rgba(4 * 4 * 4);
+    for (const IntegratorInfo& info : RegisteredIntegrators()) {
+        RenderOptions opt;
+        opt.spp = 1;
+        opt.integrator = std::string(info.name);
+        if (info.splats)
+            EXPECT_THROW(RenderTile(scene, camera, opt, {0, 0, 4, 4}, rgba.data()), std::invalid_argument) << info.name;
+        else
+            EXPECT_EQ(RenderTile(scene, camera, opt, {0, 0, 4, 4}, rgba.data()).light_paths, 0u) << info.name;
+    }
+}
+
+}  // namespace
