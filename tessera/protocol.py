@@ -95,7 +95,8 @@ def job_key(job_id: str) -> str:
     spec, state (JobState), priority, tiles_total, tiles_done (tiles whose last pass is
     stored), passes_done, samples_done, warnings (JSON list), error (set when failed),
     created_at / started_at / finished_at (unix seconds), render_seconds, retention
-    (seconds the job is kept after it ends), resume_state (while paused)."""
+    (seconds the job is kept after it ends), resume_state (while paused), owner (the
+    API user who submitted it; absent on jobs from before owners)."""
     return f"{PREFIX}:job:{job_id}"
 
 
@@ -147,6 +148,12 @@ def job_keys(job_id: str) -> list[str]:
     return [job_key(job_id), job_queue_key(job_id), job_tiles_key(job_id),
             job_events_key(job_id), job_log_key(job_id), job_failures_key(job_id),
             job_blocklist_key(job_id), job_passes_key(job_id), job_image_key(job_id, "exr"), job_image_key(job_id, "png")]
+
+
+def user_jobs_key(user: str) -> str:
+    """Sorted set: ids of the jobs `user` submitted -> creation time (the job hash's
+    `owner` field says the same; entries of expired jobs are dropped when listed)."""
+    return f"{PREFIX}:user:{user}:jobs"
 
 
 def worker_key(worker_name: str) -> str:

@@ -1,19 +1,21 @@
-"""Bearer-token authentication (tokens from Settings.api_tokens)."""
+"""Bearer-token authentication: every request but /healthz is made by a User
+(tessera_service.users) named by its token."""
 from __future__ import annotations
 
-import hmac
 import ipaddress
 
 from fastapi import Depends, HTTPException, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
+from .users import LOCAL_USER, User, UserDirectory
+
 _bearer = HTTPBearer(auto_error=False, description="a token from TESSERA_API_TOKENS")
 
 
-def require_token(request: Request,
-                  credentials: HTTPAuthorizationCredentials | None = Depends(_bearer)) -> None:
-    tokens: list[str] = request.app.state.settings.api_tokens
-    if not tokens:
+def require_user(request: Request,
+                 credentials: HTTPAuthorizationCredentials | None = Depends(_bearer)) -> User:
+    users: UserDirectory = request.app.state.users
+    if not users:
         # Authentication is off, which is allowed only on loopback. `tessera serve` refuses
         # to bind elsewhere without tokens; this also covers any other launcher (a bare
         # `uvicorn --host 0.0.0.0`): a request that reached us through a non-loopback
@@ -23,16 +25,16 @@ def require_token(request: Request,
             raise HTTPException(403, f"this server has no API tokens, so it only answers on "
                                      f"loopback addresses, and this request arrived on {local}: "
                                      f"set TESSERA_API_TOKENS to serve other hosts")
-        return
+        return User(LOCAL_USER, admin=True)
     if credentials is None or credentials.scheme.lower() != "bearer":
         raise HTTPException(401, "this server requires a bearer token: send "
                                  "'Authorization: Bearer <token>'",
                             headers={"WWW-Authenticate": "Bearer"})
-    given = credentials.credentials.encode()
-    # Compare against every token in constant time, so timing reveals nothing.
-    if not any(hmac.compare_digest(given, t.encode()) for t in tokens):
+    user = users.authenticate(credentials.credentials)
+    if user is None:
         raise HTTPException(401, "the bearer token is not valid",
                             headers={"WWW-Authenticate": "Bearer error=\"invalid_token\""})
+    return user
 
 
 def is_loopback(host: str) -> bool:

@@ -18,8 +18,12 @@ class Settings(BaseSettings):
         description="Redis holding the queue, scenes, jobs and results (also read from REDIS_URL)")
     api_tokens: Annotated[list[str], NoDecode] = Field(
         default_factory=list,
-        description="bearer tokens accepted by the API, comma-separated; empty: no "
-                    "authentication (allowed only on a loopback address)")
+        description="the API's users and their bearer tokens, comma-separated `user:token` "
+                    "entries (a user may have several; a bare `token` belongs to the user "
+                    "`default`); empty: no authentication (allowed only on a loopback address)")
+    api_admins: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description="comma-separated user names that see and control every user's jobs")
     max_upload_bytes: int = Field(default=256 * MiB, ge=1, description="largest accepted scene file")
     preflight_timeout: float = Field(default=60.0, gt=0,
                                      description="seconds the scene inspection may take")
@@ -40,7 +44,7 @@ class Settings(BaseSettings):
         description="/healthz reports degraded when queued or running jobs have shown no "
                     "progress for this long")
 
-    @field_validator("api_tokens", mode="before")
+    @field_validator("api_tokens", "api_admins", mode="before")
     @classmethod
     def _split_tokens(cls, value):
         if isinstance(value, str):

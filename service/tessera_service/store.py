@@ -25,6 +25,7 @@ class Job:
     render_seconds: float
     warnings: list[str]
     error: str | None
+    owner: str | None = None
 
     @property
     def final(self) -> bool:
@@ -91,10 +92,11 @@ class JobStore:
         self.redis.set(protocol.preflight_key(scene_hash), json.dumps(info), ex=ttl)
 
     # ------------------------------------------------------------------ jobs
-    def create_job(self, spec: JobSpec, warnings: list[str]) -> int:
-        """Creates the job, its queue with the first pass of every tile, and its place in
-        the schedule, in one transaction: workers never see a task whose job does not
-        exist, nor a job with part of its tiles."""
+    def create_job(self, spec: JobSpec, warnings: list[str], owner: str | None = None) -> int:
+        """Creates the job (owned by the API user `owner`; None: by nobody, so that only
+        admins see it), its queue with the first pass
+        of every tile, and its place in the schedule, in one transaction: workers never see
+        a task whose job does not exist, nor a job with part of its tiles."""
         tasks = protocol.job_tasks(spec)
         now = time.time()
         queue = protocol.job_queue_key(spec.job_id)
@@ -110,8 +112,11 @@ class JobStore:
                 "render_seconds": 0,
                 "retention": int(self.retention),
                 "warnings": json.dumps(warnings),
+                **({"owner": owner} if owner is not None else {}),
             })
             pipe.zadd(protocol.JOB_INDEX, {spec.job_id: now})
+            if owner is not None:
+                pipe.zadd(protocol.user_jobs_key(owner), {spec.job_id: now})
             pipe.sadd(protocol.ACTIVE, spec.job_id)
             pipe.xgroup_create(queue, protocol.WORKER_GROUP, id="0", mkstream=True)
             for task in tasks:
@@ -129,14 +134,20 @@ class JobStore:
         fields = self.redis.hgetall(protocol.job_key(job_id))
         return _job(fields) if fields else None
 
-    def list(self, state: str | None = None, limit: int = 100, offset: int = 0) -> list[Job]:
-        """Jobs newest first, optionally only those in `state`. Drops index entries of jobs
-        that have expired."""
+    def owner(self, job_id: str) -> str | None:
+        raw = self.redis.hget(protocol.job_key(job_id), "owner")
+        return raw.decode() if raw is not None else None
+
+    def list(self, state: str | None = None, limit: int = 100, offset: int = 0,
+             owner: str | None = None) -> list[Job]:
+        """Jobs newest first, optionally only those in `state`, only those of `owner`
+        (None: everyone's). Drops index entries of jobs that have expired."""
+        index = protocol.user_jobs_key(owner) if owner is not None else protocol.JOB_INDEX
         out: list[Job] = []
         start = 0
         batch = 200
         while len(out) < offset + limit:
-            ids = self.redis.zrevrange(protocol.JOB_INDEX, start, start + batch - 1)
+            ids = self.redis.zrevrange(index, start, start + batch - 1)
             if not ids:
                 break
             start += batch
@@ -146,7 +157,7 @@ class JobStore:
                 rows = pipe.execute()
             gone = [job_id for job_id, fields in zip(ids, rows) if not fields]
             if gone:
-                self.redis.zrem(protocol.JOB_INDEX, *gone)
+                self.redis.zrem(index, *gone)
                 start -= len(gone)
             for fields in rows:
                 if fields:
@@ -257,6 +268,7 @@ def _job(fields: dict[bytes, bytes]) -> Job:
         render_seconds=float(f.get("render_seconds") or 0.0),
         warnings=json.loads(f.get("warnings") or "[]"),
         error=f.get("error") or None,
+        owner=f.get("owner"),
     )
 
 

@@ -3,27 +3,42 @@ from __future__ import annotations
 
 from datetime import datetime, timezone
 
-from fastapi import APIRouter, Request, Response
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, Request, Response
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 
+from tessera import protocol
+
+from ..auth import require_user
 from ..schemas import WorkerList, WorkerStatus
 from ..store import JobStore
+from ..users import User
 
 router = APIRouter(tags=["farm"])
 
 
 @router.get("/workers", response_model=WorkerList)
-def list_workers(request: Request) -> WorkerList:
-    """Live workers (those whose heartbeat has not expired)."""
+def list_workers(request: Request, user: Annotated[User, Depends(require_user)]) -> WorkerList:
+    """Live workers (those whose heartbeat has not expired). What a worker is rendering is
+    shown only for your own jobs (an admin: for every job)."""
     store: JobStore = request.app.state.store
 
     def when(t: float) -> datetime:
         return datetime.fromtimestamp(t, timezone.utc)
 
+    def current(task: str) -> str | None:
+        if not task:
+            return None
+        job_id = task.split("/", 1)[0]
+        if user.admin or (protocol.is_job_id(job_id) and user.may_see(store.owner(job_id))):
+            return task
+        return "another user's job"
+
     return WorkerList(workers=[
         WorkerStatus(name=w.name, host=w.host, pid=w.pid, started_at=when(w.started_at),
-                     last_heartbeat=when(w.beat_at), current=w.current or None,
+                     last_heartbeat=when(w.beat_at), current=current(w.current),
                      tiles_done=w.tiles_done, failures=w.failures)
         for w in store.workers()])
 
