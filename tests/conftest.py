@@ -92,7 +92,11 @@ def start_api(redis_url: str, log_dir: Path, host: str = "127.0.0.1",
               **settings: str) -> tuple[Process, str]:
     """uvicorn serving tessera_service on a free port; settings become TESSERA_* variables.
     `cmd_prefix` wraps the command (e.g. ip netns exec NS); `public_host` is where this
-    process reaches it (default: host). Returns once /healthz answers."""
+    process reaches it (default: host). Returns once /healthz answers. Without api_tokens
+    the API serves loopback requests anonymously, as `tessera serve` does locally (unless
+    allow_anonymous_loopback says otherwise)."""
+    if "api_tokens" not in settings:
+        settings.setdefault("allow_anonymous_loopback", "1")
     port = free_port()
     env = clean_env(TESSERA_REDIS_URL=redis_url,
                     **{f"TESSERA_{k.upper()}": str(v) for k, v in settings.items()})

@@ -16,7 +16,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 import tessera
 from tessera.process import remove_orphaned_tempdirs
 
-from .auth import require_user
+from .auth import AuthGate, parse_networks, require_user
 from .routers import compare, farm, jobs
 from .schemas import Health, Problem
 from .settings import Settings
@@ -32,6 +32,10 @@ FORM_OVERHEAD = 1 << 20
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
     users = UserDirectory(settings.api_tokens, settings.api_admins)  # a bad entry stops here
+    trusted_proxies = parse_networks(settings.trusted_proxies)
+    if not users and not settings.allow_anonymous_loopback:
+        log.error("no API tokens (TESSERA_API_TOKENS) and anonymous loopback access is off "
+                  "(TESSERA_ALLOW_ANONYMOUS_LOOPBACK): every request but /healthz is refused")
     store = JobStore.from_url(settings.redis_url, retention=settings.job_retention,
                               scene_retention=settings.scene_retention)
     aredis = redis.asyncio.Redis.from_url(settings.redis_url, socket_connect_timeout=5,
@@ -67,6 +71,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(UploadLimit, path="/jobs",
                        max_bytes=settings.max_upload_bytes + FORM_OVERHEAD,
                        file_limit=settings.max_upload_bytes)
+    # Added last, so it runs first: nothing reads a body before the user is known.
+    app.add_middleware(AuthGate, users=users,
+                       allow_anonymous_loopback=settings.allow_anonymous_loopback,
+                       trusted_proxies=trusted_proxies)
 
     @app.get("/healthz", response_model=Health, tags=["health"])
     def healthz() -> JSONResponse:

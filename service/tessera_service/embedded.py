@@ -31,8 +31,13 @@ WORKER_STOP_TIMEOUT = 30.0  # seconds a worker may take to finish its tile on sh
 
 def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
           redis_url: str | None = None, *, worker_threads: int = 1,
-          log_level: str = "info") -> None:
-    """Runs the API on host:port until interrupted. See the module docstring."""
+          log_level: str = "info", insecure_local: bool | None = None) -> None:
+    """Runs the API on host:port until interrupted. See the module docstring.
+
+    `insecure_local`: serve this machine's users without tokens when no TESSERA_API_TOKENS
+    are set (Settings.allow_anonymous_loopback). None: yes for the embedded farm on a
+    loopback address (a private single-machine farm), no when serving an existing Redis
+    (a deployment, which needs tokens or this set explicitly)."""
     import uvicorn
 
     from .app import create_app
@@ -45,10 +50,18 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
 
     phase = "starting"
     embedded = redis_url is None
-    if not is_loopback(host) and not Settings().api_tokens:
+    environment = Settings()
+    if not is_loopback(host) and not environment.api_tokens:
         raise SystemExit(f"tessera serve: refusing to listen on {host} without authentication: "
-                         "set TESSERA_API_TOKENS (comma-separated bearer tokens), or bind to "
+                         "set TESSERA_API_TOKENS (comma-separated user:token pairs), or bind to "
                          "127.0.0.1")
+    if insecure_local is None:
+        insecure_local = embedded and is_loopback(host)
+    anonymous = {}
+    if insecure_local and not environment.api_tokens:
+        anonymous = {"allow_anonymous_loopback": True}  # said here, never inferred later
+        log.warning("no API tokens: serving requests from this machine only, without "
+                    "authentication (--insecure-local)")
 
     def on_signal(signum, frame):
         if phase != "running":
@@ -68,8 +81,12 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
                 stack.callback(supervisor.stop, WORKER_STOP_TIMEOUT)
                 supervisor.start()
                 log.warning("started %d local worker(s)", workers)
-            app = create_app(Settings(redis_url=redis_url))  # tokens etc. from the environment
-            server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level=log_level))
+            # Tokens etc. come from the environment. Uvicorn's own proxy-header handling
+            # is off: it would replace the peer address with a header's value for any
+            # request from 127.0.0.1, and AuthGate decides whom to believe.
+            app = create_app(Settings(redis_url=redis_url, **anonymous))
+            server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level=log_level,
+                                                   proxy_headers=False))
             phase = "running"
             server.run()
             phase = "stopping"

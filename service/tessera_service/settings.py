@@ -24,6 +24,16 @@ class Settings(BaseSettings):
     api_admins: Annotated[list[str], NoDecode] = Field(
         default_factory=list,
         description="comma-separated user names that see and control every user's jobs")
+    allow_anonymous_loopback: bool = Field(
+        default=False,
+        description="without api_tokens, serve requests whose both ends are loopback "
+                    "addresses (and that no proxy forwarded from elsewhere) without a token; "
+                    "off: a server without tokens answers every request 401")
+    trusted_proxies: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description="comma-separated addresses or CIDR networks of reverse proxies whose "
+                    "Forwarded / X-Forwarded-For headers are believed; from any other peer "
+                    "those headers make a request's origin unknown")
     max_upload_bytes: int = Field(default=256 * MiB, ge=1, description="largest accepted scene file")
     preflight_timeout: float = Field(default=60.0, gt=0,
                                      description="seconds the scene inspection may take")
@@ -44,7 +54,7 @@ class Settings(BaseSettings):
         description="/healthz reports degraded when queued or running jobs have shown no "
                     "progress for this long")
 
-    @field_validator("api_tokens", "api_admins", mode="before")
+    @field_validator("api_tokens", "api_admins", "trusted_proxies", mode="before")
     @classmethod
     def _split_tokens(cls, value):
         if isinstance(value, str):
