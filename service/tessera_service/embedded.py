@@ -23,6 +23,8 @@ import redis
 
 from tessera.process import die_with_parent
 
+from .redis_acl import API_USER, WORKER_USER, Credentials, acl_file
+
 log = logging.getLogger("tessera.serve")
 
 WORKER_COMMAND = [sys.executable, "-m", "tessera", "worker"]
@@ -72,11 +74,13 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
         with ExitStack() as stack:
             if embedded:
                 tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="tessera-serve-"))
-                local = stack.enter_context(redis_server(tmp))
+                # Password-protected even on loopback: other users of this machine reach
+                # 127.0.0.1 too.
+                local = stack.enter_context(redis_server(tmp, credentials=Credentials.generate()))
                 redis_url = local.url
-                log.warning("started a private redis-server at %s (nothing is persisted)",
-                            redis_url)
-                url = redis_url
+                log.warning("started a private redis-server on 127.0.0.1:%d (ACL users %s and "
+                            "%s; nothing is persisted)", local.port, API_USER, WORKER_USER)
+                url = local.worker_url
                 supervisor = WorkerSupervisor(lambda: start_worker(url, threads=worker_threads), workers)
                 stack.callback(supervisor.stop, WORKER_STOP_TIMEOUT)
                 supervisor.start()
@@ -102,16 +106,21 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
 @dataclass
 class LocalRedis:
     process: subprocess.Popen
-    url: str
+    url: str          # the API's (with credentials: as the API user)
+    port: int
+    worker_url: str   # the workers' (with credentials: as the worker user)
 
 
 @contextmanager
 def redis_server(workdir: str, port: int | None = None, timeout: float = 10.0, *,
-                 appendonly: bool = False, bind: str = "127.0.0.1", netns: str | None = None):
+                 appendonly: bool = False, bind: str = "127.0.0.1", netns: str | None = None,
+                 credentials: Credentials | None = None):
     """A redis-server on `bind` (default: a free port on 127.0.0.1) for the block. Without
     `appendonly` nothing is persisted; with it, an append-only file in workdir is fsynced
     on every write (as deploy/redis.conf does), so a restart in the same workdir resumes
-    exactly. `netns`: run it inside that network namespace (ip netns exec)."""
+    exactly. `netns`: run it inside that network namespace (ip netns exec). `credentials`:
+    the farm's ACL users (redis_acl) with these passwords, the default user off; without,
+    anyone who reaches the port may do anything (for tests)."""
     exe = shutil.which("redis-server")
     if exe is None:
         raise RuntimeError("redis-server is not installed (apt-get install redis-server), "
@@ -121,12 +130,23 @@ def redis_server(workdir: str, port: int | None = None, timeout: float = 10.0, *
     persistence = (["--appendonly", "yes", "--appendfsync", "always"] if appendonly
                    else ["--appendonly", "no"])
     prefix = ["ip", "netns", "exec", netns] if netns else []
+    if credentials is not None:
+        aclfile = os.path.join(workdir, "users.acl")
+        # Passwords go in a file only we can read, never on a command line (ps shows those).
+        fd = os.open(aclfile, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w") as f:
+            f.write(acl_file(credentials.api_password, credentials.worker_password))
+        access = ["--aclfile", aclfile, "--protected-mode", "yes"]
+        url = credentials.url(API_USER, bind, port)
+        worker_url = credentials.url(WORKER_USER, bind, port)
+    else:
+        access = ["--protected-mode", "no"]
+        url = worker_url = f"redis://{bind}:{port}/0"
     proc = subprocess.Popen(
         [*prefix, exe, "--port", str(port), "--bind", bind, "--save", "", *persistence,
-         "--protected-mode", "no", "--dir", workdir, "--logfile", logfile, "--daemonize", "no"],
+         *access, "--dir", workdir, "--logfile", logfile, "--daemonize", "no"],
         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
         start_new_session=True, preexec_fn=die_with_parent)
-    url = f"redis://{bind}:{port}/0"
     try:
         client = redis.Redis.from_url(url, socket_connect_timeout=1)
         deadline = time.monotonic() + timeout
@@ -143,7 +163,7 @@ def redis_server(workdir: str, port: int | None = None, timeout: float = 10.0, *
                                        + _tail(logfile)) from None
                 time.sleep(0.05)
         client.close()
-        yield LocalRedis(proc, url)
+        yield LocalRedis(proc, url, port, worker_url)
     finally:
         stop_processes([proc], 10.0)
 

@@ -1,0 +1,66 @@
+"""The Redis users of a farm: one for the API, one for the workers, each allowed only the
+commands and keys it needs; the `default` user is off, so a connection without a password
+can do nothing. Used by the embedded Redis (embedded.redis_server) and written out as
+deploy/users.acl (tests/test_redis_acl.py checks that the two agree).
+
+Commands: the data-type and scripting commands the farm uses, without anything Redis
+calls dangerous or admin (FLUSHALL, FLUSHDB, CONFIG, KEYS, DEBUG, SHUTDOWN, MONITOR, ACL,
+MODULE, REPLICAOF, CLIENT KILL, INFO ...), without functions (FUNCTION LOAD would store
+code) and without the key-listing commands (SCAN, RANDOMKEY), which ignore key patterns.
+
+Keys: the API reaches everything under the `tessera:` prefix. A worker reads scenes but
+cannot write them, and never touches pre-flight results, the job index or the per-user
+indexes: a compromised render host cannot mark a hostile scene as inspected nor swap
+another user's scene. A new family of keys that workers write must be added here.
+"""
+from __future__ import annotations
+
+import secrets
+from dataclasses import dataclass
+
+from tessera import protocol
+
+API_USER = "tessera-api"
+WORKER_USER = "tessera-worker"
+
+COMMANDS = ("-@all +@read +@write +@keyspace +@hash +@list +@set +@sortedset +@stream "
+            "+@string +@transaction +@connection +@blocking +@scripting "
+            "-@dangerous -@admin -function -fcall -fcall_ro -script|flush -script|kill "
+            "-script|debug -scan -randomkey -swapdb -move")
+
+API_KEYS = (f"~{protocol.PREFIX}:*",)
+WORKER_KEYS = (
+    f"%R~{protocol.scene_key('*')}",
+    f"~{protocol.translated_scene_key('*', '*')}",
+    f"~{protocol.job_key('*')}",
+    f"~{protocol.worker_key('*')}",
+    *(f"~{key}" for key in (protocol.READY, protocol.ACTIVE, protocol.WORKERS, protocol.STATS,
+                            protocol.WAKE, protocol.DEAD_LETTER)),
+)
+
+
+def user_rule(name: str, password: str) -> str:
+    """One `user ...` line of an ACL file (redis.conf's aclfile)."""
+    keys = API_KEYS if name == API_USER else WORKER_KEYS
+    return " ".join(("user", name, "on", f">{password}", "resetkeys", *keys,
+                     "resetchannels", COMMANDS))
+
+
+def acl_file(api_password: str, worker_password: str) -> str:
+    return "\n".join(("user default off resetkeys resetchannels -@all",
+                      user_rule(API_USER, api_password),
+                      user_rule(WORKER_USER, worker_password))) + "\n"
+
+
+@dataclass(frozen=True)
+class Credentials:
+    api_password: str
+    worker_password: str
+
+    @classmethod
+    def generate(cls) -> "Credentials":
+        return cls(secrets.token_urlsafe(32), secrets.token_urlsafe(32))
+
+    def url(self, user: str, host: str, port: int, db: int = 0) -> str:
+        password = self.api_password if user == API_USER else self.worker_password
+        return f"redis://{user}:{password}@{host}:{port}/{db}"
