@@ -17,6 +17,7 @@ import tessera
 from tessera.process import remove_orphaned_tempdirs
 
 from .auth import AuthGate, parse_networks, require_user
+from .inspection_pool import InspectionPool
 from .routers import compare, farm, jobs
 from .schemas import Health, Problem
 from .settings import Settings
@@ -61,6 +62,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                               "admins (TESSERA_API_ADMINS) see all.")
     app.state.settings = settings
     app.state.users = users
+    app.state.inspections = InspectionPool(settings.preflight_concurrency, settings.preflight_queue,
+                                           wait_seconds=settings.preflight_timeout)
     app.state.store = store
     app.state.aredis = aredis  # for the event streams
     errors = {401: {"model": Problem, "description": "missing or invalid bearer token"},

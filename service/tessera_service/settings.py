@@ -39,7 +39,17 @@ class Settings(BaseSettings):
                                      description="seconds the scene inspection may take")
     preflight_memory_bytes: int = Field(
         default=8192 * MiB, ge=0,
-        description="address-space limit of the inspection process (0: no limit)")
+        description="address-space limit of the inspection process (0: no limit); it also "
+                    "caps the triangle limit (preflight.triangle_limit)")
+    max_triangles: int = Field(
+        default=16_000_000, ge=1,
+        description="most triangles a scene may have (the renderer's TESSERA_MAX_TRIANGLES, "
+                    "lowered to what preflight_memory_bytes can translate)")
+    preflight_concurrency: int = Field(
+        default=2, ge=1, description="scene inspections that may run at once (across scenes)")
+    preflight_queue: int = Field(
+        default=4, ge=0,
+        description="uploads that may wait for an inspection slot; beyond: 429 at once")
     max_tiles: int = Field(default=1 << 16, ge=1, description="most tiles one job may have")
     job_retention: float = Field(
         default=7 * DAY, ge=0,

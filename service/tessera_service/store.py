@@ -83,13 +83,33 @@ class JobStore:
         key = protocol.scene_key(scene_hash)
         return bool(self.redis.expire(key, ttl) if ttl else self.redis.exists(key))
 
-    def preflight(self, scene_hash: str) -> dict | None:
+    def preflight(self, scene_hash: str, limits: str) -> dict | None:
+        """The remembered pre-flight of a scene: its SceneInfo fields, or {"error": why} for
+        a scene that was refused under the same `limits` (a refusal under other limits is
+        forgotten: it may pass now)."""
         raw = self.redis.get(protocol.preflight_key(scene_hash))
-        return json.loads(raw) if raw else None
+        if not raw:
+            return None
+        value = json.loads(raw)
+        if "error" in value:
+            return value if value.get("limits") == limits else None
+        return value
 
     def remember_preflight(self, scene_hash: str, info: dict) -> None:
         ttl = int(self.scene_retention) if self.scene_retention > 0 else None
         self.redis.set(protocol.preflight_key(scene_hash), json.dumps(info), ex=ttl)
+
+    def remember_rejection(self, scene_hash: str, error: str, limits: str) -> None:
+        """Remembers for the scene retention that this file was refused, so that uploading
+        it again is refused at once, without another inspection."""
+        self.remember_preflight(scene_hash, {"error": error, "limits": limits})
+
+    def count_inspection(self, rejected: bool) -> None:
+        with self.redis.pipeline(transaction=False) as pipe:
+            pipe.hincrby(protocol.STATS, "inspections", 1)
+            if rejected:
+                pipe.hincrby(protocol.STATS, "inspections_rejected", 1)
+            pipe.execute()
 
     # ------------------------------------------------------------------ jobs
     def create_job(self, spec: JobSpec, warnings: list[str], owner: str | None = None) -> int:

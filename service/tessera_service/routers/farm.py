@@ -47,8 +47,8 @@ class FarmCollector:
     """Reads the farm's counters from Redis at scrape time, so that every API process
     reports the same numbers (the counters live in Redis, written by the workers)."""
 
-    def __init__(self, store: JobStore):
-        self.store = store
+    def __init__(self, store: JobStore, pool=None):
+        self.store, self.pool = store, pool
 
     def collect(self):
         depth = GaugeMetricFamily("tessera_queue_depth",
@@ -66,6 +66,17 @@ class FarmCollector:
                 ("tessera_tiles_poisoned", "poisoned", "Tiles that failed too often (job failed)"),
                 ("tessera_tiles_reclaimed", "reclaimed", "Tiles taken over from dead workers")):
             yield CounterMetricFamily(name, doc, value=stats.get(key, 0.0))
+        for name, key, doc in (
+                ("tessera_preflight_inspections", "inspections", "Scene inspections run (uploads "
+                                                                 "of a file seen before are not inspected)"),
+                ("tessera_preflight_rejections", "inspections_rejected", "Scene inspections that "
+                                                                         "refused the scene")):
+            yield CounterMetricFamily(name, doc, value=stats.get(key, 0.0))
+        if self.pool is not None:  # this API process's pool
+            yield GaugeMetricFamily("tessera_preflight_running", "Scene inspections running in "
+                                    "this API process", value=self.pool.running)
+            yield GaugeMetricFamily("tessera_preflight_waiting", "Uploads waiting for an "
+                                    "inspection slot in this API process", value=self.pool.waiting)
         workers = self.store.workers()
         yield GaugeMetricFamily("tessera_workers", "Live workers", value=len(workers))
         yield GaugeMetricFamily("tessera_workers_busy", "Workers rendering a tile",
@@ -77,5 +88,5 @@ class FarmCollector:
                              "description": "Prometheus text exposition format"}})
 def metrics(request: Request) -> Response:
     registry = CollectorRegistry(auto_describe=False)
-    registry.register(FarmCollector(request.app.state.store))
+    registry.register(FarmCollector(request.app.state.store, request.app.state.inspections))
     return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)

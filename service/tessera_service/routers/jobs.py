@@ -27,7 +27,8 @@ from tessera.protocol import FINAL_STATES, JobSpec, JobState, RenderSettings
 
 from ..auth import require_user
 from ..merge import MergeError, encode_image, merge_tiles
-from ..preflight import PreflightBroken, PreflightRejected, SceneInfo, inspect_scene
+from ..inspection_pool import InspectionPool, PoolFull
+from ..preflight import PreflightBroken, PreflightRejected, SceneInfo, inspect_scene, triangle_limit
 from ..schemas import JobCreated, JobList, JobLog, JobStatus
 from ..settings import Settings
 from ..store import Job, JobStore
@@ -51,7 +52,9 @@ def upload_too_large(limit: int) -> HTTPException:
 @router.post("", status_code=201, response_model=JobCreated,
              responses={400: {"description": "not a USD file"},
                         413: {"description": "file too large"},
-                        422: {"description": "invalid settings, or a scene the renderer rejects"}})
+                        422: {"description": "invalid settings, or a scene the renderer rejects"},
+                        429: {"description": "the server is inspecting as many scenes as it may; "
+                                             "retry after Retry-After seconds"}})
 def create_job(
     request: Request,
     response: Response,
@@ -98,20 +101,7 @@ def create_job(
     with tempfile.TemporaryDirectory(prefix=f"tessera-upload-{os.getpid()}-") as tmp:
         path = Path(tmp, protocol.scene_file_name(suffix))
         scene_hash = _save_upload(file, path, settings.max_upload_bytes)
-        # Concurrent uploads of one scene wait for a single inspection.
-        with _inspection_lock(scene_hash):
-            cached = store.preflight(scene_hash)
-            if cached is not None:  # this exact file was inspected before: skip the ~1 s child
-                info = SceneInfo(**cached)
-            else:
-                try:
-                    info = inspect_scene(str(path), timeout=settings.preflight_timeout,
-                                         memory_bytes=settings.preflight_memory_bytes)
-                except PreflightRejected as e:
-                    raise HTTPException(422, f"the scene cannot be rendered: {e}") from None
-                except PreflightBroken as e:
-                    raise HTTPException(500, str(e)) from None
-                store.remember_preflight(scene_hash, asdict(info))
+        info = _inspect(request, path, scene_hash)
         render = _render_settings(width=width if width is not None else info.width,
                                   height=height if height is not None else info.height, **params)
         tiles = math.ceil(render.width / render.tile_size) * math.ceil(render.height / render.tile_size)
@@ -264,6 +254,40 @@ def get_preview(job_id: str, request: Request, user: CurrentUser) -> Response:
 
 
 # ---------------------------------------------------------------------------- helpers
+def _inspect(request: Request, path: Path, scene_hash: str) -> SceneInfo:
+    """The scene's pre-flight: remembered (passed or refused) for this exact file, else
+    inspected in a slot of the bounded pool (429 when it is full)."""
+    settings: Settings = request.app.state.settings
+    store: JobStore = request.app.state.store
+    pool: InspectionPool = request.app.state.inspections
+    max_triangles = triangle_limit(settings.max_triangles, settings.preflight_memory_bytes)
+    limits = f"{max_triangles}/{settings.preflight_memory_bytes}/{settings.preflight_timeout:g}"
+    # Concurrent uploads of one scene wait for a single inspection.
+    with _inspection_lock(scene_hash):
+        cached = store.preflight(scene_hash, limits)
+        if cached is not None and "error" in cached:
+            raise HTTPException(422, f"the scene cannot be rendered: {cached['error']}")
+        if cached is not None:  # this exact file was inspected before: skip the child
+            return SceneInfo(**cached)
+        try:
+            with pool.slot():
+                try:
+                    info = inspect_scene(str(path), timeout=settings.preflight_timeout,
+                                         memory_bytes=settings.preflight_memory_bytes,
+                                         max_triangles=max_triangles)
+                except PreflightRejected as e:
+                    store.count_inspection(rejected=True)
+                    store.remember_rejection(scene_hash, str(e), limits)
+                    raise HTTPException(422, f"the scene cannot be rendered: {e}") from None
+                except PreflightBroken as e:  # the server's fault: not remembered
+                    raise HTTPException(500, str(e)) from None
+        except PoolFull as e:
+            raise HTTPException(429, str(e), headers={"Retry-After": "5"}) from None
+        store.count_inspection(rejected=False)
+        store.remember_preflight(scene_hash, asdict(info))
+        return info
+
+
 def _check_id(job_id: str) -> None:
     """A string that is not a job id names no job: 404, before any Redis key is built."""
     if not protocol.is_job_id(job_id):
