@@ -93,6 +93,7 @@ def test_the_worker_reads_scenes_but_writes_only_its_own_keys(worker_client, api
     assert api_client.get(PREFLIGHT) == b"{}"
 
 
+@pytest.mark.slow
 def test_a_farm_runs_every_job_kind_under_its_redis_users(acl_redis, tmp_path):
     """API and worker processes on the ACL'd Redis: fixed-spp, noise-target bdpt (lockstep
     passes), pause/resume, cancel, an image download (cached), events and /workers, with
