@@ -64,7 +64,8 @@ def scene_key(scene_hash: str) -> str:
 
 def preflight_key(scene_hash: str) -> str:
     """String: the pre-flight inspection result (JSON) of a scene, so that a scene that was
-    already validated is not inspected again."""
+    already validated is not inspected again; for a refused scene {"error", "limits"}, so
+    that it is refused again at once (under the same limits). Only the API reads it."""
     return f"{PREFIX}:preflight:{scene_hash}"
 
 
