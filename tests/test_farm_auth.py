@@ -134,3 +134,27 @@ def test_an_unauthenticated_upload_is_refused_before_its_body_is_sent(redis_serv
         assert _upload_head(port, path, TOKEN, 200 << 20, True).startswith(b"HTTP/1.1 100 ")
     finally:
         api.stop()
+
+
+@pytest.mark.parametrize("server, client", [
+    (("testserver", 80), ("127.0.0.1", 5000)),    # an unparsable server address (was allowed)
+    (None, ("127.0.0.1", 5000)),                  # no server address (a Unix socket)
+    (("127.0.0.1", 8000), None),                  # no peer address
+    (("127.0.0.1", 8000), ("192.0.2.9", 5000)),   # a remote peer on a loopback listener (NAT)
+    (("::ffff:10.0.0.1", 8000), ("127.0.0.1", 5000)),
+])
+def test_anonymous_access_needs_two_loopback_addresses(server, client):
+    """The gate itself, on the scopes a server may hand it: whatever is not provably
+    loopback at both ends is refused (control: both loopback is served)."""
+    from fastapi import HTTPException
+
+    from tessera_service.auth import AuthGate
+    from tessera_service.users import UserDirectory
+
+    gate = AuthGate(None, UserDirectory([]), allow_anonymous_loopback=True, trusted_proxies=[])
+    with pytest.raises(HTTPException) as refused:
+        gate.authenticate({"type": "http", "headers": [], "server": server, "client": client})
+    assert refused.value.status_code == 403
+    served = gate.authenticate({"type": "http", "headers": [], "server": ("127.0.0.1", 8000),
+                                "client": ("::1", 5000)})
+    assert served.name == "local" and served.admin

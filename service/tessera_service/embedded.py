@@ -18,6 +18,7 @@ import threading
 import time
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
+from urllib.parse import urlsplit
 
 import redis
 
@@ -57,6 +58,9 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
         raise SystemExit(f"tessera serve: refusing to listen on {host} without authentication: "
                          "set TESSERA_API_TOKENS (comma-separated user:token pairs), or bind to "
                          "127.0.0.1")
+    if not embedded and urlsplit(redis_url).password is None:
+        log.warning("the Redis URL has no password: give Redis the farm's ACL users "
+                    "(deploy/users.acl) and use redis://%s:PASSWORD@HOST:PORT/0", API_USER)
     if insecure_local is None:
         insecure_local = embedded and is_loopback(host)
     anonymous = {}
