@@ -18,6 +18,7 @@ from tessera.process import remove_orphaned_tempdirs
 
 from .auth import AuthGate, parse_networks, require_user
 from .inspection_pool import InspectionPool
+from .redis_acl import redacted
 from .routers import compare, farm, jobs
 from .schemas import Health, Problem
 from .settings import Settings
@@ -49,7 +50,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             for path in remove_orphaned_tempdirs(kind):
                 log.warning("removed %s, left by an API process that was killed", path)
         if not store.ping():  # not fatal: /healthz reports it, requests retry
-            log.warning("redis at %s is not reachable yet", settings.redis_url)
+            log.warning("redis at %s is not reachable yet", redacted(settings.redis_url))
         yield
         store.redis.close()
         await aredis.aclose()

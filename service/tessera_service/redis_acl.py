@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import secrets
 from dataclasses import dataclass
+from urllib.parse import urlsplit, urlunsplit
 
 from tessera import protocol
 
@@ -64,3 +65,12 @@ class Credentials:
     def url(self, user: str, host: str, port: int, db: int = 0) -> str:
         password = self.api_password if user == API_USER else self.worker_password
         return f"redis://{user}:{password}@{host}:{port}/{db}"
+
+
+def redacted(url: str) -> str:
+    """The URL without its password, for logs."""
+    parts = urlsplit(url)
+    if parts.password is None:
+        return url
+    netloc = f"{parts.username or ''}:***@{parts.hostname}" + (f":{parts.port}" if parts.port else "")
+    return urlunsplit(parts._replace(netloc=netloc))
