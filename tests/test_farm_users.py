@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 
 import httpx
 import pytest
 
-from conftest import CORNELL, clean_env, start_api, start_worker, submit, wait_for_job
+from conftest import CORNELL, STARTUP_TIMEOUT, clean_env, start_api, start_worker, submit, wait_for_job
 from tessera_service.embedded import free_port
 
 TOKENS = {"alice": "tok-alice-1", "bob": "tok-bob-1", "root": "tok-root-1"}
@@ -111,3 +112,32 @@ def test_an_unusable_token_configuration_stops_the_api_at_start(tokens, admins, 
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode != 0
     assert message in proc.stderr, proc.stderr[-2000:]
+
+
+def test_workers_show_only_your_own_job_as_current(farm):
+    """/workers names the job a worker renders to its owner and to admins; to anyone else
+    it says only that it is another user's job (the id would leak otherwise)."""
+    clients, redis_url, log_dir = farm
+    alice, bob, root = clients["alice"], clients["bob"], clients["root"]
+    r = submit(alice, CORNELL, width=64, height=64, spp=4096, tile_size=8)  # minutes of work
+    assert r.status_code == 201, r.text
+    job = r.json()["id"]
+    worker = start_worker(redis_url, "users-w2", log_dir)
+    def until(what, client, condition):
+        # Between two tiles a heartbeat may say "idle": poll until the worker is seen busy.
+        deadline = time.monotonic() + STARTUP_TIMEOUT
+        while True:
+            workers = client.get("/workers").json()["workers"]
+            assert job not in str(workers) or client is not bob, workers  # never leaked
+            if workers and condition(workers[0]["current"] or ""):
+                return
+            assert worker.alive() and time.monotonic() < deadline, what + worker.log()
+            time.sleep(0.02)
+
+    try:
+        until("the admin sees the job", root, lambda current: current.startswith(job))
+        until("its owner sees it", alice, lambda current: current.startswith(job))
+        until("bob sees someone's", bob, lambda current: current == "another user's job")
+    finally:
+        root.delete(f"/jobs/{job}")
+        worker.stop()
