@@ -294,7 +294,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     serve(host=args.host, port=args.port, workers=args.workers,
           redis_url=args.redis_url or os.environ.get("REDIS_URL") or None,
-          worker_threads=args.worker_threads)
+          worker_threads=args.worker_threads, insecure_local=args.insecure_local)
     return 0
 
 
@@ -383,6 +383,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--workers", type=int, default=2, help="local workers in the embedded mode (default 2)")
     s.add_argument("--worker-threads", type=int, default=1, help="render threads per local worker (default 1)")
     s.add_argument("--redis-url", help="use this Redis instead of starting one (default: $REDIS_URL)")
+    s.add_argument("--insecure-local", action=argparse.BooleanOptionalAction, default=None,
+                   help="without TESSERA_API_TOKENS, serve requests from this machine without a "
+                        "token (default: yes for the embedded farm on 127.0.0.1, no with a "
+                        "Redis URL)")
     s.set_defaults(func=cmd_serve)
 
     from .bench import add_options as add_bench_options

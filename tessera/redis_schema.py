@@ -19,6 +19,8 @@ Job hash fields (`job_key`), all written by the service at creation unless noted
     warnings         JSON list of pre-flight warnings
     error            why the job failed (set when failed)
     resume_state     the state a paused job returns to
+    owner            the API user who submitted it (absent on jobs from before owners;
+                     see `user_jobs_key`)
     lockstep_tiles   tile passes stored by a lockstep job, in all passes: every multiple of
                      tiles_total completes a pass and queues its barrier (store_tile.lua)
     decided_pass     the last pass whose lockstep barrier was applied (decide_pass.lua);
@@ -87,7 +89,9 @@ def translated_field(blob_version: str) -> str:
 
 def preflight_key(scene_hash: str) -> str:
     """String: the pre-flight inspection result (JSON) of a scene, so that a scene that was
-    already validated is not inspected again (TTL: the scene retention)."""
+    already validated is not inspected again; for a refused scene {"error", "limits"}, so
+    that it is refused again at once (under the same limits). TTL: the scene retention.
+    Only the API reads it."""
     return f"{PREFIX}:preflight:{scene_hash}"
 
 
@@ -162,6 +166,12 @@ def job_script_keys(job_id: str, scene_hash: str) -> list[str]:
             job_log_key(job_id), job_failures_key(job_id), job_blocklist_key(job_id),
             job_passes_key(job_id), job_splats_key(job_id), READY, ACTIVE, WAKE, STATS,
             scene_key(scene_hash), scene_jobs_key(scene_hash)]
+
+
+def user_jobs_key(user: str) -> str:
+    """Sorted set: ids of the jobs `user` submitted -> creation time (the job hash's
+    `owner` field says the same; entries of expired jobs are dropped when listed)."""
+    return f"{PREFIX}:user:{user}:jobs"
 
 
 def worker_key(worker_name: str) -> str:

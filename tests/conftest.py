@@ -24,7 +24,7 @@ STARTUP_TIMEOUT = 30.0
 # (API, workers, Redis restarts, network namespaces), the bench, the fuzz campaign or
 # long statistical renders; a test elsewhere may carry @pytest.mark.slow itself.
 SLOW_MODULES = {"test_farm_e2e", "test_farm_lifecycle", "test_farm_resilience", "test_farm_netns",
-                "test_farm_openapi", "test_farm_storage", "test_bundles_farm", "test_bench", "test_fuzz", "test_caustic", "test_compare_integrators",
+                "test_farm_openapi", "test_farm_storage", "test_farm_auth", "test_farm_users", "test_bundles_farm", "test_bench", "test_fuzz", "test_caustic", "test_compare_integrators",
                 "test_integrators"}
 
 
@@ -94,7 +94,11 @@ def start_api(redis_url: str, log_dir: Path, host: str = "127.0.0.1",
               **settings: str) -> tuple[Process, str]:
     """uvicorn serving tessera_service on a free port; settings become TESSERA_* variables.
     `cmd_prefix` wraps the command (e.g. ip netns exec NS); `public_host` is where this
-    process reaches it (default: host). Returns once /healthz answers."""
+    process reaches it (default: host). Returns once /healthz answers. Without api_tokens
+    the API serves loopback requests anonymously, as `tessera serve` does locally (unless
+    allow_anonymous_loopback says otherwise)."""
+    if "api_tokens" not in settings:
+        settings.setdefault("allow_anonymous_loopback", "1")
     port = free_port()
     env = clean_env(TESSERA_REDIS_URL=redis_url,
                     **{f"TESSERA_{k.upper()}": str(v) for k, v in settings.items()})

@@ -50,7 +50,9 @@ class Limits:
     unpacked_bytes: int = _env_int("TESSERA_MAX_UNPACKED_BYTES", 2 << 30)
     files: int = _env_int("TESSERA_MAX_FILES", 20_000)
     prims: int = _env_int("TESSERA_MAX_PRIMS", 2_000_000)
-    triangles: int = _env_int("TESSERA_MAX_TRIANGLES", 60_000_000)
+    # 16 M: what the service's pre-flight can translate in its default 8 GiB (about
+    # 300 bytes a triangle; tessera_service.preflight.triangle_limit).
+    triangles: int = _env_int("TESSERA_MAX_TRIANGLES", 16_000_000)
     texture_pixels: int = _env_int("TESSERA_MAX_TEXTURE_PIXELS", 16384 * 16384)
     # compressed -> uncompressed ratio above which one zip member is called a bomb
     compression_ratio: int = _env_int("TESSERA_MAX_COMPRESSION_RATIO", 200)

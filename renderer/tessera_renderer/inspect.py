@@ -7,11 +7,22 @@ Prints one JSON object: {"ok": true, "width", "height", "warnings", "triangles",
 render with default lighting off (the job setting default_light=false),
 and exits 0, or {"ok": false, "error": "..."} and exits 2. A crash of the USD parser takes
 only this process with it.
+
+Before anything is translated, the census (census.py) counts what the scene declares from
+its face counts alone, under an address-space limit of CENSUS_HEADROOM above what the
+process already uses (raised again to the parent's limit afterwards): a scene over the
+triangle limit is refused in about a second at a few hundred MB, instead of being built.
 """
 from __future__ import annotations
 
 import json
+import resource
 import sys
+from contextlib import contextmanager
+
+# Room the census may allocate beyond the opened stage: the largest faceVertexCounts it
+# accepts (4 bytes a face, faces <= the triangle limit) and numpy's temporaries.
+CENSUS_HEADROOM = 512 << 20
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -19,13 +30,29 @@ def main(argv: list[str] | None = None) -> int:
     if len(argv) != 1:
         print(json.dumps({"ok": False, "error": "usage: python -m tessera_renderer.inspect FILE"}))
         return 2
-    from . import SceneError, load_scene
+    from . import Scene, SceneError
+    from .bundle import open_bundle, open_stage
+    from .census import take_census
+    from .usd_scene import translate_stage
 
     try:
-        scene = load_scene(argv[0])
+        bundle = open_bundle(argv[0])
+        warnings = list(bundle.warnings)
+        stage = open_stage(bundle)  # kept open: the translation reuses its layers
+        try:
+            with _address_space(CENSUS_HEADROOM + 8 * bundle.limits.triangles):
+                take_census(stage, bundle.limits)
+        except MemoryError:
+            raise SceneError("the scene's face counts are too large to count within the "
+                             f"pre-flight's memory (triangle limit {bundle.limits.triangles})") from None
+        bundle.warnings[:] = warnings  # translate_stage opens the stage again and adds its own
+        scene = Scene(translate_stage(argv[0], bundle=bundle, instancing="auto"))
+        del stage
     except SceneError as exc:
         print(json.dumps({"ok": False, "error": str(exc)}))
         return 2
+    except MemoryError:
+        raise  # the parent reports it as running out of memory, with its limit
     except Exception as exc:  # a parser bug is still the file's fault to the user
         print(json.dumps({"ok": False, "error": f"cannot translate the scene: {type(exc).__name__}: {exc}"}))
         return 2
@@ -35,6 +62,36 @@ def main(argv: list[str] | None = None) -> int:
         info["unlit_warnings"] = scene.unlit_warnings
     print(json.dumps(info))
     return 0
+
+
+@contextmanager
+def _address_space(extra: int):
+    """Lowers the soft RLIMIT_AS to `extra` bytes above the current size for the block
+    (never above the hard limit), then restores it. Linux only; elsewhere a no-op."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    size = _vm_size()
+    if size is None:
+        yield
+        return
+    cap = size + extra
+    if hard != resource.RLIM_INFINITY:
+        cap = min(cap, hard)
+    resource.setrlimit(resource.RLIMIT_AS, (cap, hard))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+
+
+def _vm_size() -> int | None:
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmSize:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
 
 
 if __name__ == "__main__":

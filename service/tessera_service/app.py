@@ -16,11 +16,14 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 import tessera
 from tessera.process import remove_orphaned_tempdirs
 
-from .auth import require_token
+from .auth import AuthGate, parse_networks, require_user
+from .inspection_pool import InspectionPool
+from .redis_acl import redacted
 from .routers import compare, farm, jobs
 from .schemas import Health, Problem
 from .settings import Settings
 from .store import JobStore
+from .users import UserDirectory
 
 log = logging.getLogger("tessera.service")
 
@@ -30,6 +33,11 @@ FORM_OVERHEAD = 1 << 20
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
+    users = UserDirectory(settings.api_tokens, settings.api_admins)  # a bad entry stops here
+    trusted_proxies = parse_networks(settings.trusted_proxies)
+    if not users and not settings.allow_anonymous_loopback:
+        log.error("no API tokens (TESSERA_API_TOKENS) and anonymous loopback access is off "
+                  "(TESSERA_ALLOW_ANONYMOUS_LOOPBACK): every request but /healthz is refused")
     store = JobStore.from_url(settings.redis_url, retention=settings.job_retention,
                               scene_retention=settings.scene_retention)
     aredis = redis.asyncio.Redis.from_url(settings.redis_url, socket_connect_timeout=5,
@@ -42,7 +50,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             for path in remove_orphaned_tempdirs(kind):
                 log.warning("removed %s, left by an API process that was killed", path)
         if not store.ping():  # not fatal: /healthz reports it, requests retry
-            log.warning("redis at %s is not reachable yet", settings.redis_url)
+            log.warning("redis at %s is not reachable yet", redacted(settings.redis_url))
         yield
         store.redis.close()
         await aredis.aclose()
@@ -50,18 +58,27 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app = FastAPI(title="Tessera", version=tessera.__version__, lifespan=lifespan,
                   description="Render farm: submit a USD scene, get an EXR. Every endpoint "
                               "but /healthz needs `Authorization: Bearer <token>` when the "
-                              "server is configured with tokens (TESSERA_API_TOKENS).")
+                              "server is configured with tokens (TESSERA_API_TOKENS). A token "
+                              "names a user, who sees and controls only their own jobs; "
+                              "admins (TESSERA_API_ADMINS) see all.")
     app.state.settings = settings
+    app.state.users = users
+    app.state.inspections = InspectionPool(settings.preflight_concurrency, settings.preflight_queue,
+                                           wait_seconds=settings.preflight_timeout)
     app.state.store = store
     app.state.aredis = aredis  # for the event streams
     errors = {401: {"model": Problem, "description": "missing or invalid bearer token"},
               503: {"model": Problem, "description": "the job store (redis) is unavailable"}}
-    app.include_router(jobs.router, dependencies=[Depends(require_token)], responses=errors)
-    app.include_router(farm.router, dependencies=[Depends(require_token)], responses=errors)
-    app.include_router(compare.router, dependencies=[Depends(require_token)], responses=errors)
+    app.include_router(jobs.router, dependencies=[Depends(require_user)], responses=errors)
+    app.include_router(farm.router, dependencies=[Depends(require_user)], responses=errors)
+    app.include_router(compare.router, dependencies=[Depends(require_user)], responses=errors)
     app.add_middleware(UploadLimit, path="/jobs",
                        max_bytes=settings.max_upload_bytes + FORM_OVERHEAD,
                        file_limit=settings.max_upload_bytes)
+    # Added last, so it runs first: nothing reads a body before the user is known.
+    app.add_middleware(AuthGate, users=users,
+                       allow_anonymous_loopback=settings.allow_anonymous_loopback,
+                       trusted_proxies=trusted_proxies)
 
     @app.get("/healthz", response_model=Health, tags=["health"])
     def healthz() -> JSONResponse:

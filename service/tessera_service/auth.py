@@ -1,53 +1,209 @@
-"""Bearer-token authentication (tokens from Settings.api_tokens)."""
+"""Bearer-token authentication, failing closed: every request but the public paths
+(/healthz, the API docs) is made by a User (tessera_service.users) named by its token.
+
+AuthGate decides before anything reads the request body, so an unauthenticated upload is
+refused after its headers (without it, FastAPI received a 200 MB body in full before the
+dependency said 401).
+
+A server without tokens answers nobody, unless Settings.allow_anonymous_loopback says so
+explicitly (`tessera serve` sets it for its embedded single-machine farm); even then only a
+request whose both ends are loopback addresses is served, and a request that carries
+Forwarded / X-Forwarded-For / X-Real-IP is taken to come from wherever those say, when the
+peer is a configured trusted proxy, and from elsewhere (refused) when it is not. A TLS
+proxy on the same host connects over loopback: inferring "local" from the socket alone
+served the world when the tokens were forgotten.
+"""
 from __future__ import annotations
 
-import hmac
 import ipaddress
+import logging
+import re
 
 from fastapi import Depends, HTTPException, Request
+from fastapi.responses import JSONResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from starlette.types import ASGIApp, Receive, Scope, Send
+
+from .users import LOCAL_USER, User, UserDirectory
+
+log = logging.getLogger("tessera.service.auth")
 
 _bearer = HTTPBearer(auto_error=False, description="a token from TESSERA_API_TOKENS")
+PUBLIC_PATHS = frozenset({"/healthz", "/docs", "/docs/oauth2-redirect", "/redoc", "/openapi.json"})
+SCOPE_KEY = "tessera.user"
+FORWARDING_HEADERS = (b"forwarded", b"x-forwarded-for", b"x-real-ip")
+
+Address = ipaddress.IPv4Address | ipaddress.IPv6Address
+Network = ipaddress.IPv4Network | ipaddress.IPv6Network
 
 
-def require_token(request: Request,
-                  credentials: HTTPAuthorizationCredentials | None = Depends(_bearer)) -> None:
-    tokens: list[str] = request.app.state.settings.api_tokens
-    if not tokens:
-        # Authentication is off, which is allowed only on loopback. `tessera serve` refuses
-        # to bind elsewhere without tokens; this also covers any other launcher (a bare
-        # `uvicorn --host 0.0.0.0`): a request that reached us through a non-loopback
-        # address is refused, whatever the server was told.
-        local = _local_address(request)
-        if local is not None and not local.is_loopback:
-            raise HTTPException(403, f"this server has no API tokens, so it only answers on "
-                                     f"loopback addresses, and this request arrived on {local}: "
-                                     f"set TESSERA_API_TOKENS to serve other hosts")
-        return
-    if credentials is None or credentials.scheme.lower() != "bearer":
+def require_user(request: Request,
+                 credentials: HTTPAuthorizationCredentials | None = Depends(_bearer)) -> User:
+    """The user AuthGate authenticated (`credentials` is declared only so that the OpenAPI
+    schema shows the bearer scheme)."""
+    user = request.scope.get(SCOPE_KEY)
+    if not isinstance(user, User):  # a route reached without the gate: refuse, never guess
         raise HTTPException(401, "this server requires a bearer token: send "
                                  "'Authorization: Bearer <token>'",
                             headers={"WWW-Authenticate": "Bearer"})
-    given = credentials.credentials.encode()
-    # Compare against every token in constant time, so timing reveals nothing.
-    if not any(hmac.compare_digest(given, t.encode()) for t in tokens):
-        raise HTTPException(401, "the bearer token is not valid",
-                            headers={"WWW-Authenticate": "Bearer error=\"invalid_token\""})
+    return user
+
+
+class AuthGate:
+    """ASGI middleware: authenticates every HTTP request outside PUBLIC_PATHS from its
+    headers alone and answers 401/403 without ever calling `receive`."""
+
+    def __init__(self, app: ASGIApp, users: UserDirectory, *, allow_anonymous_loopback: bool,
+                 trusted_proxies: list[Network]):
+        self.app, self.users = app, users
+        self.allow_anonymous_loopback = allow_anonymous_loopback
+        self.trusted_proxies = trusted_proxies
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        # Only HTTP is served (no websocket routes); require_user refuses anything that
+        # reaches a route without passing here.
+        if scope["type"] != "http" or scope["path"] in PUBLIC_PATHS:
+            await self.app(scope, receive, send)
+            return
+        try:
+            scope[SCOPE_KEY] = self.authenticate(scope)
+        except HTTPException as refused:
+            response = JSONResponse({"detail": refused.detail}, status_code=refused.status_code,
+                                    headers=refused.headers)
+            await response(scope, receive, send)
+            return
+        await self.app(scope, receive, send)
+
+    def authenticate(self, scope: Scope) -> User:
+        headers = _headers(scope)
+        if not self.users:
+            return self._anonymous(scope, headers)
+        scheme, _, token = headers.get(b"authorization", b"").decode("latin-1").partition(" ")
+        if scheme.lower() != "bearer" or not token.strip():
+            raise HTTPException(401, "this server requires a bearer token: send "
+                                     "'Authorization: Bearer <token>'",
+                                headers={"WWW-Authenticate": "Bearer"})
+        user = self.users.authenticate(token.strip())
+        if user is None:
+            raise HTTPException(401, "the bearer token is not valid",
+                                headers={"WWW-Authenticate": "Bearer error=\"invalid_token\""})
+        return user
+
+    def _anonymous(self, scope: Scope, headers: dict[bytes, bytes]) -> User:
+        if not self.allow_anonymous_loopback:
+            raise HTTPException(401, "this server has no API tokens, and anonymous access is "
+                                     "off: set TESSERA_API_TOKENS (user:token pairs), or "
+                                     "TESSERA_ALLOW_ANONYMOUS_LOOPBACK=1 for a server only "
+                                     "this machine's users reach",
+                                headers={"WWW-Authenticate": "Bearer"})
+        local = _address(scope.get("server"))
+        if local is None or not local.is_loopback:
+            raise HTTPException(403, f"this server has no API tokens, so it only answers on "
+                                     f"loopback addresses, and this request arrived on "
+                                     f"{_shown(scope.get('server'))}: set TESSERA_API_TOKENS "
+                                     f"to serve other hosts")
+        origin = self.client_address(scope, headers)
+        if origin is None or not origin.is_loopback:
+            raise HTTPException(403, f"this server has no API tokens, so it only answers "
+                                     f"requests from this machine, and this one came from "
+                                     f"{origin or 'an unknown address'} (through a proxy, or "
+                                     f"an untrusted one): set TESSERA_API_TOKENS")
+        return User(LOCAL_USER, admin=True)
+
+    def client_address(self, scope: Scope, headers: dict[bytes, bytes]) -> Address | None:
+        """Where the request came from: the peer, or, when the peer is a trusted proxy,
+        the nearest address in its forwarding headers that is not a trusted proxy. None
+        when unknown, including forwarding headers from an untrusted peer (a direct
+        client can write anything there; a proxy that is not trusted says nothing)."""
+        peer = _address(scope.get("client"))
+        forwarded = [h for h in FORWARDING_HEADERS if h in headers]
+        if not forwarded:
+            return peer
+        if peer is None or not self._trusted(peer) or len(forwarded) > 1:
+            return None  # (two kinds of forwarding header: which one is the proxy's?)
+        chain = _forwarding_chain(headers, forwarded[0])
+        if chain is None:  # present but unparsable ("unknown", obfuscated, garbage)
+            return None
+        for hop in reversed(chain):  # the right end was written by the proxy nearest us
+            if not self._trusted(hop):
+                return hop
+        return chain[0] if chain else None
+
+    def _trusted(self, address: Address) -> bool:
+        return any(address in network for network in self.trusted_proxies)
+
+
+def parse_networks(entries: list[str]) -> list[Network]:
+    """Trusted proxies as given in the settings: addresses or CIDR networks."""
+    networks = []
+    for entry in entries:
+        try:
+            networks.append(ipaddress.ip_network(entry, strict=False))
+        except ValueError:
+            raise ValueError(f"TESSERA_TRUSTED_PROXIES: {entry!r} is not an IP address or "
+                             f"network") from None
+    return networks
 
 
 def is_loopback(host: str) -> bool:
     return host in ("127.0.0.1", "::1", "localhost") or host.startswith("127.")
 
 
-def _local_address(request: Request) -> ipaddress.IPv4Address | ipaddress.IPv6Address | None:
-    """The address of our end of the connection; None for transports without one (a Unix
-    socket, an in-process test client), which no other host can reach."""
-    server = request.scope.get("server")
-    if not server:
+def _headers(scope: Scope) -> dict[bytes, bytes]:
+    """Header names -> values; repeated headers are joined with commas (RFC 9110), so
+    that a second X-Forwarded-For line cannot hide from the chain."""
+    out: dict[bytes, bytes] = {}
+    for name, value in scope.get("headers", ()):
+        name = name.lower()
+        out[name] = out[name] + b", " + value if name in out else value
+    return out
+
+
+def _address(endpoint) -> Address | None:
+    """An (host, port) pair's host as an IP address (IPv4-mapped IPv6 as IPv4); None for
+    anything else: a Unix socket, an in-process client, an unparsable host."""
+    if not endpoint:
         return None
+    return _ip(str(endpoint[0]))
+
+
+def _ip(text: str) -> Address | None:
     try:
-        address = ipaddress.ip_address(str(server[0]).split("%")[0])
+        address = ipaddress.ip_address(text.split("%")[0])
     except ValueError:
         return None
-    mapped = getattr(address, "ipv4_mapped", None)
-    return mapped or address
+    return getattr(address, "ipv4_mapped", None) or address
+
+
+def _shown(endpoint) -> str:
+    return str(endpoint[0]) if endpoint else "an unknown address"
+
+
+_FOR = re.compile(r'for=("?)([^";,]*)\1', re.IGNORECASE)
+
+
+def _forwarding_chain(headers: dict[bytes, bytes], name: bytes) -> list[Address] | None:
+    """The client addresses header `name` lists, nearest the client first; None if any
+    entry is not an IP address."""
+    value = headers[name].decode("latin-1")
+    chain: list[str] = []
+    if name == b"forwarded":
+        for element in value.split(","):
+            match = _FOR.search(element)
+            if match is None:
+                return None
+            chain.append(match.group(2))
+    else:
+        chain = value.split(",")
+    addresses = [_ip(_strip_port(hop)) for hop in chain]
+    return None if any(a is None for a in addresses) else addresses
+
+
+def _strip_port(hop: str) -> str:
+    """'[2001:db8::1]:4711' -> '2001:db8::1', '192.0.2.1:80' -> '192.0.2.1'."""
+    hop = hop.strip()
+    if hop.startswith("["):
+        return hop[1:].split("]", 1)[0]
+    if hop.count(":") == 1:
+        return hop.split(":", 1)[0]
+    return hop

@@ -18,10 +18,13 @@ import threading
 import time
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
+from urllib.parse import urlsplit
 
 import redis
 
 from tessera.process import die_with_parent
+
+from .redis_acl import API_USER, WORKER_USER, Credentials, acl_file
 
 log = logging.getLogger("tessera.serve")
 
@@ -31,8 +34,13 @@ WORKER_STOP_TIMEOUT = 30.0  # seconds a worker may take to finish its tile on sh
 
 def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
           redis_url: str | None = None, *, worker_threads: int = 1,
-          log_level: str = "info") -> None:
-    """Runs the API on host:port until interrupted. See the module docstring."""
+          log_level: str = "info", insecure_local: bool | None = None) -> None:
+    """Runs the API on host:port until interrupted. See the module docstring.
+
+    `insecure_local`: serve this machine's users without tokens when no TESSERA_API_TOKENS
+    are set (Settings.allow_anonymous_loopback). None: yes for the embedded farm on a
+    loopback address (a private single-machine farm), no when serving an existing Redis
+    (a deployment, which needs tokens or this set explicitly)."""
     import uvicorn
 
     from .app import create_app
@@ -45,10 +53,21 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
 
     phase = "starting"
     embedded = redis_url is None
-    if not is_loopback(host) and not Settings().api_tokens:
+    environment = Settings()
+    if not is_loopback(host) and not environment.api_tokens:
         raise SystemExit(f"tessera serve: refusing to listen on {host} without authentication: "
-                         "set TESSERA_API_TOKENS (comma-separated bearer tokens), or bind to "
+                         "set TESSERA_API_TOKENS (comma-separated user:token pairs), or bind to "
                          "127.0.0.1")
+    if not embedded and urlsplit(redis_url).password is None:
+        log.warning("the Redis URL has no password: give Redis the farm's ACL users "
+                    "(deploy/users.acl) and use redis://%s:PASSWORD@HOST:PORT/0", API_USER)
+    if insecure_local is None:
+        insecure_local = embedded and is_loopback(host)
+    anonymous = {}
+    if insecure_local and not environment.api_tokens:
+        anonymous = {"allow_anonymous_loopback": True}  # said here, never inferred later
+        log.warning("no API tokens: serving requests from this machine only, without "
+                    "authentication (--insecure-local)")
 
     def on_signal(signum, frame):
         if phase != "running":
@@ -59,17 +78,23 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
         with ExitStack() as stack:
             if embedded:
                 tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="tessera-serve-"))
-                local = stack.enter_context(redis_server(tmp))
+                # Password-protected even on loopback: other users of this machine reach
+                # 127.0.0.1 too.
+                local = stack.enter_context(redis_server(tmp, credentials=Credentials.generate()))
                 redis_url = local.url
-                log.warning("started a private redis-server at %s (nothing is persisted)",
-                            redis_url)
-                url = redis_url
+                log.warning("started a private redis-server on 127.0.0.1:%d (ACL users %s and "
+                            "%s; nothing is persisted)", local.port, API_USER, WORKER_USER)
+                url = local.worker_url
                 supervisor = WorkerSupervisor(lambda: start_worker(url, threads=worker_threads), workers)
                 stack.callback(supervisor.stop, WORKER_STOP_TIMEOUT)
                 supervisor.start()
                 log.warning("started %d local worker(s)", workers)
-            app = create_app(Settings(redis_url=redis_url))  # tokens etc. from the environment
-            server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level=log_level))
+            # Tokens etc. come from the environment. Uvicorn's own proxy-header handling
+            # is off: it would replace the peer address with a header's value for any
+            # request from 127.0.0.1, and AuthGate decides whom to believe.
+            app = create_app(Settings(redis_url=redis_url, **anonymous))
+            server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level=log_level,
+                                                   proxy_headers=False))
             phase = "running"
             server.run()
             phase = "stopping"
@@ -90,19 +115,23 @@ EMBEDDED_REDIS_MAXMEMORY = 2 << 30
 @dataclass
 class LocalRedis:
     process: subprocess.Popen
-    url: str
+    url: str          # the API's (with credentials: as the API user)
+    port: int
+    worker_url: str   # the workers' (with credentials: as the worker user)
 
 
 @contextmanager
 def redis_server(workdir: str, port: int | None = None, timeout: float = 10.0, *,
                  appendonly: bool = False, bind: str = "127.0.0.1", netns: str | None = None,
-                 maxmemory: int = EMBEDDED_REDIS_MAXMEMORY):
+                 maxmemory: int = EMBEDDED_REDIS_MAXMEMORY, credentials: Credentials | None = None):
     """A redis-server on `bind` (default: a free port on 127.0.0.1) for the block. Without
     `appendonly` nothing is persisted; with it, an append-only file in workdir is fsynced
     on every write (as deploy/redis.conf does), so a restart in the same workdir resumes
     exactly. `netns`: run it inside that network namespace (ip netns exec). `maxmemory`
     bytes with noeviction, as deploy/redis.conf: a full Redis refuses writes (workers
-    keep their tile and retry) and never drops accepted work."""
+    keep their tile and retry) and never drops accepted work. `credentials`: the farm's
+    ACL users (redis_acl) with these passwords, the default user off; without, anyone who
+    reaches the port may do anything (for tests)."""
     exe = shutil.which("redis-server")
     if exe is None:
         raise RuntimeError("redis-server is not installed (apt-get install redis-server), "
@@ -112,13 +141,24 @@ def redis_server(workdir: str, port: int | None = None, timeout: float = 10.0, *
     persistence = (["--appendonly", "yes", "--appendfsync", "always"] if appendonly
                    else ["--appendonly", "no"])
     prefix = ["ip", "netns", "exec", netns] if netns else []
+    if credentials is not None:
+        aclfile = os.path.join(workdir, "users.acl")
+        # Passwords go in a file only we can read, never on a command line (ps shows those).
+        fd = os.open(aclfile, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w") as f:
+            f.write(acl_file(credentials.api_password, credentials.worker_password))
+        access = ["--aclfile", aclfile, "--protected-mode", "yes"]
+        url = credentials.url(API_USER, bind, port)
+        worker_url = credentials.url(WORKER_USER, bind, port)
+    else:
+        access = ["--protected-mode", "no"]
+        url = worker_url = f"redis://{bind}:{port}/0"
     proc = subprocess.Popen(
         [*prefix, exe, "--port", str(port), "--bind", bind, "--save", "", *persistence,
          "--maxmemory", str(maxmemory), "--maxmemory-policy", "noeviction",
-         "--protected-mode", "no", "--dir", workdir, "--logfile", logfile, "--daemonize", "no"],
+         *access, "--dir", workdir, "--logfile", logfile, "--daemonize", "no"],
         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
         start_new_session=True, preexec_fn=die_with_parent)
-    url = f"redis://{bind}:{port}/0"
     try:
         client = redis.Redis.from_url(url, socket_connect_timeout=1)
         deadline = time.monotonic() + timeout
@@ -135,7 +175,7 @@ def redis_server(workdir: str, port: int | None = None, timeout: float = 10.0, *
                                        + _tail(logfile)) from None
                 time.sleep(0.05)
         client.close()
-        yield LocalRedis(proc, url)
+        yield LocalRedis(proc, url, port, worker_url)
     finally:
         stop_processes([proc], 10.0)
 

@@ -34,6 +34,7 @@ class JobStatus(BaseModel):
     render_seconds: float = Field(description="sum of the render times of the stored passes")
     warnings: list[str]
     error: str | None = None
+    owner: str | None = Field(default=None, description="the user who submitted the job")
 
 
 class JobList(BaseModel):

@@ -18,14 +18,38 @@ class Settings(BaseSettings):
         description="Redis holding the queue, scenes, jobs and results (also read from REDIS_URL)")
     api_tokens: Annotated[list[str], NoDecode] = Field(
         default_factory=list,
-        description="bearer tokens accepted by the API, comma-separated; empty: no "
-                    "authentication (allowed only on a loopback address)")
+        description="the API's users and their bearer tokens, comma-separated `user:token` "
+                    "entries (a user may have several; a bare `token` belongs to the user "
+                    "`default`); empty: no authentication (allowed only on a loopback address)")
+    api_admins: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description="comma-separated user names that see and control every user's jobs")
+    allow_anonymous_loopback: bool = Field(
+        default=False,
+        description="without api_tokens, serve requests whose both ends are loopback "
+                    "addresses (and that no proxy forwarded from elsewhere) without a token; "
+                    "off: a server without tokens answers every request 401")
+    trusted_proxies: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description="comma-separated addresses or CIDR networks of reverse proxies whose "
+                    "Forwarded / X-Forwarded-For headers are believed; from any other peer "
+                    "those headers make a request's origin unknown")
     max_upload_bytes: int = Field(default=256 * MiB, ge=1, description="largest accepted scene file")
     preflight_timeout: float = Field(default=60.0, gt=0,
                                      description="seconds the scene inspection may take")
     preflight_memory_bytes: int = Field(
         default=8192 * MiB, ge=0,
-        description="address-space limit of the inspection process (0: no limit)")
+        description="address-space limit of the inspection process (0: no limit); it also "
+                    "caps the triangle limit (preflight.triangle_limit)")
+    max_triangles: int = Field(
+        default=16_000_000, ge=1,
+        description="most triangles a scene may have (the renderer's TESSERA_MAX_TRIANGLES, "
+                    "lowered to what preflight_memory_bytes can translate)")
+    preflight_concurrency: int = Field(
+        default=2, ge=1, description="scene inspections that may run at once (across scenes)")
+    preflight_queue: int = Field(
+        default=4, ge=0,
+        description="uploads that may wait for an inspection slot; beyond: 429 at once")
     max_tiles: int = Field(default=1 << 16, ge=1, description="most tiles one job may have")
     job_retention: float = Field(
         default=7 * DAY, ge=0,
@@ -45,7 +69,7 @@ class Settings(BaseSettings):
         description="/healthz reports degraded when queued or running jobs have shown no "
                     "progress for this long")
 
-    @field_validator("api_tokens", mode="before")
+    @field_validator("api_tokens", "api_admins", "trusted_proxies", mode="before")
     @classmethod
     def _split_tokens(cls, value):
         if isinstance(value, str):

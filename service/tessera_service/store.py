@@ -26,6 +26,7 @@ class Job:
     render_seconds: float
     warnings: list[str]
     error: str | None
+    owner: str | None = None
 
     @property
     def final(self) -> bool:
@@ -81,19 +82,40 @@ class JobStore:
         return bool(self.scripts.touch_scene(
             keys=[rdb.scene_key(scene_hash), rdb.scene_jobs_key(scene_hash)], args=[ttl]))
 
-    def preflight(self, scene_hash: str) -> dict | None:
+    def preflight(self, scene_hash: str, limits: str) -> dict | None:
+        """The remembered pre-flight of a scene: its SceneInfo fields, or {"error": why} for
+        a scene that was refused under the same `limits` (a refusal under other limits is
+        forgotten: it may pass now)."""
         raw = self.redis.get(rdb.preflight_key(scene_hash))
-        return json.loads(raw) if raw else None
+        if not raw:
+            return None
+        value = json.loads(raw)
+        if "error" in value:
+            return value if value.get("limits") == limits else None
+        return value
 
     def remember_preflight(self, scene_hash: str, info: dict) -> None:
         ttl = int(self.scene_retention) if self.scene_retention > 0 else None
         self.redis.set(rdb.preflight_key(scene_hash), json.dumps(info), ex=ttl)
 
+    def remember_rejection(self, scene_hash: str, error: str, limits: str) -> None:
+        """Remembers for the scene retention that this file was refused, so that uploading
+        it again is refused at once, without another inspection."""
+        self.remember_preflight(scene_hash, {"error": error, "limits": limits})
+
+    def count_inspection(self, rejected: bool) -> None:
+        with self.redis.pipeline(transaction=False) as pipe:
+            pipe.hincrby(rdb.STATS, "inspections", 1)
+            if rejected:
+                pipe.hincrby(rdb.STATS, "inspections_rejected", 1)
+            pipe.execute()
+
     # ------------------------------------------------------------------ jobs
-    def create_job(self, spec: JobSpec, warnings: list[str]) -> int:
-        """Creates the job, its queue with the first pass of every tile, and its place in
-        the schedule, in one transaction: workers never see a task whose job does not
-        exist, nor a job with part of its tiles."""
+    def create_job(self, spec: JobSpec, warnings: list[str], owner: str | None = None) -> int:
+        """Creates the job (owned by the API user `owner`; None: by nobody, so that only
+        admins see it), its queue with the first pass
+        of every tile, and its place in the schedule, in one transaction: workers never see
+        a task whose job does not exist, nor a job with part of its tiles."""
         tasks = protocol.job_tasks(spec)
         now = time.time()
         queue = rdb.job_queue_key(spec.job_id)
@@ -110,8 +132,11 @@ class JobStore:
                 "render_seconds": 0,
                 "retention": int(self.retention),
                 "warnings": json.dumps(warnings),
+                **({"owner": owner} if owner is not None else {}),
             })
             pipe.zadd(rdb.JOB_INDEX, {spec.job_id: now})
+            if owner is not None:
+                pipe.zadd(rdb.user_jobs_key(owner), {spec.job_id: now})
             pipe.sadd(rdb.ACTIVE, spec.job_id)
             pipe.xgroup_create(queue, rdb.WORKER_GROUP, id="0", mkstream=True)
             for task in tasks:
@@ -131,14 +156,20 @@ class JobStore:
         fields = self.redis.hgetall(rdb.job_key(job_id))
         return _job(fields) if fields else None
 
-    def list(self, state: str | None = None, limit: int = 100, offset: int = 0) -> list[Job]:
-        """Jobs newest first, optionally only those in `state`. Drops index entries of jobs
-        that have expired."""
+    def owner(self, job_id: str) -> str | None:
+        raw = self.redis.hget(rdb.job_key(job_id), "owner")
+        return raw.decode() if raw is not None else None
+
+    def list(self, state: str | None = None, limit: int = 100, offset: int = 0,
+             owner: str | None = None) -> list[Job]:
+        """Jobs newest first, optionally only those in `state`, only those of `owner`
+        (None: everyone's). Drops index entries of jobs that have expired."""
+        index = rdb.user_jobs_key(owner) if owner is not None else rdb.JOB_INDEX
         out: list[Job] = []
         start = 0
         batch = 200
         while len(out) < offset + limit:
-            ids = self.redis.zrevrange(rdb.JOB_INDEX, start, start + batch - 1)
+            ids = self.redis.zrevrange(index, start, start + batch - 1)
             if not ids:
                 break
             start += batch
@@ -148,7 +179,7 @@ class JobStore:
                 rows = pipe.execute()
             gone = [job_id for job_id, fields in zip(ids, rows) if not fields]
             if gone:
-                self.redis.zrem(rdb.JOB_INDEX, *gone)
+                self.redis.zrem(index, *gone)
                 start -= len(gone)
             for fields in rows:
                 if fields:
@@ -267,6 +298,7 @@ def _job(fields: dict[bytes, bytes]) -> Job:
         render_seconds=float(f.get("render_seconds") or 0.0),
         warnings=json.loads(f.get("warnings") or "[]"),
         error=f.get("error") or None,
+        owner=f.get("owner"),
     )
 
 

@@ -3,27 +3,42 @@ from __future__ import annotations
 
 from datetime import datetime, timezone
 
-from fastapi import APIRouter, Request, Response
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, Request, Response
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 
+from tessera import protocol
+
+from ..auth import require_user
 from ..schemas import WorkerList, WorkerStatus
 from ..store import JobStore
+from ..users import User
 
 router = APIRouter(tags=["farm"])
 
 
 @router.get("/workers", response_model=WorkerList)
-def list_workers(request: Request) -> WorkerList:
-    """Live workers (those whose heartbeat has not expired)."""
+def list_workers(request: Request, user: Annotated[User, Depends(require_user)]) -> WorkerList:
+    """Live workers (those whose heartbeat has not expired). What a worker is rendering is
+    shown only for your own jobs (an admin: for every job)."""
     store: JobStore = request.app.state.store
 
     def when(t: float) -> datetime:
         return datetime.fromtimestamp(t, timezone.utc)
 
+    def current(task: str) -> str | None:
+        if not task:
+            return None
+        job_id = task.split("/", 1)[0]
+        if user.admin or (protocol.is_job_id(job_id) and user.may_see(store.owner(job_id))):
+            return task
+        return "another user's job"
+
     return WorkerList(workers=[
         WorkerStatus(name=w.name, host=w.host, pid=w.pid, started_at=when(w.started_at),
-                     last_heartbeat=when(w.beat_at), current=w.current or None,
+                     last_heartbeat=when(w.beat_at), current=current(w.current),
                      tiles_done=w.tiles_done, failures=w.failures)
         for w in store.workers()])
 
@@ -32,8 +47,8 @@ class FarmCollector:
     """Reads the farm's counters from Redis at scrape time, so that every API process
     reports the same numbers (the counters live in Redis, written by the workers)."""
 
-    def __init__(self, store: JobStore):
-        self.store = store
+    def __init__(self, store: JobStore, pool=None):
+        self.store, self.pool = store, pool
 
     def collect(self):
         depth = GaugeMetricFamily("tessera_queue_depth",
@@ -51,6 +66,17 @@ class FarmCollector:
                 ("tessera_tiles_poisoned", "poisoned", "Tiles that failed too often (job failed)"),
                 ("tessera_tiles_reclaimed", "reclaimed", "Tiles taken over from dead workers")):
             yield CounterMetricFamily(name, doc, value=stats.get(key, 0.0))
+        for name, key, doc in (
+                ("tessera_preflight_inspections", "inspections", "Scene inspections run (uploads "
+                                                                 "of a file seen before are not inspected)"),
+                ("tessera_preflight_rejections", "inspections_rejected", "Scene inspections that "
+                                                                         "refused the scene")):
+            yield CounterMetricFamily(name, doc, value=stats.get(key, 0.0))
+        if self.pool is not None:  # this API process's pool
+            yield GaugeMetricFamily("tessera_preflight_running", "Scene inspections running in "
+                                    "this API process", value=self.pool.running)
+            yield GaugeMetricFamily("tessera_preflight_waiting", "Uploads waiting for an "
+                                    "inspection slot in this API process", value=self.pool.waiting)
         workers = self.store.workers()
         yield GaugeMetricFamily("tessera_workers", "Live workers", value=len(workers))
         yield GaugeMetricFamily("tessera_workers_busy", "Workers rendering a tile",
@@ -62,5 +88,5 @@ class FarmCollector:
                              "description": "Prometheus text exposition format"}})
 def metrics(request: Request) -> Response:
     registry = CollectorRegistry(auto_describe=False)
-    registry.register(FarmCollector(request.app.state.store))
+    registry.register(FarmCollector(request.app.state.store, request.app.state.inspections))
     return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)

@@ -17,7 +17,7 @@ from datetime import datetime, timezone
 from pathlib import Path, PureWindowsPath
 from typing import Annotated
 
-from fastapi import APIRouter, File, Form, HTTPException, Query, Request, Response, UploadFile
+from fastapi import APIRouter, Depends, File, Form, HTTPException, Query, Request, Response, UploadFile
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import StreamingResponse
 from pydantic import ValidationError
@@ -26,17 +26,24 @@ from tessera import protocol
 from tessera import redis_schema as rdb
 from tessera.protocol import FINAL_STATES, JobSpec, JobState, RenderSettings
 
+from ..auth import require_user
 from ..merge import MergeError, encode_image, merge_tiles
-from ..preflight import PreflightBroken, PreflightRejected, SceneInfo, inspect_scene
+from ..inspection_pool import InspectionPool, PoolFull
+from ..preflight import PreflightBroken, PreflightRejected, SceneInfo, inspect_scene, triangle_limit
 from ..schemas import JobCreated, JobList, JobLog, JobStatus
 from ..settings import Settings
 from ..store import Job, JobStore
+from ..users import User
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
 SCENE_SUFFIXES = (".usda", ".usdc", ".usdz", ".usd", ".zip")
 CHUNK = 1 << 20
 _DEFAULTS = {name: f.default for name, f in RenderSettings.model_fields.items()}
+# The user making the request (FastAPI runs require_user once per request, however often
+# it is named). A job of another user is a 404 like a job that does not exist, so that
+# job ids do not leak.
+CurrentUser = Annotated[User, Depends(require_user)]
 
 
 def upload_too_large(limit: int) -> HTTPException:
@@ -46,10 +53,13 @@ def upload_too_large(limit: int) -> HTTPException:
 @router.post("", status_code=201, response_model=JobCreated,
              responses={400: {"description": "not a USD file"},
                         413: {"description": "file too large"},
-                        422: {"description": "invalid settings, or a scene the renderer rejects"}})
+                        422: {"description": "invalid settings, or a scene the renderer rejects"},
+                        429: {"description": "the server is inspecting as many scenes as it may; "
+                                             "retry after Retry-After seconds"}})
 def create_job(
     request: Request,
     response: Response,
+    user: CurrentUser,
     file: Annotated[UploadFile, File(
         description="the scene: .usda, .usdc, .usdz or .usd, or a .zip bundle (root layer first)")],
     width: Annotated[int | None, Form(description="default: the scene's render settings, else 512")] = None,
@@ -98,20 +108,7 @@ def create_job(
     with tempfile.TemporaryDirectory(prefix=f"tessera-upload-{os.getpid()}-") as tmp:
         path = Path(tmp, protocol.scene_file_name(suffix))
         scene_hash = _save_upload(file, path, settings.max_upload_bytes)
-        # Concurrent uploads of one scene wait for a single inspection.
-        with _inspection_lock(scene_hash):
-            cached = store.preflight(scene_hash)
-            if cached is not None:  # this exact file was inspected before: skip the ~1 s child
-                info = SceneInfo(**cached)
-            else:
-                try:
-                    info = inspect_scene(str(path), timeout=settings.preflight_timeout,
-                                         memory_bytes=settings.preflight_memory_bytes)
-                except PreflightRejected as e:
-                    raise HTTPException(422, f"the scene cannot be rendered: {e}") from None
-                except PreflightBroken as e:
-                    raise HTTPException(500, str(e)) from None
-                store.remember_preflight(scene_hash, asdict(info))
+        info = _inspect(request, path, scene_hash)
         render = _render_settings(width=width if width is not None else info.width,
                                   height=height if height is not None else info.height, **params)
         tiles = math.ceil(render.width / render.tile_size) * math.ceil(render.height / render.tile_size)
@@ -132,7 +129,7 @@ def create_job(
     spec = JobSpec(job_id=uuid.uuid4().hex, scene_hash=scene_hash, scene_name=name,
                    settings=render, priority=priority, max_attempts=max_attempts)
     warnings = info.warnings if render.default_light or info.unlit_warnings is None else info.unlit_warnings
-    tiles_total = store.create_job(spec, warnings)
+    tiles_total = store.create_job(spec, warnings, owner=user.name)
     response.headers["Location"] = f"/jobs/{spec.job_id}"
     return JobCreated(id=spec.job_id, state="queued", tiles_total=tiles_total,
                       width=render.width, height=render.height, priority=priority,
@@ -140,56 +137,57 @@ def create_job(
 
 
 @router.get("", response_model=JobList)
-def list_jobs(request: Request,
+def list_jobs(request: Request, user: CurrentUser,
               state: Annotated[JobState | None, Query(description="only jobs in this state")] = None,
               limit: Annotated[int, Query(ge=1, le=1000)] = 100,
               offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0) -> JobList:
-    """Jobs, newest first."""
+    """Your jobs (an admin: everyone's), newest first."""
     store: JobStore = request.app.state.store
-    return JobList(jobs=[_status(j.spec.job_id, j) for j in store.list(state, limit, offset)])
+    owner = None if user.admin else user.name
+    return JobList(jobs=[_status(j.spec.job_id, j) for j in store.list(state, limit, offset, owner)])
 
 
 @router.get("/{job_id}", response_model=JobStatus, responses={404: {"description": "no such job"}})
-def get_job(job_id: str, request: Request) -> JobStatus:
-    return _status(job_id, _job(request, job_id))
+def get_job(job_id: str, request: Request, user: CurrentUser) -> JobStatus:
+    return _status(job_id, _job(request, job_id, user))
 
 
 @router.delete("/{job_id}", response_model=JobStatus, responses={404: {"description": "no such job"}})
-def cancel_job(job_id: str, request: Request) -> JobStatus:
+def cancel_job(job_id: str, request: Request, user: CurrentUser) -> JobStatus:
     """Cancels a queued, running or paused job: its open tiles are dropped at once and a
     tile being rendered is abandoned. A finished job is left as it is."""
-    _check_id(job_id)
+    _check_owner(request, job_id, user)
     store: JobStore = request.app.state.store
     if not store.cancel(job_id):
         raise _not_found(job_id)
-    return _status(job_id, _job(request, job_id))
+    return _status(job_id, _job(request, job_id, user))
 
 
 @router.post("/{job_id}/pause", response_model=JobStatus,
              responses={404: {"description": "no such job"}})
-def pause_job(job_id: str, request: Request) -> JobStatus:
+def pause_job(job_id: str, request: Request, user: CurrentUser) -> JobStatus:
     """Stops handing out the job's tiles (tiles being rendered are still stored). A job
     that is not queued or running is left as it is."""
-    _check_id(job_id)
+    _check_owner(request, job_id, user)
     if not request.app.state.store.pause(job_id):
         raise _not_found(job_id)
-    return _status(job_id, _job(request, job_id))
+    return _status(job_id, _job(request, job_id, user))
 
 
 @router.post("/{job_id}/resume", response_model=JobStatus,
              responses={404: {"description": "no such job"}})
-def resume_job(job_id: str, request: Request) -> JobStatus:
+def resume_job(job_id: str, request: Request, user: CurrentUser) -> JobStatus:
     """Resumes a paused job; any other job is left as it is."""
-    _check_id(job_id)
+    _check_owner(request, job_id, user)
     if not request.app.state.store.resume(job_id):
         raise _not_found(job_id)
-    return _status(job_id, _job(request, job_id))
+    return _status(job_id, _job(request, job_id, user))
 
 
 @router.get("/{job_id}/log", response_model=JobLog, responses={404: {"description": "no such job"}})
-def get_log(job_id: str, request: Request) -> JobLog:
+def get_log(job_id: str, request: Request, user: CurrentUser) -> JobLog:
     """The job's log: state changes, warnings, failed attempts, blocklisted workers."""
-    _job(request, job_id)
+    _job(request, job_id, user)
     return JobLog(id=job_id, lines=request.app.state.store.log(job_id))
 
 
@@ -199,7 +197,7 @@ def get_log(job_id: str, request: Request) -> JobLog:
                                             "`failure` events whose data is a JSON JobEvent; "
                                             "the stream ends after the job's final state"},
                        404: {"description": "no such job"}})
-async def job_events(job_id: str, request: Request,
+async def job_events(job_id: str, request: Request, user: CurrentUser,
                      after: Annotated[str | None, Query(
                          pattern=r"^\d+(-\d+)?$",
                          description="resume after this event id (or send Last-Event-ID)")] = None
@@ -209,7 +207,8 @@ async def job_events(job_id: str, request: Request,
     _check_id(job_id)
     aredis = request.app.state.aredis
     job_key, events_key = rdb.job_key(job_id), rdb.job_events_key(job_id)
-    if not await aredis.exists(job_key):
+    state, owner = await aredis.hmget(job_key, ["state", "owner"])
+    if state is None or not user.may_see(owner.decode() if owner is not None else None):
         raise _not_found(job_id)
     cursor = after or request.headers.get("last-event-id") or "0"
     if not _EVENT_ID.match(cursor):
@@ -245,9 +244,9 @@ async def job_events(job_id: str, request: Request,
 
 @router.get("/{job_id}/image.exr", response_class=Response,
             responses={200: {"content": {"image/x-exr": {}}}, 404: {}, 409: {"description": "not done"}})
-def get_image(job_id: str, request: Request) -> Response:
+def get_image(job_id: str, request: Request, user: CurrentUser) -> Response:
     """The rendered image: float linear RGBA OpenEXR."""
-    data = _image(request, job_id, "exr")
+    data = _image(request, job_id, "exr", user)
     return Response(data, media_type="image/x-exr",
                     headers={"Content-Disposition": f'attachment; filename="{job_id}.exr"'})
 
@@ -255,10 +254,10 @@ def get_image(job_id: str, request: Request) -> Response:
 @router.get("/{job_id}/preview.png", response_class=Response,
             responses={200: {"content": {"image/png": {}}}, 404: {},
                        409: {"description": "failed or cancelled"}})
-def get_preview(job_id: str, request: Request) -> Response:
+def get_preview(job_id: str, request: Request, user: CurrentUser) -> Response:
     """A tonemapped 8-bit sRGB preview: of the finished image, or while the job is queued,
     running or paused, of what is rendered so far (missing tiles are black)."""
-    job = _job(request, job_id)
+    job = _job(request, job_id, user)
     if job.state in ("queued", "running", "paused"):
         try:
             store = request.app.state.store
@@ -268,33 +267,77 @@ def get_preview(job_id: str, request: Request) -> Response:
             raise HTTPException(500, f"cannot assemble the preview of job {job_id}: {e}") from None
         data = encode_image(rgba, job.spec, "png")
         return Response(data, media_type="image/png", headers={"Cache-Control": "no-store"})
-    data = _image(request, job_id, "png")
+    data = _image(request, job_id, "png", user)
     return Response(data, media_type="image/png",
                     headers={"Content-Disposition": f'inline; filename="{job_id}.png"'})
 
 
 # ---------------------------------------------------------------------------- helpers
+def _inspect(request: Request, path: Path, scene_hash: str) -> SceneInfo:
+    """The scene's pre-flight: remembered (passed or refused) for this exact file, else
+    inspected in a slot of the bounded pool (429 when it is full)."""
+    settings: Settings = request.app.state.settings
+    store: JobStore = request.app.state.store
+    pool: InspectionPool = request.app.state.inspections
+    max_triangles = triangle_limit(settings.max_triangles, settings.preflight_memory_bytes)
+    limits = f"{max_triangles}/{settings.preflight_memory_bytes}/{settings.preflight_timeout:g}"
+    # Concurrent uploads of one scene wait for a single inspection.
+    with _inspection_lock(scene_hash):
+        cached = store.preflight(scene_hash, limits)
+        if cached is not None and "error" in cached:
+            raise HTTPException(422, f"the scene cannot be rendered: {cached['error']}")
+        if cached is not None:  # this exact file was inspected before: skip the child
+            return SceneInfo(**cached)
+        try:
+            with pool.slot():
+                try:
+                    info = inspect_scene(str(path), timeout=settings.preflight_timeout,
+                                         memory_bytes=settings.preflight_memory_bytes,
+                                         max_triangles=max_triangles)
+                except PreflightRejected as e:
+                    store.count_inspection(rejected=True)
+                    store.remember_rejection(scene_hash, str(e), limits)
+                    raise HTTPException(422, f"the scene cannot be rendered: {e}") from None
+                except PreflightBroken as e:  # the server's fault: not remembered
+                    raise HTTPException(500, str(e)) from None
+        except PoolFull as e:
+            raise HTTPException(429, str(e), headers={"Retry-After": "5"}) from None
+        store.count_inspection(rejected=False)
+        store.remember_preflight(scene_hash, asdict(info))
+        return info
+
+
 def _check_id(job_id: str) -> None:
     """A string that is not a job id names no job: 404, before any Redis key is built."""
     if not protocol.is_job_id(job_id):
         raise _not_found(job_id)
 
 
-def _job(request: Request, job_id: str) -> Job:
+def _job(request: Request, job_id: str, user: User) -> Job:
     _check_id(job_id)
     job = request.app.state.store.get(job_id)
-    if job is None:
+    if job is None or not user.may_see(job.owner):
         raise _not_found(job_id)
     return job
+
+
+def _check_owner(request: Request, job_id: str, user: User) -> None:
+    """404 unless the job exists and `user` may see it (before anything changes it)."""
+    _check_id(job_id)
+    store: JobStore = request.app.state.store
+    if user.admin:
+        return  # the state change itself says whether the job exists
+    if not user.may_see(store.owner(job_id)):
+        raise _not_found(job_id)
 
 
 def _not_found(job_id: str) -> HTTPException:
     return HTTPException(404, f"no job with id {job_id!r}")
 
 
-def _image(request: Request, job_id: str, fmt: str) -> bytes:
+def _image(request: Request, job_id: str, fmt: str, user: User) -> bytes:
     store: JobStore = request.app.state.store
-    job = _job(request, job_id)
+    job = _job(request, job_id, user)
     if job.state != "done":
         detail = f"job {job_id} is {job.state}; its image is available once it is done"
         if job.error:
@@ -325,7 +368,7 @@ def _status(job_id: str, job: Job) -> JobStatus:
         finished_at=when(job.finished_at),
         elapsed_seconds=round(max(0.0, end - job.created_at), 3),
         render_seconds=round(job.render_seconds, 3),
-        warnings=job.warnings, error=job.error)
+        warnings=job.warnings, error=job.error, owner=job.owner)
 
 
 _locks_guard = threading.Lock()

@@ -1,0 +1,177 @@
+"""The farm's Redis users (tessera_service.redis_acl) on a real redis-server: connections
+without a password are refused, the worker user cannot run what it should not (FLUSHALL,
+CONFIG, KEYS, ...) nor read or write pre-flight results and the job indexes, the API and a worker do a real
+job's whole life under their users, and deploy/users.acl says the same as the code."""
+from __future__ import annotations
+
+import re
+import subprocess
+import time
+
+import httpx
+import pytest
+import redis
+from redis.backoff import NoBackoff
+from redis.retry import Retry
+
+from conftest import CORNELL, REPO, STARTUP_TIMEOUT, start_api, start_worker, submit, wait_for_job
+from tessera import redis_schema as rdb
+from tessera_service.embedded import free_port, redis_server, stop_processes
+from tessera_service.redis_acl import API_USER, WORKER_USER, Credentials, user_rule
+
+SCENE = rdb.scene_key("0" * 64)
+PREFLIGHT = rdb.preflight_key("0" * 64)
+
+
+@pytest.fixture(scope="module")
+def acl_redis(tmp_path_factory):
+    with redis_server(str(tmp_path_factory.mktemp("acl")), credentials=Credentials.generate()) as local:
+        yield local
+
+
+@pytest.fixture
+def worker_client(acl_redis):
+    client = redis.Redis.from_url(acl_redis.worker_url)
+    yield client
+    client.close()
+
+
+@pytest.fixture
+def api_client(acl_redis):
+    client = redis.Redis.from_url(acl_redis.url)
+    yield client
+    client.close()
+
+
+def test_connections_without_the_password_are_refused(acl_redis):
+    once = dict(port=acl_redis.port, protocol=2, retry=Retry(NoBackoff(), 0))
+    with redis.Redis(**once) as anonymous:
+        with pytest.raises(redis.AuthenticationError, match="Authentication required"):
+            anonymous.ping()
+    with redis.Redis(username=WORKER_USER, password="guess", **once) as wrong:
+        with pytest.raises(redis.AuthenticationError, match="invalid username-password"):
+            wrong.ping()
+
+
+@pytest.mark.parametrize("command", [
+    ("FLUSHALL",), ("FLUSHDB",), ("CONFIG", "GET", "*"), ("CONFIG", "SET", "dir", "/tmp"),
+    ("KEYS", "*"), ("SCAN", "0"), ("SORT", "tessera:active"), ("RANDOMKEY",), ("SHUTDOWN", "NOSAVE"), ("ACL", "LIST"),
+    ("MONITOR",), ("INFO",), ("CLIENT", "LIST"), ("REPLICAOF", "NO", "ONE"), ("SCRIPT", "FLUSH"),
+    ("FUNCTION", "LOAD", "#!lua name=x\nredis.register_function('f', function() return 1 end)"),
+    ("MODULE", "LIST"), ("SAVE",), ("BGREWRITEAOF",),
+])
+@pytest.mark.parametrize("user", [WORKER_USER, API_USER])
+def test_neither_user_may_run_admin_or_dangerous_commands(acl_redis, worker_client, api_client,
+                                                          user, command):
+    client = worker_client if user == WORKER_USER else api_client
+    with pytest.raises(redis.exceptions.NoPermissionError):
+        client.execute_command(*command)
+    assert client.ping()  # still connected and usable: the server was not touched
+
+
+def test_the_worker_reaches_scenes_and_jobs_but_not_preflights_or_indexes(worker_client, api_client):
+    api_client.hset(SCENE, mapping={"name": "s.usda", "data": b"#usda 1.0"})
+    api_client.set(PREFLIGHT, "{}")
+    # What a worker does (the controls: these must work).
+    assert worker_client.hget(SCENE, "name") == b"s.usda"
+    worker_client.hset(rdb.job_tiles_key("1" * 32), "0:0", b"tile")
+    worker_client.hincrby(rdb.STATS, "tiles", 1)
+    worker_client.hset(SCENE, rdb.translated_field("v1"), b"blob")
+    worker_client.srem(rdb.scene_jobs_key("0" * 64), "1" * 32)
+    # What it must not.
+    for denied in (lambda c: c.get(PREFLIGHT),
+                   lambda c: c.set(PREFLIGHT, '{"width": 1}'),
+                   lambda c: c.zadd(rdb.JOB_INDEX, {"x": 1}),
+                   lambda c: c.zrange(rdb.user_jobs_key("alice"), 0, -1),
+                   lambda c: c.set("elsewhere", 1),
+                   # ... also from inside a script: ACLs apply to the commands a script runs.
+                   lambda c: c.eval(f"return redis.call('SET', '{PREFLIGHT}', 'x')", 0)):
+        with pytest.raises(redis.ResponseError, match="(?i)no permissions|can't access"):
+            denied(worker_client)
+    assert api_client.hget(SCENE, "data") == b"#usda 1.0"
+    assert api_client.get(PREFLIGHT) == b"{}"
+
+
+@pytest.mark.slow
+def test_a_farm_runs_every_job_kind_under_its_redis_users(acl_redis, tmp_path):
+    """API and worker processes on the ACL'd Redis: fixed-spp, noise-target bdpt (lockstep
+    passes), pause/resume, cancel, an image download (cached), events and /workers, with
+    no command refused (a refusal fails the job or shows as NOPERM in the logs)."""
+    api, base = start_api(acl_redis.url, tmp_path)
+    worker = start_worker(acl_redis.worker_url, "acl-w1", tmp_path)
+    try:
+        with httpx.Client(base_url=base, timeout=60) as client:
+            ids = []
+            for form in (dict(width=16, height=16, spp=2, tile_size=8),
+                         dict(width=16, height=16, tile_size=8, integrator="bdpt",
+                              target_error=0.5, min_spp=2, max_spp=4)):
+                r = submit(client, CORNELL, **form)
+                assert r.status_code == 201, r.text
+                ids.append(r.json()["id"])
+            paused = submit(client, CORNELL, width=16, height=16, spp=1, tile_size=8).json()["id"]
+            assert client.post(f"/jobs/{paused}/pause").status_code == 200
+            assert client.post(f"/jobs/{paused}/resume").status_code == 200
+            ids.append(paused)
+            cancelled = submit(client, CORNELL, width=64, height=64, spp=64, tile_size=8).json()["id"]
+            assert client.delete(f"/jobs/{cancelled}").json()["state"] == "cancelled"
+            for job in ids:
+                status = wait_for_job(client, job, processes=[api, worker])
+                assert status["state"] == "done", status
+                for _ in range(2):  # the second download is the cached image
+                    r = client.get(f"/jobs/{job}/image.exr")
+                    assert r.status_code == 200, r.text
+                assert client.get(f"/jobs/{job}/events").status_code == 200
+            assert client.get("/workers").json()["workers"][0]["name"] == "acl-w1"
+            assert client.get("/metrics").status_code == 200
+            assert client.get("/healthz").json()["status"] == "ok"
+    finally:
+        worker.stop()
+        api.stop()
+    for proc in (api, worker):
+        assert "NOPERM" not in proc.log_path.read_text(errors="replace"), proc.log(80)
+
+
+def test_deploy_users_acl_grants_what_the_code_grants():
+    """deploy/users.acl is the same rules with placeholder passwords (an ACL file has no
+    comments: deploy/redis.conf and deploy/README.md explain it)."""
+    rules = (REPO / "deploy" / "users.acl").read_text().splitlines()
+    assert rules[0] == "user default off resetkeys resetchannels -@all"
+    for name in (API_USER, WORKER_USER):
+        [line] = [r for r in rules if r.startswith(f"user {name} ")]
+        password = re.search(r" >(\S+)", line).group(1)
+        assert password.startswith("CHANGE-ME"), line
+        assert line == user_rule(name, password)
+    assert len(rules) == 3
+
+
+def test_deploy_redis_conf_starts_and_enforces_the_users(tmp_path):
+    """deploy/redis.conf with deploy/users.acl (paths and port moved into tmp_path) runs on
+    this redis-server, refuses anonymous clients and the worker's FLUSHALL."""
+    port = free_port()
+    conf = (REPO / "deploy" / "redis.conf").read_text()
+    conf = conf.replace("/etc/redis/tessera-users.acl", str(REPO / "deploy" / "users.acl")) \
+               .replace("/var/lib/tessera/redis", str(tmp_path)).replace("port 6379", f"port {port}")
+    assert f"port {port}" in conf and str(tmp_path) in conf
+    (tmp_path / "redis.conf").write_text(conf)
+    proc = subprocess.Popen(["redis-server", str(tmp_path / "redis.conf"), "--daemonize", "no"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+    once = dict(port=port, protocol=2)
+    try:
+        worker = redis.Redis(username=WORKER_USER, password="CHANGE-ME-worker-password", **once)
+        deadline = time.monotonic() + STARTUP_TIMEOUT
+        while True:  # until it accepts connections
+            assert proc.poll() is None, "redis-server rejected deploy/redis.conf"
+            try:
+                worker.ping()
+                break
+            except redis.ConnectionError:
+                assert time.monotonic() < deadline
+                time.sleep(0.05)
+        with pytest.raises(redis.exceptions.NoPermissionError):
+            worker.flushall()
+        with redis.Redis(retry=Retry(NoBackoff(), 0), **once) as anonymous:
+            with pytest.raises(redis.AuthenticationError):
+                anonymous.ping()
+        worker.close()
+    finally:
+        stop_processes([proc], 10.0)
