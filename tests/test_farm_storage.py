@@ -108,7 +108,8 @@ def test_a_job_over_the_redis_budget_is_refused(redis_server, tmp_path):
 def test_a_full_redis_refuses_writes_and_loses_no_tile(tmp_path):
     """Redis at its maxmemory (noeviction) refuses the worker's result: the worker keeps
     the rendered tile, logs why, retries with a backoff and stores it once there is room;
-    a worker started meanwhile waits instead of crashing. The image is the local one."""
+    a worker started meanwhile waits instead of crashing, and the API answers a new upload
+    with a 503 that stores nothing. The image is the local one."""
     with redis_server(str(tmp_path)) as rs:
         client = redis.Redis.from_url(rs.url)
         api, base = start_api(rs.url, tmp_path)
@@ -140,6 +141,11 @@ def test_a_full_redis_refuses_writes_and_loses_no_tile(tmp_path):
                 assert late.alive(), late.log()
                 assert client.hlen(rdb.job_tiles_key(job_id)) == 1
                 assert client.hget(rdb.job_key(job_id), "state") == b"running"
+                # A new job meanwhile: a clear 503, and nothing of it stored.
+                refused = submit(http, CORNELL, width=16, height=16, spp=1, seed=77)
+                assert refused.status_code == 503 and "full" in refused.json()["detail"], refused.text
+                assert refused.headers["retry-after"] == "30"
+                assert [j["id"] for j in http.get("/jobs").json()["jobs"]] == [job_id]
                 client.config_set("maxmemory", 0)
                 status = wait_for_job(http, job_id, processes=[worker, late])
                 assert status["state"] == "done", status

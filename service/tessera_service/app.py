@@ -107,6 +107,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return JSONResponse({"detail": f"the job store (redis) is unavailable: {exc}"},
                             status_code=503)
 
+    @app.exception_handler(redis.exceptions.OutOfMemoryError)
+    async def redis_full(request: Request, exc: redis.RedisError) -> JSONResponse:
+        # noeviction: Redis refused a write (MULTI blocks are refused whole), so nothing of
+        # this request was half-stored; accepted work goes on once there is room.
+        return JSONResponse({"detail": "the job store (redis) is full (its maxmemory): nothing was "
+                                       "stored; try again when running jobs have finished"},
+                            status_code=503, headers={"Retry-After": "30"})
+
     return app
 
 
