@@ -65,10 +65,16 @@ def cmd_render(args: argparse.Namespace) -> int:
         settings = RenderSettings(width=width, height=height, spp=args.spp, seed=args.seed,
                                   max_depth=args.max_depth, tile_size=args.tile,
                                   integrator=args.integrator, aovs=args.aovs or [],
-                                  **_noise_target(args))
+                                  denoise=args.denoise, **_noise_target(args))
     except ValidationError as exc:
         print(f"tessera render: invalid settings: {exc}", file=sys.stderr)
         return 2
+    if settings.denoise:  # before rendering, not after an hour of it
+        from .denoise import unavailable_reason
+
+        if (reason := unavailable_reason()) is not None:
+            print(f"tessera render: --denoise: {reason}", file=sys.stderr)
+            return 2
     for w in scene.warnings:
         print(f"warning: {w}", file=sys.stderr)
     samples = (f"noise target {settings.target_error:.2%} ({settings.min_spp}-{settings.max_spp} spp)"
@@ -90,6 +96,12 @@ def cmd_render(args: argparse.Namespace) -> int:
         settings.integrator, _variance_kind(result, layers)), aovs=layers)
     preview = output.with_suffix(".png")
     write_png_preview(preview, result.rgba)
+    if result.denoise_warning:
+        print(f"warning: {result.denoise_warning}", file=sys.stderr)
+    elif settings.denoise:
+        denoised = output.with_name(output.stem + ".denoised.png")
+        write_png_preview(denoised, layers["denoised"])
+        preview = f"{preview} ({denoised} denoised)"
     if settings.adaptive:
         mean_spp = result.samples / (settings.width * settings.height)
         print(f"noise target {settings.target_error:.2%}: {mean_spp:.1f} spp on average, "
@@ -118,6 +130,13 @@ def _add_aov_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--aovs", default=None, metavar="LIST",
                         help="extra EXR layers, comma-separated: albedo, normal, depth, spp, variance, "
                              "or all (default none; see docs/aovs.md)")
+
+
+def _add_denoise_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--denoise", action="store_true",
+                        help="add an Open Image Denoise layer (denoised.R/G/B) and a denoised PNG "
+                             "preview; R, G, B stay the raw render; adds the albedo and normal "
+                             "AOVs (docs/denoise.md)")
 
 
 def _add_noise_target_options(parser: argparse.ArgumentParser) -> None:
@@ -156,6 +175,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
     form = {k: v for k, v in dict(spp=args.spp, seed=args.seed, max_depth=args.max_depth,
                                   tile_size=args.tile, priority=args.priority, integrator=args.integrator,
                                   max_attempts=args.max_attempts, aovs=args.aovs,
+                                  denoise=args.denoise or None,
                                   **_noise_target(args)).items() if v is not None}
     if args.res:
         form["width"], form["height"] = args.res
@@ -295,6 +315,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_noise_target_options(r)
     _add_integrator_option(r)
     _add_aov_option(r)
+    _add_denoise_option(r)
     r.add_argument("--no-variance", action="store_true",
                    help="write no variance layer: light and bdpt then render each sample once "
                         "instead of twice (their variance comes from a second render in "
@@ -327,6 +348,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_noise_target_options(m)
     _add_integrator_option(m)
     _add_aov_option(m)
+    _add_denoise_option(m)
     m.set_defaults(func=cmd_submit)
 
     c = sub.add_parser("compare", help="do two renders differ beyond their noise? "
