@@ -279,6 +279,34 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return 1 if report.differs else 0
 
 
+def cmd_denoise(args: argparse.Namespace) -> int:
+    """Adds the denoised layer to an EXR that has the albedo and normal AOVs (one written by
+    `tessera render --aovs albedo,normal`, say), as `render --denoise` would have."""
+    from .denoise import DENOISED_LAYER, DenoiseError, denoise
+    from .images import read_exr_aovs, read_render, write_exr, write_png_preview
+
+    source = Path(args.image)
+    output = Path(args.output) if args.output else source.with_name(source.stem + ".denoised.exr")
+    try:
+        image = read_render(source)
+        layers = read_exr_aovs(source)
+        layers[DENOISED_LAYER] = denoise(image.rgba, layers)
+    except (OSError, ValueError, DenoiseError) as exc:
+        print(f"tessera denoise: {source}: {exc}", file=sys.stderr)
+        return 2
+    metadata = {k: v for k, v in image.metadata.items() if k.startswith("tessera:")}
+    try:
+        output.parent.mkdir(parents=True, exist_ok=True)
+        write_exr(output, image.rgba, metadata, aovs=layers)
+        preview = output.with_suffix(".png")
+        write_png_preview(preview, layers[DENOISED_LAYER])
+    except OSError as exc:
+        print(f"tessera denoise: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {output} (with {DENOISED_LAYER}.R/G/B) and {preview}", file=sys.stderr)
+    return 0
+
+
 def cmd_serve(args: argparse.Namespace) -> int:
     from tessera_service.embedded import serve
 
@@ -366,6 +394,14 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--heatmap", help="difference heatmap PNG (default: TEST with .compare.png)")
     c.add_argument("--no-flip", action="store_true", help="skip the FLIP metric")
     c.set_defaults(func=cmd_compare)
+
+    d = sub.add_parser("denoise", help="add a denoised layer to an EXR with albedo and normal AOVs "
+                                       "(docs/denoise.md)")
+    d.add_argument("image", help="EXR written by tessera render with the albedo and normal AOVs")
+    d.add_argument("-o", "--output", help="EXR to write: the image's layers plus denoised.R/G/B "
+                                          "(default: IMAGE_NAME.denoised.exr beside it); the "
+                                          "denoised PNG goes beside it")
+    d.set_defaults(func=cmd_denoise)
 
     s = sub.add_parser("serve", help="run the HTTP API; without REDIS_URL also a private Redis and local workers")
     s.add_argument("--host", default="127.0.0.1")

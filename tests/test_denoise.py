@@ -30,16 +30,22 @@ DENOISED = images.AOV_EXR_CHANNELS["denoised"]
 
 
 @pytest.fixture(scope="module")
-def cornell_renders(tmp_path_factory) -> dict[str, dict[str, np.ndarray]]:
-    """`tessera render` of the Cornell box at 16 spp, with and without --denoise."""
+def cornell_dir(tmp_path_factory) -> Path:
+    """`tessera render` of the Cornell box at 16 spp, with (denoised.exr) and without
+    (plain.exr) --denoise."""
     out = tmp_path_factory.mktemp("denoise")
-    renders = {}
     for name, extra in (("denoised", ["--denoise"]), ("plain", [])):
-        exr = out / f"{name}.exr"
-        args = ["render", str(CORNELL), "-o", str(exr), "--spp", str(SPP), "--seed", str(SEED),
-                "--res", f"{RES}x{RES}", "-q", *extra]
+        args = ["render", str(CORNELL), "-o", str(out / f"{name}.exr"), "--spp", str(SPP),
+                "--seed", str(SEED), "--res", f"{RES}x{RES}", "-q", *extra]
         assert tessera_main(args) == 0
-        renders[name] = images.read_exr_channels(exr)
+    return out
+
+
+@pytest.fixture(scope="module")
+def cornell_renders(cornell_dir) -> dict[str, dict[str, np.ndarray]]:
+    """The channels of cornell_dir's renders."""
+    out = cornell_dir
+    renders = {name: images.read_exr_channels(out / f"{name}.exr") for name in ("denoised", "plain")}
     # The denoised preview beside the EXR is the denoised layer, tonemapped as the raw one.
     assert not (out / "plain.denoised.png").exists()
     preview = oiio.ImageBuf(str(out / "denoised.denoised.png")).get_pixels(oiio.UINT8)
@@ -119,6 +125,24 @@ def test_denoised_relmse_is_at_most_a_third_of_the_raw(cornell_renders):
     assert denoising_helps(reference + np.sqrt(0.30) * error, raw, reference)
     assert not keeps_the_mean(denoised * 1.025, reference)
     assert not keeps_the_mean(denoised * 0.975, reference)
+
+
+def test_denoise_command_adds_the_layer_render_would(cornell_dir, cornell_renders, tmp_path, capsys):
+    """`tessera denoise` of the --denoise render's EXR writes the same denoised layer, bit
+    for bit, and keeps every other channel; of an EXR without AOVs it stops with one
+    message naming the missing AOV and writes nothing."""
+    again = tmp_path / "again.exr"
+    assert tessera_main(["denoise", str(cornell_dir / "denoised.exr"), "-o", str(again)]) == 0
+    channels = images.read_exr_channels(again)
+    assert set(channels) == set(cornell_renders["denoised"])
+    for name, values in cornell_renders["denoised"].items():
+        assert differing_values(channels[name], values) == 0, name
+    assert again.with_suffix(".png").is_file()
+    capsys.readouterr()
+    assert tessera_main(["denoise", str(cornell_dir / "plain.exr"), "-o", str(tmp_path / "p.exr")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no albedo AOV" in err[0] and "--denoise" in err[0], err
+    assert not (tmp_path / "p.exr").exists()
 
 
 # ------------------------------------------------------------------ bad input
