@@ -65,11 +65,17 @@ def cmd_render(args: argparse.Namespace) -> int:
     try:
         settings = RenderSettings(width=width, height=height, spp=args.spp, seed=args.seed,
                                   max_depth=args.max_depth, tile_size=args.tile,
-                                  aovs=args.aovs or [], **_noise_target(args),
+                                  aovs=args.aovs or [], denoise=args.denoise, **_noise_target(args),
                                   **({"integrator": args.integrator} if args.integrator else {}))
     except ValidationError as exc:
         print(f"tessera render: invalid settings: {exc}", file=sys.stderr)
         return 2
+    if settings.denoise:  # before rendering, not after an hour of it
+        from .denoise import unavailable_reason
+
+        if (reason := unavailable_reason()) is not None:
+            print(f"tessera render: --denoise: {reason}", file=sys.stderr)
+            return 2
     for w in scene.warnings:
         print(f"warning: {w}", file=sys.stderr)
     samples = (f"noise target {settings.target_error:.2%} ({settings.min_spp}-{settings.max_spp} spp)"
@@ -91,6 +97,12 @@ def cmd_render(args: argparse.Namespace) -> int:
         settings.integrator, _variance_kind(result, layers)), aovs=layers)
     preview = output.with_suffix(".png")
     write_png_preview(preview, result.rgba)
+    if result.denoise_warning:
+        print(f"warning: {result.denoise_warning}", file=sys.stderr)
+    elif settings.denoise:
+        denoised = output.with_name(output.stem + ".denoised.png")
+        write_png_preview(denoised, layers["denoised"])
+        preview = f"{preview} ({denoised} denoised)"
     if settings.adaptive:
         mean_spp = result.samples / (settings.width * settings.height)
         print(f"noise target {settings.target_error:.2%}: {mean_spp:.1f} spp on average, "
@@ -149,6 +161,13 @@ def _add_default_light_option(parser: argparse.ArgumentParser) -> None:
                              "default lighting (white dome + camera key light)")
 
 
+def _add_denoise_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--denoise", action="store_true",
+                        help="add an Open Image Denoise layer (denoised.R/G/B) and a denoised PNG "
+                             "preview; R, G, B stay the raw render; adds the albedo and normal "
+                             "AOVs (docs/denoise.md)")
+
+
 def _add_noise_target_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--target-error", type=float, nargs="?", const=0.01, default=None,
                         metavar="REL", help="render to a relative noise target instead of a "
@@ -186,6 +205,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
                                   tile_size=args.tile, priority=args.priority, integrator=args.integrator,
                                   max_attempts=args.max_attempts, aovs=args.aovs,
                                   default_light="false" if args.no_default_light else None,
+                                  denoise=args.denoise or None,
                                   **_noise_target(args)).items() if v is not None}
     if args.res:
         form["width"], form["height"] = args.res
@@ -289,6 +309,34 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return 1 if report.differs else 0
 
 
+def cmd_denoise(args: argparse.Namespace) -> int:
+    """Adds the denoised layer to an EXR that has the albedo and normal AOVs (one written by
+    `tessera render --aovs albedo,normal`, say), as `render --denoise` would have."""
+    from .denoise import DENOISED_LAYER, DenoiseError, denoise
+    from .images import read_exr_aovs, read_render, write_exr, write_png_preview
+
+    source = Path(args.image)
+    output = Path(args.output) if args.output else source.with_name(source.stem + ".denoised.exr")
+    try:
+        image = read_render(source)
+        layers = read_exr_aovs(source)
+        layers[DENOISED_LAYER] = denoise(image.rgba, layers)
+    except (OSError, ValueError, DenoiseError) as exc:
+        print(f"tessera denoise: {source}: {exc}", file=sys.stderr)
+        return 2
+    metadata = {k: v for k, v in image.metadata.items() if k.startswith("tessera:")}
+    try:
+        output.parent.mkdir(parents=True, exist_ok=True)
+        write_exr(output, image.rgba, metadata, aovs=layers)
+        preview = output.with_suffix(".png")
+        write_png_preview(preview, layers[DENOISED_LAYER])
+    except OSError as exc:
+        print(f"tessera denoise: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {output} (with {DENOISED_LAYER}.R/G/B) and {preview}", file=sys.stderr)
+    return 0
+
+
 def cmd_serve(args: argparse.Namespace) -> int:
     from tessera_service.embedded import serve
 
@@ -326,6 +374,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_integrator_option(r, renders=True)
     _add_aov_option(r)
     _add_default_light_option(r)
+    _add_denoise_option(r)
     r.add_argument("--no-variance", action="store_true",
                    help="write no variance layer: light and bdpt then render each sample once "
                         "instead of twice (their variance comes from a second render in "
@@ -359,6 +408,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_noise_target_options(m)
     _add_integrator_option(m)
     _add_aov_option(m)
+    _add_denoise_option(m)
     m.set_defaults(func=cmd_submit)
 
     c = sub.add_parser("compare", help="do two renders differ beyond their noise? "
@@ -376,6 +426,14 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--heatmap", help="difference heatmap PNG (default: TEST with .compare.png)")
     c.add_argument("--no-flip", action="store_true", help="skip the FLIP metric")
     c.set_defaults(func=cmd_compare)
+
+    d = sub.add_parser("denoise", help="add a denoised layer to an EXR with albedo and normal AOVs "
+                                       "(docs/denoise.md)")
+    d.add_argument("image", help="EXR written by tessera render with the albedo and normal AOVs")
+    d.add_argument("-o", "--output", help="EXR to write: the image's layers plus denoised.R/G/B "
+                                          "(default: IMAGE_NAME.denoised.exr beside it); the "
+                                          "denoised PNG goes beside it")
+    d.set_defaults(func=cmd_denoise)
 
     s = sub.add_parser("serve", help="run the HTTP API; without REDIS_URL also a private Redis and local workers")
     s.add_argument("--host", default="127.0.0.1")

@@ -378,3 +378,21 @@ def batch_variance(width: int, height: int, results: list[TileResult],
             acc.add(resolve_splats(rgb, splats, light_paths, exponent)[..., :3], n)
     var = acc.variance_of_mean()
     return None if var is None else (var, acc.batches)
+
+
+# ------------------------------------------------------------------ the denoised layer
+def add_denoised(settings: RenderSettings, rgba: np.ndarray, aovs: dict[str, np.ndarray]) -> str | None:
+    """With settings.denoise, puts the denoised image (tessera.denoise) into `aovs` as its
+    "denoised" layer, from the finished (or partial) image's colour, albedo and normal:
+    the local render and the service's merge both finish images here. `rgba` is never
+    changed. Returns None, or, when denoising is impossible (library missing, unusable
+    AOVs), the reason as a warning: the raw image is still good, so no caller fails."""
+    if not settings.denoise:
+        return None
+    from .denoise import DENOISED_LAYER, DenoiseError, denoise
+
+    try:
+        aovs[DENOISED_LAYER] = denoise(rgba, aovs)
+    except DenoiseError as e:
+        return f"no denoised layer: {e}"
+    return None

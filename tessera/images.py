@@ -20,6 +20,9 @@ AOV_EXR_CHANNELS = {
     "depth": ("Z",),
     "spp": ("spp",),
     "variance": ("variance.R", "variance.G", "variance.B"),
+    # Not rendered: Open Image Denoise's image from RGB, albedo and N (tessera.denoise,
+    # docs/denoise.md). R, G, B stay the raw estimate.
+    "denoised": ("denoised.R", "denoised.G", "denoised.B"),
 }
 VARIANCE_CHANNELS = AOV_EXR_CHANNELS["variance"]
 SPP_CHANNEL = AOV_EXR_CHANNELS["spp"][0]

@@ -15,7 +15,7 @@ import numpy as np
 from tqdm import tqdm
 
 from . import images, integrators
-from .film import SplatSums, assemble_image, pass_image, render_tile_pass
+from .film import SplatSums, add_denoised, assemble_image, pass_image, render_tile_pass
 from .protocol import (PassAccumulator, RenderSettings, TileRect, TileResult, combine_passes,
                        image_finished, pass_range, tile_finished, tile_grid)
 
@@ -36,6 +36,8 @@ class LocalRenderResult:
     aovs: dict[str, np.ndarray] = field(default_factory=dict)  # settings.aovs, full frame
     variance_kind: str | None = None  # see `variance`
     integrator: str = ""  # the integrator that rendered it (`auto` resolved)
+    # settings.denoise: why aovs has no "denoised" layer (film.add_denoised), else None.
+    denoise_warning: str | None = None
 
     @property
     def samples_per_second(self) -> float:
@@ -78,7 +80,16 @@ def render_image(scene, settings: RenderSettings, threads: int = 0, progress: bo
                  variance: bool = True) -> LocalRenderResult:
     """Renders all tiles of `settings` with `scene` (a tessera_renderer.Scene). With
     `variance` (the default) the result carries its noise estimate; for light and bdpt
-    that renders every sample a second time, in batches (protocol.VARIANCE_BATCHES)."""
+    that renders every sample a second time, in batches (protocol.VARIANCE_BATCHES).
+    With settings.denoise, aovs gets the "denoised" layer (film.add_denoised) as the
+    farm's merge adds it."""
+    result = _render_image(scene, settings, threads, progress, variance)
+    result.denoise_warning = add_denoised(settings, result.rgba, result.aovs)
+    return result
+
+
+def _render_image(scene, settings: RenderSettings, threads: int, progress: bool,
+                  variance: bool) -> LocalRenderResult:
     tiles = tile_grid(settings.width, settings.height, settings.tile_size)
     integrator = scene.resolve_integrator(settings.integrator)
     if settings.lockstep or integrators.splats(integrator):

@@ -20,6 +20,7 @@ import numpy as np
 from pydantic import BaseModel, Field, field_validator, model_validator
 
 from . import integrators
+from .denoise import DENOISE_AOVS
 
 SCHEMA_VERSION = 2
 
@@ -116,10 +117,25 @@ class RenderSettings(BaseModel):
             raise ValueError(f"unknown AOV {unknown[0]!r} (known: {', '.join(AOV_NAMES)}, all)")
         return [name for name in AOV_NAMES if name in value]
 
+    # Added within schema 2 like aovs. Denoising runs where the image is finished (the
+    # local render, the service's merge), never in a worker; it needs the albedo and
+    # normal AOVs, so they are asked for here (their own sample stream: the colour does not
+    # change). docs/denoise.md.
+    denoise: bool = Field(
+        default=False,
+        description="add an Open Image Denoise layer (denoised.R/G/B) and preview beside the "
+                    "raw image; adds the albedo and normal AOVs (docs/denoise.md)")
+
     @model_validator(mode="after")
     def _spp_range(self) -> "RenderSettings":
         if self.target_error is not None and self.min_spp > self.max_spp:
             raise ValueError(f"min_spp ({self.min_spp}) is larger than max_spp ({self.max_spp})")
+        return self
+
+    @model_validator(mode="after")
+    def _denoise_aovs(self) -> "RenderSettings":
+        if self.denoise and not all(a in self.aovs for a in DENOISE_AOVS):
+            self.aovs = [name for name in AOV_NAMES if name in self.aovs or name in DENOISE_AOVS]
         return self
 
     @property

@@ -201,7 +201,7 @@ def job_storage_bound(settings: RenderSettings) -> int:
         tile results   P * (N * (16 + 12 [variance] + 4 * AOV channels + 12 * B) + T * 128)
         splat sums     P * (1 + B) * N * 24        (splatting integrators; int64 RGB, raw)
         lockstep sums  N * 16                      (PassAccumulator)
-        images         N * (16 + 4 * AOV channels + 4)  (cached EXR and PNG)
+        images         N * (16 + 4 * AOV channels + 4 [+ 12 denoised])  (cached EXR, PNG)
         queue, events  T * (1024 + P * 160)
     Splat sums are one full-frame layer per pass however many tiles there are (their
     stored size is zlib'd and usually far smaller)."""
@@ -219,7 +219,8 @@ def job_storage_bound(settings: RenderSettings) -> int:
                         + tiles * _RESULT_HEADER)
     sums = passes * (1 + batches) * pixels * 24 if splats else 0
     lockstep = pixels * 16 if s.lockstep else 0
-    images = pixels * (16 + 4 * channels + 4 + (12 if "variance" in s.aovs else 0))
+    images = pixels * (16 + 4 * channels + 4 + (12 if "variance" in s.aovs else 0)
+                       + (12 if s.denoise else 0))  # the EXR's denoised.R/G/B
     return results + sums + lockstep + images + tiles * (_TASK_BYTES + passes * _EVENT_BYTES)
 
 

@@ -373,3 +373,40 @@ def test_farm_aovs_equal_a_local_render(farm, tmp_path, form):
     assert set(farm_meta) >= {"tessera:spp", "tessera:seed", "tessera:version"}
     if "target_error" in form:
         assert len(np.unique(farm_channels["spp"])) > 1  # tiles stopped at different passes
+
+
+def test_farm_denoised_layer_equals_the_local_one(farm, tmp_path):
+    """A job with denoise=true: the merge adds the denoised layer (and the albedo and normal
+    AOVs it needs) as the local render does, every channel bit for bit, and
+    /jobs/ID/denoised.png is that layer tonemapped. Control: a job without denoise has no
+    denoised layer and its denoised.png is refused (409)."""
+    from tessera.local import render_image
+
+    form = dict(width=48, height=40, spp=4, seed=2, max_depth=8, tile_size=16)
+    r = submit(farm, CORNELL, denoise="true", **form)
+    assert r.status_code == 201, r.text
+    status = wait_for_job(farm, r.json()["id"], processes=farm.processes)
+    assert status["state"] == "done", status
+    assert status["settings"]["denoise"] is True
+    assert status["settings"]["aovs"] == ["albedo", "normal"]
+    download_exr(farm, status["id"], tmp_path / "farm.exr")
+    farm_channels = images.read_exr_channels(tmp_path / "farm.exr")
+    local = render_image(load_scene(str(CORNELL)), RenderSettings(denoise=True, **form), progress=False)
+    assert local.denoise_warning is None and "denoised" in local.aovs
+    for i, name in enumerate(images.AOV_EXR_CHANNELS["denoised"]):
+        assert_bit_identical(farm_channels[name], np.ascontiguousarray(local.aovs["denoised"][..., i]))
+    for i, name in enumerate("RGBA"):
+        assert_bit_identical(farm_channels[name], np.ascontiguousarray(local.rgba[..., i]))
+    r = farm.get(f"/jobs/{status['id']}/denoised.png")
+    assert r.status_code == 200 and r.headers["content-type"] == "image/png"
+    (tmp_path / "denoised.png").write_bytes(r.content)
+    png = oiio.ImageBuf(str(tmp_path / "denoised.png")).get_pixels(oiio.UINT8)
+    assert np.array_equal(png, images.tonemap_srgb8(local.aovs["denoised"]))
+
+    r = submit(farm, CORNELL, **form)
+    plain = wait_for_job(farm, r.json()["id"], processes=farm.processes)
+    assert plain["state"] == "done", plain
+    download_exr(farm, plain["id"], tmp_path / "plain.exr")
+    assert not set(images.AOV_EXR_CHANNELS["denoised"]) & set(images.read_exr_channels(tmp_path / "plain.exr"))
+    r = farm.get(f"/jobs/{plain['id']}/denoised.png")
+    assert r.status_code == 409 and "denoise=true" in r.json()["detail"]

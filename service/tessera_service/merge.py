@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from tessera import images
-from tessera.film import SplatSums, assemble_image
+from tessera.film import SplatSums, add_denoised, assemble_image
 from tessera.protocol import JobSpec, TileResult, decode_tile, tile_grid
 
 
@@ -22,7 +22,9 @@ def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes], *, partial: bool
     render does (tessera.film.assemble_image); returns the (h, w, 4) float32 image. `splats`
     is the job's splat sums hash (redis_schema.job_splats_key). With `partial`, missing
     tiles stay black (a preview of a running job). With `with_aovs`, returns (rgba, aovs):
-    the job's AOVs (settings.aovs) as full-frame float32 (h, w, c) layers."""
+    the job's AOVs (settings.aovs) as full-frame float32 (h, w, c) layers, and for a job
+    with settings.denoise the "denoised" layer (tessera.film.add_denoised, as the local
+    render adds it; MergedLayers.denoise_warning says why it is missing)."""
     s = spec.settings
     grid = tile_grid(s.width, s.height, s.tile_size)
     passes: dict[int, list[TileResult]] = {}
@@ -56,6 +58,7 @@ def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes], *, partial: bool
         return image.rgba
     aovs = MergedLayers(image.aovs)
     aovs.variance_kind = image.variance_kind
+    aovs.denoise_warning = add_denoised(s, image.rgba, aovs)
     return image.rgba, aovs
 
 
@@ -64,6 +67,7 @@ class MergedLayers(dict):
     VARIANCE_ATTRIBUTE kinds; None when it is not a valid estimate, e.g. light or bdpt
     results rendered without batches)."""
     variance_kind: str | None = None
+    denoise_warning: str | None = None
 
 
 def farm_variance_kind(settings, aovs: dict | None) -> str | None:
@@ -71,6 +75,24 @@ def farm_variance_kind(settings, aovs: dict | None) -> str | None:
     if not aovs or "variance" not in aovs:
         return None
     return getattr(aovs, "variance_kind", None)
+
+
+def denoised_png(aovs: dict[str, np.ndarray], spec: JobSpec) -> bytes:
+    """The denoised preview PNG of merge_tiles' layers; MergeError when there is none."""
+    from tessera.denoise import DENOISED_LAYER
+
+    if DENOISED_LAYER not in aovs:
+        raise MergeError(getattr(aovs, "denoise_warning", None)
+                         or "the job was not submitted with denoise=true")
+    return encode_image(aovs[DENOISED_LAYER], spec, "png")
+
+
+def read_denoised(exr: bytes) -> np.ndarray | None:
+    """The denoised RGB layer of an EXR's bytes (encode_image's), None without one."""
+    with tempfile.TemporaryDirectory(prefix=f"tessera-merge-{os.getpid()}-") as tmp:
+        path = Path(tmp, "image.exr")
+        path.write_bytes(exr)
+        return images.read_exr_aovs(path).get("denoised")
 
 
 def encode_image(rgba: np.ndarray, spec: JobSpec, fmt: str, aovs: dict[str, np.ndarray] | None = None) -> bytes:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import hashlib
 import json
+import logging
 import math
 import re
 import tempfile
@@ -27,7 +28,7 @@ from tessera import redis_schema as rdb
 from tessera.protocol import FINAL_STATES, JobSpec, JobState, RenderSettings
 
 from ..auth import require_user
-from ..merge import MergeError, encode_image, merge_tiles
+from ..merge import MergeError, denoised_png, encode_image, merge_tiles, read_denoised
 from ..inspection_pool import InspectionPool, PoolFull
 from ..preflight import PreflightBroken, PreflightRejected, SceneInfo, inspect_scene, triangle_limit
 from ..schemas import JobCreated, JobList, JobLog, JobStatus
@@ -36,6 +37,7 @@ from ..store import Job, JobStore
 from ..users import User
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
+logger = logging.getLogger(__name__)
 
 SCENE_SUFFIXES = (".usda", ".usdc", ".usdz", ".usd", ".zip")
 CHUNK = 1 << 20
@@ -87,6 +89,9 @@ def create_job(
                                                    "it renders black")] = True,
     aovs: Annotated[str, Form(description="comma-separated extra EXR layers: albedo, normal, depth, "
                                           "spp, variance, or all (docs/aovs.md)")] = "",
+    denoise: Annotated[bool, Form(description="add a denoised layer (denoised.R/G/B) and "
+                                              "/jobs/ID/denoised.png; adds the albedo and normal "
+                                              "AOVs (docs/denoise.md)")] = False,
 ) -> JobCreated:
     settings: Settings = request.app.state.settings
     store: JobStore = request.app.state.store
@@ -98,9 +103,14 @@ def create_job(
                                  f"upload a {', '.join(SCENE_SUFFIXES)} file")
     params = dict(spp=spp, seed=seed, max_depth=max_depth, tile_size=tile_size, integrator=integrator,
                   target_error=target_error, min_spp=min_spp, max_spp=max_spp,
-                  time_limit=time_limit, aovs=aovs, default_light=default_light)
+                  time_limit=time_limit, aovs=aovs, default_light=default_light, denoise=denoise)
     if integrator is None:
         del params["integrator"]  # RenderSettings' default: the registry's first
+    if denoise:  # the merge here denoises: refuse now rather than deliver a job without it
+        from tessera.denoise import unavailable_reason
+
+        if (reason := unavailable_reason()) is not None:
+            raise HTTPException(422, f"denoise: this server cannot denoise: {reason}")
     # Check what can be checked before the (slow) inspection; resolution comes later.
     _render_settings(width=width if width is not None else 1,
                      height=height if height is not None else 1, **params)
@@ -272,6 +282,32 @@ def get_preview(job_id: str, request: Request, user: CurrentUser) -> Response:
                     headers={"Content-Disposition": f'inline; filename="{job_id}.png"'})
 
 
+@router.get("/{job_id}/denoised.png", response_class=Response,
+            responses={200: {"content": {"image/png": {}}}, 404: {},
+                       409: {"description": "not denoised, failed or cancelled"}})
+def get_denoised_preview(job_id: str, request: Request, user: CurrentUser) -> Response:
+    """The denoised image (docs/denoise.md) as a tonemapped sRGB PNG, of a job submitted
+    with denoise=true: while it runs, of what is rendered so far; once done, of the EXR's
+    denoised layer."""
+    job = _job(request, job_id, user)
+    if not job.spec.settings.denoise:
+        raise HTTPException(409, f"job {job_id} was not submitted with denoise=true")
+    if job.state in ("queued", "running", "paused"):
+        store = request.app.state.store
+        try:
+            _, aovs = merge_tiles(job.spec, store.tiles(job_id), partial=True, with_aovs=True,
+                                  splats=store.splats(job_id))
+            data = denoised_png(aovs, job.spec)
+        except MergeError as e:
+            raise HTTPException(409, f"no denoised preview of job {job_id}: {e}") from None
+        return Response(data, media_type="image/png", headers={"Cache-Control": "no-store"})
+    layer = read_denoised(_image(request, job_id, "exr", user))
+    if layer is None:
+        raise HTTPException(409, f"job {job_id} has no denoised layer (the server's log says why)")
+    return Response(encode_image(layer, job.spec, "png"), media_type="image/png",
+                    headers={"Content-Disposition": f'inline; filename="{job_id}.denoised.png"'})
+
+
 # ---------------------------------------------------------------------------- helpers
 def _inspect(request: Request, path: Path, scene_hash: str) -> SceneInfo:
     """The scene's pre-flight: remembered (passed or refused) for this exact file, else
@@ -350,6 +386,8 @@ def _image(request: Request, job_id: str, fmt: str, user: User) -> bytes:
                                      splats=store.splats(job_id))
         except MergeError as e:
             raise HTTPException(500, f"cannot assemble the image of job {job_id}: {e}") from None
+        if aovs.denoise_warning:
+            logger.warning("job %s: %s", job_id, aovs.denoise_warning)
         data = encode_image(rgba, job.spec, fmt, aovs=aovs)
         store.cache_image(job_id, fmt, data)
     return data
