@@ -63,7 +63,7 @@ def test_users_list_and_see_only_their_own_jobs(farm):
         # Another user's id answers exactly as an id that names no job: nothing leaks.
         nobody = "0" * 32
         for method, path in (("GET", ""), ("GET", "/log"), ("GET", "/events"),
-                             ("GET", "/preview.png"), ("GET", "/image.exr"),
+                             ("GET", "/preview.png"), ("GET", "/denoised.png"), ("GET", "/image.exr"),
                              ("DELETE", ""), ("POST", "/pause"), ("POST", "/resume")):
             theirs = bob.request(method, f"/jobs/{a}{path}")
             unknown = bob.request(method, f"/jobs/{nobody}{path}")
