@@ -46,6 +46,20 @@ _DEFAULTS = {name: f.default for name, f in RenderSettings.model_fields.items()}
 CurrentUser = Annotated[User, Depends(require_user)]
 
 
+def _integrator_params_form(text: str) -> dict:
+    """The integrator_params form field (a JSON object) as a dict; RenderSettings checks
+    the names and values against the registry."""
+    if not text.strip():
+        return {}
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise HTTPException(422, f"integrator_params is not JSON: {exc}") from None
+    if not isinstance(value, dict):
+        raise HTTPException(422, 'integrator_params must be a JSON object such as {"max_distance": 2}')
+    return value
+
+
 def upload_too_large(limit: int) -> HTTPException:
     return HTTPException(413, f"the upload is larger than the limit of {_size(limit)}")
 
@@ -87,6 +101,9 @@ def create_job(
                                                    "it renders black")] = True,
     aovs: Annotated[str, Form(description="comma-separated extra EXR layers: albedo, normal, depth, "
                                           "spp, variance, or all (docs/aovs.md)")] = "",
+    integrator_params: Annotated[str, Form(description=(
+        'the integrator\'s own settings as a JSON object of name -> number, e.g. '
+        '{"max_distance": 2} for ao ("inf" as a string for infinity; docs/integrators.md)'))] = "",
 ) -> JobCreated:
     settings: Settings = request.app.state.settings
     store: JobStore = request.app.state.store
@@ -98,7 +115,8 @@ def create_job(
                                  f"upload a {', '.join(SCENE_SUFFIXES)} file")
     params = dict(spp=spp, seed=seed, max_depth=max_depth, tile_size=tile_size, integrator=integrator,
                   target_error=target_error, min_spp=min_spp, max_spp=max_spp,
-                  time_limit=time_limit, aovs=aovs, default_light=default_light)
+                  time_limit=time_limit, aovs=aovs, default_light=default_light,
+                  integrator_params=_integrator_params_form(integrator_params))
     if integrator is None:
         del params["integrator"]  # RenderSettings' default: the registry's first
     # Check what can be checked before the (slow) inspection; resolution comes later.
