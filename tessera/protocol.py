@@ -114,13 +114,11 @@ class RenderSettings(BaseModel):
         out = {}
         for key, v in value.items():
             number = None
-            if isinstance(v, (int, float)) and not isinstance(v, bool):
-                number = float(v)
-            elif isinstance(v, str):
-                try:
+            try:
+                if isinstance(v, (int, float, str)) and not isinstance(v, bool):
                     number = float(v)
-                except ValueError:
-                    pass
+            except (ValueError, OverflowError):  # not a number; an integer beyond any float
+                pass
             if number is None or math.isnan(number):
                 raise ValueError(f"integrator setting {key!r} must be a number (or inf), not {v!r}")
             out[key] = number

@@ -53,7 +53,7 @@ def _integrator_params_form(text: str) -> dict:
         return {}
     try:
         value = json.loads(text)
-    except json.JSONDecodeError as exc:
+    except (ValueError, RecursionError) as exc:  # ValueError: bad JSON, or an over-long integer
         raise HTTPException(422, f"integrator_params is not JSON: {exc}") from None
     if not isinstance(value, dict):
         raise HTTPException(422, 'integrator_params must be a JSON object such as {"max_distance": 2}')
@@ -211,8 +211,9 @@ def get_log(job_id: str, request: Request, user: CurrentUser) -> JobLog:
 
 @router.get("/{job_id}/events", response_class=StreamingResponse,
             responses={200: {"content": {"text/event-stream": {}},
-                             "description": "Server-Sent Events: `state`, `tile`, `pass` and "
-                                            "`failure` events whose data is a JSON JobEvent; "
+                             "description": "Server-Sent Events: `state`, `tile`, `pass`, "
+                                            "`scene_pass` and `failure` events whose data is a "
+                                            "JSON JobEvent; "
                                             "the stream ends after the job's final state"},
                        404: {"description": "no such job"}})
 async def job_events(job_id: str, request: Request, user: CurrentUser,
