@@ -47,6 +47,12 @@ def default_integrators() -> list[str]:
     return [i["name"] for i in tessera_renderer.integrators()]
 
 
+def scene_passes(name: str) -> bool:
+    import tessera_renderer
+    infos = tessera_renderer.integrators() if hasattr(tessera_renderer, "integrators") else []
+    return any(i["name"] == name and i.get("scene_passes") for i in infos)
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--integrators", help="comma-separated names (default: every registered integrator)")
@@ -70,9 +76,13 @@ def main() -> int:
         for integrator in integrators:
             splats = new_splat_buffer(args.res, args.res)
             stats: dict = {}
+            extra = {}
+            if scene_passes(integrator):  # one iteration: its scene pass, then the frame
+                extra["scene_product"] = scene.scene_pass(integrator, 0, seed=args.seed,
+                                                          max_depth=args.max_depth, threads=2)
             rgba = scene.render_tile(0, 0, args.res, args.res, width=args.res, height=args.res, spp=args.spp,
                                      seed=args.seed, max_depth=args.max_depth, threads=2, integrator=integrator,
-                                     splats=splats, stats=stats)
+                                     splats=splats, stats=stats, **extra)
             image = resolve_splats(rgba, splats, stats["light_paths"], scene.splat_exponent)
             digest = hashlib.sha256(np.ascontiguousarray(image, np.float32).tobytes()).hexdigest()
             mean = image[..., :3].mean()  # shows that the image is not trivially black or flat

@@ -289,13 +289,17 @@ def load_bench_scene(bs: BenchScene):
 
 def render_tessera(scene, integrator: str, spp: int, seed: int, res: int, cfg: Config) -> np.ndarray:
     """One image as one tile pass, rendered and assembled as every Tessera render is."""
-    from .film import assemble_image, render_tile_pass
+    from . import integrators
+    from .film import assemble_image, render_tile_pass, run_scene_pass
     from .protocol import RenderSettings, TileRect
 
     settings = RenderSettings(width=res, height=res, spp=spp, seed=seed, max_depth=cfg.max_depth,
                               tile_size=max(8, res), integrator=integrator)
+    # One iteration: an integrator with scene passes runs its scene pass first (timed with it).
+    product = (run_scene_pass(scene, settings, 0, integrator=integrator, threads=cfg.threads)
+               if integrators.scene_passes(integrator) else None)
     result, _ = render_tile_pass(scene, settings, TileRect(index=0, x0=0, y0=0, width=res, height=res),
-                                 0, integrator=integrator, threads=cfg.threads)
+                                 0, integrator=integrator, threads=cfg.threads, scene_product=product)
     return assemble_image(settings, {0: [result]}).rgba[..., :3]
 
 

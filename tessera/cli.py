@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
 import sys
@@ -66,6 +67,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         settings = RenderSettings(width=width, height=height, spp=args.spp, seed=args.seed,
                                   max_depth=args.max_depth, tile_size=args.tile,
                                   aovs=args.aovs or [], denoise=args.denoise, **_noise_target(args),
+                                  integrator_params=_integrator_params(args),
                                   **({"integrator": args.integrator} if args.integrator else {}))
     except ValidationError as exc:
         print(f"tessera render: invalid settings: {exc}", file=sys.stderr)
@@ -147,6 +149,22 @@ def _add_integrator_option(parser: argparse.ArgumentParser, renders: bool = Fals
     parser.add_argument("--integrator", default=None, action=_IntegratorOption, renders=renders, metavar="NAME",
                         help="light transport method (default: the registry's first; `help` lists "
                              "them; see docs/integrators.md)")
+    parser.add_argument("--integrator-param", dest="integrator_params", action="append", default=None,
+                        type=_integrator_param, metavar="NAME=VALUE",
+                        help="one of the integrator's own settings (repeatable; `--integrator help` "
+                             "lists them), e.g. --integrator ao --integrator-param max_distance=2")
+
+
+def _integrator_param(text: str) -> tuple[str, str]:
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip() or not value.strip():
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+    return name.strip(), value.strip()
+
+
+def _integrator_params(args: argparse.Namespace) -> dict[str, str]:
+    """--integrator-param pairs as a dict (checked by RenderSettings against the registry)."""
+    return dict(args.integrator_params or [])
 
 
 def _add_aov_option(parser: argparse.ArgumentParser) -> None:
@@ -207,6 +225,8 @@ def cmd_submit(args: argparse.Namespace) -> int:
                                   default_light="false" if args.no_default_light else None,
                                   denoise=args.denoise or None,
                                   **_noise_target(args)).items() if v is not None}
+    if args.integrator_params:
+        form["integrator_params"] = json.dumps(_integrator_params(args))
     if args.res:
         form["width"], form["height"] = args.res
     try:

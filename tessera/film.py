@@ -204,11 +204,24 @@ def _splats_of(width: int, height: int, results, sums: SplatSums | None,
 
 
 # ------------------------------------------------------------------ one tile pass
+def run_scene_pass(scene, settings: RenderSettings, iteration: int, *, integrator: str,
+                   threads: int = 0) -> bytes:
+    """The scene-wide pass of iteration `iteration` (= the pass index) of an integrator with
+    scene_passes: its product, opaque bytes that every tile pass of that iteration reads
+    (render_tile_pass's scene_product). What local renders and the worker's scene tasks
+    both run. A pure function of (scene, integrator, its params, seed, iteration), so the
+    farm's product, and with it its image, equals the local one bit for bit."""
+    return scene.scene_pass(integrator, iteration, seed=settings.seed, max_depth=settings.max_depth,
+                            threads=threads, integrator_params=dict(settings.integrator_params))
+
+
 def render_tile_pass(scene, settings: RenderSettings, rect: TileRect, pass_index: int, *,
                      integrator: str, threads: int = 0, variance: bool = False,
-                     batches: bool = False) -> tuple[TileResult, float]:
+                     batches: bool = False, scene_product: bytes | None = None
+                     ) -> tuple[TileResult, float]:
     """Pass `pass_index` of one tile: what every renderer of Tessera runs. `integrator` is
-    resolved (scene.resolve_integrator). Returns the TileResult (RGBA; the per-sample
+    resolved (scene.resolve_integrator); one with scene_passes needs `scene_product`, the
+    product of run_scene_pass for iteration pass_index. Returns the TileResult (RGBA; the per-sample
     variance if `variance` or the variance AOV is asked for; settings.aovs; for a
     splatting integrator its splat layer and light paths, and with `batches` its variance
     batches, protocol.VARIANCE_BATCHES) and the seconds it took."""
@@ -218,7 +231,8 @@ def render_tile_pass(scene, settings: RenderSettings, rect: TileRect, pass_index
     splatting = integrators.splats(integrator)
     splats = np.zeros((settings.height, settings.width, 3), np.int64) if splatting else None
     common = dict(width=settings.width, height=settings.height, seed=settings.seed,
-                  max_depth=settings.max_depth, threads=threads, integrator=integrator)
+                  max_depth=settings.max_depth, threads=threads, integrator=integrator,
+                  integrator_params=dict(settings.integrator_params), scene_product=scene_product)
     started = time.perf_counter()
     out = scene.render_tile(rect.x0, rect.y0, rect.width, rect.height, spp=spp,
                             sample_start=sample_start, return_variance=want_variance,

@@ -75,16 +75,46 @@ def splats(name: str) -> bool:
     return any(i["splats"] for i in _candidates(name))
 
 
+def scene_passes(name: str) -> bool:
+    """Whether `name` needs a scene-wide pass before each iteration's tile passes (its
+    product is what the tiles read: tessera.film.run_scene_pass). For `auto`: whether it may."""
+    return any(i["scene_passes"] for i in _candidates(name))
+
+
 def stops_per_tile(name: str) -> bool:
     """Whether a tile may stop on a noise target on its own (else the whole image advances
     in lockstep). For `auto`: only if every integrator it may pick can."""
     return all(i["stop_per_tile"] for i in _candidates(name))
 
 
+def params(name: str) -> dict[str, str]:
+    """The extra settings `name` takes (setting -> description). For `auto`: those every
+    integrator it may pick takes, since the pick waits for the scene."""
+    cands = _candidates(name)
+    common = set(cands[0]["params"]) if cands else set()
+    for i in cands[1:]:
+        common &= set(i["params"])
+    return {k: v for k, v in cands[0]["params"].items() if k in common} if cands else {}
+
+
+def validate_params(name: str, values: dict[str, float]) -> dict[str, float]:
+    """`values` (setting -> number) sorted by name if `name` takes every setting; else
+    ValueError listing the ones it takes."""
+    known = params(name)
+    for key in values:
+        if key not in known:
+            took = f"known: {', '.join(known)}" if known else "it takes none"
+            raise ValueError(f"integrator {name!r} has no setting {key!r} ({took})")
+    return dict(sorted(values.items()))
+
+
 def help_text() -> str:
     """One line per integrator, for `tessera render --integrator help`."""
     width = max(len(n) for n in names())
-    lines = [f"{i['name']:<{width}}  {i['description']}" for i in integrators()]
+    lines = []
+    for i in integrators():
+        lines.append(f"{i['name']:<{width}}  {i['description']}")
+        lines += [f"{'':<{width}}    --integrator-param {k}=VALUE: {v}" for k, v in i["params"].items()]
     picks = " or ".join(dict.fromkeys(_registry()["auto"]))
     lines.append(f"{AUTO:<{width}}  per scene: {picks} (see docs/integrators.md)")
     return "\n".join(lines)

@@ -15,7 +15,7 @@ import numpy as np
 from tqdm import tqdm
 
 from . import images, integrators
-from .film import SplatSums, add_denoised, assemble_image, pass_image, render_tile_pass
+from .film import SplatSums, add_denoised, assemble_image, pass_image, render_tile_pass, run_scene_pass
 from .protocol import (PassAccumulator, RenderSettings, TileRect, TileResult, combine_passes,
                        image_finished, pass_range, tile_finished, tile_grid)
 
@@ -92,7 +92,7 @@ def _render_image(scene, settings: RenderSettings, threads: int, progress: bool,
                   variance: bool) -> LocalRenderResult:
     tiles = tile_grid(settings.width, settings.height, settings.tile_size)
     integrator = scene.resolve_integrator(settings.integrator)
-    if settings.lockstep or integrators.splats(integrator):
+    if settings.lockstep or integrators.splats(integrator) or integrators.scene_passes(integrator):
         result = _render_lockstep(scene, settings, integrator, tiles, threads, progress, variance)
         result.integrator = integrator
         return result
@@ -121,6 +121,7 @@ def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, th
     image is assembled from the same results and sums as the farm's merge assembles it."""
     height, width = settings.height, settings.width
     splatting = integrators.splats(integrator)
+    scene_passes = integrators.scene_passes(integrator)
     batches = want_variance and splatting
     per_tile: dict[int, list[TileResult]] = {t.index: [] for t in tiles}
     sums = SplatSums(width, height)
@@ -136,10 +137,13 @@ def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, th
             bar.set_description(f"render ({integrator}, pass {p + 1})")
             bar.reset()
             this_pass = []
+            # Iteration p's scene-wide phase, once, before its tiles (as the farm's scene task).
+            product = (run_scene_pass(scene, settings, p, integrator=integrator, threads=threads)
+                       if scene_passes else None)
             for t in tiles:
                 result, _ = render_tile_pass(scene, settings, t, p, integrator=integrator,
                                              threads=threads, variance=settings.adaptive,
-                                             batches=batches)
+                                             batches=batches, scene_product=product)
                 result = sums.fold(result)
                 per_tile[t.index].append(result)
                 this_pass.append(result)

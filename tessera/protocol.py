@@ -10,6 +10,7 @@ bit for bit whatever the pass schedule.
 """
 from __future__ import annotations
 
+import math
 import re
 import struct
 import zlib
@@ -17,7 +18,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, Field, field_validator, model_validator
+from pydantic import BaseModel, Field, field_serializer, field_validator, model_validator
 
 from . import integrators
 from .denoise import DENOISE_AOVS
@@ -86,6 +87,10 @@ class RenderSettings(BaseModel):
         description="light transport method: a name from the renderer's registry, or auto "
                     "(`tessera render --integrator help`, docs/integrators.md)")
     # Added within schema 2: optional with an empty default, so earlier messages stay valid.
+    integrator_params: dict[str, float] = Field(
+        default_factory=dict,
+        description="the integrator's own settings, NAME -> number, as its registry entry declares "
+                    "them (`tessera render --integrator help`; e.g. ao's max_distance); inf allowed")
     aovs: list[Literal["albedo", "normal", "depth", "spp", "variance"]] = Field(
         default_factory=list,
         description="extra per-pixel outputs written as EXR layers beside RGBA "
@@ -100,6 +105,35 @@ class RenderSettings(BaseModel):
     @classmethod
     def _integrator_name(cls, value: str) -> str:
         return integrators.validate(value)
+
+    @field_validator("integrator_params", mode="before")
+    @classmethod
+    def _params_numbers(cls, value):
+        """Accepts numbers or their text ("inf" included: JSON has no infinity, see below)."""
+        if not isinstance(value, dict):
+            raise ValueError("integrator_params must be a mapping of setting name to number")
+        out = {}
+        for key, v in value.items():
+            number = None
+            try:
+                if isinstance(v, (int, float, str)) and not isinstance(v, bool):
+                    number = float(v)
+            except (ValueError, OverflowError):  # not a number; an integer beyond any float
+                pass
+            if number is None or math.isnan(number):
+                raise ValueError(f"integrator setting {key!r} must be a number (or inf), not {v!r}")
+            out[key] = number
+        return out
+
+    @field_serializer("integrator_params", when_used="json")
+    def _params_json(self, value: dict[str, float]):
+        # JSON has no infinity and pydantic would write null: write it as text instead.
+        return {k: (v if math.isfinite(v) else repr(v)) for k, v in value.items()}
+
+    @model_validator(mode="after")
+    def _params_known(self) -> "RenderSettings":
+        self.integrator_params = integrators.validate_params(self.integrator, self.integrator_params)
+        return self
 
     @field_validator("aovs", mode="before")
     @classmethod
@@ -201,10 +235,16 @@ class TileTask(BaseModel):
     # pass `pass_index` is stored: whoever takes it decides whether the image needs pass
     # pass_index + 1 and queues it for every tile, or finishes the job. `tile` is unused.
     decide: bool = False
+    # A scene-wide task (an integrator with scene_passes): iteration pass_index's scene
+    # pass. Whoever takes it computes the product (tessera.film.run_scene_pass), stores it
+    # once and queues that iteration's tile passes. `tile` is unused.
+    scene_pass: bool = False
 
     @property
     def field(self) -> str:
-        from .redis_schema import result_field  # the tiles hash's field of this pass
+        from .redis_schema import result_field, scene_task_field
+        if self.scene_pass:
+            return scene_task_field(self.pass_index)
         return result_field(self.tile.index, self.pass_index)
 
     def to_fields(self) -> dict[str, str]:
@@ -228,8 +268,17 @@ class TileTask(BaseModel):
     def pass_tasks(self, pass_index: int) -> list["TileTask"]:
         """Pass `pass_index` of every tile of this task's job."""
         s = self.settings
-        return [self.model_copy(update={"tile": rect, "pass_index": pass_index, "decide": False})
+        return [self.model_copy(update={"tile": rect, "pass_index": pass_index, "decide": False,
+                                        "scene_pass": False})
                 for rect in tile_grid(s.width, s.height, s.tile_size)]
+
+    def iteration_tasks(self, pass_index: int) -> list["TileTask"]:
+        """What starts pass `pass_index`: its scene-wide task for an integrator with scene
+        passes (which queues the tile passes once its product is stored), else the tiles."""
+        if integrators.scene_passes(self.settings.integrator):
+            return [self.model_copy(update={"pass_index": pass_index, "decide": False,
+                                            "scene_pass": True})]
+        return self.pass_tasks(pass_index)
 
 
 def tile_grid(width: int, height: int, tile_size: int) -> list[TileRect]:
@@ -244,11 +293,13 @@ def tile_grid(width: int, height: int, tile_size: int) -> list[TileRect]:
 
 
 def job_tasks(spec: JobSpec) -> list[TileTask]:
-    """The first pass of every tile of a job."""
+    """What a job starts with: the first pass of every tile, or, for an integrator with
+    scene passes, the scene-wide task of the first iteration (which queues those tiles)."""
     s = spec.settings
-    return [TileTask(job_id=spec.job_id, scene_hash=spec.scene_hash, scene_name=spec.scene_name,
-                     settings=s, tile=rect, priority=spec.priority, max_attempts=spec.max_attempts)
-            for rect in tile_grid(s.width, s.height, s.tile_size)]
+    first = TileTask(job_id=spec.job_id, scene_hash=spec.scene_hash, scene_name=spec.scene_name,
+                     settings=s, tile=tile_grid(s.width, s.height, s.tile_size)[0],
+                     priority=spec.priority, max_attempts=spec.max_attempts)
+    return first.iteration_tasks(0)
 
 
 # ------------------------------------------------------------------ tile results

@@ -25,6 +25,12 @@ Job hash fields (`job_key`), all written by the service at creation unless noted
                      tiles_total completes a pass and queues its barrier (store_tile.lua)
     decided_pass     the last pass whose lockstep barrier was applied (decide_pass.lua);
                      a barrier delivered twice is applied once
+    product:<pass>   for an integrator with scene passes: the SHA-256 (hex) of that
+                     iteration's scene-pass product, in `job_products_key` (store_product.lua;
+                     set once, which queues the iteration's tile passes)
+    scene_passes_stored  scene-pass products stored (one per iteration, however often a
+                     scene task is delivered)
+    scene_pass_runs  scene passes computed by workers, redeliveries included (workers)
 """
 from __future__ import annotations
 
@@ -65,6 +71,7 @@ BAND = 2 ** 40
 _JOB = f"{PREFIX}:job:"
 _QUEUE, _TILES, _EVENTS, _LOG = ":queue", ":tiles", ":events", ":log"
 _FAILURES, _BLOCKLIST, _PASSES, _SPLATS = ":failures", ":blocklist", ":passes", ":splats"
+_PRODUCTS = ":products"
 
 
 def scene_key(scene_hash: str) -> str:
@@ -121,6 +128,23 @@ def job_splats_key(job_id: str) -> str:
     return f"{_JOB}{job_id}{_SPLATS}"
 
 
+def job_products_key(job_id: str) -> str:
+    """Hash: SHA-256 hex -> a scene-pass product (opaque bytes, tessera.film.run_scene_pass),
+    content-addressed and written once (HSETNX); the job hash's product:<pass> fields say
+    which iteration uses which. Workers fetch a product once and keep it by its hash."""
+    return f"{_JOB}{job_id}{_PRODUCTS}"
+
+
+def product_field(pass_index: int) -> str:
+    """The job hash's field naming iteration pass_index's product."""
+    return f"product:{pass_index}"
+
+
+def scene_task_field(pass_index: int) -> str:
+    """A scene task's name where a tile pass has its result field (failure counts)."""
+    return f"scene:{pass_index}"
+
+
 def job_events_key(job_id: str) -> str:
     """Stream of progress events (fields: `JobEvent`)."""
     return f"{_JOB}{job_id}{_EVENTS}"
@@ -156,8 +180,8 @@ def job_keys(job_id: str) -> list[str]:
     """Every key of one job (for expiry and deletion)."""
     return [job_key(job_id), job_queue_key(job_id), job_tiles_key(job_id), job_splats_key(job_id),
             job_events_key(job_id), job_log_key(job_id), job_failures_key(job_id),
-            job_blocklist_key(job_id), job_passes_key(job_id), job_image_key(job_id, "exr"),
-            job_image_key(job_id, "png")]
+            job_blocklist_key(job_id), job_passes_key(job_id), job_products_key(job_id),
+            job_image_key(job_id, "exr"), job_image_key(job_id, "png")]
 
 
 def job_script_keys(job_id: str, scene_hash: str) -> list[str]:
@@ -165,7 +189,7 @@ def job_script_keys(job_id: str, scene_hash: str) -> list[str]:
     return [job_key(job_id), job_queue_key(job_id), job_tiles_key(job_id), job_events_key(job_id),
             job_log_key(job_id), job_failures_key(job_id), job_blocklist_key(job_id),
             job_passes_key(job_id), job_splats_key(job_id), READY, ACTIVE, WAKE, STATS,
-            scene_key(scene_hash), scene_jobs_key(scene_hash)]
+            scene_key(scene_hash), scene_jobs_key(scene_hash), job_products_key(job_id)]
 
 
 def user_jobs_key(user: str) -> str:
@@ -231,7 +255,7 @@ class JobEvent(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    type: Literal["state", "tile", "pass", "failure"]
+    type: Literal["state", "tile", "pass", "failure", "scene_pass"]
     state: JobState | None = None
     tile: int | None = None
     pass_index: int | None = None
@@ -258,7 +282,7 @@ _CONSTANTS = {
 }
 # Scripts that take job_script_keys (job.lua is prepended to them).
 JOB_SCRIPTS = ("admit_job", "fail_job", "cancel_job", "pause_job", "resume_job", "store_tile",
-               "decide_pass", "fail_tile")
+               "decide_pass", "fail_tile", "store_product")
 OTHER_SCRIPTS = ("pick", "touch_scene", "drop_idle_consumer")
 
 
@@ -297,6 +321,7 @@ class Scripts:
     store_tile: redis.commands.core.Script
     decide_pass: redis.commands.core.Script
     fail_tile: redis.commands.core.Script
+    store_product: redis.commands.core.Script
     pick: redis.commands.core.Script
     touch_scene: redis.commands.core.Script
     drop_idle_consumer: redis.commands.core.Script

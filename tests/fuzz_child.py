@@ -96,9 +96,15 @@ def scene_campaign(n: int) -> None:
             outcomes[f"refused: {type(exc).__name__}"] += 1
             return
         outcomes["built"] += 1
-        for integrator in [i["name"] for i in _core.integrators()]:
+        for info in _core.integrators():
+            integrator = info["name"]
             splats = np.zeros((4, 4, 3), np.int64)
-            rgba, stats = _core.render_tile(scene, camera, 0, 0, 4, 4, 2, 0, 8, 1, 0, True, integrator, splats)
+            # A scene-pass integrator renders from its product: a small one, fuzzed alike.
+            params = {"photons": 64.0} if "photons" in info["params"] else {}
+            product = (_core.scene_pass(scene, integrator, 0, 0, 8, 1, params)
+                       if info["scene_passes"] else None)
+            rgba, stats = _core.render_tile(scene, camera, 0, 0, 4, 4, 2, 0, 8, 1, 0, True, integrator, splats,
+                                            integrator_params=params, scene_product=product)
             assert np.isfinite(rgba).all() or stats["nonfinite_samples"], "NaN pixels the counter missed"
             outcomes[f"rendered: {'nonfinite counted' if stats['nonfinite_samples'] else 'finite'}"] += 1
 

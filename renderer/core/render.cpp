@@ -93,8 +93,12 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
     if (options.max_depth < 0) throw std::invalid_argument("max_depth must be >= 0");
 
     const std::unique_ptr<Integrator> integrator =
-        Integrator::Create(options.integrator, {options.max_depth, options.integrator_params}, scene);
+        Integrator::Create(options.integrator, {options.max_depth, options.integrator_params, options.scene_product},
+                           scene);
     const IntegratorInfo& info = integrator->info();
+    if (info.scene_passes && options.scene_product.empty())
+        throw std::invalid_argument("integrator '" + options.integrator +
+                                    "' renders tiles from its scene pass's product, and none was given");
     if (info.splats && !splats)
         throw std::invalid_argument("integrator '" + options.integrator +
                                     "' splats across tiles and needs a full-frame splat buffer");
@@ -208,6 +212,14 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
     stats.closest_rays = closest_rays.load();
     stats.shadow_rays = shadow_rays.load();
     return stats;
+}
+
+std::string RunScenePass(const Scene& scene, const RenderOptions& options, uint32_t iteration) {
+    const std::unique_ptr<Integrator> integrator =
+        Integrator::Create(options.integrator, {options.max_depth, options.integrator_params}, scene);
+    if (!integrator->info().scene_passes)
+        throw std::invalid_argument("integrator '" + options.integrator + "' has no scene-wide passes");
+    return integrator->RunScenePass(scene, options.seed, iteration, options.threads);
 }
 
 }  // namespace tessera

@@ -22,6 +22,9 @@ struct RenderOptions {
     uint32_t sample_start = 0;  // index of the first sample: passes [a, b) and [b, c) compose into [a, c)
     std::string integrator = "path";  // a registered name (integrators/integrator.h)
     std::map<std::string, float> integrator_params;  // the extra settings its info declares
+    // The product of this iteration's scene pass, for an integrator with scene_passes
+    // (RunScenePass below); empty for the others.
+    std::string scene_product;
     SamplerKind sampler = SamplerKind::kOwenSobol;
 };
 
@@ -79,5 +82,11 @@ struct AOVBuffers {
 RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOptions& options, TileRect tile,
                        float* rgba, float* variance = nullptr, int64_t* splats = nullptr,
                        const AOVBuffers& aovs = {});
+
+// The scene-wide pass of iteration `iteration` of options.integrator (one with
+// scene_passes), with options' seed, integrator_params and threads: the product every tile
+// of that iteration is rendered with (RenderOptions::scene_product). Throws
+// std::invalid_argument for an integrator without scene passes.
+std::string RunScenePass(const Scene& scene, const RenderOptions& options, uint32_t iteration);
 
 }  // namespace tessera

@@ -368,10 +368,12 @@ NB_MODULE(_core, m) {
         [](const Scene& scene, const Camera& camera, uint32_t x0, uint32_t y0, uint32_t width, uint32_t height,
            uint32_t spp, uint32_t seed, int max_depth, int threads, uint32_t sample_start, bool with_variance,
            const std::string& integrator, std::optional<SplatArray> splats, const std::string& sampler,
-           const std::vector<std::string>& aovs, const std::map<std::string, float>& integrator_params) {
+           const std::vector<std::string>& aovs, const std::map<std::string, float>& integrator_params,
+           std::optional<nb::bytes> scene_product) {
             RenderOptions options{.spp = spp, .seed = seed, .max_depth = max_depth, .threads = threads,
                                   .sample_start = sample_start, .integrator = integrator,
                                   .integrator_params = integrator_params, .sampler = ParseSampler(sampler)};
+            if (scene_product) options.scene_product.assign(scene_product->c_str(), scene_product->size());
             int64_t* splat_data = nullptr;
             if (splats) {
                 if (splats->shape(0) != camera.height || splats->shape(1) != camera.width)
@@ -426,7 +428,7 @@ NB_MODULE(_core, m) {
         "scene"_a, "camera"_a, "x0"_a, "y0"_a, "width"_a, "height"_a, "spp"_a, "seed"_a = 0, "max_depth"_a = 64,
         "threads"_a = 0, "sample_start"_a = 0, "with_variance"_a = false, "integrator"_a = "path",
         "splats"_a = nb::none(), "sampler"_a = "sobol", "aovs"_a = std::vector<std::string>{},
-        "integrator_params"_a = std::map<std::string, float>{},
+        "integrator_params"_a = std::map<std::string, float>{}, "scene_product"_a = nb::none(),
         "Renders samples [sample_start, sample_start + spp) of a tile; returns (rgba float32 [h, w, 4] mean, "
         "stats dict). With with_variance, stats['variance'] is float32 [h, w, 3]: the per-channel sample "
         "variance. integrator: a name from integrators(), integrator_params its extra settings; one that "
@@ -435,6 +437,25 @@ NB_MODULE(_core, m) {
         "(padded Owen-scrambled Sobol, default) or 'independent'. aovs: names from AOV_NAMES; each adds "
         "stats[name] (albedo, normal float32 [h, w, 3]; depth, spp float32 [h, w]; see render.h). "
         "stats['closest_rays'] / stats['shadow_rays']: Embree queries the integrator made.");
+
+    m.def(
+        "scene_pass",
+        [](const Scene& scene, const std::string& integrator, uint32_t iteration, uint32_t seed, int max_depth,
+           int threads, const std::map<std::string, float>& integrator_params) {
+            RenderOptions options{.seed = seed, .max_depth = max_depth, .threads = threads,
+                                  .integrator = integrator, .integrator_params = integrator_params};
+            std::string product;
+            {
+                nb::gil_scoped_release release;
+                product = RunScenePass(scene, options, iteration);
+            }
+            return nb::bytes(product.data(), product.size());
+        },
+        "scene"_a, "integrator"_a, "iteration"_a, "seed"_a = 0, "max_depth"_a = 64, "threads"_a = 0,
+        "integrator_params"_a = std::map<std::string, float>{},
+        "The scene-wide pass of `iteration` of an integrator with scene_passes: its product (bytes), a pure "
+        "function of (scene, integrator, integrator_params, seed, iteration), handed to every tile of that "
+        "iteration as render_tile(..., scene_product=...).");
 
     m.def(
         "trace_rays",

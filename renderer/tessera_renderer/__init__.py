@@ -155,12 +155,22 @@ class Scene:
                             lens_radius=c.lens_radius, focal_distance=c.focus_distance, near=c.clip_near,
                             far=c.clip_far)
 
+    def scene_pass(self, integrator: str, iteration: int, *, seed: int = 0, max_depth: int = 64,
+                   threads: int = 0, integrator_params: dict[str, float] | None = None) -> bytes:
+        """The product of the scene-wide pass of `iteration` of `integrator` (one whose
+        entry has scene_passes; resolved, not `auto`): bytes every tile of that iteration
+        is rendered with (render_tile's scene_product). A pure function of the scene, the
+        integrator and its params, the seed and the iteration. Releases the GIL."""
+        return _core.scene_pass(self._core, integrator, iteration, seed, max_depth, threads,
+                                {k: float(v) for k, v in (integrator_params or {}).items()})
+
     def render_tile(self, x0: int, y0: int, w: int, h: int, *, width: int | None = None,
                     height: int | None = None, spp: int = 64, seed: int = 0, max_depth: int = 64,
                     threads: int = 0, sample_start: int = 0, return_variance: bool = False,
                     integrator: str | None = None, splats: np.ndarray | None = None,
                     sampler: str = "sobol", aovs=(), stats: dict | None = None,
-                    integrator_params: dict[str, float] | None = None):
+                    integrator_params: dict[str, float] | None = None,
+                    scene_product: bytes | None = None):
         """Renders pixels [x0, x0+w) x [y0, y0+h) of a width x height image, averaging samples
         [sample_start, sample_start + spp) of each pixel. Returns float32 linear RGBA of shape
         (h, w, 4); with return_variance, (rgba, variance) where variance is float32 (h, w, 3),
@@ -168,7 +178,8 @@ class Scene:
         integrator: a name from integrators() (default: the first) or "auto";
         integrator_params: the extra settings its entry's params declare. An integrator that
         splats also adds the tile's light-path splats to `splats`, an int64 (height, width,
-        3) full-frame buffer (see film.py for turning it into an image); the tile traced
+        3) full-frame buffer (see film.py for turning it into an image); an integrator with
+        scene_passes renders from `scene_product`, its scene pass's (`scene_pass`); the tile traced
         w * h * spp light paths. sampler: "sobol" (Owen-scrambled, default) or
         "independent".
 
@@ -189,7 +200,8 @@ class Scene:
         rgba, info = _core.render_tile(self._core, self.camera(width, height), x0, y0, w, h,
                                        spp, seed, max_depth, threads, sample_start, want_variance,
                                        integrator, splats, sampler, core_aovs,
-                                       {k: float(v) for k, v in (integrator_params or {}).items()})
+                                       {k: float(v) for k, v in (integrator_params or {}).items()},
+                                       scene_product)
         if stats is not None:
             stats.update({k: v for k, v in info.items() if not isinstance(v, np.ndarray)})
         if info["rejected_splats"]:

@@ -3,7 +3,7 @@
 -- now, max_attempts, blocklist_after, task.
 -- Returns 'final', 'retry', 'blocklisted' or 'poisoned'.
 local id = ARGV[1]
-local worker, dead = KEYS[16], KEYS[17]
+local worker, dead = KEYS[17], KEYS[18]
 local state = redis.call('HGET', K.job, 'state')
 if redis.call('EXISTS', K.queue) == 1 then
   redis.call('XACK', K.queue, '@WORKER_GROUP@', ARGV[4])

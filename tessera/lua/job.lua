@@ -3,9 +3,10 @@
 local K = {job = KEYS[1], queue = KEYS[2], tiles = KEYS[3], events = KEYS[4], log = KEYS[5],
            failures = KEYS[6], blocklist = KEYS[7], passes = KEYS[8], splats = KEYS[9],
            ready = KEYS[10], active = KEYS[11], wake = KEYS[12], stats = KEYS[13],
-           scene = KEYS[14], scene_jobs = KEYS[15]}
+           scene = KEYS[14], scene_jobs = KEYS[15], products = KEYS[16]}
 -- Keys that expire together once the job is final (its retention).
-local RETAINED = {K.job, K.tiles, K.events, K.log, K.failures, K.blocklist, K.passes, K.splats}
+local RETAINED = {K.job, K.tiles, K.events, K.log, K.failures, K.blocklist, K.passes, K.splats,
+                  K.products}
 
 local function priority()
   return redis.call('HGET', K.job, 'priority') or '@DEFAULT_PRIORITY@'

@@ -7,7 +7,7 @@
 -- caller under WATCH): written only with the tile, so that a pass is summed exactly once.
 -- Returns 1 if this completed the job, 0 if not, -1 if the job is gone or final (dropped).
 local id = ARGV[1]
-local worker = KEYS[16]
+local worker = KEYS[17]
 local state = redis.call('HGET', K.job, 'state')
 local ret = 0
 if (not state) or is_final(state) then

@@ -28,7 +28,7 @@ import time
 from collections import OrderedDict
 from multiprocessing.connection import Connection
 
-from tessera.film import render_tile_pass
+from tessera.film import render_tile_pass, run_scene_pass
 from tessera.protocol import RenderSettings, TileRect
 
 SCENE_CACHE_SIZE = 4
@@ -102,11 +102,18 @@ def serve(conn: Connection) -> None:
             # `auto` resolves from the scene alone, so every worker picks the same method.
             settings = RenderSettings.model_validate_json(req["settings"])
             integrator = scene.resolve_integrator(settings.integrator)
-            result, seconds = render_tile_pass(scene, settings, TileRect(**req["tile"]),
-                                               req["pass_index"], integrator=integrator,
-                                               threads=req["threads"], variance=req["variance"],
-                                               batches=req["batches"])
-            reply = ("ok", result, seconds)
+            if req.get("scene_pass"):
+                started = time.perf_counter()
+                product = run_scene_pass(scene, settings, req["pass_index"], integrator=integrator,
+                                         threads=req["threads"])
+                reply = ("ok", product, time.perf_counter() - started)
+            else:
+                result, seconds = render_tile_pass(scene, settings, TileRect(**req["tile"]),
+                                                   req["pass_index"], integrator=integrator,
+                                                   threads=req["threads"], variance=req["variance"],
+                                                   batches=req["batches"],
+                                                   scene_product=req.get("scene_product"))
+                reply = ("ok", result, seconds)
         except SceneError as e:
             reply = ("error", "scene", str(e))
         except MemoryError as e:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import fnmatch
+import hashlib
 import logging
 import os
 import secrets
@@ -37,7 +38,7 @@ from pathlib import PurePosixPath
 
 import redis
 
-from tessera import film, protocol
+from tessera import film, integrators, protocol
 from tessera import redis_schema as rdb
 from tessera.process import die_with_parent, private_tempdir, remove_orphaned_tempdirs
 from tessera.protocol import TileTask
@@ -56,6 +57,8 @@ OOM_BACKOFF_MIN = 0.25     # first wait after Redis refused a result for lack of
 OOM_BACKOFF_MAX = 10.0
 CANCEL_POLL = 0.5          # seconds between looks at the job's state during a render
 SCENE_FILES = 8            # scene files kept on local disk (least recently used go)
+PRODUCTS_KEPT = 4          # scene-pass products kept in memory (least recently used go)
+SCENE_TASK = -1            # a fault rule's target "#scene": scene-wide tasks, not tiles
 
 class RenderFailed(Exception):
     """A failed attempt at a tile. `fatal`: the job fails at once (retrying elsewhere
@@ -239,6 +242,7 @@ class Worker:
         self.scripts = rdb.Scripts(self.redis)
         self._faults = _parse_faults(settings.faults)
         self._scene_files: dict[str, str] = {}
+        self._products: dict[str, bytes] = {}  # content hash -> scene-pass product
         self._tmpdir: str | None = None
         self._child = RenderChild(settings.memory_limit)
         self.current = ""
@@ -337,6 +341,9 @@ class Worker:
         if task.decide:
             self._decide(task, entry_id, started_at)
             return
+        if task.scene_pass:
+            self._scene_task(task, entry_id)
+            return
         tiles_key = rdb.job_tiles_key(job_id)
         if self.redis.hexists(tiles_key, task.field):  # a redelivery after a lost ack
             self._ack(queue, entry_id)
@@ -429,15 +436,19 @@ class Worker:
                 except redis.WatchError:
                     continue  # another tile of the job was stored meanwhile: add again
 
-    def _render(self, task: TileTask):
+    def _render(self, task: TileTask, scene_pass: bool = False):
+        """Renders a tile pass in the render process, or with `scene_pass` computes a scene
+        pass's product; returns (TileResult or product bytes, seconds)."""
         s, rect = task.settings, task.tile
         self._child.ensure_started()
+        product = None if scene_pass else self._scene_product(task)
         scene = self._scene_source(task, self._child.blob_version)
         request = dict(**scene, settings=s.model_dump_json(), tile=rect.model_dump(),
                        pass_index=task.pass_index, threads=self.threads, variance=s.adaptive,
                        default_light=s.default_light,
                        # light and bdpt: the variance layer from batches (protocol.VARIANCE_BATCHES)
-                       batches="variance" in s.aovs, fault=self._fault_for(task))
+                       batches="variance" in s.aovs, fault=self._fault_for(task),
+                       scene_pass=scene_pass, scene_product=product)
         job_key = rdb.job_key(task.job_id)
 
         def abandoned() -> bool:
@@ -461,6 +472,55 @@ class Worker:
             raise RenderFailed(f"exceeded the worker's memory limit of "
                                f"{_size(self.settings.memory_limit)} ({message})", fatal=True)
         raise RenderFailed(message, fatal=False)
+
+    def _scene_task(self, task: TileTask, entry_id: bytes) -> None:
+        """A scene-wide task: computes iteration pass_index's product in the render process
+        (tessera.film.run_scene_pass, as a local render does), stores it content-addressed
+        and queues the iteration's tile passes (store_product.lua: once, however often the
+        task is delivered; a product depends only on scene, settings, seed and iteration,
+        so a reclaimed task computes the same bytes)."""
+        job_id, p = task.job_id, task.pass_index
+        queue = rdb.job_queue_key(job_id)
+        if self.redis.hexists(rdb.job_key(job_id), rdb.product_field(p)):  # a redelivery
+            self._ack(queue, entry_id)
+            return
+        self.current = f"{job_id}/scene/{p}"
+        try:
+            try:
+                product, seconds = self._render(task, scene_pass=True)
+            except Abandoned:
+                self._ack(queue, entry_id)
+                return
+            except RenderFailed as e:
+                self._failed(task, entry_id, str(e), e.fatal)
+                return
+        finally:
+            self.current = ""
+        self.redis.hincrby(rdb.job_key(job_id), "scene_pass_runs", 1)
+        digest = hashlib.sha256(product).hexdigest()
+        self._products[digest] = product
+        tasks = [t.model_dump_json() for t in task.pass_tasks(p)]
+        stored = self.scripts.store_product(keys=self._keys(job_id, task.scene_hash),
+                                            args=[job_id, p, digest, product, entry_id,
+                                                  repr(time.time()), *tasks])
+        log.info("job %s: scene pass %d computed in %.3f s (%d bytes)%s", job_id, p, seconds,
+                 len(product), "" if stored == 1 else "; it was already stored")
+
+    def _scene_product(self, task: TileTask) -> bytes | None:
+        """The product a tile pass of a scene-pass integrator reads (None for the others):
+        fetched once per worker and iteration, kept by its content hash."""
+        if not integrators.scene_passes(task.settings.integrator):
+            return None
+        digest = _text(self.redis.hget(rdb.job_key(task.job_id), rdb.product_field(task.pass_index)))
+        product = self._products.get(digest) if digest else None
+        if product is None and digest:
+            product = self.redis.hget(rdb.job_products_key(task.job_id), digest)
+        if product is None:
+            raise RenderFailed(f"the scene pass {task.pass_index} product is missing", fatal=True)
+        self._products[digest] = self._products.pop(digest, product)  # most recently used last
+        while len(self._products) > PRODUCTS_KEPT:
+            self._products.pop(next(iter(self._products)))
+        return product
 
     def _tile_final(self, task: TileTask, this, started_at: float | None) -> bool:
         """Whether the tile needs no further pass (per-tile noise target)."""
@@ -537,14 +597,15 @@ class Worker:
         error = acc.error()
         log.info("job %s: pass %d done, image noise %s; %s", job_id, p,
                  "unknown" if error is None else f"{error:.3%}", "finished" if finished else "next pass")
-        tasks = [] if finished else [t.model_dump_json() for t in task.pass_tasks(p + 1)]
+        tasks = [] if finished else [t.model_dump_json() for t in task.iteration_tasks(p + 1)]
         if self.scripts.decide_pass(keys=self._keys(job_id, task.scene_hash),
                                     args=[job_id, p, 1 if finished else 0, repr(time.time()),
                                           entry_id, acc.to_bytes(), *tasks]) == 1:
             log.info("job %s done", job_id)
 
     def _failed(self, task: TileTask, entry_id: bytes, message: str, fatal: bool) -> None:
-        where = f"tile {task.tile.index} (pass {task.pass_index}) of {task.scene_name!r}"
+        where = (f"the scene pass of iteration {task.pass_index} of {task.scene_name!r}" if task.scene_pass
+                 else f"tile {task.tile.index} (pass {task.pass_index}) of {task.scene_name!r}")
         if fatal:
             error = message if message.startswith("cannot load scene") else f"{where}: {message}"
             log.error("job %s failed: %s", task.job_id, error)
@@ -674,8 +735,9 @@ class Worker:
         return self._keep_file(key, data, os.path.join(task.scene_hash, protocol.scene_file_name(suffix)))
 
     def _fault_for(self, task: TileTask) -> str | None:
+        target = SCENE_TASK if task.scene_pass else task.tile.index
         for kind, pattern, tile in self._faults:
-            if fnmatch.fnmatch(task.scene_name, pattern) and tile in (None, task.tile.index):
+            if fnmatch.fnmatch(task.scene_name, pattern) and tile in (None, target):
                 return kind
         return None
 
@@ -776,9 +838,10 @@ def _parse_faults(spec: str) -> list[tuple[str, str, int | None]]:
     for item in filter(None, (s.strip() for s in spec.split(","))):
         kind, _, rest = item.partition(":")
         pattern, _, tile = rest.partition("#")
-        if kind not in ("segv", "abort", "hang", "oom", "exit") or not pattern:
-            raise ValueError(f"bad fault injection rule {item!r}: use KIND:GLOB[#TILE]")
-        faults.append((kind, pattern, int(tile) if tile else None))
+        if kind not in ("segv", "abort", "hang", "oom", "exit") or not pattern \
+                or not (tile in ("", "scene") or tile.isdigit()):
+            raise ValueError(f"bad fault injection rule {item!r}: use KIND:GLOB[#TILE|#scene]")
+        faults.append((kind, pattern, SCENE_TASK if tile == "scene" else int(tile) if tile else None))
     return faults
 
 

@@ -10,6 +10,7 @@
 
 #include <limits>
 #include <map>
+#include <cstdint>
 #include <memory>
 #include <string>
 #include <string_view>
@@ -39,7 +40,9 @@ struct IntegratorInfo {
     // Writes across tiles: light paths land anywhere on the frame (SplatFilm), and the image
     // is the tiles' own pixels plus the summed splats normalised by the light paths traced.
     bool splats = false;
-    // Needs work done once per scene before tiles (none does yet).
+    // Needs scene-wide work before each iteration's tile passes (Integrator::RunScenePass):
+    // the farm runs it once per iteration as a task of its own and hands its product to
+    // every tile of that iteration (IntegratorSettings::scene_product).
     bool scene_passes = false;
     // A tile may stop on a noise target on its own; otherwise the whole image advances in
     // lockstep (splats land on other tiles, so a tile's noise is not its own to judge).
@@ -56,6 +59,9 @@ struct IntegratorInfo {
 struct IntegratorSettings {
     int max_depth = 64;
     std::map<std::string, float> params;
+    // For an integrator with scene_passes: the product of the current iteration's scene
+    // pass (RunScenePass), opaque bytes to everything but that integrator; empty otherwise.
+    std::string scene_product;
     // The value of an extra setting, or `fallback` if it was not given.
     float Param(const std::string& name, float fallback) const {
         auto it = params.find(name);
@@ -91,6 +97,13 @@ public:
     // camera's dimensions. A splatting integrator also adds to `film` (full frame).
     virtual PathSample Sample(const Scene& scene, const Camera& camera, const CameraSample& cs,
                               PixelSampler& sampler, SplatFilm& film, IntegratorCounters* counters) const = 0;
+
+    // For an integrator with scene_passes: the scene-wide work of iteration `iteration`
+    // (e.g. tracing a batch of photons), run once before that iteration's tile passes, and
+    // its product. It must be a pure function of (scene, settings, seed, iteration), so
+    // that any machine computes the same bytes; `threads` only decides who computes it.
+    // The integrator it is called on may have been built with an empty scene_product.
+    virtual std::string RunScenePass(const Scene& scene, uint32_t seed, uint32_t iteration, int threads) const;
 
     // The registered integrator of that name, built for one render; throws
     // std::invalid_argument for an unknown name or a setting it does not take.

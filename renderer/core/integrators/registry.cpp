@@ -16,7 +16,8 @@
     X(LightTracerEntry)        \
     X(WhittedIntegratorEntry)  \
     X(LocalIntegratorEntry)    \
-    X(AOIntegratorEntry)
+    X(AOIntegratorEntry)       \
+    X(PhotonDirectIntegratorEntry)
 
 namespace tessera {
 
@@ -62,6 +63,10 @@ std::string_view AutoIntegrator(bool scene_has_delta_caustics) {
         if (info.complete && (info.delta_caustics || !scene_has_delta_caustics)) return info.name;
     }
     throw std::logic_error("no complete integrator is registered");
+}
+
+std::string Integrator::RunScenePass(const Scene&, uint32_t, uint32_t, int) const {
+    throw std::invalid_argument("integrator '" + std::string(info().name) + "' has no scene-wide passes");
 }
 
 std::unique_ptr<Integrator> Integrator::Create(std::string_view name, const IntegratorSettings& settings,

@@ -52,6 +52,7 @@ TEST(Registry, SplattingIntegratorsRefuseToRenderWithoutASplatBuffer) {
         RenderOptions opt;
         opt.spp = 1;
         opt.integrator = std::string(info.name);
+        if (info.scene_passes) opt.scene_product = RunScenePass(scene, opt, 0);
         if (info.splats)
             EXPECT_THROW(RenderTile(scene, camera, opt, {0, 0, 4, 4}, rgba.data()), std::invalid_argument) << info.name;
         else

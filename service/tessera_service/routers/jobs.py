@@ -48,6 +48,20 @@ _DEFAULTS = {name: f.default for name, f in RenderSettings.model_fields.items()}
 CurrentUser = Annotated[User, Depends(require_user)]
 
 
+def _integrator_params_form(text: str) -> dict:
+    """The integrator_params form field (a JSON object) as a dict; RenderSettings checks
+    the names and values against the registry."""
+    if not text.strip():
+        return {}
+    try:
+        value = json.loads(text)
+    except (ValueError, RecursionError) as exc:  # ValueError: bad JSON, or an over-long integer
+        raise HTTPException(422, f"integrator_params is not JSON: {exc}") from None
+    if not isinstance(value, dict):
+        raise HTTPException(422, 'integrator_params must be a JSON object such as {"max_distance": 2}')
+    return value
+
+
 def upload_too_large(limit: int) -> HTTPException:
     return HTTPException(413, f"the upload is larger than the limit of {_size(limit)}")
 
@@ -92,6 +106,9 @@ def create_job(
     denoise: Annotated[bool, Form(description="add a denoised layer (denoised.R/G/B) and "
                                               "/jobs/ID/denoised.png; adds the albedo and normal "
                                               "AOVs (docs/denoise.md)")] = False,
+    integrator_params: Annotated[str, Form(description=(
+        'the integrator\'s own settings as a JSON object of name -> number, e.g. '
+        '{"max_distance": 2} for ao ("inf" as a string for infinity; docs/integrators.md)'))] = "",
 ) -> JobCreated:
     settings: Settings = request.app.state.settings
     store: JobStore = request.app.state.store
@@ -103,7 +120,8 @@ def create_job(
                                  f"upload a {', '.join(SCENE_SUFFIXES)} file")
     params = dict(spp=spp, seed=seed, max_depth=max_depth, tile_size=tile_size, integrator=integrator,
                   target_error=target_error, min_spp=min_spp, max_spp=max_spp,
-                  time_limit=time_limit, aovs=aovs, default_light=default_light, denoise=denoise)
+                  time_limit=time_limit, aovs=aovs, default_light=default_light, denoise=denoise,
+                  integrator_params=_integrator_params_form(integrator_params))
     if integrator is None:
         del params["integrator"]  # RenderSettings' default: the registry's first
     if denoise:  # the merge here denoises: refuse now rather than deliver a job without it
@@ -203,8 +221,9 @@ def get_log(job_id: str, request: Request, user: CurrentUser) -> JobLog:
 
 @router.get("/{job_id}/events", response_class=StreamingResponse,
             responses={200: {"content": {"text/event-stream": {}},
-                             "description": "Server-Sent Events: `state`, `tile`, `pass` and "
-                                            "`failure` events whose data is a JSON JobEvent; "
+                             "description": "Server-Sent Events: `state`, `tile`, `pass`, "
+                                            "`scene_pass` and `failure` events whose data is a "
+                                            "JSON JobEvent; "
                                             "the stream ends after the job's final state"},
                        404: {"description": "no such job"}})
 async def job_events(job_id: str, request: Request, user: CurrentUser,

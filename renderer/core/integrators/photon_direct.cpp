@@ -1,0 +1,212 @@
+// Direct light by photon density estimation: the first step of a photon map (Jensen 2001),
+// and the proof that scene-wide passes work end to end (docs/integrators.md, "Scene-wide
+// passes"). Each iteration's scene pass traces `photons` photons from the lights, chosen by
+// power, and keeps where each first lands on a non-specular surface, with its direction and
+// flux. A tile reads that product: at the first surface the camera sees,
+//     L = Le + sum over photons within `radius` of f(wo, wi_p) * flux_p / (pi radius^2),
+// a disk kernel. Only direct light: no bounce after the first hit on either side, so
+// mirrors and glass seen directly are black, and lights at infinity seen directly are not
+// drawn (they still light the scene). Biased by the kernel: the estimate is the mean
+// irradiance over the disk around the shading point, not the point's.
+//
+// Every iteration draws fresh photons (its own sampler streams), so averaging iterations
+// averages independent photon maps: the farm repeats scene pass -> tile passes per pass.
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstring>
+#include <stdexcept>
+#include <vector>
+
+#include "integrator.h"
+
+namespace tessera {
+
+namespace {
+
+constexpr float kPi = 3.14159265358979323846f;
+// The default kernel radius as a fraction of the scene's bounding diameter (unit-free).
+constexpr float kDefaultRadiusOfDiameter = 0.01f;
+constexpr float kDefaultPhotons = 200000.f;
+// Photon streams are keyed by the iteration in a pixel-index range no image reaches
+// (2^40 pixels), so they are independent of every camera sample's stream.
+constexpr uint64_t kPhotonStreamBase = uint64_t(1) << 40;
+constexpr uint32_t kPhotonStream = 3;
+
+// The product: a header, then per photon its position, the direction it came from (toward
+// the light) and its flux, 9 little-endian floats. Opaque to everything outside this file.
+constexpr char kMagic[4] = {'T', 'P', 'D', '1'};
+struct Header {
+    char magic[4];
+    uint32_t count;
+    uint32_t iteration;
+    uint32_t traced;  // photons traced, including those that landed nowhere useful
+};
+struct Photon {
+    float p[3], wi[3], flux[3];
+};
+
+class PhotonDirectIntegrator final : public Integrator {
+public:
+    PhotonDirectIntegrator(uint32_t photons, float radius, const std::string& product)
+        : photons_(photons), radius_(radius) {
+        if (!product.empty()) Load(product);
+    }
+
+    static const IntegratorInfo& Info() {
+        static const IntegratorInfo info{
+            .name = "photon_direct",
+            .description = "direct light by photon density estimation (a photon map's first step; "
+                           "scene-wide photon pass per iteration)",
+            .scene_passes = true,
+            // Every tile of an iteration reads the same photons: the image advances together.
+            .stop_per_tile = false,
+            .params = {{"photons", "photons traced per iteration (default 200000)"},
+                       {"radius", "density-estimation disk radius in scene units (default: a hundredth "
+                                  "of the scene's bounding diameter)"}},
+        };
+        return info;
+    }
+    const IntegratorInfo& info() const override { return Info(); }
+
+    std::string RunScenePass(const Scene& scene, uint32_t seed, uint32_t iteration, int threads) const override {
+        std::vector<Photon> slot(photons_);
+        std::vector<uint8_t> kept(photons_, 0);
+        const LightSampler& lights = scene.light_sampler();
+        const float inv_n = 1.f / float(photons_);
+        auto trace = [&](const tbb::blocked_range<uint32_t>& range) {
+            for (uint32_t i = range.begin(); i != range.end(); ++i) {
+                if (lights.empty()) return;
+                PixelSampler sampler(seed, kPhotonStreamBase + iteration, i, kPhotonStream);
+                float pmf = 0.f;
+                const uint32_t light = lights.Sample(sampler.Get1D(), &pmf);
+                const Vec2 u_pos = sampler.Get2D(), u_dir = sampler.Get2D();
+                const float u_side = sampler.Get1D();
+                EmissionSample es;
+                if (!scene.SampleEmission(light, u_pos, u_dir, u_side, &es) || !(pmf > 0.f)) continue;
+                const Ray ray{es.on_surface ? OffsetRayOrigin(es.p, es.p_error, es.n, es.wo) : es.p, es.wo};
+                SurfaceHit hit;
+                if (!scene.Intersect(ray, &hit)) continue;
+                const BSDF bsdf = scene.BSDFAt(hit, TransportMode::Importance);
+                if (bsdf.Flags() == kBSDFUnset || !bsdf.IsNonSpecular()) continue;
+                const Color flux = es.beta * (inv_n / pmf);
+                slot[i] = Photon{{hit.p.x, hit.p.y, hit.p.z}, {-ray.d.x, -ray.d.y, -ray.d.z}, {flux.x, flux.y, flux.z}};
+                kept[i] = 1;
+            }
+        };
+        // Each photon writes its own slot and the slots are compacted in index order, so
+        // the product does not depend on the thread count.
+        tbb::task_arena arena(threads > 0 ? threads : tbb::this_task_arena::max_concurrency());
+        arena.execute([&] { tbb::parallel_for(tbb::blocked_range<uint32_t>(0, photons_, 1024), trace); });
+        std::vector<Photon> out;
+        for (uint32_t i = 0; i < photons_; ++i)
+            if (kept[i]) out.push_back(slot[i]);
+        Header h{};
+        std::memcpy(h.magic, kMagic, 4);
+        h.count = uint32_t(out.size());
+        h.iteration = iteration;
+        h.traced = photons_;
+        std::string bytes(sizeof(Header) + out.size() * sizeof(Photon), '\0');
+        std::memcpy(bytes.data(), &h, sizeof(Header));
+        if (!out.empty()) std::memcpy(bytes.data() + sizeof(Header), out.data(), out.size() * sizeof(Photon));
+        return bytes;
+    }
+
+    PathSample Sample(const Scene& scene, const Camera&, const CameraSample& cs, PixelSampler&, SplatFilm&,
+                      IntegratorCounters*) const override {
+        PathSample result;
+        SurfaceHit hit;
+        if (!scene.Intersect(cs.ray, &hit, cs.t_min, cs.t_max)) return result;
+        result.alpha = 1.f;
+        const Vec3 wo = -cs.ray.d;
+        if (int32_t e = scene.EmitterAt(hit); e != Scene::kNoEmitter) result.radiance += scene.Emitted(e, hit, wo);
+        const BSDF bsdf = scene.BSDFAt(hit, TransportMode::Radiance);
+        if (bsdf.Flags() == kBSDFUnset || !bsdf.IsNonSpecular()) return result;
+        const Frame frame = Frame::FromZ(hit.ns);
+        const Vec3 wo_local = frame.ToLocal(wo);
+        const float r2 = radius_ * radius_;
+        Color sum(0.f);
+        // The 27 cells around the point; two of them may share a bucket, which must then
+        // be visited once, or its photons would count twice.
+        const int cx = Cell(hit.p.x), cy = Cell(hit.p.y), cz = Cell(hit.p.z);
+        std::array<uint32_t, 27> buckets;
+        int n = 0;
+        for (int dz = -1; dz <= 1; ++dz)
+            for (int dy = -1; dy <= 1; ++dy)
+                for (int dx = -1; dx <= 1; ++dx) buckets[n++] = Bucket(cx + dx, cy + dy, cz + dz);
+        std::sort(buckets.begin(), buckets.end());
+        const auto last = std::unique(buckets.begin(), buckets.end());
+        for (auto b = buckets.begin(); b != last; ++b)
+            for (uint32_t k = start_[*b]; k < start_[*b + 1]; ++k) {
+                const Photon& ph = photons_map_[order_[k]];
+                const Vec3 d(ph.p[0] - hit.p.x, ph.p[1] - hit.p.y, ph.p[2] - hit.p.z);
+                if (LengthSquared(d) > r2) continue;
+                const Vec3 wi(ph.wi[0], ph.wi[1], ph.wi[2]);
+                const Vec3 wi_local = frame.ToLocal(wi);
+                if (!SidesAgree(wo, wi, hit.ng, wo_local, wi_local)) continue;
+                sum += bsdf.f(wo_local, wi_local) * Color(ph.flux[0], ph.flux[1], ph.flux[2]);
+            }
+        result.radiance += sum / (kPi * r2);
+        return result;
+    }
+
+private:
+    int Cell(float x) const { return int(std::floor(x / radius_)); }
+    uint32_t Bucket(int x, int y, int z) const {
+        const uint32_t h = (uint32_t(x) * 73856093u) ^ (uint32_t(y) * 19349663u) ^ (uint32_t(z) * 83492791u);
+        return h & (buckets_ - 1);
+    }
+
+    // Parses a product and sorts its photons into a hash grid of cells one radius wide, so
+    // a lookup visits the 27 cells around a point (collisions only add candidates).
+    void Load(const std::string& product) {
+        Header h;
+        if (product.size() < sizeof(Header) || std::memcmp(product.data(), kMagic, 4) != 0)
+            throw std::invalid_argument("photon_direct: the scene product is not a photon map");
+        std::memcpy(&h, product.data(), sizeof(Header));
+        if (product.size() != sizeof(Header) + size_t(h.count) * sizeof(Photon))
+            throw std::invalid_argument("photon_direct: the scene product has the wrong size");
+        photons_map_.resize(h.count);
+        if (h.count) std::memcpy(photons_map_.data(), product.data() + sizeof(Header), h.count * sizeof(Photon));
+        buckets_ = 1;
+        while (buckets_ < 2 * uint64_t(h.count) + 1) buckets_ <<= 1;
+        start_.assign(buckets_ + 1, 0);
+        std::vector<uint32_t> bucket_of(h.count);
+        for (uint32_t i = 0; i < h.count; ++i) {
+            const Photon& ph = photons_map_[i];
+            bucket_of[i] = Bucket(Cell(ph.p[0]), Cell(ph.p[1]), Cell(ph.p[2]));
+            ++start_[bucket_of[i] + 1];
+        }
+        for (uint32_t b = 0; b < buckets_; ++b) start_[b + 1] += start_[b];
+        order_.resize(h.count);
+        std::vector<uint32_t> fill(start_.begin(), start_.end() - 1);
+        for (uint32_t i = 0; i < h.count; ++i) order_[fill[bucket_of[i]]++] = i;
+    }
+
+    uint32_t photons_;
+    float radius_;
+    std::vector<Photon> photons_map_;
+    std::vector<uint32_t> order_, start_{0, 0};
+    uint32_t buckets_ = 1;
+};
+
+}  // namespace
+
+IntegratorEntry PhotonDirectIntegratorEntry() {
+    return {PhotonDirectIntegrator::Info,
+            [](const IntegratorSettings& s, const Scene& scene) -> std::unique_ptr<Integrator> {
+                const float photons = s.Param("photons", kDefaultPhotons);
+                if (!(photons >= 1.f && photons <= 1e8f && photons == std::floor(photons)))
+                    throw std::invalid_argument("photon_direct photons must be a whole number from 1 to 1e8");
+                const float radius = s.Param("radius", kDefaultRadiusOfDiameter * 2.f * scene.scene_radius());
+                if (!(radius > 0.f && std::isfinite(radius)))
+                    throw std::invalid_argument("photon_direct radius must be a finite number > 0");
+                return std::make_unique<PhotonDirectIntegrator>(uint32_t(photons), radius, s.scene_product);
+            }};
+}
+
+}  // namespace tessera
