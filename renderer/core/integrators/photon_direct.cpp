@@ -200,8 +200,8 @@ IntegratorEntry PhotonDirectIntegratorEntry() {
     return {PhotonDirectIntegrator::Info,
             [](const IntegratorSettings& s, const Scene& scene) -> std::unique_ptr<Integrator> {
                 const float photons = s.Param("photons", kDefaultPhotons);
-                if (!(photons >= 1.f && photons <= 1e8f && photons == std::floor(photons)))
-                    throw std::invalid_argument("photon_direct photons must be a whole number from 1 to 1e8");
+                if (!(photons >= 1.f && photons <= 1e7f && photons == std::floor(photons)))
+                    throw std::invalid_argument("photon_direct photons must be a whole number from 1 to 1e7 (a product of 36 bytes a photon, kept in Redis)");
                 const float radius = s.Param("radius", kDefaultRadiusOfDiameter * 2.f * scene.scene_radius());
                 if (!(radius > 0.f && std::isfinite(radius)))
                     throw std::invalid_argument("photon_direct radius must be a finite number > 0");
