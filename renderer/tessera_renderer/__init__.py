@@ -63,7 +63,8 @@ class Scene:
                                      data.triangle_material, data.albedo.reshape(-1, 3),
                                      data.emission.reshape(-1, 3), data.two_sided_emission,
                                      data.sphere_lights.reshape(-1, 7),
-                                     _rows(point, 6), _rows(distant, 7),
+                                     _rows(point, 6 if point is None or len(point) == 0
+                                           else np.asarray(point).shape[1]), _rows(distant, 7),
                                      tuple(float(x) for x in dome["radiance"]) if dome else (0.0, 0.0, 0.0),
                                      *_preview_table(getattr(data, "material_params", None),
                                                      len(data.albedo.reshape(-1, 3))),

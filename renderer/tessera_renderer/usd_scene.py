@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from . import gprims, subdivision
+from . import gprims, light_shaping, subdivision
 
 
 class SceneError(Exception):
@@ -1071,8 +1071,9 @@ class _Translator:
             radiance = radiance / area
         if not np.isfinite(radiance).all() or (radiance < 0).any():
             raise SceneError(f"{prim.GetPath()}: light radiance {radiance.tolist()} must be finite and >= 0")
-        if prim.HasAPI(UsdLux.ShapingAPI):
-            self._count_note("UsdLux ShapingAPI (cone, focus, IES) is ignored: lights emit unshaped")
+        if prim.HasAPI(UsdLux.ShapingAPI) and prim.GetTypeName() not in ("SphereLight",):
+            self._count_note("UsdLux ShapingAPI (cone, focus, IES) on Rect, Disk, Cylinder and Distant "
+                             "lights is ignored: they emit unshaped")
         return radiance
 
     def add_light(self, prim, type_name: str) -> None:
@@ -1153,6 +1154,15 @@ class _Translator:
             self.warn(f"{prim.GetPath()}: non-uniform scale on a SphereLight; using the mean scale")
         radius *= float(scales.mean())
         center = m[3, :3]
+        shaping = light_shaping.shaping_columns(self, prim)
+        if shaping is not None and not sphere.GetTreatAsPointAttr().Get(self.time) and radius > 0:
+            # A spot light as Omniverse writes it: a shaped sphere. Shaped as a point at its
+            # centre emitting what the sphere would (the sphere's size only softens shadows).
+            self._count_note("shaped SphereLights (spot lights) are rendered as shaped point lights at "
+                             "their centre (hard shadows)")
+            radiance = self.light_radiance(prim, 4.0 * math.pi * radius * radius)
+            self.point_lights.append([*center, *(radiance * math.pi * radius * radius), *shaping])
+            return
         if sphere.GetTreatAsPointAttr().Get(self.time):
             # The point emits what the sphere would, seen from afar: intensity = L * pi r^2
             # (W/sr); a sphere of radius 0 then has none unless it is normalized... in which
@@ -1164,7 +1174,7 @@ class _Translator:
             else:
                 norm = UsdLux.LightAPI(prim).GetNormalizeAttr().Get(self.time)
                 intensity = self.light_radiance(prim, None) * (0.25 if norm else 0.0)
-            self.point_lights.append([*center, *intensity])
+            self.point_lights.append([*center, *intensity, *(shaping or [])])
             return
         if not (radius > 0.0) or not math.isfinite(radius):
             self.warn(f"{prim.GetPath()}: SphereLight has no radius; skipped")
@@ -1708,7 +1718,12 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
         else np.zeros((0, 4, 4), np.float32)
 
     distant = np.array(tr.distant_lights, np.float32).reshape(-1, 7)
-    point = np.array(tr.point_lights, np.float32).reshape(-1, 6)
+    if any(len(row) > 6 for row in tr.point_lights):  # shaped lights: every row gets the columns
+        tr.point_lights = [row if len(row) > 6 else [*row, *light_shaping.unshaped_columns()]
+                           for row in tr.point_lights]
+        point = np.array(tr.point_lights, np.float32).reshape(-1, 6 + light_shaping.COLUMNS)
+    else:
+        point = np.array(tr.point_lights, np.float32).reshape(-1, 6)
     dome = tr.dome_light
     has_light = bool(_emits(rows, tri_material, prototypes) or len(sphere_lights) or len(distant)
                      or len(point) or dome)
