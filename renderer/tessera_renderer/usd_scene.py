@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from . import gprims, light_shaping, subdivision
+from . import curves, gprims, light_shaping, subdivision
 
 
 class SceneError(Exception):
@@ -282,6 +282,10 @@ class _Translator:
                     self.emit(chunk.transformed(m), sink, str(prim.GetPath()))
             elif type_name in _GPRIMS:
                 chunk = self.gprim_chunk(prim, type_name)
+                if chunk is not None:
+                    self.emit(chunk.transformed(m), sink, str(prim.GetPath()))
+            elif prim.IsA(UsdGeom.BasisCurves):
+                chunk = self.curves_chunk(prim)
                 if chunk is not None:
                     self.emit(chunk.transformed(m), sink, str(prim.GetPath()))
             elif prim.HasAPI(UsdLux.LightAPI) or prim.IsA(UsdLux.BoundableLightBase) or \
@@ -639,6 +643,14 @@ class _Translator:
         double_sided = bool(g.GetDoubleSidedAttr().Get(t))
         row = self.material_row(prim, prim, double_sided)
         normals = nrm[tris] if type_name != "Cube" else None
+        return _Chunk(pts, tris, np.full(len(tris), row, np.uint32), normals, None)
+
+    def curves_chunk(self, prim) -> _Chunk | None:
+        geo = curves.curves_geometry(prim, self.time, self._count_note)
+        if geo is None:
+            return None
+        pts, tris, normals, _ = geo
+        row = self.material_row(prim, prim, False)
         return _Chunk(pts, tris, np.full(len(tris), row, np.uint32), normals, None)
 
     # -- instancing -----------------------------------------------------------------
