@@ -56,7 +56,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     output = Path(args.output) if args.output else Path(scene_path.stem + ".exr")
     try:
         scene = load_scene(scene_path, frame=args.frame, root=args.root,
-                           default_light=not args.no_default_light)
+                           default_light=not args.no_default_light,
+                           subdivision_level=args.subdivision_level)
     except SceneError as exc:
         hint = ("; if that folder is yours, let assets resolve within it with --root DIR"
                 if "outside the bundle" in str(exc) and not args.root else "")
@@ -395,6 +396,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_aov_option(r)
     _add_default_light_option(r)
     _add_denoise_option(r)
+    r.add_argument("--subdivision-level", type=int, default=None, metavar="N",
+                   help="times subdivision surfaces are refined, 0-6 (default 2; 0 renders "
+                        "their control cage; see docs/scene-translation.md)")
     r.add_argument("--no-variance", action="store_true",
                    help="write no variance layer: light and bdpt then render each sample once "
                         "instead of twice (their variance comes from a second render in "

@@ -200,8 +200,11 @@ def scene_dict(data, width: int, height: int, mesh_dir: str | Path, *, max_depth
             "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}},
             "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [lr, lg, lb]}},
         }
-    for k, (px, py, pz, ir, ig, ib) in enumerate(np.asarray(getattr(data, "point_lights", np.zeros((0, 6))),
-                                                            np.float64).reshape(-1, 6)):
+    points = np.asarray(getattr(data, "point_lights", np.zeros((0, 6))), np.float64)
+    points = points.reshape(len(points), -1) if len(points) else np.zeros((0, 6))
+    if points.shape[1] > 6 and np.any(points[:, 6] != 0):
+        raise Unmatched("shaped point lights (UsdLux ShapingAPI cones, IES) have no Mitsuba counterpart here")
+    for k, (px, py, pz, ir, ig, ib) in enumerate(points[:, :6]):
         scene[f"point_light_{k}"] = {"type": "point", "position": [px, py, pz],
                                      "intensity": {"type": "rgb", "value": [ir, ig, ib]}}
     return scene

@@ -396,7 +396,8 @@ def test_real_instancing_scene_instances_equal_flattened(tmp_path):
     shutil.copytree(SCENES / "usdwg_intent_vfx_instancing", work)
     root = work / "scenes" / "shot.usda"
     root.write_text('#usda 1.0\n(subLayers = [@./teapotScene_camera.usd@, @./teapotScene_layout.usd@])\n')
-    kw = dict(frame=120, root=str(work), default_light=True)
+    # Level 0: the teapot's cage; refined, 1000 flattened copies pass the triangle limit.
+    kw = dict(frame=120, root=str(work), default_light=True, subdivision_level=0)
     flat = load_scene(root, instancing="flatten", **kw)
     inst = load_scene(root, **kw)
     assert inst.num_instances == 1000 and inst.num_stored_triangles == 2472

@@ -38,6 +38,11 @@ using CornerNormals = nb::ndarray<const float, nb::shape<-1, 3, 3>, nb::c_contig
 using CornerUVs = nb::ndarray<const float, nb::shape<-1, 3, 2>, nb::c_contig, nb::device::cpu>;
 using AnyImage = nb::ndarray<const float, nb::ndim<3>, nb::c_contig, nb::device::cpu>;
 using Matrices = nb::ndarray<const float, nb::shape<-1, 4, 4>, nb::c_contig, nb::device::cpu>;
+// Point lights: (x, y, z, r, g, b) rows, or those followed by UsdLux shaping columns
+// (shaped?, axis xyz, cone cutoff and smooth start in radians, focus, focus tint rgb, has
+// IES?, kIesSamples IES factors).
+using PointLightRows = nb::ndarray<const float, nb::shape<-1, -1>, nb::c_contig, nb::device::cpu>;
+constexpr size_t kShapedPointLightColumns = 17 + kIesSamples;
 
 // Columns of the texture table (one row per texture), see the Scene docstring.
 constexpr size_t kTextureColumns = 22;
@@ -176,7 +181,7 @@ nb::object ToNumpy(std::unique_ptr<float[]> buffer, std::initializer_list<size_t
 
 SceneDesc MakeDesc(InArray<float, 3> positions, InArray<uint32_t, 3> indices, InVector<uint32_t> triangle_material,
                    InArray<float, 3> albedo, InArray<float, 3> emission, InVector<bool> two_sided_emission,
-                   InArray<float, 7> sphere_lights, InArray<float, 6> point_lights, InArray<float, 7> distant_lights,
+                   InArray<float, 7> sphere_lights, PointLightRows point_lights, InArray<float, 7> distant_lights,
                    std::array<float, 3> dome_radiance, std::optional<InArray<float, 14>> preview_params,
                    std::optional<InVector<bool>> preview_mask, std::optional<DomeImage> dome_texture,
                    std::optional<InArray<float, 3>> dome_world_to_light,
@@ -195,9 +200,25 @@ SceneDesc MakeDesc(InArray<float, 3> positions, InArray<uint32_t, 3> indices, In
         d.sphere_lights.push_back({Vec3(sphere_lights(s, 0), sphere_lights(s, 1), sphere_lights(s, 2)),
                                    sphere_lights(s, 3),
                                    Vec3(sphere_lights(s, 4), sphere_lights(s, 5), sphere_lights(s, 6))});
-    for (size_t i = 0; i < point_lights.shape(0); ++i)
-        d.point_lights.push_back({Vec3(point_lights(i, 0), point_lights(i, 1), point_lights(i, 2)),
-                                  Vec3(point_lights(i, 3), point_lights(i, 4), point_lights(i, 5))});
+    if (point_lights.shape(1) != 6 && point_lights.shape(1) != kShapedPointLightColumns)
+        throw std::invalid_argument("point_lights need 6 columns, or " +
+                                    std::to_string(kShapedPointLightColumns) + " with shaping");
+    for (size_t i = 0; i < point_lights.shape(0); ++i) {
+        auto col = [&](size_t c) { return point_lights(i, c); };
+        PointLight light{Vec3(col(0), col(1), col(2)), Vec3(col(3), col(4), col(5))};
+        if (point_lights.shape(1) == kShapedPointLightColumns && col(6) != 0.f) {
+            LightShaping& s = light.shaping;
+            s.enabled = true;
+            s.axis = Normalize(Vec3(col(7), col(8), col(9)));
+            s.cutoff = col(10);
+            s.smooth_start = col(11);
+            s.focus = col(12);
+            s.focus_tint = Vec3(col(13), col(14), col(15));
+            if (col(16) != 0.f)
+                for (int k = 0; k < kIesSamples; ++k) s.ies.push_back(col(17 + k));
+        }
+        d.point_lights.push_back(light);
+    }
     for (size_t i = 0; i < distant_lights.shape(0); ++i)
         d.distant_lights.push_back({Vec3(distant_lights(i, 0), distant_lights(i, 1), distant_lights(i, 2)),
                                     distant_lights(i, 3),
@@ -252,7 +273,7 @@ NB_MODULE(_core, m) {
             "__init__",
             [](Scene* self, InArray<float, 3> positions, InArray<uint32_t, 3> indices,
                InVector<uint32_t> triangle_material, InArray<float, 3> albedo, InArray<float, 3> emission,
-               InVector<bool> two_sided_emission, InArray<float, 7> sphere_lights, InArray<float, 6> point_lights,
+               InVector<bool> two_sided_emission, InArray<float, 7> sphere_lights, PointLightRows point_lights,
                InArray<float, 7> distant_lights, std::array<float, 3> dome_radiance,
                std::optional<InArray<float, 14>> preview_params, std::optional<InVector<bool>> preview_mask,
                std::optional<DomeImage> dome_texture, std::optional<InArray<float, 3>> dome_world_to_light,
@@ -279,7 +300,8 @@ NB_MODULE(_core, m) {
             "texture_tiles"_a = nb::none(), "material_textures"_a = nb::none(), "prototypes"_a = nb::none(),
             "instance_prototype"_a = nb::none(), "instance_transforms"_a = nb::none(),
             "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
-            "(x, y, z, r, g, b intensity W/sr); distant_lights (dx, dy, dz travel direction, half angle in "
+            "(x, y, z, r, g, b intensity W/sr, then optionally the shaping columns of light_shaping.h: "
+            "shaped, axis xyz, cutoff, smooth start, focus, focus tint rgb, has IES, 181 IES factors); distant_lights (dx, dy, dz travel direction, half angle in "
             "radians, r, g, b radiance, or irradiance when the half angle is 0); dome_radiance (r, g, b); "
             "preview_params (specular rgb, metallic, roughness, ior, clearcoat, clearcoat_roughness, opacity, "
             "opacity_threshold, use_specular_workflow, 3 unused) for the materials where preview_mask is set: "

@@ -63,7 +63,8 @@ class Scene:
                                      data.triangle_material, data.albedo.reshape(-1, 3),
                                      data.emission.reshape(-1, 3), data.two_sided_emission,
                                      data.sphere_lights.reshape(-1, 7),
-                                     _rows(point, 6), _rows(distant, 7),
+                                     _rows(point, 6 if point is None or len(point) == 0
+                                           else np.asarray(point).shape[1]), _rows(distant, 7),
                                      tuple(float(x) for x in dome["radiance"]) if dome else (0.0, 0.0, 0.0),
                                      *_preview_table(getattr(data, "material_params", None),
                                                      len(data.albedo.reshape(-1, 3))),
@@ -406,19 +407,25 @@ def _rows(table, columns: int) -> np.ndarray:
 
 
 def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path | None = None,
-               instancing: str = "auto", default_light: bool = True) -> Scene:
+               instancing: str = "auto", default_light: bool = True,
+               subdivision_level: int | None = None) -> Scene:
     """Reads a bundle (.usda/.usdc/.usd, .usdz or .zip) through the sandbox and builds it.
     For a loose layer, `root` (default: its directory) is the bundle every asset must stay
     in. `instancing`: "auto" (default: Embree instances, one BVH per prototype, unless
     lights sit inside native-instance prototypes), "instances" or "flatten" (every
     instance copied). `default_light`: a stage without any light (emissive geometry
     counts as light) gets the default lighting, announced in one warning; off, it renders
-    black. Raises SceneError for bad input."""
+    black. `subdivision_level`: how many times subdivision surfaces are refined (default
+    tessera_renderer.subdivision.DEFAULT_LEVEL; 0 renders their control cage). Raises
+    SceneError for bad input."""
+    from .subdivision import DEFAULT_LEVEL
+
     path = Path(path)
     if not path.is_file():
         raise SceneError(f"scene file not found: {path}")
     data = translate_stage(str(path), frame, root=None if root is None else str(root),
-                           instancing=instancing)
+                           instancing=instancing,
+                           subdivision_level=DEFAULT_LEVEL if subdivision_level is None else subdivision_level)
     scene = Scene(data, default_light=default_light)
     for w in scene.warnings:
         log.warning("%s: %s", path.name, w)

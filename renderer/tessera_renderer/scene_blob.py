@@ -43,8 +43,10 @@ BLOB_VERSION = 1
 # 4: coordinates relative to the camera (SceneData.world_offset); 5: default lighting for
 # light-less stages (SceneData.default_lights), UV sets by name, nested packages, tight
 # three-quarter default camera, partial opacity as presence (opacity_threshold -1),
-# UsdSkel skinning, MaterialX looks.
-TRANSLATOR_VERSION = 5
+# UsdSkel skinning, MaterialX looks; 6: subdivision surfaces refined onto their limit
+# surface (OpenSubdiv, level 2) instead of their cages; shaped point lights (ShapingAPI
+# cones, focus, IES) with 6 + 192 columns; BasisCurves as triangle tubes.
+TRANSLATOR_VERSION = 6
 _ALIGN = 64
 _PROTO_FIELDS = ("positions", "indices", "triangle_material", "shading_normals", "uvs")
 

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from . import gprims
+from . import curves, gprims, light_shaping, subdivision
 
 
 class SceneError(Exception):
@@ -192,10 +192,13 @@ class _MaterialTable:
 
 
 class _Translator:
-    def __init__(self, stage, time, warn, bundle, limits, instancing: str):
+    def __init__(self, stage, time, warn, bundle, limits, instancing: str,
+                 subdivision_level: int = subdivision.DEFAULT_LEVEL):
         from pxr import Sdr, UsdGeom
 
         self.stage = stage
+        self.subdivision_level = subdivision_level
+        self.subdivided_meshes = 0
         self.time = time
         self.warn = warn
         self.bundle = bundle
@@ -281,6 +284,10 @@ class _Translator:
                 chunk = self.gprim_chunk(prim, type_name)
                 if chunk is not None:
                     self.emit(chunk.transformed(m), sink, str(prim.GetPath()))
+            elif prim.IsA(UsdGeom.BasisCurves):
+                chunk = self.curves_chunk(prim)
+                if chunk is not None:
+                    self.emit(chunk.transformed(m), sink, str(prim.GetPath()))
             elif prim.HasAPI(UsdLux.LightAPI) or prim.IsA(UsdLux.BoundableLightBase) or \
                     prim.IsA(UsdLux.NonboundableLightBase):
                 if not top_level:
@@ -323,7 +330,9 @@ class _Translator:
             return
         self.triangles += len(chunk.tris)
         if self.triangles > self.limits.triangles:
-            raise SceneError(f"{path}: the scene has more than {self.limits.triangles} triangles (limit)")
+            hint = (f"; its subdivision surfaces are refined {self.subdivision_level} times, a lower "
+                    f"subdivision level (0 renders their cages) makes fewer" if self.subdivided_meshes else "")
+            raise SceneError(f"{path}: the scene has more than {self.limits.triangles} triangles (limit){hint}")
         sink.append(chunk)
 
     # -- skinning -------------------------------------------------------------------
@@ -481,10 +490,12 @@ class _Translator:
         corners, face_of_tri = _triangulate_corners(counts)
         _split_concave_quads(corners, counts, face_indices, points)
         holes = mesh.GetHoleIndicesAttr().Get(t)
+        h = np.zeros(0, dtype=np.int64)
         if holes is not None and len(holes):
             hole = np.zeros(len(counts), bool)
             h = np.asarray(holes, dtype=np.int64)
-            hole[h[(h >= 0) & (h < len(counts))]] = True
+            h = h[(h >= 0) & (h < len(counts))]
+            hole[h] = True
             keep = ~hole[face_of_tri]
             corners, face_of_tri = corners[keep], face_of_tri[keep]
         tris = face_indices[corners]
@@ -492,14 +503,22 @@ class _Translator:
         if left:
             corners, tris = corners[:, ::-1], tris[:, ::-1]
         scheme = mesh.GetSubdivisionSchemeAttr().Get(t)
-        if scheme not in (None, UsdGeom.Tokens.none):
-            self._count_note(f"subdivision surfaces ({scheme}) are rendered as their flat control "
-                             f"cage with smooth vertex normals; not tessellated")
         if len(tris) == 0:
             return None
-
         api = UsdGeom.PrimvarsAPI(prim)
         shape = (len(points), len(counts), len(face_indices))
+        if scheme not in (None, UsdGeom.Tokens.none):
+            if self.subdivision_level == 0:
+                self._count_note(f"subdivision surfaces ({scheme}) are rendered as their flat control "
+                                 f"cage with smooth vertex normals (subdivision level 0)")
+            else:
+                refined = subdivision.refine(mesh, t, points, counts, face_indices, left,
+                                             self._subdivision_level(counts, str(scheme), path), h,
+                                             self._count_note)
+                if refined is not None:
+                    self.subdivided_meshes += 1
+                    return self._refined_geometry(refined, api, shape, counts, face_indices, path)
+
         normals = None
         pv = api.GetPrimvar("normals")
         if pv and pv.HasAuthoredValue():
@@ -538,6 +557,44 @@ class _Translator:
             return sets[name]
 
         return points, tris, face_of_tri, normals, uv_set, len(counts)
+
+    def _subdivision_level(self, counts, scheme: str, path: str) -> int:
+        """The job's refinement level, lowered for a mesh whose refined triangles would pass
+        its share of the triangle limit (with a note)."""
+        n_quads = int(counts.sum()) if scheme != "loop" else 0  # an n-gon makes n quads
+        n_tris = len(counts)
+        budget = self.limits.triangles // subdivision.MESH_SHARE_OF_TRIANGLE_LIMIT
+        level = self.subdivision_level
+        while level > 1 and subdivision.refined_triangles(n_quads, n_tris, scheme, level) > budget:
+            level -= 1
+        if level < self.subdivision_level:
+            self._count_note(f"subdivision meshes refined to level {level} instead of "
+                             f"{self.subdivision_level} to stay within {budget} triangles each")
+        return level
+
+    def _refined_geometry(self, refined, api, shape, counts, face_indices, path):
+        """_mesh_geometry's answer for a subdivided mesh: limit surface and limit normals
+        (authored normals do not apply to subdivision surfaces, as the schema says); UV
+        sets refined from their per-corner cage values."""
+        n_corners = len(face_indices)
+        cage_corners = np.arange(n_corners, dtype=np.int64)[:, None]
+        corner_face = np.repeat(np.arange(len(counts), dtype=np.int64), counts)
+        cage_tris = face_indices[cage_corners]
+        sets: dict = {}
+
+        def uv_set(name: str | None):
+            if name not in sets:
+                if name is None:
+                    found = [n for n in DEFAULT_UV_SETS if api.HasPrimvar(n)]
+                    pv = api.GetPrimvar(found[0]) if found else None
+                else:
+                    pv = api.GetPrimvar(name) if api.HasPrimvar(name) else None
+                values = self.corner_primvar(pv, cage_corners, cage_tris, corner_face, shape, 2, path) \
+                    if pv is not None else None
+                sets[name] = refined.face_varying(values[:, 0]) if values is not None else None
+            return sets[name]
+
+        return refined.points, refined.tris, refined.face_of_tri, refined.normals, uv_set, len(counts)
 
     def corner_primvar(self, pv, corners, tris, face_of_tri, shape, width, path):
         """A primvar of any interpolation, indexed or not, expanded to (T, 3, width)."""
@@ -586,6 +643,14 @@ class _Translator:
         double_sided = bool(g.GetDoubleSidedAttr().Get(t))
         row = self.material_row(prim, prim, double_sided)
         normals = nrm[tris] if type_name != "Cube" else None
+        return _Chunk(pts, tris, np.full(len(tris), row, np.uint32), normals, None)
+
+    def curves_chunk(self, prim) -> _Chunk | None:
+        geo = curves.curves_geometry(prim, self.time, self._count_note)
+        if geo is None:
+            return None
+        pts, tris, normals, _ = geo
+        row = self.material_row(prim, prim, False)
         return _Chunk(pts, tris, np.full(len(tris), row, np.uint32), normals, None)
 
     # -- instancing -----------------------------------------------------------------
@@ -1018,8 +1083,9 @@ class _Translator:
             radiance = radiance / area
         if not np.isfinite(radiance).all() or (radiance < 0).any():
             raise SceneError(f"{prim.GetPath()}: light radiance {radiance.tolist()} must be finite and >= 0")
-        if prim.HasAPI(UsdLux.ShapingAPI):
-            self._count_note("UsdLux ShapingAPI (cone, focus, IES) is ignored: lights emit unshaped")
+        if prim.HasAPI(UsdLux.ShapingAPI) and prim.GetTypeName() not in ("SphereLight",):
+            self._count_note("UsdLux ShapingAPI (cone, focus, IES) on Rect, Disk, Cylinder and Distant "
+                             "lights is ignored: they emit unshaped")
         return radiance
 
     def add_light(self, prim, type_name: str) -> None:
@@ -1100,6 +1166,15 @@ class _Translator:
             self.warn(f"{prim.GetPath()}: non-uniform scale on a SphereLight; using the mean scale")
         radius *= float(scales.mean())
         center = m[3, :3]
+        shaping = light_shaping.shaping_columns(self, prim)
+        if shaping is not None and not sphere.GetTreatAsPointAttr().Get(self.time) and radius > 0:
+            # A spot light as Omniverse writes it: a shaped sphere. Shaped as a point at its
+            # centre emitting what the sphere would (the sphere's size only softens shadows).
+            self._count_note("shaped SphereLights (spot lights) are rendered as shaped point lights at "
+                             "their centre (hard shadows)")
+            radiance = self.light_radiance(prim, 4.0 * math.pi * radius * radius)
+            self.point_lights.append([*center, *(radiance * math.pi * radius * radius), *shaping])
+            return
         if sphere.GetTreatAsPointAttr().Get(self.time):
             # The point emits what the sphere would, seen from afar: intensity = L * pi r^2
             # (W/sr); a sphere of radius 0 then has none unless it is normalized... in which
@@ -1111,7 +1186,7 @@ class _Translator:
             else:
                 norm = UsdLux.LightAPI(prim).GetNormalizeAttr().Get(self.time)
                 intensity = self.light_radiance(prim, None) * (0.25 if norm else 0.0)
-            self.point_lights.append([*center, *intensity])
+            self.point_lights.append([*center, *intensity, *(shaping or [])])
             return
         if not (radius > 0.0) or not math.isfinite(radius):
             self.warn(f"{prim.GetPath()}: SphereLight has no radius; skipped")
@@ -1517,7 +1592,8 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 def translate_stage(path: str, frame: float | None = None, *, bundle=None, instancing: str = "flatten",
                     default_light: bool = False, root: str | None = None,
-                    camera_relative: bool = True) -> SceneData:
+                    camera_relative: bool = True,
+                    subdivision_level: int = subdivision.DEFAULT_LEVEL) -> SceneData:
     """Opens a USD file through the bundle sandbox and translates it. `instancing` is
     "flatten" (every instance copied into the flat arrays), "instances" (prototypes +
     instance transforms, prototypes kept out of the flat arrays; the core builds one BVH
@@ -1526,21 +1602,24 @@ def translate_stage(path: str, frame: float | None = None, *, bundle=None, insta
     what every render uses) the coordinates are the world's less SceneData.world_offset,
     the camera's position, so that float32 holds them as finely as the view needs
     (_move_to_camera); without, they are world coordinates. Raises SceneError with a
-    readable message."""
+    readable message. `subdivision_level` is how many times subdivision surfaces are
+    refined (0: their control cage)."""
     from . import bundle as bundle_mod
 
     if bundle is None:
         bundle = bundle_mod.open_bundle(path, root=root)
     stage = bundle_mod.open_stage(bundle)
     data = translate_opened_stage(stage, frame, bundle=bundle, instancing=instancing,
-                                  default_light=default_light, camera_relative=camera_relative)
+                                  default_light=default_light, camera_relative=camera_relative,
+                                  subdivision_level=subdivision_level)
     data.warnings[:0] = bundle.warnings
     data._bundle = bundle  # keeps an unpack directory (and the textures in it) alive
     return data
 
 
 def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, instancing: str = "flatten",
-                           default_light: bool = False, limits=None, camera_relative: bool = True) -> SceneData:
+                           default_light: bool = False, limits=None, camera_relative: bool = True,
+                           subdivision_level: int = subdivision.DEFAULT_LEVEL) -> SceneData:
     from pxr import Usd, UsdGeom
 
     from .bundle import DEFAULT_LIMITS
@@ -1552,18 +1631,23 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
         # one exception: lights inside native-instance prototypes, which only flattening
         # keeps. Such scenes are translated again, flattened.
         data = translate_opened_stage(stage, frame, bundle=bundle, instancing="instances",
-                                      default_light=default_light, limits=limits, camera_relative=camera_relative)
+                                      default_light=default_light, limits=limits, camera_relative=camera_relative,
+                                      subdivision_level=subdivision_level)
         if not getattr(data, "_native_prototype_lights", 0):
             return data
         flat = translate_opened_stage(stage, frame, bundle=bundle, instancing="flatten",
-                                      default_light=default_light, limits=limits, camera_relative=camera_relative)
+                                      default_light=default_light, limits=limits, camera_relative=camera_relative,
+                                      subdivision_level=subdivision_level)
         flat.warnings.append("lights inside native instances: the scene was flattened so that they render")
         return flat
     limits = limits or (bundle.limits if bundle is not None else DEFAULT_LIMITS)
     warnings: list[str] = []
     warn = warnings.append
     time = Usd.TimeCode(frame) if frame is not None else Usd.TimeCode.Default()
-    tr = _Translator(stage, time, warn, bundle, limits, instancing)
+    if not isinstance(subdivision_level, int) or not 0 <= subdivision_level <= subdivision.MAX_LEVEL:
+        raise SceneError(f"subdivision level must be an integer from 0 to {subdivision.MAX_LEVEL}, "
+                         f"not {subdivision_level!r}")
+    tr = _Translator(stage, time, warn, bundle, limits, instancing, subdivision_level)
     tr.skin()
     predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate) if instancing == "flatten" \
         else Usd.PrimDefaultPredicate
@@ -1646,7 +1730,12 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
         else np.zeros((0, 4, 4), np.float32)
 
     distant = np.array(tr.distant_lights, np.float32).reshape(-1, 7)
-    point = np.array(tr.point_lights, np.float32).reshape(-1, 6)
+    if any(len(row) > 6 for row in tr.point_lights):  # shaped lights: every row gets the columns
+        tr.point_lights = [row if len(row) > 6 else [*row, *light_shaping.unshaped_columns()]
+                           for row in tr.point_lights]
+        point = np.array(tr.point_lights, np.float32).reshape(-1, 6 + light_shaping.COLUMNS)
+    else:
+        point = np.array(tr.point_lights, np.float32).reshape(-1, 6)
     dome = tr.dome_light
     has_light = bool(_emits(rows, tri_material, prototypes) or len(sphere_lights) or len(distant)
                      or len(point) or dome)

@@ -1,10 +1,11 @@
-// An isotropic point light (UsdLux SphereLight with treatAsPoint, or radius 0): a delta
-// light, never hit by rays.
+// A point light (UsdLux SphereLight with treatAsPoint, or radius 0): a delta light, never
+// hit by rays; isotropic unless UsdLux ShapingAPI shapes it (a spot light, an IES profile).
 #pragma once
 
 #include <cmath>
 
 #include "light.h"
+#include "light_shaping.h"
 
 namespace tessera {
 
@@ -12,6 +13,7 @@ namespace tessera {
 struct PointLight {
     Vec3 position;
     Color intensity;
+    LightShaping shaping;
 
     bool Sample(Vec3 ref, LightSample* out) const {
         Vec3 to_light = position - ref;
@@ -19,7 +21,7 @@ struct PointLight {
         if (!(d2 > 0.f)) return false;
         out->distance = std::sqrt(d2);
         out->wi = to_light / out->distance;
-        out->radiance = intensity / d2;  // inverse-square law
+        out->radiance = intensity * shaping.Factor(-out->wi) / d2;  // inverse-square law
         out->pdf = 1.f;
         out->is_delta = true;
         out->n = Vec3(0.f);
@@ -33,8 +35,9 @@ struct PointLight {
         float z = 1.f - 2.f * u_dir.x, r = std::sqrt(std::max(0.f, 1.f - z * z)), phi = 2.f * kPi * u_dir.y;
         out->p = position;
         out->wo = Vec3(r * std::cos(phi), r * std::sin(phi), z);
-        out->beta = intensity * (4.f * kPi);  // I / (1 / 4 pi)
-        out->Le = intensity;
+        const Color shaped = intensity * shaping.Factor(out->wo);
+        out->beta = shaped * (4.f * kPi);  // I / (1 / 4 pi)
+        out->Le = shaped;
         out->pdf_pos = 1.f;
         out->pdf_dir = 1.f / (4.f * kPi);
         out->infinite = false;

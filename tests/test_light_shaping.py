@@ -1,0 +1,168 @@
+"""UsdLux ShapingAPI (issue 11 item 7) through USD -> render, against closed forms.
+
+A point light (SphereLight treatAsPoint) at height H points straight down (its -Z); a
+narrow camera looks straight down at one floor point at the angle theta off the light's
+axis. The Lambertian floor shows a/pi * I f(theta) cos(theta) / d^2 there, so the ratio of
+the shaped to the unshaped render at the same point is the shaping factor f(theta) alone,
+which UsdLux defines in closed form:
+    cone:   f = 0 beyond the cone angle; 1 - smoothstep(angle (1 - softness), angle, theta)
+    focus:  f = lerp(focusTint, 1, |cos theta|^focus)
+    IES:    f = the profile's candela at theta over its peak (normalize off).
+A delta light on a flat floor has no noise beyond the pixel footprint (< 1e-4 here), so
+every ratio is checked to 0.5 %; each test's negative control runs the same check on a
+light perturbed by the smallest change it must detect (2 % in the factor, or the cone
+edge moved 1 degree past the point) and requires it to fail."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from pxr import Gf, Sdf, UsdGeom, UsdLux
+
+from tessera_renderer import SceneError, load_scene
+from usd_fixtures import add_camera, add_render_settings, new_stage
+
+H, RADIUS, L, ALBEDO = 2.0, 0.05, 800.0, 0.5
+TOL = 0.005
+
+
+def _render(tmp_path, theta_deg, name, **shaping):
+    x = H * math.tan(math.radians(theta_deg))
+    stage = new_stage(tmp_path / f"{name}.usda")
+    ground = UsdGeom.Mesh.Define(stage, "/Ground")
+    ground.CreatePointsAttr([Gf.Vec3f(-50, 0, -50), Gf.Vec3f(-50, 0, 50), Gf.Vec3f(50, 0, 50), Gf.Vec3f(50, 0, -50)])
+    ground.CreateFaceVertexCountsAttr([4])
+    ground.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    ground.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    ground.CreateDisplayColorAttr([Gf.Vec3f(ALBEDO, ALBEDO, ALBEDO)])  # Lambertian
+    light = UsdLux.SphereLight.Define(stage, "/Light")
+    light.AddTranslateOp().Set(Gf.Vec3d(0, H, 0))
+    light.AddRotateXOp().Set(-90.0)  # local -Z to world -Y
+    light.CreateRadiusAttr(RADIUS)
+    light.CreateTreatAsPointAttr(True)
+    light.CreateIntensityAttr(L)
+    if shaping:
+        api = UsdLux.ShapingAPI.Apply(light.GetPrim())
+        for key, value in shaping.items():
+            if key == "ies":
+                api.CreateShapingIesFileAttr(Sdf.AssetPath(value))
+            elif key == "angle":
+                api.CreateShapingConeAngleAttr(value)
+            elif key == "softness":
+                api.CreateShapingConeSoftnessAttr(value)
+            elif key == "focus":
+                api.CreateShapingFocusAttr(value)
+            elif key == "tint":
+                api.CreateShapingFocusTintAttr(Gf.Vec3f(*value))
+    cam = add_camera(stage, "/Cam", (x, 0.5, 0), focal=1000.0, haperture=1.0, vaperture=1.0)
+    UsdGeom.Xformable(cam.GetPrim()).AddRotateXOp().Set(-90.0)  # look straight down
+    add_render_settings(stage, cam, (4, 4))
+    stage.GetRootLayer().Save()
+    scene = load_scene(tmp_path / f"{name}.usda")
+    img = scene.render_tile(0, 0, 4, 4, spp=16, max_depth=1)
+    return float(img[..., :3].astype(np.float64).mean()), scene.warnings
+
+
+def _factor(tmp_path, theta, **shaping):
+    shaped, warnings = _render(tmp_path, theta, "shaped", **shaping)
+    plain, _ = _render(tmp_path, theta, "plain")
+    return shaped / plain, warnings
+
+
+def _close(measured, expected):
+    return abs(measured - expected) <= TOL * max(expected, 1e-30) if expected > 0 else measured < 1e-6
+
+
+def test_unshaped_point_light_follows_the_inverse_square_law(tmp_path):
+    theta = 25.0
+    value, _ = _render(tmp_path, theta, "plain")
+    d = H / math.cos(math.radians(theta))
+    intensity = L * math.pi * RADIUS ** 2  # UsdLux treatAsPoint: the sphere seen from afar
+    expected = ALBEDO / math.pi * intensity * math.cos(math.radians(theta)) / d ** 2
+    assert _close(value, expected), (value, expected)
+    assert not _close(value, 1.02 * expected)  # control: a 2 % error is seen
+
+
+@pytest.mark.parametrize("theta,expected", [(20.0, 1.0), (34.0, 1.0), (36.0, 0.0), (60.0, 0.0)])
+def test_hard_cone_lights_inside_and_not_outside(tmp_path, theta, expected):
+    f, warnings = _factor(tmp_path, theta, angle=35.0)
+    assert _close(f, expected), (theta, f)
+    assert not any("ShapingAPI" in w for w in warnings), warnings
+    # Control: the cone edge moved one degree past the point flips the answer.
+    moved = theta - 1.0 if expected else theta + 1.0
+    g, _ = _factor(tmp_path, theta, angle=moved)
+    assert not _close(g, expected), (theta, g)
+
+
+@pytest.mark.parametrize("theta", [25.0, 30.0, 36.0])
+def test_soft_cone_follows_the_smoothstep(tmp_path, theta):
+    angle, softness = 40.0, 0.5
+    start = angle * (1 - softness)
+    t = min(max((theta - start) / (angle - start), 0.0), 1.0)
+    expected = 1.0 - t * t * (3 - 2 * t)
+    f, _ = _factor(tmp_path, theta, angle=angle, softness=softness)
+    assert _close(f, expected), (theta, f, expected)
+    assert not _close(f, expected * 1.02)
+
+
+def test_focus_is_a_cosine_power_towards_the_tint(tmp_path):
+    theta, focus, tint = 30.0, 3.0, (0.2, 0.2, 0.2)
+    p = math.cos(math.radians(theta)) ** focus
+    expected = tint[0] + (1 - tint[0]) * p
+    f, _ = _factor(tmp_path, theta, focus=focus, tint=tint)
+    assert _close(f, expected), (f, expected)
+    assert not _close(f, expected * 1.02)
+
+
+def _write_ies(path, candela_of):
+    """A minimal LM-63-2002 file: one lamp, 10 vertical angles 0..90, one horizontal."""
+    v = list(range(0, 91, 10))
+    cd = [candela_of(a) for a in v]
+    path.write_text("IESNA:LM-63-2002\n[TEST] written for tessera's test\n[MANUFAC] none\nTILT=NONE\n"
+                    f"1 -1 1 {len(v)} 1 1 2 0 0 0\n1 1 100\n"
+                    + " ".join(f"{a:g}" for a in v) + "\n0\n" + " ".join(f"{c:.6f}" for c in cd) + "\n")
+
+
+@pytest.mark.parametrize("theta", [0.0, 30.0, 60.0])
+def test_ies_profile_shapes_by_its_candela(tmp_path, theta):
+    # cos-distributed candela (a Lambertian downlight); normalize off: candela over the peak.
+    _write_ies(tmp_path / "down.ies", lambda a: 1500.0 * math.cos(math.radians(a)))
+    expected = math.cos(math.radians(theta))
+    f, warnings = _factor(tmp_path, theta, ies="./down.ies")
+    assert _close(f, expected), (theta, f, expected)
+    assert not any("IES" in w for w in warnings), warnings
+    assert not _close(f, expected * 1.02)
+
+
+def test_ies_files_are_sandboxed_and_bad_ones_warn(tmp_path):
+    (tmp_path / "bad.ies").write_text("IESNA:LM-63-2002\nTILT=NONE\n1 2 3\n")
+    _, warnings = _render(tmp_path, 10.0, "badies", ies="./bad.ies")
+    assert any("IES profile './bad.ies' cannot be read" in w for w in warnings), warnings
+    _, warnings = _render(tmp_path, 10.0, "missing", ies="./none.ies")
+    assert any("IES profile './none.ies' is missing" in w for w in warnings), warnings
+    with pytest.raises(SceneError, match="outside"):
+        _render(tmp_path, 10.0, "escape", ies="../../etc/passwd")
+
+
+def test_a_shaped_sphere_light_is_a_shaped_point_with_one_note(tmp_path):
+    """Omniverse writes spot lights as SphereLights with a radius and ShapingAPI."""
+    stage = new_stage(tmp_path / "spot.usda")
+    light = UsdLux.SphereLight.Define(stage, "/Spot")
+    light.CreateRadiusAttr(0.1)
+    UsdLux.ShapingAPI.Apply(light.GetPrim()).CreateShapingConeAngleAttr(20.0)
+    UsdGeom.Sphere.Define(stage, "/Ball")
+    stage.GetRootLayer().Save()
+    scene = load_scene(tmp_path / "spot.usda", default_light=False)
+    assert len(scene.data.sphere_lights) == 0 and len(scene.data.point_lights) == 1
+    assert scene.data.point_lights[0][6] == 1.0  # shaped
+    assert math.isclose(scene.data.point_lights[0][10], math.radians(20.0), rel_tol=1e-6)
+    assert sum("shaped SphereLights" in w for w in scene.warnings) == 1
+
+
+def test_a_cone_of_zero_degrees_emits_nothing_and_the_fallback_is_a_hemisphere(tmp_path):
+    f, _ = _factor(tmp_path, 0.5, angle=0.0)
+    assert _close(f, 0.0), f
+    # ShapingAPI applied with nothing authored: the schema's 90-degree cone lights the floor.
+    g, _ = _factor(tmp_path, 60.0, focus=0.0)
+    assert _close(g, 1.0), g
