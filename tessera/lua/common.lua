@@ -10,3 +10,11 @@ end
 local function is_final(state)
   return state == 'done' or state == 'failed' or state == 'cancelled'
 end
+-- Acknowledges and deletes a queue entry: the stream holds only open work. The queue is gone
+-- once its job ended, and then there is nothing to acknowledge.
+local function ack(queue, entry)
+  if redis.call('EXISTS', queue) == 1 then
+    redis.call('XACK', queue, '@WORKER_GROUP@', entry)
+    redis.call('XDEL', queue, entry)
+  end
+end

@@ -24,8 +24,5 @@ if state and not is_final(state)
     ret = 0
   end
 end
-if redis.call('EXISTS', K.queue) == 1 then
-  redis.call('XACK', K.queue, '@WORKER_GROUP@', ARGV[5])
-  redis.call('XDEL', K.queue, ARGV[5])
-end
+ack(K.queue, ARGV[5])
 return ret

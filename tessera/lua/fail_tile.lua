@@ -5,10 +5,7 @@
 local id = ARGV[1]
 local worker, dead = KEYS[17], KEYS[18]
 local state = redis.call('HGET', K.job, 'state')
-if redis.call('EXISTS', K.queue) == 1 then
-  redis.call('XACK', K.queue, '@WORKER_GROUP@', ARGV[4])
-  redis.call('XDEL', K.queue, ARGV[4])
-end
+ack(K.queue, ARGV[4])
 if (not state) or is_final(state) then return 'final' end
 local n = redis.call('HINCRBY', K.failures, 'tile:' .. ARGV[2], 1)
 local wf = redis.call('HINCRBY', K.failures, 'worker:' .. ARGV[5], 1)

@@ -42,9 +42,6 @@ elseif redis.call('HSETNX', K.tiles, ARGV[2], ARGV[3]) == 1 then
     event(K.events, 'type', 'pass', 'tile', ARGV[10], 'pass_index', ARGV[11], 'samples', ARGV[12])
   end
 end
-if redis.call('EXISTS', K.queue) == 1 then
-  redis.call('XACK', K.queue, '@WORKER_GROUP@', ARGV[9])
-  redis.call('XDEL', K.queue, ARGV[9])
-end
+ack(K.queue, ARGV[9])
 if ret >= 0 and redis.call('EXISTS', worker) == 1 then redis.call('HINCRBY', worker, 'tiles_done', 1) end
 return ret
