@@ -205,11 +205,17 @@ def test_cli_lists_the_registry_with_descriptions():
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     lines = out.stdout.splitlines()
+    # One line per integrator; under it, one indented line per setting it declares.
+    heads = [line for line in lines if not line.startswith(" ")]
     entries = registry()
-    assert len(lines) == len(entries) + 1
-    for line, info in zip(lines, entries):
+    assert len(heads) == len(entries) + 1
+    for line, info in zip(heads, entries):
         assert line.split()[0] == info["name"] and line.endswith(info["description"])
-    assert lines[-1].startswith("auto")
+        below = lines[lines.index(line) + 1:lines.index(line) + 1 + len(info["params"])]
+        for param, setting in zip(info["params"], below):
+            assert setting.split()[0] == "--integrator-param" and setting.split()[1].startswith(param + "=")
+    assert heads[-1].startswith("auto")
+    assert sum(len(i["params"]) for i in entries) == len(lines) - len(heads) > 0
     refused = subprocess.run([sys.executable, "-m", "tessera", "render", "x.usda", "--integrator", "pathh"],
                              capture_output=True, text=True, timeout=120)
     assert refused.returncode == 2 and "unknown integrator 'pathh'" in refused.stderr
