@@ -117,14 +117,15 @@ def test_a_full_redis_refuses_writes_and_loses_no_tile(tmp_path):
         late = None
         try:
             with httpx.Client(base_url=base, timeout=60) as http:
-                form = dict(width=64, height=32, spp=64, seed=2, max_depth=8, tile_size=32,
+                form = dict(width=64, height=32, spp=192, seed=2, max_depth=8, tile_size=32,
                             integrator="bdpt")
                 r = submit(http, CORNELL, **form)
                 assert r.status_code == 201, r.text
                 job_id = r.json()["id"]
                 events = rdb.job_events_key(job_id)
-                # The first tile stored (its event): make Redis full while the one worker
-                # renders the second (about a second of bdpt).
+                # The first tile stored (its event), and the worker's heartbeat names the
+                # second as the one it renders (seconds of bdpt): make Redis full now, so
+                # that the second tile's result meets a full Redis.
                 cursor, stored = "0", False
                 while not stored:
                     reply = client.xread({events: cursor}, block=30000)
@@ -132,6 +133,9 @@ def test_a_full_redis_refuses_writes_and_loses_no_tile(tmp_path):
                     for entry_id, fields in reply[0][1]:
                         cursor = entry_id
                         stored = stored or fields.get(b"type") == b"tile"
+                second = f"{job_id}/1/0"
+                wait_until(lambda: client.hget(rdb.worker_key("oom-a"), "current") == second.encode(), 60,
+                           lambda: "the worker never rendered the second tile\n" + worker.log())
                 client.config_set("maxmemory", 1)
                 wait_until(lambda: "redis is out of memory" in worker.log(200), 60,
                            lambda: "the worker never reported the full Redis\n" + worker.log())
