@@ -72,7 +72,7 @@ class Farm:
         self.client = stack.enter_context(httpx.Client(base_url=self.base, timeout=600))
 
     def add_worker(self, name: str) -> subprocess.Popen:
-        from tessera import redis_schema as rdb
+        from tessera_queue import redis_schema as rdb
 
         proc = subprocess.Popen([sys.executable, "-m", "tessera_worker", "--name", name,
                                  "--threads", "1", "--heartbeat-ttl", str(self.heartbeat_ttl),
@@ -121,7 +121,7 @@ def local_seconds(settings) -> float:
 
 
 def efficiency(repeats: int, res: int, spp: int) -> dict:
-    from tessera.protocol import RenderSettings
+    from tessera_base.protocol import RenderSettings
 
     settings = RenderSettings(width=res, height=res, spp=spp, seed=0)
     local, farm_t, ratio = [], [], []
@@ -141,7 +141,7 @@ def efficiency(repeats: int, res: int, spp: int) -> dict:
 
 
 def dispatch(repeats: int, tiles: int) -> dict:
-    from tessera import redis_schema as rdb
+    from tessera_queue import redis_schema as rdb
 
     side = 8 * int(tiles ** 0.5)
     per_tile, throughput = [], []
@@ -167,7 +167,7 @@ def dispatch(repeats: int, tiles: int) -> dict:
 
 
 def recovery(repeats: int) -> dict:
-    from tessera import redis_schema as rdb
+    from tessera_queue import redis_schema as rdb
 
     seconds = []
     with ExitStack() as stack, tempfile.TemporaryDirectory() as tmp:
@@ -208,8 +208,8 @@ def noise_target(repeats: int) -> dict:
     from tessera_renderer import load_scene
 
     from tessera.local import render_tile_passes
-    from tessera import protocol
-    from tessera.protocol import RenderSettings, tile_grid
+    from tessera_base import convergence
+    from tessera_base.protocol import RenderSettings, tile_grid
 
     with tempfile.TemporaryDirectory() as tmp:
         far = Path(tmp, "cornell-far.usda")
@@ -230,7 +230,7 @@ def noise_target(repeats: int) -> dict:
             rgba, var = scene.render_tile(t.x0, t.y0, t.width, t.height, width=res, height=res,
                                           spp=n, seed=0, max_depth=16, threads=2,
                                           return_variance=True)
-            worst = max(worst, protocol.tile_error(rgba, var, n))
+            worst = max(worst, convergence.tile_error(rgba, var, n))
         return worst
 
     times_a, times_f, ratio, used = [], [], [], {}

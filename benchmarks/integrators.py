@@ -56,7 +56,7 @@ def caustic_scene(directory: Path) -> Path:
 
 
 def render(scene, integrator: str, spp: int, seed: int, res: int) -> tuple[np.ndarray, float]:
-    from tessera.film import resolve_splats
+    from tessera_base.film import resolve_splats
     from tessera_renderer.film import new_splat_buffer
 
     splats = new_splat_buffer(res, res)

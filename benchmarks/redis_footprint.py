@@ -87,8 +87,8 @@ def measure(workdir: str) -> list[dict]:
                 sizes[key.decode().split(job_id, 1)[1] or "(job hash)"] = client.memory_usage(key, samples=0)
             row = dict(case=case["name"], settings=form, bytes=sum(sizes.values()), keys=sizes)
             try:
-                from tessera import redis_schema
-                from tessera.protocol import RenderSettings
+                from tessera_queue import redis_schema
+                from tessera_base.protocol import RenderSettings
                 row["bound"] = redis_schema.job_storage_bound(RenderSettings(**{
                     k: v for k, v in case.items() if k != "name"}))
             except ImportError:
@@ -110,7 +110,7 @@ def write(label: str, rows: list[dict]) -> None:
              "finished job, measured with `MEMORY USAGE` before its image is downloaded. *before*: the",
              "code where every light/bdpt tile stored a full-frame splat layer; *after*: tiles store",
              "their own pixels and the splats are summed into one layer per pass",
-             "(`tessera/film.py` SplatSums, `docs/farm.md` \"Memory per job\"). *bound*: what the",
+             "(`tessera/tessera_base/film.py` SplatSums, `docs/farm.md` \"Memory per job\"). *bound*: what the",
              "service estimates before queuing the job and compares with `TESSERA_JOB_REDIS_BUDGET`.",
              "", "| job | " + " | ".join(f"{k} (MB)" for k in labels) + " | bound (MB) |",
              "|---|" + "---|" * (len(labels) + 1)]

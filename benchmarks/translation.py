@@ -35,7 +35,7 @@ import json, resource, sys, time
 import numpy as np
 from pxr import Usd  # libraries loaded before the baseline
 import tessera_renderer
-from tessera_renderer.usd_scene import translate_stage
+from tessera_renderer.usd import translate_stage
 from tessera_renderer.scene_blob import translate_to_blob, scene_data_from_blob, scene_data_to_blob
 path, mode, instancing = sys.argv[1], sys.argv[2], sys.argv[3]
 if mode == "mem":

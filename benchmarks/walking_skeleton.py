@@ -53,7 +53,7 @@ def local_render(spp: int, res: int) -> float:
     from tessera_renderer import load_scene
 
     from tessera.local import render_image
-    from tessera.protocol import RenderSettings
+    from tessera_base.protocol import RenderSettings
 
     scene = load_scene(CORNELL)
     settings = RenderSettings(width=res, height=res, spp=spp, seed=0, tile_size=64)

@@ -65,7 +65,7 @@ def main() -> int:
     from tessera_renderer import load_scene
     from tessera_renderer.film import new_splat_buffer
     try:
-        from tessera.film import resolve_splats
+        from tessera_base.film import resolve_splats
     except ImportError:  # a tree from before the one splat normalisation
         from tessera_renderer.film import resolve_image as resolve_splats
 

@@ -11,9 +11,9 @@ import httpx
 import pytest
 import redis
 
-from tessera import protocol
+from tessera_base import protocol
 
-from tessera import redis_schema as rdb
+from tessera_queue import redis_schema as rdb
 from tessera_service.embedded import free_port, redis_server as _redis_server, stop_processes
 
 REPO = Path(__file__).resolve().parents[1]
@@ -167,7 +167,7 @@ def wait_for_job(client: httpx.Client, job_id: str, timeout: float = 60.0,
 def local_reference(form: dict):
     """The image `tessera render` makes locally for these job settings."""
     from tessera.local import render_image
-    from tessera.protocol import RenderSettings
+    from tessera_base.protocol import RenderSettings
     from tessera_renderer import load_scene
 
     settings = RenderSettings(**{k: v for k, v in form.items() if k != "priority"})
@@ -177,7 +177,7 @@ def local_reference(form: dict):
 
 def farm_image(client: httpx.Client, job_id: str, tmp_path: Path):
     """Downloads a done job's EXR and reads it back."""
-    from tessera import images
+    from tessera_base import images
 
     r = client.get(f"/jobs/{job_id}/image.exr")
     assert r.status_code == 200, r.text

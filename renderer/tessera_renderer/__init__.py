@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from . import _core
-from .usd_scene import (NO_LIGHT_OFF_WARNING, NO_LIGHT_WARNING, SceneData, SceneError, apply_default_lighting,
-                        translate_stage)
+from .usd import (NO_LIGHT_OFF_WARNING, NO_LIGHT_WARNING, SceneData, SceneError, apply_default_lighting,
+                  translate_stage)
 
 __all__ = ["Scene", "SceneError", "load_scene", "NonFiniteSampleError", "AOV_NAMES", "integrators"]
 
@@ -96,7 +96,7 @@ class Scene:
     @property
     def splat_exponent(self) -> int:
         """Splats are fixed point in units of 2^splat_exponent, chosen from the lights'
-        power so that any emission scale fits (tessera.film.resolve_splats)."""
+        power so that any emission scale fits (tessera_base.film.resolve_splats)."""
         return self._core.splat_exponent
 
     @property
@@ -416,9 +416,9 @@ def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path
     instance copied). `default_light`: a stage without any light (emissive geometry
     counts as light) gets the default lighting, announced in one warning; off, it renders
     black. `subdivision_level`: how many times subdivision surfaces are refined (default
-    tessera_renderer.subdivision.DEFAULT_LEVEL; 0 renders their control cage). Raises
+    tessera_renderer.usd.subdivision.DEFAULT_LEVEL; 0 renders their control cage). Raises
     SceneError for bad input."""
-    from .subdivision import DEFAULT_LEVEL
+    from .usd.subdivision import DEFAULT_LEVEL
 
     path = Path(path)
     if not path.is_file():

@@ -31,9 +31,9 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps({"ok": False, "error": "usage: python -m tessera_renderer.inspect FILE"}))
         return 2
     from . import Scene, SceneError
-    from .bundle import open_bundle, open_stage
-    from .census import take_census
-    from .usd_scene import translate_stage
+    from .usd.bundle import open_bundle, open_stage
+    from .usd.census import take_census
+    from .usd import translate_stage
 
     try:
         bundle = open_bundle(argv[0])

@@ -1,6 +1,6 @@
 """The core's integrator registry as plain data, and `python -m tessera_renderer.registry`,
 which prints it as JSON for processes that must not load the renderer (the service, the
-worker's main process: see tessera/integrators.py).
+worker's main process: see tessera/tessera_base/integrators.py).
 
 The list is the core's (renderer/core/integrators/registry.cpp): no Python file names an
 integrator. Each entry is a dict of name, description, the capabilities (splats,

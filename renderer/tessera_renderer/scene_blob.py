@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .usd_scene import CameraDesc, SceneData, SceneError
+from .usd import CameraDesc, SceneData, SceneError
 
 MAGIC = b"TSSCENE\0"
 BLOB_VERSION = 1
@@ -62,7 +62,7 @@ def translate_to_blob(path: str | Path, frame: float | None = None, *, root: str
     """Sandboxes, pre-flights and translates a bundle; returns the blob. SceneError for
     bad input. A light-less stage's default lighting travels in the blob unapplied:
     scene_from_blob(blob, default_light=...) decides."""
-    from .usd_scene import translate_stage
+    from .usd import translate_stage
 
     data = translate_stage(str(path), frame, root=None if root is None else str(root),
                            instancing=instancing)

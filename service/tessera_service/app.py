@@ -13,8 +13,8 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-import tessera
-from tessera.process import remove_orphaned_tempdirs
+import tessera_base
+from tessera_base.process import remove_orphaned_tempdirs
 
 from .auth import AuthGate, parse_networks, require_user
 from .inspection_pool import InspectionPool
@@ -55,7 +55,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         store.redis.close()
         await aredis.aclose()
 
-    app = FastAPI(title="Tessera", version=tessera.__version__, lifespan=lifespan,
+    app = FastAPI(title="Tessera", version=tessera_base.__version__, lifespan=lifespan,
                   description="Render farm: submit a USD scene, get an EXR. Every endpoint "
                               "but /healthz needs `Authorization: Bearer <token>` when the "
                               "server is configured with tokens (TESSERA_API_TOKENS). A token "

@@ -22,7 +22,7 @@ from urllib.parse import urlsplit
 
 import redis
 
-from tessera.process import die_with_parent
+from tessera_base.process import die_with_parent
 
 from .redis_acl import API_USER, WORKER_USER, Credentials, acl_file
 

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from tessera import images
-from tessera.film import SplatSums, add_denoised, assemble_image
-from tessera.protocol import JobSpec, TileResult, decode_tile, tile_grid
+from tessera_base import images
+from tessera_base.film import SplatSums, add_denoised, assemble_image
+from tessera_base.protocol import JobSpec, TileResult, decode_tile, tile_grid
 
 
 class MergeError(Exception):
@@ -19,11 +19,11 @@ class MergeError(Exception):
 def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes], *, partial: bool = False,
                 with_aovs: bool = False, splats: dict[bytes | str, bytes] | None = None):
     """Decodes and checks the stored results of a job and assembles them as the local
-    render does (tessera.film.assemble_image); returns the (h, w, 4) float32 image. `splats`
+    render does (tessera_base.film.assemble_image); returns the (h, w, 4) float32 image. `splats`
     is the job's splat sums hash (redis_schema.job_splats_key). With `partial`, missing
     tiles stay black (a preview of a running job). With `with_aovs`, returns (rgba, aovs):
     the job's AOVs (settings.aovs) as full-frame float32 (h, w, c) layers, and for a job
-    with settings.denoise the "denoised" layer (tessera.film.add_denoised, as the local
+    with settings.denoise the "denoised" layer (tessera_base.film.add_denoised, as the local
     render adds it; MergedLayers.denoise_warning says why it is missing)."""
     s = spec.settings
     grid = tile_grid(s.width, s.height, s.tile_size)
@@ -79,7 +79,7 @@ def farm_variance_kind(settings, aovs: dict | None) -> str | None:
 
 def denoised_png(aovs: dict[str, np.ndarray], spec: JobSpec) -> bytes:
     """The denoised preview PNG of merge_tiles' layers; MergeError when there is none."""
-    from tessera.denoise import DENOISED_LAYER
+    from tessera_base.denoise import DENOISED_LAYER
 
     if DENOISED_LAYER not in aovs:
         raise MergeError(getattr(aovs, "denoise_warning", None)

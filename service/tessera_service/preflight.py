@@ -11,7 +11,7 @@ import subprocess
 import sys
 from dataclasses import dataclass, field
 
-from tessera.process import die_with_parent
+from tessera_base.process import die_with_parent
 
 INSPECT_MODULE = "tessera_renderer.inspect"
 

@@ -22,7 +22,7 @@ import secrets
 from dataclasses import dataclass
 from urllib.parse import urlsplit, urlunsplit
 
-from tessera import redis_schema as rdb
+from tessera_queue import redis_schema as rdb
 
 API_USER = "tessera-api"
 WORKER_USER = "tessera-worker"

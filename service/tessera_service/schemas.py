@@ -1,11 +1,11 @@
-"""HTTP request/response models. The job and tile schema itself is tessera.protocol."""
+"""HTTP request/response models. The job and tile schema itself is tessera_base.protocol."""
 from __future__ import annotations
 
 from datetime import datetime
 
 from pydantic import BaseModel, Field
 
-from tessera.protocol import JobState, RenderSettings
+from tessera_base.protocol import JobState, RenderSettings
 
 
 class JobCreated(BaseModel):

@@ -1,5 +1,5 @@
 """The service's Redis operations on scenes, jobs, workers and their results (keys, fields
-and the state machine: tessera.redis_schema; messages: tessera.protocol)."""
+and the state machine: tessera_queue.redis_schema; messages: tessera_base.protocol)."""
 from __future__ import annotations
 
 import json
@@ -8,9 +8,10 @@ from dataclasses import dataclass
 
 import redis
 
-from tessera import protocol
-from tessera import redis_schema as rdb
-from tessera.protocol import FINAL_STATES, JobSpec
+from tessera_base import protocol
+from tessera_queue import tasks as queue_tasks
+from tessera_queue import redis_schema as rdb
+from tessera_base.protocol import FINAL_STATES, JobSpec
 
 
 @dataclass
@@ -116,7 +117,7 @@ class JobStore:
         admins see it), its queue with the first pass
         of every tile, and its place in the schedule, in one transaction: workers never see
         a task whose job does not exist, nor a job with part of its tiles."""
-        tasks = protocol.job_tasks(spec)
+        tasks = queue_tasks.job_tasks(spec)
         now = time.time()
         queue = rdb.job_queue_key(spec.job_id)
         with self.redis.pipeline(transaction=True) as pipe:

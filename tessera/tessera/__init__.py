@@ -1,3 +1,4 @@
-"""Tessera: shared pieces of the farm (job/tile protocol, image files) and the CLI."""
+"""Tessera: the public Python API and the `tessera` command (tessera.cli)."""
+from tessera_base import __version__
 
-__version__ = "0.1.0"
+__all__ = ["__version__"]

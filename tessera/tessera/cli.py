@@ -48,9 +48,9 @@ def cmd_render(args: argparse.Namespace) -> int:
 
     from tessera_renderer import NonFiniteSampleError, SceneError, load_scene
 
-    from .images import render_metadata, write_exr, write_png_preview
+    from tessera_base.images import render_metadata, write_exr, write_png_preview
     from .local import render_image
-    from .protocol import RenderSettings
+    from tessera_base.protocol import RenderSettings
 
     scene_path = Path(args.scene)
     output = Path(args.output) if args.output else Path(scene_path.stem + ".exr")
@@ -74,7 +74,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         print(f"tessera render: invalid settings: {exc}", file=sys.stderr)
         return 2
     if settings.denoise:  # before rendering, not after an hour of it
-        from .denoise import unavailable_reason
+        from tessera_base.denoise import unavailable_reason
 
         if (reason := unavailable_reason()) is not None:
             print(f"tessera render: --denoise: {reason}", file=sys.stderr)
@@ -136,7 +136,7 @@ class _IntegratorOption(argparse.Action):
     def __call__(self, parser, namespace, value, option_string=None):
         if self.renders:
             import tessera_renderer  # noqa: F401
-        from . import integrators
+        from tessera_base import integrators
         if value == "help":
             print(integrators.help_text())
             parser.exit(0)
@@ -215,7 +215,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
     import httpx
     from tqdm import tqdm
 
-    from .redis_schema import JobEvent
+    from tessera_queue.redis_schema import JobEvent
 
     scene = Path(args.scene)
     token = args.token or os.environ.get("TESSERA_TOKEN")
@@ -305,8 +305,8 @@ def _detail(response) -> str:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """Exit 0: TEST and REFERENCE agree within their noise; 1: they differ; 2: usage error."""
-    from .compare import CompareError, compare_files, heatmap
-    from .images import write_png
+    from tessera_tools.compare import CompareError, compare_files, heatmap
+    from tessera_base.images import write_png
 
     try:
         comparison = compare_files(args.test, args.reference, alpha=args.alpha, method=args.method,
@@ -333,8 +333,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def cmd_denoise(args: argparse.Namespace) -> int:
     """Adds the denoised layer to an EXR that has the albedo and normal AOVs (one written by
     `tessera render --aovs albedo,normal`, say), as `render --denoise` would have."""
-    from .denoise import DENOISED_LAYER, DenoiseError, denoise
-    from .images import read_exr_aovs, read_render, write_exr, write_png_preview
+    from tessera_base.denoise import DENOISED_LAYER, DenoiseError, denoise
+    from tessera_base.images import read_exr_aovs, read_render, write_exr, write_png_preview
 
     source = Path(args.image)
     output = Path(args.output) if args.output else source.with_name(source.stem + ".denoised.exr")
@@ -368,7 +368,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from .bench import main as bench_main
+    from tessera_tools.bench import main as bench_main
 
     return bench_main(args)
 
@@ -471,7 +471,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "Redis URL)")
     s.set_defaults(func=cmd_serve)
 
-    from .bench import add_options as add_bench_options
+    from tessera_tools.bench import add_options as add_bench_options
 
     b = sub.add_parser("bench", help="error versus time per integrator (and Mitsuba 3 side by side): "
                                      "CSV, plots and a summary (docs/benchmarks/error-vs-time.md)")

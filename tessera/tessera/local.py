@@ -1,8 +1,8 @@
 """The embedded default: render every tile of an image in this process, no Redis or server.
 
 Renders tile passes and assembles the image with the functions the farm uses
-(tessera.film.render_tile_pass and assemble_image), on the same tile grid and pass
-schedule (tessera.protocol); since pixels do not depend on tiling, the result is
+(tessera_base.film.render_tile_pass and assemble_image), on the same tile grid and pass
+schedule (tessera_base.protocol); since pixels do not depend on tiling, the result is
 bit-identical to a farm render with the same settings (in noise-target mode too, unless a
 time_limit cuts passes short).
 """
@@ -14,10 +14,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from . import images, integrators
-from .film import SplatSums, add_denoised, assemble_image, pass_image, render_tile_pass, run_scene_pass
-from .protocol import (PassAccumulator, RenderSettings, TileRect, TileResult, combine_passes,
-                       image_finished, pass_range, tile_finished, tile_grid)
+from tessera_base import images, integrators
+from tessera_base.film import SplatSums, add_denoised, assemble_image, pass_image, render_tile_pass, run_scene_pass
+from tessera_base.convergence import PassAccumulator, combine_passes, image_finished, tile_finished
+from tessera_base.protocol import RenderSettings, TileRect, TileResult, pass_range, tile_grid
 
 
 @dataclass
@@ -80,7 +80,7 @@ def render_image(scene, settings: RenderSettings, threads: int = 0, progress: bo
                  variance: bool = True) -> LocalRenderResult:
     """Renders all tiles of `settings` with `scene` (a tessera_renderer.Scene). With
     `variance` (the default) the result carries its noise estimate; for light and bdpt
-    that renders every sample a second time, in batches (protocol.VARIANCE_BATCHES).
+    that renders every sample a second time, in batches (convergence.VARIANCE_BATCHES).
     With settings.denoise, aovs gets the "denoised" layer (film.add_denoised) as the
     farm's merge adds it."""
     result = _render_image(scene, settings, threads, progress, variance)

@@ -4,7 +4,7 @@ image is assembled from tile results (`assemble_image`: local renders and the se
 merge), and where splats are normalised (`resolve_splats`). Farm and local images are
 equal because both run this code, not because two copies agree.
 
-Splats. A tile rendered by a splatting integrator (tessera.integrators) returns its own
+Splats. A tile rendered by a splatting integrator (tessera_base.integrators) returns its own
 pixels' camera part and adds its light paths' camera connections, wherever they land, to a
 full-frame int64 fixed-point buffer. Integer sums are exact and order-free, so summing
 layers over tiles in any order, on any number of machines, gives the same image:
@@ -30,9 +30,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import integrators
-from .protocol import (AOV_CHANNELS, BatchMeans, RenderSettings, SplatBatch, TileRect, TileResult,
-                       batch_ranges, combine_aovs, combine_passes, new_aov_frame, pass_range,
-                       tile_grid)
+from .protocol import AOV_CHANNELS, RenderSettings, SplatBatch, TileRect, TileResult, pass_range, tile_grid
+from .convergence import BatchMeans, batch_ranges, combine_aovs, combine_passes, new_aov_frame
 
 # The renderer's fixed-point splat scale (kSplatScale in C++); tests/test_protocol.py pins
 # the two together (the service never imports the renderer).
@@ -224,7 +223,7 @@ def render_tile_pass(scene, settings: RenderSettings, rect: TileRect, pass_index
     product of run_scene_pass for iteration pass_index. Returns the TileResult (RGBA; the per-sample
     variance if `variance` or the variance AOV is asked for; settings.aovs; for a
     splatting integrator its splat layer and light paths, and with `batches` its variance
-    batches, protocol.VARIANCE_BATCHES) and the seconds it took."""
+    batches, convergence.VARIANCE_BATCHES) and the seconds it took."""
     sample_start, spp = pass_range(settings, pass_index)
     core_aovs = [a for a in settings.aovs if a in AOV_CHANNELS]
     want_variance = variance or "variance" in settings.aovs
@@ -286,7 +285,7 @@ class Assembled:
 def assemble_image(settings: RenderSettings, passes_by_tile: dict[int, list[TileResult]],
                    sums: SplatSums | None = None, *, partial: bool = False,
                    with_aovs: bool = False) -> Assembled:
-    """Combines each tile's passes (protocol.combine_passes) and pastes the tiles into the
+    """Combines each tile's passes (convergence.combine_passes) and pastes the tiles into the
     full image; adds every splat (the results' own layers and `sums`), exactly, and
     normalises them once by all results' light paths. With `partial`, missing tiles and
     passes are left out (a preview of a running job). Raises ValueError when the results
@@ -369,7 +368,7 @@ def pass_image(width: int, height: int, results: list[TileResult],
 def batch_variance(width: int, height: int, results: list[TileResult],
                    sums: SplatSums | None = None) -> tuple[np.ndarray, int] | None:
     """The variance of every pixel's mean from the results' variance batches (see
-    protocol.VARIANCE_BATCHES): batch j of pass p of every tile makes one whole image, in
+    convergence.VARIANCE_BATCHES): batch j of pass p of every tile makes one whole image, in
     (pass, batch) order. None unless every result has batches and there are at least two."""
     if not results or any(not r.batches for r in results):
         return None
@@ -396,7 +395,7 @@ def batch_variance(width: int, height: int, results: list[TileResult],
 
 # ------------------------------------------------------------------ the denoised layer
 def add_denoised(settings: RenderSettings, rgba: np.ndarray, aovs: dict[str, np.ndarray]) -> str | None:
-    """With settings.denoise, puts the denoised image (tessera.denoise) into `aovs` as its
+    """With settings.denoise, puts the denoised image (tessera_base.denoise) into `aovs` as its
     "denoised" layer, from the finished (or partial) image's colour, albedo and normal:
     the local render and the service's merge both finish images here. `rgba` is never
     changed. Returns None, or, when denoising is impossible (library missing, unusable

@@ -20,7 +20,7 @@ AOV_EXR_CHANNELS = {
     "depth": ("Z",),
     "spp": ("spp",),
     "variance": ("variance.R", "variance.G", "variance.B"),
-    # Not rendered: Open Image Denoise's image from RGB, albedo and N (tessera.denoise,
+    # Not rendered: Open Image Denoise's image from RGB, albedo and N (tessera_base.denoise,
     # docs/denoise.md). R, G, B stay the raw estimate.
     "denoised": ("denoised.R", "denoised.G", "denoised.B"),
 }
@@ -31,7 +31,7 @@ SPP_CHANNEL = AOV_EXR_CHANNELS["spp"][0]
 #   "per-sample": the unbiased sample variance of one sample of the pixel (variance of the
 #       mean = this / spp, spp - 1 degrees of freedom); the integrators without splats.
 #   "batch-means:K": the estimated variance of the pixel's mean itself, from the spread of
-#       K independent batch images (K - 1 degrees of freedom; protocol.VARIANCE_BATCHES);
+#       K independent batch images (K - 1 degrees of freedom; convergence.VARIANCE_BATCHES);
 #       light and bdpt, whose splats land on other pixels than their samples'.
 # An EXR without the attribute (written before it existed) has no trustworthy variance:
 # light and bdpt images then carried only the camera half of their estimate.

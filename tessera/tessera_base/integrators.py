@@ -71,13 +71,13 @@ def _candidates(name: str) -> list[dict]:
 
 def splats(name: str) -> bool:
     """Whether images rendered with `name` carry light-path splats across tiles, to be
-    normalised by the light paths traced (tessera/film.py). For `auto`: whether it may."""
+    normalised by the light paths traced (tessera/tessera_base/film.py). For `auto`: whether it may."""
     return any(i["splats"] for i in _candidates(name))
 
 
 def scene_passes(name: str) -> bool:
     """Whether `name` needs a scene-wide pass before each iteration's tile passes (its
-    product is what the tiles read: tessera.film.run_scene_pass). For `auto`: whether it may."""
+    product is what the tiles read: tessera_base.film.run_scene_pass). For `auto`: whether it may."""
     return any(i["scene_passes"] for i in _candidates(name))
 
 

@@ -1,5 +1,5 @@
 """Everything Tessera keeps in Redis: every key, every hash field, every event, and the
-Lua scripts that move a job through its states (tessera/lua/*.lua).
+Lua scripts that move a job through its states (tessera/tessera_queue/lua/*.lua).
 
 The service and the workers both go through this module, so they cannot disagree about
 where something lives or how a job changes state. Scripts get their keys as KEYS, in the
@@ -42,9 +42,10 @@ from typing import Literal
 import redis
 from pydantic import BaseModel, ConfigDict
 
-from . import integrators
-from .protocol import (AOV_CHANNELS, DEFAULT_PRIORITY, MAX_PRIORITY, VARIANCE_BATCHES, JobState,
-                       RenderSettings, pass_range)
+from tessera_base import integrators
+from tessera_base.protocol import (AOV_CHANNELS, DEFAULT_PRIORITY, MAX_PRIORITY, JobState, RenderSettings,
+                                   pass_range)
+from tessera_base.convergence import VARIANCE_BATCHES
 
 PREFIX = "tessera"
 WORKER_GROUP = "workers"                  # the consumer group on every job's queue
@@ -121,7 +122,7 @@ def job_tiles_key(job_id: str) -> str:
 
 
 def job_splats_key(job_id: str) -> str:
-    """Hash: the job's light-tracing splats summed over tiles (tessera.film.SplatSums):
+    """Hash: the job's light-tracing splats summed over tiles (tessera_base.film.SplatSums):
     "<pass>" -> that pass's splats, "<pass>:<batch>" -> a variance batch's. A field is
     rewritten with every tile pass (store_tile.lua, under WATCH), so storage is one
     full-frame layer per pass and batch, whatever the number of tiles."""
@@ -129,7 +130,7 @@ def job_splats_key(job_id: str) -> str:
 
 
 def job_products_key(job_id: str) -> str:
-    """Hash: SHA-256 hex -> a scene-pass product (opaque bytes, tessera.film.run_scene_pass),
+    """Hash: SHA-256 hex -> a scene-pass product (opaque bytes, tessera_base.film.run_scene_pass),
     content-addressed and written once (HSETNX); the job hash's product:<pass> fields say
     which iteration uses which. Workers fetch a product once and keep it by its hash."""
     return f"{_JOB}{job_id}{_PRODUCTS}"
@@ -220,7 +221,7 @@ def job_storage_bound(settings: RenderSettings) -> int:
     """An upper bound on the bytes one job keeps in Redis (docs/farm.md, "Memory per
     job"), from its settings alone: the service refuses a job above its budget before
     queuing it. With P passes (the pass schedule's length), N = width * height pixels, T
-    tiles and B variance batches (protocol.VARIANCE_BATCHES with the variance AOV of a
+    tiles and B variance batches (convergence.VARIANCE_BATCHES with the variance AOV of a
     splatting integrator, else 0):
         tile results   P * (N * (16 + 12 [variance] + 4 * AOV channels + 12 * B) + T * 128)
         splat sums     P * (1 + B) * N * 24        (splatting integrators; int64 RGB, raw)
@@ -287,7 +288,7 @@ OTHER_SCRIPTS = ("pick", "touch_scene", "drop_idle_consumer")
 
 
 def _lua(name: str) -> str:
-    return resources.files("tessera").joinpath("lua", f"{name}.lua").read_text()
+    return resources.files("tessera_queue").joinpath("lua", f"{name}.lua").read_text()
 
 
 @lru_cache(maxsize=None)

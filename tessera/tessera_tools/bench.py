@@ -24,7 +24,7 @@ their mean, and their mutual relMSE is reported: the mean's own error is about a
 of it, which must be far below the smallest error measured.
 
 The peer is Mitsuba 3 (optional extra `peer`), built from Tessera's own translation of the
-scene (tessera/peer_mitsuba.py). Before any speed ratio is quoted, converged images of
+scene (tessera/tessera_tools/peer_mitsuba.py). Before any speed ratio is quoted, converged images of
 both renderers must agree: the image mean and the mean of every region of a 4 x 4 grid
 within 1 %.
 """
@@ -289,9 +289,9 @@ def load_bench_scene(bs: BenchScene):
 
 def render_tessera(scene, integrator: str, spp: int, seed: int, res: int, cfg: Config) -> np.ndarray:
     """One image as one tile pass, rendered and assembled as every Tessera render is."""
-    from . import integrators
-    from .film import assemble_image, render_tile_pass, run_scene_pass
-    from .protocol import RenderSettings, TileRect
+    from tessera_base import integrators
+    from tessera_base.film import assemble_image, render_tile_pass, run_scene_pass
+    from tessera_base.protocol import RenderSettings, TileRect
 
     settings = RenderSettings(width=res, height=res, spp=spp, seed=seed, max_depth=cfg.max_depth,
                               tile_size=max(8, res), integrator=integrator)
@@ -747,7 +747,7 @@ def main(args: argparse.Namespace) -> int:
         print(f"tessera bench: unknown scene(s) {', '.join(unknown)}; known: {', '.join(SCENES)}", file=sys.stderr)
         return 2
     integrators = [i for i in args.integrators.split(",") if i]
-    from . import integrators as registry
+    from tessera_base import integrators as registry
     bad = [i for i in integrators if i not in [r["name"] for r in registry.integrators()]]
     if bad:
         print(f"tessera bench: unknown integrator(s) {', '.join(bad)}", file=sys.stderr)

@@ -49,7 +49,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
-from . import images, integrators
+from tessera_base import images, integrators
 
 ALPHA = 0.01
 BLOCK_SIZES = (1, 4, 16, 0)      # pixels per block side; 0: the whole image

@@ -15,12 +15,12 @@ import OpenImageIO as oiio
 import pytest
 
 from conftest import CORNELL, clean_env, start_api, submit
-from tessera import images
+from tessera_base import images
 from tessera.cli import main as tessera_main
-from tessera.denoise import DenoiseError, denoise
-from tessera.film import add_denoised
+from tessera_base.denoise import DenoiseError, denoise
+from tessera_base.film import add_denoised
 from tessera.local import render_image
-from tessera.protocol import RenderSettings
+from tessera_base.protocol import RenderSettings
 from tessera_renderer import load_scene
 
 RES, SPP, SEED = 96, 16, 0
@@ -229,8 +229,8 @@ def test_partial_preview_of_a_running_job_is_denoised():
     their mean is under 1 % of the rendered ones'). The rendered tiles, away from that
     border (24 of 32 rows), have the mean of the finished image's denoised layer within
     2 % (measured: 0.3 %). Control: that region scaled by 1.05 fails the check."""
-    from tessera import protocol
-    from tessera.film import render_tile_pass
+    from tessera_base import protocol
+    from tessera_base.film import render_tile_pass
     from tessera_service.merge import denoised_png, merge_tiles
 
     settings = RenderSettings(width=64, height=64, spp=8, tile_size=32, denoise=True)

@@ -1,13 +1,13 @@
-"""tessera.film (one tile pass, one image assembly, splat sums) and tessera.redis_schema
+"""tessera_base.film (one tile pass, one image assembly, splat sums) and tessera_queue.redis_schema
 (the scripts load and compile on a real Redis)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from tessera import film
-from tessera import redis_schema as rdb
-from tessera.protocol import RenderSettings, TileResult, tile_grid
+from tessera_base import film
+from tessera_queue import redis_schema as rdb
+from tessera_base.protocol import RenderSettings, TileResult, tile_grid
 
 
 def _results(settings: RenderSettings, seed: int = 0) -> dict[int, list[TileResult]]:

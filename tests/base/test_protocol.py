@@ -7,12 +7,15 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from tessera import protocol
+from tessera_base import protocol
+from tessera_base import convergence
+from tessera_queue import tasks as queue_tasks
 
-from tessera import redis_schema as rdb
+from tessera_queue import redis_schema as rdb
 
-from tessera import film
-from tessera.protocol import RenderSettings, TileRect, TileTask, decode_tile, encode_tile, tile_grid
+from tessera_base import film
+from tessera_base.protocol import RenderSettings, TileRect, decode_tile, encode_tile, tile_grid
+from tessera_queue.tasks import TileTask
 
 
 @pytest.mark.parametrize("width,height,tile", [(1, 1, 8), (7, 5, 8), (33, 17, 8), (100, 37, 16),
@@ -155,28 +158,28 @@ def test_combine_passes_matches_the_pooled_statistics():
         return protocol.TileResult(0, 0, chunk.mean(0).astype(np.float32), p, start, len(chunk),
                                    chunk[..., :3].var(0, ddof=1).astype(np.float32))
     a, b = result(samples[:16], 0, 0), result(samples[16:], 1, 16)
-    mean, var, n = protocol.combine_passes([b, a])  # order does not matter
+    mean, var, n = convergence.combine_passes([b, a])  # order does not matter
     assert n == 40
     assert np.allclose(mean, samples.mean(0), atol=1e-6)
     assert np.allclose(var, samples[..., :3].var(0, ddof=1), rtol=1e-5)
     # One pass is returned untouched (bit-identical to a single render).
-    assert protocol.combine_passes([a])[0] is a.rgba
+    assert convergence.combine_passes([a])[0] is a.rgba
 
 
 def test_noise_target_decision():
     s = RenderSettings(width=8, height=8, target_error=0.01, min_spp=16, max_spp=64)
     flat = np.ones((4, 4, 4), np.float32)
     # Background (no variance at all) is finished after its first pass.
-    assert protocol.tile_finished(s, 0, flat, np.zeros((4, 4, 3), np.float32), 16)
+    assert convergence.tile_finished(s, 0, flat, np.zeros((4, 4, 3), np.float32), 16)
     # Luminance standard error / luminance = sqrt(sum(w^2) * 0.16 / 16) / 1 = 7.5 % > 1 %:
     # go on ...
     noisy = np.full((4, 4, 3), 0.16, np.float32)
     w = np.array([0.2126, 0.7152, 0.0722])
-    assert protocol.tile_error(flat, noisy, 16) == pytest.approx(np.sqrt((w ** 2).sum() * 0.01))
-    assert not protocol.tile_finished(s, 0, flat, noisy, 16)
+    assert convergence.tile_error(flat, noisy, 16) == pytest.approx(np.sqrt((w ** 2).sum() * 0.01))
+    assert not convergence.tile_finished(s, 0, flat, noisy, 16)
     # ... until the last pass of the schedule (64 spp), whatever the noise.
-    assert protocol.tile_finished(s, 2, flat, noisy, 64)
-    assert protocol.tile_finished(s, 1, flat, noisy / 1e4, 32)
+    assert convergence.tile_finished(s, 2, flat, noisy, 64)
+    assert convergence.tile_finished(s, 1, flat, noisy / 1e4, 32)
 
 
 def test_key_layout_is_namespaced():
@@ -263,7 +266,7 @@ def test_pass_accumulator_estimates_the_variance_of_the_mean():
     weighted mean matches the true one (known sigma) within its own sampling error."""
     rng = np.random.default_rng(7)
     sigma, mu, counts = 0.3, 2.0, [16, 16, 32, 64]
-    acc = protocol.PassAccumulator()
+    acc = convergence.PassAccumulator()
     for n in counts:  # each pass image: mean of n samples, per pixel, luminance mu
         lum = mu + rng.normal(0.0, sigma / np.sqrt(n), size=(64, 64))
         acc = acc.add(np.repeat(lum[..., None], 4, axis=2).astype(np.float32), n)
@@ -271,31 +274,31 @@ def test_pass_accumulator_estimates_the_variance_of_the_mean():
     true_rel = sigma / np.sqrt(sum(counts)) / mu
     # 3 degrees of freedom per pixel, averaged over 4096 pixels: a few per cent.
     assert acc.error() == pytest.approx(true_rel, rel=0.05)
-    again = protocol.PassAccumulator.from_bytes(acc.to_bytes())
+    again = convergence.PassAccumulator.from_bytes(acc.to_bytes())
     assert again.passes == 4 and again.samples == sum(counts) and again.error() == acc.error()
-    assert protocol.PassAccumulator().error() is None
-    assert protocol.PassAccumulator().add(np.ones((2, 2, 4), np.float32), 4).error() is None
+    assert convergence.PassAccumulator().error() is None
+    assert convergence.PassAccumulator().add(np.ones((2, 2, 4), np.float32), 4).error() is None
 
 
 def test_image_finished_follows_the_schedule_and_the_target():
     s = protocol.RenderSettings(width=8, height=8, target_error=0.05, min_spp=4, max_spp=16,
                                 integrator="bdpt")
     flat = np.ones((8, 8, 4), np.float32)
-    one = protocol.PassAccumulator().add(flat, 4)
-    assert not protocol.image_finished(s, 0, one)  # one pass cannot judge its noise
+    one = convergence.PassAccumulator().add(flat, 4)
+    assert not convergence.image_finished(s, 0, one)  # one pass cannot judge its noise
     noiseless = one.add(flat, 4)
-    assert protocol.image_finished(s, 1, noiseless)
+    assert convergence.image_finished(s, 1, noiseless)
     noisy = one.add(flat * 3, 4)
-    assert not protocol.image_finished(s, 1, noisy)
-    assert protocol.image_finished(s, 2, noisy.add(flat, 8))  # 16 = max_spp: the last pass
+    assert not convergence.image_finished(s, 1, noisy)
+    assert convergence.image_finished(s, 2, noisy.add(flat, 8))  # 16 = max_spp: the last pass
 
 
 def test_pass_tasks_cover_the_grid_and_the_barrier_is_marked():
     spec = protocol.JobSpec(job_id="j", scene_hash="h", scene_name="s.usda",
                             settings=protocol.RenderSettings(width=20, height=10, tile_size=8,
                                                              target_error=0.1, integrator="light"))
-    first = protocol.job_tasks(spec)[3]
-    barrier = protocol.TileTask.from_fields(first.decide_task().to_fields())
+    first = queue_tasks.job_tasks(spec)[3]
+    barrier = queue_tasks.TileTask.from_fields(first.decide_task().to_fields())
     assert barrier.decide and barrier.pass_index == 0
     nxt = barrier.pass_tasks(1)
     assert [t.tile for t in nxt] == protocol.tile_grid(20, 10, 8)
@@ -307,9 +310,9 @@ def test_pass_tasks_cover_the_grid_and_the_barrier_is_marked():
 def test_variance_batches_round_trip_and_split_every_pass():
     """FLAG_BATCHES: each batch's spp, light paths, camera part and splat layer come back
     exactly; a reader of results without the flag sees none; a cut result is refused."""
-    assert protocol.batch_ranges(0, 16) == [(2 * j, 2) for j in range(8)]
-    assert protocol.batch_ranges(16, 3) == [(16, 1), (17, 1), (18, 1)]
-    assert sum(n for _, n in protocol.batch_ranges(5, 37)) == 37
+    assert convergence.batch_ranges(0, 16) == [(2 * j, 2) for j in range(8)]
+    assert convergence.batch_ranges(16, 3) == [(16, 1), (17, 1), (18, 1)]
+    assert sum(n for _, n in convergence.batch_ranges(5, 37)) == 37
     rng = np.random.default_rng(3)
     rect = TileRect(index=1, x0=8, y0=0, width=4, height=3)
     batches = [protocol.SplatBatch(2, rng.random((3, 4, 3), dtype=np.float32), (1, 2, 5, 2),

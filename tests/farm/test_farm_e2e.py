@@ -20,9 +20,10 @@ import pytest
 
 from conftest import (CORNELL, STARTUP_TIMEOUT, Process, child_pids, clean_env, is_running, start_api,
                       start_worker, submit, wait_for_job)
-from tessera import images, protocol
-from tessera import redis_schema as rdb
-from tessera.protocol import JobSpec, RenderSettings
+from tessera_base import images, protocol
+from tessera_queue import tasks as queue_tasks
+from tessera_queue import redis_schema as rdb
+from tessera_base.protocol import JobSpec, RenderSettings
 from tessera_renderer import load_scene
 from tessera_service.embedded import free_port
 from tessera_service.store import JobStore
@@ -156,7 +157,7 @@ def test_sigterm_lets_the_worker_finish_its_tile(farm, redis_server, redis_clien
             time.sleep(0.01)
         entry_id = held[0]["message_id"]
         (_, fields), = redis_client.xrange(queue, entry_id, entry_id)
-        task = protocol.TileTask.from_fields(fields)
+        task = queue_tasks.TileTask.from_fields(fields)
         assert task.job_id == job_id
         worker.popen.send_signal(signal.SIGTERM)
         assert worker.popen.wait(timeout=30) == 0, worker.log()
@@ -344,7 +345,7 @@ def test_splatting_integrators_on_the_farm_equal_a_local_render(farm, tmp_path, 
     dict(width=40, height=24, spp=2, seed=5, max_depth=8, tile_size=16, integrator="bdpt"),
 ], ids=["fixed", "noise-target", "bdpt"])
 def test_farm_aovs_equal_a_local_render(farm, tmp_path, form):
-    """Tile results carry the AOVs; the merge combines passes (protocol.combine_aovs) and
+    """Tile results carry the AOVs; the merge combines passes (convergence.combine_aovs) and
     pastes tiles as the local render does, so every EXR channel equals the local one."""
     from tessera.local import render_image
 

@@ -27,8 +27,9 @@ import redis
 
 from conftest import (CORNELL, STARTUP_TIMEOUT, child_pids, clean_env, is_running, farm_image, local_reference, start_api, start_worker,
                       submit, wait_for_job)
-from tessera import protocol
-from tessera import redis_schema as rdb
+from tessera_base import protocol
+from tessera_base import convergence
+from tessera_queue import redis_schema as rdb
 from tessera_worker.worker import CLAIM_MIN_IDLE_MS
 from tessera_service.embedded import free_port, redis_server as local_redis
 
@@ -317,7 +318,7 @@ def test_lockstep_noise_target_equals_the_local_render(farm, redis_client, tmp_p
     assert status["passes_done"] == 4 * passes and passes >= 2, status
     assert fields == {f"{t}:{p}" for t in range(4) for p in range(passes)}
     assert passes < 8, "the target should stop it before max_spp (2..256 is 8 passes)"
-    acc = protocol.PassAccumulator.from_bytes(redis_client.get(rdb.job_passes_key(job_id)))
+    acc = convergence.PassAccumulator.from_bytes(redis_client.get(rdb.job_passes_key(job_id)))
     assert acc.passes == passes and acc.error() <= form["target_error"]
     local = local_reference(form)
     assert_bit_identical(farm_image(farm, job_id, tmp_path), local)

@@ -18,10 +18,10 @@ import pytest
 import redis
 
 from conftest import CORNELL, Process, clean_env, start_api, start_worker, submit, wait_for_job
-from tessera import images, protocol
-from tessera import redis_schema as rdb
+from tessera_base import images, protocol
+from tessera_queue import redis_schema as rdb
 from tessera.local import render_image
-from tessera.protocol import RenderSettings
+from tessera_base.protocol import RenderSettings
 from tessera_renderer import load_scene
 
 TOKEN = "netns-test-token"

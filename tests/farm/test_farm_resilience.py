@@ -22,8 +22,8 @@ import redis
 
 from conftest import (CORNELL, child_pids, clean_env, farm_image, is_running, local_reference, start_api,
                       start_worker, submit, wait_for_job)
-from tessera import images, protocol
-from tessera import redis_schema as rdb
+from tessera_base import images, protocol
+from tessera_queue import redis_schema as rdb
 from tessera_service.embedded import free_port, redis_server as local_redis
 
 

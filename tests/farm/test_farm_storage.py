@@ -12,8 +12,8 @@ import redis
 
 from conftest import (CORNELL, farm_image, local_reference, start_api, start_worker, submit,
                       wait_for_job)
-from tessera import redis_schema as rdb
-from tessera.protocol import RenderSettings
+from tessera_queue import redis_schema as rdb
+from tessera_base.protocol import RenderSettings
 from tessera_service.embedded import redis_server
 
 

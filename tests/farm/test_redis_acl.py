@@ -15,7 +15,7 @@ from redis.backoff import NoBackoff
 from redis.retry import Retry
 
 from conftest import CORNELL, REPO, STARTUP_TIMEOUT, start_api, start_worker, submit, wait_for_job
-from tessera import redis_schema as rdb
+from tessera_queue import redis_schema as rdb
 from tessera_service.embedded import free_port, redis_server, stop_processes
 from tessera_service.redis_acl import API_USER, WORKER_USER, Credentials, user_rule
 

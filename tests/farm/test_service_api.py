@@ -9,8 +9,8 @@ import httpx
 import pytest
 
 from conftest import CORNELL, start_api, submit
-from tessera import protocol
-from tessera import redis_schema as rdb
+from tessera_base import protocol
+from tessera_queue import redis_schema as rdb
 
 UPLOAD_LIMIT = 64 * 1024
 

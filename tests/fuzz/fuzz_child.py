@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from tessera_renderer import NonFiniteSampleError, Scene, SceneError, _core, load_scene
-from tessera_renderer.usd_scene import CameraDesc, SceneData
+from tessera_renderer.usd import CameraDesc, SceneData
 
 WORK = Path(sys.argv[2]) if len(sys.argv) > 2 else Path(".")
 outcomes: collections.Counter = collections.Counter()

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade
 
-from tessera import images
+from tessera_base import images
 from tessera.local import render_image
-from tessera.protocol import (RenderSettings, TileRect, TileResult, combine_aovs, decode_tile,
-                              encode_tile)
+from tessera_base.protocol import RenderSettings, TileRect, TileResult, decode_tile, encode_tile
+from tessera_base.convergence import combine_aovs
 from tessera_renderer import load_scene
 from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, new_stage
 
@@ -125,7 +125,7 @@ def test_aovs_do_not_change_the_image_and_do_not_depend_on_tiles(cornell_path, i
 
 
 def test_passes_merge_to_the_single_render(cornell_path):
-    """Samples [0, 3) and [3, 8) combined by protocol.combine_aovs == samples [0, 8):
+    """Samples [0, 3) and [3, 8) combined by convergence.combine_aovs == samples [0, 8):
     albedo and normal as sample-weighted means, spp summed, depth averaged over the hits."""
     scene = load_scene(cornell_path)
     kw = dict(width=40, height=30, seed=3, max_depth=8, aovs=ALL)

@@ -25,7 +25,7 @@ import pytest
 from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade
 
 from tessera_renderer import load_scene
-from tessera.film import resolve_splats
+from tessera_base.film import resolve_splats
 from tessera_renderer.film import new_splat_buffer
 from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, new_stage
 

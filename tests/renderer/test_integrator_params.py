@@ -11,8 +11,10 @@ import pytest
 from pydantic import ValidationError
 
 from conftest import CORNELL
-from tessera import cli, film, images, integrators
-from tessera.protocol import RenderSettings, TileRect, TileTask
+from tessera import cli
+from tessera_base import film, images, integrators
+from tessera_base.protocol import RenderSettings, TileRect
+from tessera_queue.tasks import TileTask
 
 
 def settings(**kw) -> RenderSettings:

@@ -7,9 +7,9 @@ between them is a test of both against physics, not against yesterday's output.
 import numpy as np
 import pytest
 
-from tessera import integrators
+from tessera_base import integrators
 from tessera_renderer import load_scene
-from tessera.film import resolve_splats
+from tessera_base.film import resolve_splats
 from tessera_renderer.film import new_splat_buffer
 
 W = H = 32

@@ -1,7 +1,7 @@
 """Scene-wide passes on the farm (real redis-server, API and worker processes), with
 photon_direct, whose scene pass traces a batch of photons per iteration:
 
-- the farm's image equals the local render bit for bit (both run tessera.film's one
+- the farm's image equals the local render bit for bit (both run tessera_base.film's one
   scene-pass function and one tile-pass function);
 - each iteration's product is computed once and stored once (counted by the job hash and,
   locally, by wrapping the function), and the iteration's tiles read it;
@@ -24,9 +24,10 @@ import numpy as np
 import pytest
 
 from conftest import CORNELL, child_pids, farm_image, start_api, start_worker, submit, wait_for_job
-from tessera import local, protocol
-from tessera import redis_schema as rdb
-from tessera.protocol import RenderSettings
+from tessera import local
+from tessera_base.protocol import RenderSettings
+from tessera_queue import redis_schema as rdb
+from tessera_queue import tasks as queue_tasks
 from tessera_renderer import load_scene
 
 # Three iterations: passes of 1, 1 and 2 samples (a noise target no image reaches stops
@@ -117,7 +118,7 @@ def test_a_worker_killed_in_a_scene_task_has_it_reclaimed(farm, redis_client, tm
         assert time.monotonic() < deadline, "the victim never took the scene task\n" + victim.log()
         time.sleep(0.01)
     pending = redis_client.xrange(queue)
-    assert [protocol.TileTask.from_fields(f).scene_pass for _, f in pending] == [True]
+    assert [queue_tasks.TileTask.from_fields(f).scene_pass for _, f in pending] == [True]
     while not child_pids(victim.pid):  # its render process, hanging in the scene task
         assert time.monotonic() < deadline, "the victim has no render process\n" + victim.log()
         time.sleep(0.01)

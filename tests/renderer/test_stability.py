@@ -17,10 +17,11 @@ import math
 import numpy as np
 import pytest
 
-from tessera import integrators
+from tessera_base import integrators
 from tessera_renderer import Scene
-from tessera.film import resolve_splats
-from tessera_renderer.usd_scene import PARAM_KEYS, CameraDesc, SceneData
+from tessera_base.film import resolve_splats
+from tessera_renderer.usd import CameraDesc, SceneData
+from tessera_renderer.usd.materials import PARAM_KEYS
 
 INTEGRATORS = ("path", "light", "bdpt", "local", "whitted")
 DETERMINISTIC = ("path", "local", "whitted")   # exact on the lit plane: one delta light, no bounce back
@@ -291,7 +292,7 @@ def test_usd_scene_far_from_the_origin_or_scaled(tmp_path, usd_area_lit_referenc
     the origin with every integrator, per region within 1 %; and the translation keeps the
     world position it removed."""
     from tessera_renderer import load_scene
-    from tessera_renderer.usd_scene import translate_stage
+    from tessera_renderer.usd import translate_stage
 
     path = tmp_path / "far.usda"
     _write_area_lit_usd(path, **placement)

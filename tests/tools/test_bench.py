@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tessera import bench, peer_mitsuba
+from tessera_tools import bench, peer_mitsuba
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from conftest import CORNELL, start_api
-from tessera import compare, images
+from tessera_tools import compare
+from tessera_base import images
 from tessera.cli import main
 
 RES, SPP = "64x64", 32

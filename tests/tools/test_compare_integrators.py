@@ -1,5 +1,5 @@
 """`tessera compare` on every integrator, splats included: the variance layer of light and
-bdpt comes from batch means (protocol.VARIANCE_BATCHES) and is labelled in the EXR
+bdpt comes from batch means (convergence.VARIANCE_BATCHES) and is labelled in the EXR
 (tessera:variance), so that seed pairs of one renderer compare the same at the documented
 false-alarm level, a 2 % brighter light is found, a NaN differs, and images whose variance
 cannot be judged are refused (exit 2).
@@ -16,10 +16,12 @@ import pytest
 from scipy import stats
 
 from conftest import CORNELL
-from tessera import compare, images
+from tessera_tools import compare
+from tessera_base import images
 from tessera.cli import main
 from tessera.local import render_image
-from tessera.protocol import VARIANCE_BATCHES, RenderSettings
+from tessera_base.convergence import VARIANCE_BATCHES
+from tessera_base.protocol import RenderSettings
 from tessera_renderer import load_scene
 
 PAIRS = 50

@@ -12,7 +12,7 @@ Request: dict(serial, scene_key, scene_path, blob_path, blob_out, settings (Rend
 JSON), tile (TileRect fields), pass_index, threads, variance, batches, default_light, fault). The scene
 comes from the blob file `blob_path` if given (no USD involved), else is translated from
 `scene_path`; with `blob_out`, the translation is also written there as a blob for other
-workers. The pass is rendered by tessera.film.render_tile_pass, as local renders do.
+workers. The pass is rendered by tessera_base.film.render_tile_pass, as local renders do.
 Reply: ("ok", TileResult, seconds, serial) or ("error", kind, message, serial) with kind
 "scene" | "memory" | "other"; the serial lets the supervisor check that a reply answers
 its latest request.
@@ -28,8 +28,8 @@ import time
 from collections import OrderedDict
 from multiprocessing.connection import Connection
 
-from tessera.film import render_tile_pass, run_scene_pass
-from tessera.protocol import RenderSettings, TileRect
+from tessera_base.film import render_tile_pass, run_scene_pass
+from tessera_base.protocol import RenderSettings, TileRect
 
 SCENE_CACHE_SIZE = 4
 

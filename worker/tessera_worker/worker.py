@@ -38,10 +38,11 @@ from pathlib import PurePosixPath
 
 import redis
 
-from tessera import film, integrators, protocol
-from tessera import redis_schema as rdb
-from tessera.process import die_with_parent, private_tempdir, remove_orphaned_tempdirs
-from tessera.protocol import TileTask
+from tessera_base import film, integrators, protocol
+from tessera_base import convergence
+from tessera_queue import redis_schema as rdb
+from tessera_base.process import die_with_parent, private_tempdir, remove_orphaned_tempdirs
+from tessera_queue.tasks import TileTask
 
 from .settings import WorkerSettings
 
@@ -446,7 +447,7 @@ class Worker:
         request = dict(**scene, settings=s.model_dump_json(), tile=rect.model_dump(),
                        pass_index=task.pass_index, threads=self.threads, variance=s.adaptive,
                        default_light=s.default_light,
-                       # light and bdpt: the variance layer from batches (protocol.VARIANCE_BATCHES)
+                       # light and bdpt: the variance layer from batches (convergence.VARIANCE_BATCHES)
                        batches="variance" in s.aovs, fault=self._fault_for(task),
                        scene_pass=scene_pass, scene_product=product)
         job_key = rdb.job_key(task.job_id)
@@ -475,7 +476,7 @@ class Worker:
 
     def _scene_task(self, task: TileTask, entry_id: bytes) -> None:
         """A scene-wide task: computes iteration pass_index's product in the render process
-        (tessera.film.run_scene_pass, as a local render does), stores it content-addressed
+        (tessera_base.film.run_scene_pass, as a local render does), stores it content-addressed
         and queues the iteration's tile passes (store_product.lua: once, however often the
         task is delivered; a product depends only on scene, settings, seed and iteration,
         so a reclaimed task computes the same bytes)."""
@@ -536,8 +537,8 @@ class Worker:
                 # unless the job's results expired; finish the tile with what it has.
                 return True
             earlier = [protocol.decode_tile(d) for d in stored]
-        mean, var, samples = protocol.combine_passes(earlier + [this])
-        final = protocol.tile_finished(s, task.pass_index, mean, var, samples)
+        mean, var, samples = convergence.combine_passes(earlier + [this])
+        final = convergence.tile_finished(s, task.pass_index, mean, var, samples)
         if not final and s.time_limit is not None:
             if started_at is None:
                 started_at = _float(self.redis.hget(rdb.job_key(task.job_id), "started_at"))
@@ -554,7 +555,7 @@ class Worker:
         if decided and int(decided) >= p:  # a redelivery
             self._ack(rdb.job_queue_key(job_id), entry_id)
             return
-        acc = protocol.PassAccumulator.from_bytes(self.redis.get(rdb.job_passes_key(job_id)))
+        acc = convergence.PassAccumulator.from_bytes(self.redis.get(rdb.job_passes_key(job_id)))
         if acc.passes != p:
             self._fail(job_id, f"pass barrier {p} found {acc.passes} passes accumulated",
                        task.scene_hash)
@@ -589,7 +590,7 @@ class Worker:
                 return
         acc = acc.add(film.pass_image(s.width, s.height, results, sums), results[0].spp)
         del results
-        finished = protocol.image_finished(s, p, acc)
+        finished = convergence.image_finished(s, p, acc)
         if not finished and s.time_limit is not None:
             if started_at is None:
                 started_at = _float(self.redis.hget(key, "started_at"))

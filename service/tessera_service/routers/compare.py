@@ -1,4 +1,4 @@
-"""/compare: the noise-aware comparison of two uploaded EXRs (tessera.compare), as JSON."""
+"""/compare: the noise-aware comparison of two uploaded EXRs (tessera_tools.compare), as JSON."""
 from __future__ import annotations
 
 import os
@@ -10,7 +10,7 @@ from fastapi import APIRouter, File, Form, HTTPException, Request, Response, Upl
 from fastapi.routing import APIRoute
 from starlette.types import Message
 
-from tessera.compare import ALPHA, CompareError, CompareReport, compare_files
+from tessera_tools.compare import ALPHA, CompareError, CompareReport, compare_files
 
 from ..settings import Settings
 from .jobs import _save_upload, upload_too_large

@@ -9,7 +9,7 @@ from fastapi import APIRouter, Depends, Request, Response
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 
-from tessera import protocol
+from tessera_base import protocol
 
 from ..auth import require_user
 from ..schemas import WorkerList, WorkerStatus

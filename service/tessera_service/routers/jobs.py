@@ -23,9 +23,9 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import StreamingResponse
 from pydantic import ValidationError
 
-from tessera import protocol
-from tessera import redis_schema as rdb
-from tessera.protocol import FINAL_STATES, JobSpec, JobState, RenderSettings
+from tessera_base import protocol
+from tessera_queue import redis_schema as rdb
+from tessera_base.protocol import FINAL_STATES, JobSpec, JobState, RenderSettings
 
 from ..auth import require_user
 from ..merge import MergeError, denoised_png, encode_image, merge_tiles, read_denoised
@@ -125,7 +125,7 @@ def create_job(
     if integrator is None:
         del params["integrator"]  # RenderSettings' default: the registry's first
     if denoise:  # the merge here denoises: refuse now rather than deliver a job without it
-        from tessera.denoise import unavailable_reason
+        from tessera_base.denoise import unavailable_reason
 
         if (reason := unavailable_reason()) is not None:
             raise HTTPException(422, f"denoise: this server cannot denoise: {reason}")

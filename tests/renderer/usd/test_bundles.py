@@ -343,8 +343,8 @@ CHILD = r"""
 import json, sys
 import numpy as np
 from tessera_renderer import Scene, SceneError, load_scene
-from tessera_renderer.bundle import Limits, open_bundle
-from tessera_renderer.usd_scene import translate_stage
+from tessera_renderer.usd.bundle import Limits, open_bundle
+from tessera_renderer.usd import translate_stage
 for line in sys.stdin:
     job = json.loads(line)
     out = {"case": job["case"]}

@@ -15,10 +15,10 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
 from tessera_renderer import Scene, load_scene
 from tessera_renderer.scene_blob import scene_from_blob, translate_to_blob
-from tessera_renderer.usd_scene import translate_stage
+from tessera_renderer.usd import translate_stage
 from usd_fixtures import add_material, add_mesh, new_stage
 
-SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
+SCENES = Path(__file__).resolve().parents[4] / "shared" / "scenes"
 
 
 def _save(stage) -> str:
@@ -106,7 +106,7 @@ def test_cli_no_default_light(tmp_path):
 
 
 def test_job_setting_default_light():
-    from tessera.protocol import RenderSettings
+    from tessera_base.protocol import RenderSettings
 
     assert RenderSettings(width=8, height=8).default_light is True
     assert RenderSettings.model_validate_json(

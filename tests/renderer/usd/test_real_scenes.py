@@ -17,7 +17,7 @@ import pytest
 
 from tessera_renderer import load_scene
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 # Beside the repository; TESSERA_SHARED_SCENES names it elsewhere (a git worktree, say).
 SCENES = Path(os.environ.get("TESSERA_SHARED_SCENES", REPO.parent / "shared" / "scenes"))
 
@@ -178,7 +178,7 @@ def test_nested_instance_bindings_give_the_colours_the_file_states(instancing):
 
 def test_instancing_scene_as_instances_holds_one_teapot(tmp_path):
     path = SCENES / "usdwg_intent_vfx_instancing/scenes/teapotScene_layout.usd"
-    from tessera_renderer.usd_scene import translate_stage
+    from tessera_renderer.usd import translate_stage
     # Level 0: the README's count is the teapot's cage (the default level refines it 16-fold).
     d = translate_stage(str(path), root=str(SCENES / "usdwg_intent_vfx_instancing"), instancing="instances",
                         subdivision_level=0)
@@ -194,7 +194,7 @@ def test_camera_in_its_own_layer_composes_by_sublayering(tmp_path):
     shutil.copytree(SCENES / "usdwg_intent_vfx_instancing", work)
     root = work / "scenes" / "shot.usda"
     root.write_text('#usda 1.0\n(subLayers = [@./teapotScene_camera.usd@, @./teapotScene_layout.usd@])\n')
-    from tessera_renderer.usd_scene import translate_stage
+    from tessera_renderer.usd import translate_stage
     d0 = translate_stage(str(root), frame=0, root=str(work), instancing="instances")
     d1 = translate_stage(str(root), frame=240, root=str(work), instancing="instances")
     assert d0.camera.source == "/Cameras/mainCamera/mono"
@@ -221,7 +221,7 @@ def test_arnold_disk_light_radiance_follows_its_animated_attributes(frame):
     color x intensity x 2^exposure x blackbody(T if enabled) / (pi r^2 world, if normalize)."""
     from pxr import Usd, UsdGeom
 
-    from tessera_renderer.gprims import blackbody_rgb
+    from tessera_renderer.usd.gprims import blackbody_rgb
     folder = SCENES / "arnoldusd_disk_rect_lights"
     path = folder / "test_2439.4/data/disk.usda"
     stage = Usd.Stage.Open(str(path))
@@ -244,7 +244,7 @@ def test_tessera_render_widens_the_sandbox_only_with_root(tmp_path, capsys):
     """rect.usda's lights name ../ies/... (outside its data/ folder): `tessera render` refuses
     it by default, naming the path and the --root option, and renders it with --root set to
     the scene's project folder (the IES profile itself is ignored with a warning)."""
-    from tessera import images
+    from tessera_base import images
     from tessera.cli import main
 
     project = SCENES / "arnoldusd_disk_rect_lights" / "test_2439.5"

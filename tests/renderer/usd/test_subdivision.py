@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
-from tessera_renderer.usd_scene import SceneError, translate_opened_stage, translate_stage
+from tessera_renderer.usd import SceneError, translate_opened_stage, translate_stage
 
-SCENES = Path(os.environ.get("TESSERA_SHARED_SCENES", Path(__file__).resolve().parents[2] / "shared" / "scenes"))
+SCENES = Path(os.environ.get("TESSERA_SHARED_SCENES", Path(__file__).resolve().parents[4] / "shared" / "scenes"))
 
 # A cube [-1, 1]^3, faces wound counter-clockwise seen from outside.
 CUBE_POINTS = [(-1, -1, -1), (1, -1, -1), (1, 1, -1), (-1, 1, -1),
@@ -202,7 +202,7 @@ def test_shared_pyramids_render_subdivided_without_a_warning():
 
 
 def test_too_many_refined_triangles_name_the_subdivision_level():
-    from tessera_renderer.bundle import Limits
+    from tessera_renderer.usd.bundle import Limits
 
     limits = Limits(triangles=200)  # each mesh may have a quarter: 50 triangles
     # One cube: level 3 (768 triangles) is lowered to level 1 (48), with a note.

@@ -17,12 +17,12 @@ from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade
 
 from tessera_renderer import load_scene
 from tessera_renderer.scene_blob import scene_from_blob, translate_to_blob
-from tessera_renderer.usd_scene import translate_stage
+from tessera_renderer.usd import translate_stage
 from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, new_stage
 
 E = 3.0
 # Beside the repository; TESSERA_SHARED_SCENES names it elsewhere (a git worktree, say).
-SCENES = Path(os.environ.get("TESSERA_SHARED_SCENES", Path(__file__).resolve().parents[2] / "shared" / "scenes"))
+SCENES = Path(os.environ.get("TESSERA_SHARED_SCENES", Path(__file__).resolve().parents[4] / "shared" / "scenes"))
 
 
 def srgb_to_linear(v: float) -> float:

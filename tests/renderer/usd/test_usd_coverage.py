@@ -12,9 +12,9 @@ import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
 
 from tessera_renderer import load_scene
-from tessera_renderer import gprims
+from tessera_renderer.usd import gprims
 from tessera_renderer.scene_blob import scene_data_from_blob, scene_from_blob, translate_to_blob
-from tessera_renderer.usd_scene import translate_stage as _translate_stage
+from tessera_renderer.usd import translate_stage as _translate_stage
 from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, new_stage
 
 QUAD2 = ([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 0, 0), (2, 1, 0)], [4, 4], [0, 1, 2, 3, 1, 4, 5, 2])

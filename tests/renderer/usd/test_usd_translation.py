@@ -7,8 +7,8 @@ import pytest
 from pxr import Gf, UsdGeom, UsdLux
 
 from tessera_renderer import SceneError, load_scene
-from tessera_renderer.usd_scene import _triangulate_fan
-from tessera_renderer.usd_scene import translate_stage as _translate_stage
+from tessera_renderer.usd.meshes import _triangulate_fan
+from tessera_renderer.usd import translate_stage as _translate_stage
 from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, new_stage
 
 # These tests read what the translation put where: world coordinates, not the

@@ -121,7 +121,7 @@ class UsdNode:
 
     def file(self, name):
         """(Sdf.AssetPath, authoring layer directory, colour space) of a filename input."""
-        from .usd_scene import _authoring_layer
+        from .materials import _authoring_layer
 
         for attr in self._attrs(name):
             layer = _authoring_layer(attr)

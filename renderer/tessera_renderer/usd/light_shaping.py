@@ -76,7 +76,7 @@ def shaping_columns(translator, prim) -> list[float] | None:
     every authored value leaves the light unshaped)."""
     from pxr import UsdLux
 
-    from .usd_scene import _authoring_layer
+    from .materials import _authoring_layer
 
     if not prim.HasAPI(UsdLux.ShapingAPI):
         return None

@@ -25,7 +25,7 @@ import numpy as np
 
 from .bundle import Limits
 from .gprims import RINGS, SEGMENTS
-from .usd_scene import SceneError
+from .errors import SceneError
 
 # Upper bound of the triangles one tessellated Sphere, Cube, Cylinder, Cone, Capsule or
 # Plane becomes (gprims.py: SEGMENTS x RINGS quads at most).

@@ -83,7 +83,7 @@ def refine(mesh, time, points, counts, face_indices, left_handed: bool, level: i
     authored; the caller then renders the cage."""
     from pxr import UsdGeom
 
-    from . import _subdivision
+    from .. import _subdivision
 
     scheme = str(mesh.GetSubdivisionSchemeAttr().Get(time))
     if scheme not in SCHEMES:

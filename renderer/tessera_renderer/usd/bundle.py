@@ -28,7 +28,7 @@ import zlib
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
-from .usd_scene import SceneError
+from .errors import SceneError
 
 USD_SUFFIXES = (".usda", ".usdc", ".usd", ".usdz")
 BUNDLE_SUFFIXES = USD_SUFFIXES + (".zip",)

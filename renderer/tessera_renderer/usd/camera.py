@@ -1,0 +1,187 @@
+"""UsdGeom.Camera and UsdRenderSettings -> the camera and resolution; the framing of a
+camera-less stage; the camera-relative shift of the translated scene."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import SceneError
+
+
+@dataclass
+class CameraDesc:
+    origin: tuple[float, float, float]
+    right: tuple[float, float, float]
+    up: tuple[float, float, float]
+    forward: tuple[float, float, float]
+    horizontal_aperture: float   # same unit as focal_length; only ratios matter
+    vertical_aperture: float
+    focal_length: float
+    source: str                  # prim path, or a description of the default camera
+    # Thin lens (scene units): radius = focal length / (2 fStop), 0 for a pinhole
+    # (fStop 0); the focus plane's distance; primary visibility clipped to [near, far].
+    lens_radius: float = 0.0
+    focus_distance: float = 1.0
+    clip_near: float = 0.0
+    clip_far: float = math.inf
+
+    def tan_half_angles(self, width: int, height: int) -> tuple[float, float]:
+        """Fits the aperture to the image by expanding it (never cropping)."""
+        tan_w = self.horizontal_aperture / (2.0 * self.focal_length)
+        tan_h = self.vertical_aperture / (2.0 * self.focal_length)
+        image_aspect = width / height
+        if image_aspect >= tan_w / tan_h:
+            tan_w = tan_h * image_aspect
+        else:
+            tan_h = tan_w / image_aspect
+        return tan_w, tan_h
+
+
+def _find_render_settings(stage, warn):
+    from pxr import UsdRender
+
+    settings = UsdRender.Settings.GetStageRenderSettings(stage)
+    if settings:
+        return settings
+    candidates = [p for p in stage.Traverse() if p.IsA(UsdRender.Settings)]
+    if len(candidates) == 1:
+        return UsdRender.Settings(candidates[0])
+    if len(candidates) > 1:
+        warn(f"{len(candidates)} RenderSettings prims and no renderSettingsPrimPath; using none of them")
+    return None
+
+
+def _camera_from_prim(prim, xform_cache, time, warn) -> CameraDesc:
+    from pxr import UsdGeom
+
+    cam = UsdGeom.Camera(prim)
+    def authored(attr, fallback):  # an authored 0 is an error below, not the fallback
+        value = attr.Get(time)
+        return float(fallback if value is None else value)
+    focal = authored(cam.GetFocalLengthAttr(), 50.0)
+    hap = authored(cam.GetHorizontalApertureAttr(), 20.955)
+    vap = authored(cam.GetVerticalApertureAttr(), 15.2908)
+    path = str(prim.GetPath())
+    if not all(math.isfinite(v) and v > 0 for v in (focal, hap, vap)):
+        raise SceneError(f"{path}: focalLength and apertures must be positive "
+                         f"(got {focal}, {hap}, {vap})")
+    # The core takes tan(half angle) = aperture / (2 focalLength) as a float32: it must be
+    # neither 0 nor infinite there (e.g. focalLength 1e-45 passes the check above).
+    if not all(1e-30 < ap / (2.0 * focal) < 1e30 for ap in (hap, vap)):
+        raise SceneError(f"{path}: the field of view is degenerate (apertures {hap}, {vap} over "
+                         f"focalLength {focal})")
+    if cam.GetProjectionAttr().Get(time) == UsdGeom.Tokens.orthographic:
+        warn(f"{path}: orthographic projection is not supported yet; rendered as perspective")
+    if (cam.GetHorizontalApertureOffsetAttr().Get(time) or 0.0) or (cam.GetVerticalApertureOffsetAttr().Get(time) or 0.0):
+        warn(f"{path}: aperture offsets are ignored")
+    m = np.array(xform_cache.GetLocalToWorldTransform(prim), dtype=np.float64)
+    origin = m[3, :3]
+    forward = _unit(-m[2, :3])
+    right = _unit(m[0, :3] - np.dot(m[0, :3], forward) * forward)
+    up = np.cross(right, forward)
+    if not np.isfinite(np.concatenate([origin, forward, right, up])).all():
+        raise SceneError(f"{path}: camera transform is degenerate")
+    # Depth of field: focalLength is in tenths of a scene unit, fStop 0 means a pinhole.
+    f_stop = float(cam.GetFStopAttr().Get(time) or 0.0)
+    focus = float(cam.GetFocusDistanceAttr().Get(time) or 0.0)
+    lens_radius = 0.0
+    if f_stop > 0.0 and math.isfinite(f_stop):
+        if focus > 0.0 and math.isfinite(focus):
+            lens_radius = 0.1 * focal / (2.0 * f_stop)
+        else:
+            warn(f"{path}: fStop {f_stop:g} without a positive focusDistance; rendered without depth of field")
+    # Only an authored clipping range clips: the schema's fallback (1, 1e6) would cut away
+    # whatever lies within one unit of the camera in scenes that never asked for it.
+    clip_attr = cam.GetClippingRangeAttr()
+    clip = clip_attr.Get(time) if clip_attr.HasAuthoredValue() else None
+    near, far = (float(clip[0]), float(clip[1])) if clip is not None else (0.0, math.inf)
+    if not (0.0 <= near < far):
+        warn(f"{path}: clippingRange {tuple(clip)} is invalid; not clipping")
+        near, far = 0.0, math.inf
+    return CameraDesc(_floats(origin), _floats(right), _floats(up), _floats(forward), hap, vap, focal, path,
+                      lens_radius=lens_radius, focus_distance=focus if lens_radius > 0 else 1.0,
+                      clip_near=near, clip_far=far)
+
+
+# The default camera's view: a three-quarter view from the front-right, above (degrees),
+# and the share of the frame the scene's extent may fill in its limiting direction.
+DEFAULT_VIEW_AZIMUTH = 45.0
+DEFAULT_VIEW_ELEVATION = 30.0
+DEFAULT_VIEW_FILL = 0.95
+
+
+def _default_camera(points: np.ndarray, up_axis: str, resolution: tuple[int, int]) -> CameraDesc:
+    """Frames `points` (world space) tightly from a three-quarter view, as usdview's "frame
+    all" fits the scene to its view: looking at the centre of their bounds from
+    DEFAULT_VIEW_AZIMUTH degrees right of the front (+Z on Y-up stages, -Y on Z-up) and
+    DEFAULT_VIEW_ELEVATION above, at the distance where every point projects inside
+    DEFAULT_VIEW_FILL of the frame, re-aimed once so the projected extent is centred. A
+    50 mm lens with a 24 mm vertical aperture, the horizontal one matching the
+    resolution's aspect ratio (so the fit holds for the image rendered)."""
+    pts = points if len(points) else np.zeros((1, 3))
+    if up_axis == "Z":
+        front, up_w = np.array([0.0, -1.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    else:
+        front, up_w = np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])
+    right_w = np.cross(up_w, front)  # +X on both
+    az, el = math.radians(DEFAULT_VIEW_AZIMUTH), math.radians(DEFAULT_VIEW_ELEVATION)
+    eye_dir = math.cos(el) * (math.cos(az) * front + math.sin(az) * right_w) + math.sin(el) * up_w
+    forward = -eye_dir
+    right = _unit(np.cross(forward, up_w))
+    up = np.cross(right, forward)
+    aspect = resolution[0] / resolution[1]
+    vap, focal = 24.0, 50.0
+    hap = vap * aspect
+    tan_w, tan_h = hap / (2 * focal) * DEFAULT_VIEW_FILL, vap / (2 * focal) * DEFAULT_VIEW_FILL
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    target = (lo + hi) / 2
+    size = max(float(np.linalg.norm(hi - lo)), 1e-3)
+    q = pts - target
+    x, y, z = q @ right, q @ up, q @ forward
+
+    def distance(sx, sy):  # camera distance fitting every point, target shifted by (sx, sy)
+        return float(max(np.max(np.abs(x - sx) / tan_w - z), np.max(np.abs(y - sy) / tan_h - z)))
+
+    sx = sy = 0.0
+    d = distance(sx, sy)
+    depth = np.maximum(d + z, 1e-9)
+    u, v = (x - sx) / depth, (y - sy) / depth
+    # Centre the projected extent: shift the aim by the middle of the extent at the
+    # target's depth, then fit again.
+    sx += (u.max() + u.min()) / 2 * d
+    sy += (v.max() + v.min()) / 2 * d
+    d = max(distance(sx, sy), size * 1e-3)
+    origin = target + sx * right + sy * up - forward * d
+    return CameraDesc(_floats(origin), _floats(right), _floats(up), _floats(forward), hap, vap, focal,
+                      "default camera: three-quarter view framing the scene")
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
+
+
+def _move_to_camera(tr, camera: CameraDesc) -> None:
+    """Translates everything the walk put in world space so that the camera sits at the
+    origin, in float64 before anything is rounded to float32. float32 holds a coordinate
+    to 2^-24 of its magnitude: 1e5 units from the origin that is 0.006, more than a pixel's
+    footprint on a subject a few units from the camera. Relative to the camera, a point at
+    distance D is held to D 2^-24, far below the pixel footprint at D (D 2 tan(fov/2) / width)
+    at any resolution, and rays leave surfaces by about D 1e-6 (the hit points' error
+    bounds), so only gaps thinner than that, at that distance, can leak light."""
+    shift = np.array(camera.origin, np.float64)
+    if not shift.any():
+        return
+    for c in tr.chunks:
+        c.points = c.points - shift
+    for row in tr.sphere_lights:
+        row[:3] = list(np.asarray(row[:3], np.float64) - shift)
+    for row in tr.point_lights:
+        row[:3] = list(np.asarray(row[:3], np.float64) - shift)
+    for mats in tr.instance_xforms:
+        mats[:, 3, :3] -= shift
+
+
+def _floats(v) -> tuple[float, float, float]:
+    return tuple(float(x) for x in v)

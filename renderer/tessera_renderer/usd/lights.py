@@ -1,0 +1,244 @@
+"""UsdLux lights -> emissive triangles, point, sphere, distant and dome lights, and the
+default lighting of a light-less stage (the _LightReader part of the translator)."""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from . import gprims, light_shaping
+from .camera import CameraDesc, _unit
+from .errors import SceneError
+from .materials import _authoring_layer
+from .meshes import _Chunk
+
+if TYPE_CHECKING:  # stage imports this module
+    from .stage import SceneData
+
+
+class _LightReader:
+    """Translates every UsdLux light kind, in the units of docs/scene-translation.md."""
+
+    # -- lights ---------------------------------------------------------------------
+    def light_radiance(self, prim, area: float | None) -> np.ndarray:
+        from pxr import UsdLux
+
+        light = UsdLux.LightAPI(prim)
+        t = self.time
+        color = np.array(light.GetColorAttr().Get(t) or (1.0, 1.0, 1.0), dtype=np.float64)
+        intensity = light.GetIntensityAttr().Get(t)
+        exposure = light.GetExposureAttr().Get(t)
+        radiance = color * (1.0 if intensity is None else intensity) * 2.0 ** (exposure or 0.0)
+        if light.GetEnableColorTemperatureAttr().Get(t):
+            kelvin = light.GetColorTemperatureAttr().Get(t) or 6500.0
+            radiance = radiance * gprims.blackbody_rgb(kelvin)
+        if area is not None and light.GetNormalizeAttr().Get(t):
+            radiance = radiance / area
+        if not np.isfinite(radiance).all() or (radiance < 0).any():
+            raise SceneError(f"{prim.GetPath()}: light radiance {radiance.tolist()} must be finite and >= 0")
+        if prim.HasAPI(UsdLux.ShapingAPI) and prim.GetTypeName() not in ("SphereLight",):
+            self._count_note("UsdLux ShapingAPI (cone, focus, IES) on Rect, Disk, Cylinder and Distant "
+                             "lights is ignored: they emit unshaped")
+        return radiance
+
+    def add_light(self, prim, type_name: str) -> None:
+        handler = {"RectLight": self.add_rect_light, "SphereLight": self.add_sphere_light,
+                   "DiskLight": self.add_disk_light, "CylinderLight": self.add_cylinder_light,
+                   "DistantLight": self.add_distant_light, "DomeLight": self.add_dome_light}.get(type_name)
+        if handler is None:
+            self.unsupported[type_name or "untyped light"] += 1
+            return
+        handler(prim)
+
+    def _emissive(self, prim, local_pts, tris, radiance, two_sided=False) -> None:
+        m = self.world_matrix(prim)
+        surface = {"values": {**self.defaults, "diffuseColor": (0.0, 0.0, 0.0),
+                              "emissiveColor": tuple(float(x) for x in radiance)}, "textures": {}}
+        row = self.materials.add(surface, two_sided)
+        chunk = _Chunk(np.asarray(local_pts, np.float64), np.asarray(tris), np.full(len(tris), row, np.uint32))
+        self.emit(chunk.transformed(m), self.chunks, str(prim.GetPath()))
+
+    def add_rect_light(self, prim) -> None:
+        from pxr import UsdLux
+
+        rect = UsdLux.RectLight(prim)
+        w = float(rect.GetWidthAttr().Get(self.time) or 0.0)
+        h = float(rect.GetHeightAttr().Get(self.time) or 0.0)
+        if rect.GetTextureFileAttr().Get(self.time):
+            self.warn(f"{prim.GetPath()}: RectLight texture is not supported yet; using its colour")
+        # Wound so the geometric normal is local -Z, the emitting side.
+        local = np.array([[-w / 2, -h / 2, 0], [-w / 2, h / 2, 0], [w / 2, h / 2, 0], [w / 2, -h / 2, 0]])
+        m = self.world_matrix(prim)
+        world = local @ m[:3, :3] + m[3, :3]
+        area = float(np.linalg.norm(np.cross(world[1] - world[0], world[3] - world[0])))
+        if not (area > 0.0) or not np.isfinite(world).all():
+            self.warn(f"{prim.GetPath()}: RectLight has no area; skipped")
+            return
+        self._emissive(prim, local, [[0, 1, 2], [0, 2, 3]], self.light_radiance(prim, area))
+
+    def add_disk_light(self, prim) -> None:
+        from pxr import UsdLux
+
+        r = float(UsdLux.DiskLight(prim).GetRadiusAttr().Get(self.time) or 0.0)
+        m = self.world_matrix(prim)
+        # True disk area (not the polygon's): a non-uniform scale stretches it to an ellipse.
+        area = math.pi * r * r * float(np.linalg.norm(np.cross(m[0, :3], m[1, :3])))
+        if not (area > 0.0) or not math.isfinite(area):
+            self.warn(f"{prim.GetPath()}: DiskLight has no area; skipped")
+            return
+        pts, tris = gprims.disk_light(r)
+        self._emissive(prim, pts, tris, self.light_radiance(prim, area))
+
+    def add_cylinder_light(self, prim) -> None:
+        from pxr import UsdLux
+
+        cyl = UsdLux.CylinderLight(prim)
+        r = float(cyl.GetRadiusAttr().Get(self.time) or 0.0)
+        length = float(cyl.GetLengthAttr().Get(self.time) or 0.0)
+        if cyl.GetTreatAsLineAttr().Get(self.time):
+            self.warn(f"{prim.GetPath()}: CylinderLight treatAsLine is ignored; rendered as a cylinder")
+        m = self.world_matrix(prim)
+        sx = float(np.linalg.norm(m[0, :3]))
+        s_round = float(np.sqrt(np.linalg.norm(m[1, :3]) * np.linalg.norm(m[2, :3])))
+        # Side area only: the caps do not emit (UsdLux).
+        area = 2.0 * math.pi * r * s_round * length * sx
+        if not (area > 0.0) or not math.isfinite(area):
+            self.warn(f"{prim.GetPath()}: CylinderLight has no area; skipped")
+            return
+        pts, tris = gprims.cylinder_light(r, length)
+        self._emissive(prim, pts, tris, self.light_radiance(prim, area))
+
+    def add_sphere_light(self, prim) -> None:
+        from pxr import UsdLux
+
+        sphere = UsdLux.SphereLight(prim)
+        radius = float(sphere.GetRadiusAttr().Get(self.time) or 0.0)
+        m = self.world_matrix(prim)
+        scales = np.linalg.norm(m[:3, :3], axis=1)
+        if not np.allclose(scales, scales[0], rtol=1e-4):
+            self.warn(f"{prim.GetPath()}: non-uniform scale on a SphereLight; using the mean scale")
+        radius *= float(scales.mean())
+        center = m[3, :3]
+        shaping = light_shaping.shaping_columns(self, prim)
+        if shaping is not None and not sphere.GetTreatAsPointAttr().Get(self.time) and radius > 0:
+            # A spot light as Omniverse writes it: a shaped sphere. Shaped as a point at its
+            # centre emitting what the sphere would (the sphere's size only softens shadows).
+            self._count_note("shaped SphereLights (spot lights) are rendered as shaped point lights at "
+                             "their centre (hard shadows)")
+            radiance = self.light_radiance(prim, 4.0 * math.pi * radius * radius)
+            self.point_lights.append([*center, *(radiance * math.pi * radius * radius), *shaping])
+            return
+        if sphere.GetTreatAsPointAttr().Get(self.time):
+            # The point emits what the sphere would, seen from afar: intensity = L * pi r^2
+            # (W/sr); a sphere of radius 0 then has none unless it is normalized... in which
+            # case L * pi r^2 = I / 4 for any r.
+            rr = radius if radius > 0 else 0.0
+            if rr > 0:
+                radiance = self.light_radiance(prim, 4.0 * math.pi * rr * rr)
+                intensity = radiance * math.pi * rr * rr
+            else:
+                norm = UsdLux.LightAPI(prim).GetNormalizeAttr().Get(self.time)
+                intensity = self.light_radiance(prim, None) * (0.25 if norm else 0.0)
+            self.point_lights.append([*center, *intensity, *(shaping or [])])
+            return
+        if not (radius > 0.0) or not math.isfinite(radius):
+            self.warn(f"{prim.GetPath()}: SphereLight has no radius; skipped")
+            return
+        radiance = self.light_radiance(prim, 4.0 * math.pi * radius * radius)
+        self.sphere_lights.append([*center, radius, *radiance])
+
+    def add_distant_light(self, prim) -> None:
+        from pxr import UsdLux
+
+        m = self.world_matrix(prim)
+        direction = -m[2, :3]
+        direction = direction / np.linalg.norm(direction)
+        angle = float(UsdLux.DistantLight(prim).GetAngleAttr().Get(self.time) or 0.0)
+        half = math.radians(min(max(angle, 0.0), 180.0)) / 2.0
+        # normalize: intensity is the illuminance on a surface facing the light, so
+        # radiance = E / (pi sin^2 half). For a delta light (angle 0) the row holds that
+        # illuminance directly (documented in docs/scene-translation.md).
+        radiance = self.light_radiance(prim, None)
+        if UsdLux.LightAPI(prim).GetNormalizeAttr().Get(self.time) and half > 0:
+            radiance = radiance / (math.pi * math.sin(half) ** 2)
+        self.distant_lights.append([*direction, half, *radiance])
+
+    def add_dome_light(self, prim) -> None:
+        from pxr import UsdGeom, UsdLux
+
+        if self.dome_light is not None:
+            self.warn(f"{prim.GetPath()}: more than one DomeLight; only the first is used")
+            return
+        dome = UsdLux.DomeLight(prim)
+        radiance = self.light_radiance(prim, None)
+        texture = None
+        asset = dome.GetTextureFileAttr().Get(self.time)
+        if asset is not None and asset.path:
+            attr = dome.GetTextureFileAttr()
+            layer = _authoring_layer(attr)
+            import os
+            path = self.bundle.resolve_texture(asset, os.path.dirname(layer.realPath) if layer else None,
+                                               str(prim.GetPath())) if self.bundle else None
+            if path is None:
+                self.warn(f"{prim.GetPath()}: dome texture {asset.path!r} is missing; using its colour")
+            else:
+                texture = str(path)
+        pole = dome.GetPoleAxisAttr().Get(self.time) if hasattr(dome, "GetPoleAxisAttr") else "scene"
+        up = UsdGeom.GetStageUpAxis(self.stage)
+        m = self.world_matrix(prim)[:3, :3]
+        # Column-vector light-to-world; the lat-long map's pole is light-space +Y.
+        l2w = m.T / np.linalg.norm(m.T, axis=0, keepdims=True)
+        if pole == "Z" or (pole in (None, "scene") and up == "Z"):
+            rx = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # +Y -> +Z
+            l2w = l2w @ rx
+        self.dome_light = {"radiance": [float(x) for x in radiance], "texture": texture,
+                           "world_to_light": np.linalg.inv(l2w).tolist(), "path": str(prim.GetPath())}
+
+
+# The one line a light-less stage gets; Scene rewrites it when default lighting is off.
+NO_LIGHT_WARNING = ("the scene has no lights: lit by the default lighting (a white dome of radiance "
+                    "0.5 and a key light from above and left of the camera; --no-default-light or "
+                    "the job setting default_light=false renders it unlit, i.e. black)")
+NO_LIGHT_OFF_WARNING = "the scene has no lights and default lighting is off: it renders black"
+DEFAULT_DOME_RADIANCE = 0.5
+# The key light's illuminance on a surface facing it, and its angular diameter (degrees):
+# a white surface facing it reflects E / pi = 0.8 on top of the dome's 0.5.
+DEFAULT_KEY_ILLUMINANCE = 0.8 * math.pi
+DEFAULT_KEY_ANGLE = 5.0
+
+
+def default_lighting(camera: CameraDesc) -> dict:
+    """What usdview and Quick Look do for a light-less stage, in Tessera's terms: a white
+    dome (uniform ambient light, so nothing is black) and one distant key light that comes
+    from above, left and behind the camera, so shapes read by their shading. The key
+    follows the camera, as a viewer's headlight does."""
+    forward, up, right = (np.array(v, np.float64) for v in (camera.forward, camera.up, camera.right))
+    toward_light = _unit(-forward + 0.8 * up - 0.6 * right)
+    half = math.radians(DEFAULT_KEY_ANGLE) / 2.0
+    radiance = DEFAULT_KEY_ILLUMINANCE / (math.pi * math.sin(half) ** 2)
+    return {"dome": {"radiance": [DEFAULT_DOME_RADIANCE] * 3, "texture": None,
+                     "world_to_light": np.eye(3).tolist(), "path": "default lighting (dome)"},
+            "distant": [[*(-toward_light), half, radiance, radiance, radiance]]}
+
+
+def apply_default_lighting(data: SceneData) -> SceneData:
+    """Moves data.default_lights into the light tables (once); returns data."""
+    lights = data.default_lights
+    if not lights:
+        return data
+    data.dome_light = lights["dome"]
+    data.distant_lights = np.concatenate([np.asarray(data.distant_lights, np.float32).reshape(-1, 7),
+                                          np.asarray(lights["distant"], np.float32).reshape(-1, 7)])
+    data.default_lights = None
+    return data
+
+
+def _emits(rows: list[dict], tri_material: np.ndarray, prototypes: list[dict]) -> bool:
+    """Whether any triangle's material emits: a constant emissiveColor above 0, or an
+    emissiveColor texture (whose constant is only its fallback, often 0)."""
+    used = set(np.unique(tri_material).tolist())
+    for proto in prototypes:
+        used.update(np.unique(proto["triangle_material"]).tolist())
+    return any(any(c > 0 for c in rows[m]["values"]["emissiveColor"]) or "emissiveColor" in rows[m]["textures"]
+               for m in used if m < len(rows))
