@@ -26,31 +26,15 @@ def _positive(text: str) -> int:
     return value
 
 
-def _exr_layers(result) -> dict:
-    """The AOVs asked for, plus the noise estimate `tessera compare` needs (variance, spp,
-    of the kind result.variance_kind). For light and bdpt the variance layer is the batch
-    estimate, never the camera half's per-sample variance."""
-    layers = dict(result.aovs)
-    if result.variance is not None:
-        layers["variance"] = result.variance
-        layers.setdefault("spp", result.spp)
-    return layers
-
-
-def _variance_kind(result, layers: dict) -> str | None:
-    """What the written variance layer means; None when there is none or it is not valid
-    for the integrator (then compare refuses the image)."""
-    return result.variance_kind if "variance" in layers and result.variance is not None else None
-
-
 def cmd_render(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
     from tessera_renderer import NonFiniteSampleError, SceneError, load_scene
 
-    from tessera_base.images import render_metadata, write_exr, write_png_preview
-    from .local import render_image
+    from tessera_base.images import write_png_preview
     from tessera_base.protocol import RenderSettings
+
+    from .rendering import render_scene
 
     scene_path = Path(args.scene)
     output = Path(args.output) if args.output else Path(scene_path.stem + ".exr")
@@ -88,30 +72,27 @@ def cmd_render(args: argparse.Namespace) -> int:
     print(f"{scene_path.name}: {scene.num_triangles} triangles{instanced}, {scene.num_emitters} emitters; "
           f"{width}x{height}, {samples}, seed {settings.seed}", file=sys.stderr)
     try:
-        result = render_image(scene, settings, threads=args.threads, progress=not args.quiet,
-                              variance=not args.no_variance)
+        image = render_scene(scene, settings, scene_name=scene_path.name, threads=args.threads,
+                             progress=not args.quiet, variance=not args.no_variance)
     except NonFiniteSampleError as exc:
         print(f"tessera render: renderer bug: {exc}", file=sys.stderr)
         return 3
-    output.parent.mkdir(parents=True, exist_ok=True)
-    layers = _exr_layers(result)
-    write_exr(output, result.rgba, render_metadata(
-        settings.max_spp if settings.adaptive else settings.spp, settings.seed, scene_path.name,
-        settings.integrator, _variance_kind(result, layers)), aovs=layers)
+    image.write(output)
+    result = image.metadata
     preview = output.with_suffix(".png")
-    write_png_preview(preview, result.rgba)
-    if result.denoise_warning:
-        print(f"warning: {result.denoise_warning}", file=sys.stderr)
+    write_png_preview(preview, image.rgba)
+    if result["denoise_warning"]:
+        print(f"warning: {result['denoise_warning']}", file=sys.stderr)
     elif settings.denoise:
         denoised = output.with_name(output.stem + ".denoised.png")
-        write_png_preview(denoised, layers["denoised"])
+        write_png_preview(denoised, image.layers["denoised"])
         preview = f"{preview} ({denoised} denoised)"
     if settings.adaptive:
-        mean_spp = result.samples / (settings.width * settings.height)
+        mean_spp = result["samples"] / (settings.width * settings.height)
         print(f"noise target {settings.target_error:.2%}: {mean_spp:.1f} spp on average, "
-              f"{result.passes} tile passes", file=sys.stderr)
-    print(f"wrote {output} and {preview} in {result.seconds:.2f} s "
-          f"({result.samples_per_second / 1e6:.2f} M samples/s)", file=sys.stderr)
+              f"{result['passes']} tile passes", file=sys.stderr)
+    print(f"wrote {output} and {preview} in {result['seconds']:.2f} s "
+          f"({result['samples_per_second'] / 1e6:.2f} M samples/s)", file=sys.stderr)
     return 0
 
 
@@ -305,12 +286,14 @@ def _detail(response) -> str:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """Exit 0: TEST and REFERENCE agree within their noise; 1: they differ; 2: usage error."""
-    from tessera_tools.compare import CompareError, compare_files, heatmap
+    from tessera_tools.compare import CompareError, heatmap
     from tessera_base.images import write_png
 
+    from .comparison import comparison as compare_images
+
     try:
-        comparison = compare_files(args.test, args.reference, alpha=args.alpha, method=args.method,
-                                   flip=not args.no_flip)
+        comparison = compare_images(args.test, args.reference, alpha=args.alpha, method=args.method,
+                                    flip=not args.no_flip)
     except CompareError as exc:
         print(f"tessera compare: {exc}", file=sys.stderr)
         return 2

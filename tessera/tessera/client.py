@@ -1,0 +1,177 @@
+"""`tessera.Client`: a Tessera farm over its HTTP API (docs/farm.md), from Python.
+
+    with tessera.Client("http://farm:8000", token="TOKEN") as farm:
+        job = farm.submit("scene.usda", spp=64, integrator="bdpt", res=(256, 256))
+        for event in farm.events(job.id):   # until the job's final state
+            print(event.type, event.tiles_done)
+        image = farm.download(job.id)       # a tessera.Image, equal to tessera.render's
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Iterable, Iterator, Mapping
+
+import httpx
+
+from .rendering import Image
+
+if TYPE_CHECKING:  # the event model is the queue layer's (tessera_queue.redis_schema)
+    from tessera_queue.redis_schema import JobEvent
+
+FINAL_STATES = ("done", "failed", "cancelled")
+
+
+class FarmError(RuntimeError):
+    """The farm refused a request or could not be reached; `status_code` is the HTTP
+    status (None when there was no answer) and the message is the server's detail."""
+
+    def __init__(self, message: str, status_code: int | None = None):
+        super().__init__(message)
+        self.status_code = status_code
+
+
+@dataclass
+class Job:
+    """What the farm says about one job (GET /jobs/ID; the answer of POST /jobs has the
+    fields it knows then). `raw` is the whole JSON answer."""
+
+    id: str
+    state: str
+    tiles_total: int
+    tiles_done: int = 0
+    warnings: list[str] = field(default_factory=list)
+    error: str | None = None
+    elapsed_seconds: float | None = None
+    raw: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def finished(self) -> bool:
+        return self.state in FINAL_STATES
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> "Job":
+        return cls(id=data["id"], state=data["state"], tiles_total=data["tiles_total"],
+                   tiles_done=data.get("tiles_done", 0), warnings=list(data.get("warnings", [])),
+                   error=data.get("error"), elapsed_seconds=data.get("elapsed_seconds"), raw=data)
+
+
+class Client:
+    """A farm's HTTP API at `url`, as user `token` (sent as a bearer token; None for a
+    farm that serves this machine anonymously). Use it as a context manager, or close()."""
+
+    def __init__(self, url: str, token: str | None = None, *, timeout: float = 60.0):
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        # No read timeout: an event stream stays open as long as the job runs.
+        self._http = httpx.Client(base_url=url.rstrip("/"), headers=headers,
+                                  timeout=httpx.Timeout(timeout, read=None))
+        self.url = url
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._http.close()
+
+    # -- jobs ---------------------------------------------------------------------------
+    def submit(self, scene: str | Path, *, spp: int | None = None, integrator: str | None = None,
+               res: tuple[int, int] | None = None, aovs: Iterable[str] = (), seed: int | None = None,
+               priority: int | None = None, integrator_params: Mapping[str, float] | None = None,
+               **settings: Any) -> Job:
+        """Uploads `scene` (a USD file or a .zip/.usdz bundle) as a new job and returns it
+        (state "queued"). The keywords are tessera.render's; `priority` is 0-9 and any other
+        job setting of POST /jobs (max_depth, tile_size, target_error, min_spp, max_spp,
+        time_limit, max_attempts, default_light, denoise) passes through `settings`."""
+        form: dict[str, Any] = dict(spp=spp, integrator=integrator, seed=seed, priority=priority, **settings)
+        if res is not None:
+            form["width"], form["height"] = res
+        aovs = list(aovs)
+        if aovs:
+            form["aovs"] = ",".join(aovs)
+        if integrator_params:
+            form["integrator_params"] = json.dumps(dict(integrator_params))
+        data = {k: (str(v).lower() if isinstance(v, bool) else str(v)) for k, v in form.items() if v is not None}
+        scene = Path(scene)
+        with open(scene, "rb") as f:
+            r = self._request("POST", "/jobs", files={"file": (scene.name, f)}, data=data)
+        return Job.from_json(r.json())
+
+    def status(self, job_id: str) -> Job:
+        """The job's state, progress, timings, warnings and error."""
+        return Job.from_json(self._request("GET", f"/jobs/{job_id}").json())
+
+    def events(self, job_id: str, *, after: str | None = None) -> Iterator["JobEvent"]:
+        """The job's progress events (tessera_queue.redis_schema.JobEvent: state, tile,
+        pass, scene_pass, failure), from the first (or after event id `after`) until the
+        job's final state. A dropped connection is resumed where it stopped."""
+        from tessera_queue.redis_schema import JobEvent
+
+        cursor = after
+        while True:
+            params = {"after": cursor} if cursor else {}
+            try:
+                with self._http.stream("GET", f"/jobs/{job_id}/events", params=params) as r:
+                    if r.status_code != 200:
+                        r.read()
+                        raise FarmError(_detail(r), r.status_code)
+                    for line in r.iter_lines():
+                        if line.startswith("id: "):
+                            cursor = line[4:]
+                        elif line.startswith("data: "):
+                            event = JobEvent.model_validate_json(line[6:])
+                            yield event
+                            if event.type == "state" and event.state in FINAL_STATES:
+                                return
+            except httpx.TransportError:
+                continue  # the connection dropped: resume after the last event seen
+            # The server ends a stream without a final event only for a job that has
+            # finished (its events trimmed) or expired; status() says which.
+            if self.status(job_id).finished:
+                return
+
+    def wait(self, job_id: str) -> Job:
+        """Follows the job's events until it is done, failed or cancelled; its last status."""
+        for _ in self.events(job_id):
+            pass
+        return self.status(job_id)
+
+    def download(self, job_id: str, path: str | Path | None = None) -> Image:
+        """The finished job's image (the EXR the farm merged) as a tessera.Image; with
+        `path`, also written there byte for byte. FarmError 409 while it is not done."""
+        r = self._request("GET", f"/jobs/{job_id}/image.exr")
+        if path is None:
+            import tempfile
+
+            with tempfile.TemporaryDirectory(prefix="tessera-download-") as tmp:
+                target = Path(tmp) / f"{job_id}.exr"
+                target.write_bytes(r.content)
+                return Image.read(target)
+        target = Path(path)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(r.content)
+        return Image.read(target)
+
+    def cancel(self, job_id: str) -> Job:
+        """Cancels the job (its queued tiles are dropped); returns its status."""
+        return Job.from_json(self._request("DELETE", f"/jobs/{job_id}").json())
+
+    # -- plumbing -----------------------------------------------------------------------
+    def _request(self, method: str, path: str, **kwargs) -> httpx.Response:
+        try:
+            r = self._http.request(method, path, **kwargs)
+        except httpx.HTTPError as exc:
+            raise FarmError(f"cannot talk to {self.url}: {exc}") from None
+        if r.status_code >= 400:
+            raise FarmError(f"{method} {path}: {r.status_code}: {_detail(r)}", r.status_code)
+        return r
+
+
+def _detail(response: httpx.Response) -> str:
+    try:
+        return str(response.json().get("detail"))
+    except ValueError:
+        return response.text[:200]
