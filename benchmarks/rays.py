@@ -30,7 +30,7 @@ import numpy as np
 from common import CORNELL, OUT, REPO, fmt, summary
 
 SHARED = REPO.parent / "shared" / "scenes"
-# Its own camera and a RectLight (frame 27, as tests/test_real_scenes.py renders it).
+# Its own camera and a RectLight (frame 27, as tests/renderer/usd/test_real_scenes.py renders it).
 REAL = ("arnoldusd_disk_rect_lights", "test_2439.5/data/rect.usda")
 
 

@@ -1,7 +1,7 @@
 """The Redis users of a farm: one for the API, one for the workers, each allowed only the
 commands and keys it needs; the `default` user is off, so a connection without a password
 can do nothing. Used by the embedded Redis (embedded.redis_server) and written out as
-deploy/users.acl (tests/test_redis_acl.py checks that the two agree).
+deploy/users.acl (tests/farm/test_redis_acl.py checks that the two agree).
 
 Commands: the data-type and scripting commands the farm uses, without anything Redis
 calls dangerous or admin (FLUSHALL, FLUSHDB, CONFIG, KEYS, DEBUG, SHUTDOWN, MONITOR, ACL,

@@ -33,7 +33,7 @@ from . import integrators
 from .protocol import AOV_CHANNELS, RenderSettings, SplatBatch, TileRect, TileResult, pass_range, tile_grid
 from .convergence import BatchMeans, batch_ranges, combine_aovs, combine_passes, new_aov_frame
 
-# The renderer's fixed-point splat scale (kSplatScale in C++); tests/test_protocol.py pins
+# The renderer's fixed-point splat scale (kSplatScale in C++); tests/base/test_protocol.py pins
 # the two together (the service never imports the renderer).
 SPLAT_SCALE = float(1 << 24)
 

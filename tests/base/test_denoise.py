@@ -3,7 +3,7 @@ albedo and normal AOVs, as a layer beside the raw image.
 
 The quality test measures against a converged reference rendered here, not against an
 earlier image; the raw layer is compared bit for bit with a render without --denoise.
-The farm's denoised layer is tested in tests/test_farm_e2e.py."""
+The farm's denoised layer is tested in tests/farm/test_farm_e2e.py."""
 from __future__ import annotations
 
 import subprocess

@@ -1,5 +1,5 @@
 // BDPT's internals (subpath vertices, densities, connections, MIS weights), shared by
-// bdpt.cpp and the unit tests that check them (renderer/tests/test_bdpt_mis.cpp). Everything
+// bdpt.cpp and the unit tests that check them (renderer/core/integrators/bdpt_mis_test.cpp). Everything
 // here is inline, as it was when it lived in bdpt.cpp: the hot path is unchanged.
 #pragma once
 

@@ -1,5 +1,5 @@
 // Warps from the unit square to the domains the integrator samples, with their pdfs,
-// and the MIS heuristic. Each warp's pdf is checked numerically in tests/test_sampling.cpp.
+// and the MIS heuristic. Each warp's pdf is checked numerically in core/sampling/sampling_test.cpp.
 #pragma once
 
 #include <cmath>

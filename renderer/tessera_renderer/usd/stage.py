@@ -283,7 +283,7 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     if instancing not in ("flatten", "instances", "auto"):
         raise ValueError(f"instancing must be 'flatten', 'instances' or 'auto', not {instancing!r}")
     if instancing == "auto":
-        # Instances render the same as flattening (tests/test_textures_instancing.py) with
+        # Instances render the same as flattening (tests/renderer/usd/test_textures_instancing.py) with
         # one exception: lights inside native-instance prototypes, which only flattening
         # keeps. Such scenes are translated again, flattened.
         data = translate_opened_stage(stage, frame, bundle=bundle, instancing="instances",
