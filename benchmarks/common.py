@@ -23,5 +23,5 @@ def fmt(s: dict, unit: str = "", digits: int = 3) -> str:
             f"(n={s['n']}, range {s['min']:.{digits}g}–{s['max']:.{digits}g})")
 
 
-# One definition of relMSE for the scripts here and `tessera bench` (tessera/tessera_tools/bench.py).
-from tessera_tools.bench import rel_mse  # noqa: E402,F401
+# One definition of relMSE for the scripts here and `tessera bench` (tessera/tessera_tools/bench_stats.py).
+from tessera_tools.bench_stats import rel_mse  # noqa: E402,F401

@@ -31,12 +31,8 @@ within 1 %.
 from __future__ import annotations
 
 import argparse
-import csv
-import hashlib
 import json
-import math
 import os
-import statistics
 import sys
 import tempfile
 import time
@@ -45,13 +41,15 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+from .bench_cache import cached_render, scene_digest, tessera_build
+from .bench_report import _markdown, _plots, _write_csv
+from .bench_stats import (TARGETS, UNIT_TOLERANCE, error_at, fit_loglog, region_means, rel_mse, rmse,
+                          spread, time_to, units_agree)
+
+REPO = Path(__file__).resolve().parents[2]
 SHARED_SCENES = Path(os.environ.get("TESSERA_SHARED_SCENES", REPO.parent / "shared" / "scenes"))
 INSTALL_HINT = "pip install -e '.[bench]'"
 PEER_HINT = "pip install -e '.[peer]'"
-UNIT_TOLERANCE = 0.01          # converged means must agree within 1 %
-REGIONS = 4                    # 4 x 4 regions for the per-region means
-TARGETS = (1e-2, 1e-3)
 
 
 # -- scenes ------------------------------------------------------------------------------
@@ -113,166 +111,6 @@ def quick_config() -> Config:
                   ref_spp={"path": 512, "bdpt": 128, "light": 512}, peer_ref_spp=1024, budget=0.1,
                   quick=True)
 
-
-# -- errors --------------------------------------------------------------------------------
-
-def rel_mse(img: np.ndarray, ref: np.ndarray) -> float:
-    """Mean over pixels and channels of (x - ref)^2 / (ref^2 + 1e-2)."""
-    x, r = img[..., :3].astype(np.float64), ref[..., :3].astype(np.float64)
-    return float(np.mean((x - r) ** 2 / (r * r + 1e-2)))
-
-
-def rmse(img: np.ndarray, ref: np.ndarray) -> float:
-    x, r = img[..., :3].astype(np.float64), ref[..., :3].astype(np.float64)
-    return float(np.sqrt(np.mean((x - r) ** 2)))
-
-
-def region_means(img: np.ndarray, n: int = REGIONS) -> np.ndarray:
-    """(n, n, 3) channel means over an n x n grid of regions."""
-    h, w = img.shape[:2]
-    ys = np.linspace(0, h, n + 1).astype(int)
-    xs = np.linspace(0, w, n + 1).astype(int)
-    return np.array([[img[ys[i]:ys[i + 1], xs[j]:xs[j + 1], :3].astype(np.float64).mean((0, 1))
-                      for j in range(n)] for i in range(n)])
-
-
-def units_agree(a: np.ndarray, b: np.ndarray, tolerance: float = UNIT_TOLERANCE) -> dict:
-    """Compares two converged images of the same scene: the ratio b/a of the image means
-    (per channel) and of every region's mean (luminance-weighted channels summed, regions
-    with less than 2 % of the image's mean excluded as too dark to matter)."""
-    mean_a, mean_b = a[..., :3].astype(np.float64).mean((0, 1)), b[..., :3].astype(np.float64).mean((0, 1))
-    channel_ratio = mean_b / np.maximum(mean_a, 1e-30)
-    ra, rb = region_means(a).sum(-1), region_means(b).sum(-1)
-    lit = ra > 0.02 * ra.mean()
-    region_ratio = np.where(lit, rb / np.maximum(ra, 1e-30), np.nan)
-    worst = float(np.nanmax(np.abs(region_ratio - 1.0))) if lit.any() else float("nan")
-    worst_mean = float(np.max(np.abs(channel_ratio - 1.0)))
-    return {"mean_ratio": channel_ratio.tolist(), "region_ratio": region_ratio.tolist(),
-            "worst_mean_deviation": worst_mean, "worst_region_deviation": worst,
-            "regions_compared": int(lit.sum()), "tolerance": tolerance,
-            "agree": bool(worst_mean <= tolerance and worst <= tolerance)}
-
-
-# -- fits ----------------------------------------------------------------------------------
-
-def fit_loglog(seconds, errors) -> tuple[float, float]:
-    """(intercept a, slope b) of log10(error) = a + b log10(seconds), least squares."""
-    x, y = np.log10(np.asarray(seconds, float)), np.log10(np.asarray(errors, float))
-    b, a = np.polyfit(x, y, 1)
-    return float(a), float(b)
-
-
-FLAT_SLOPE = -0.2   # a fit flatter than this cannot be extrapolated to a target: no time
-
-
-def time_to(fit, target: float) -> float:
-    a, b = fit
-    return 10 ** ((math.log10(target) - a) / b) if b < FLAT_SLOPE else float("inf")
-
-
-def error_at(fit, seconds: float) -> float:
-    a, b = fit
-    return 10 ** (a + b * math.log10(seconds))
-
-
-def spread(values) -> dict:
-    v = [x for x in values if math.isfinite(x)]
-    if not v:
-        return {"median": float("nan"), "half_range": float("nan"), "n": 0}
-    return {"median": statistics.median(v), "half_range": (max(v) - min(v)) / 2, "n": len(v)}
-
-
-def fmt(s: dict, digits: int = 3) -> str:
-    if not s["n"]:
-        return "—"
-    return f"{s['median']:.{digits}g} ± {s['half_range']:.2g}"
-
-
-# -- references ----------------------------------------------------------------------------
-
-def cache_dir() -> Path:
-    base = os.environ.get("TESSERA_CACHE_DIR")
-    if base:
-        return Path(base) / "references"
-    xdg = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(xdg) / "tessera" / "references"
-
-
-def _file_digest(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def scene_digest(path: Path) -> str:
-    """The root layer and every file beside it (textures, sublayers next to it)."""
-    h = hashlib.sha256()
-    for p in sorted(q for q in path.parent.iterdir() if q.is_file()):
-        h.update(p.name.encode())
-        h.update(_file_digest(p).encode())
-    return h.hexdigest()
-
-
-def tessera_build() -> str:
-    """Tessera's version and a digest of the compiled core: a rebuilt core is a new renderer."""
-    import tessera_renderer._core as core
-
-    from importlib.metadata import PackageNotFoundError, version
-    try:
-        v = version("tessera")
-    except PackageNotFoundError:
-        v = "dev"
-    return f"tessera {v} core {_file_digest(Path(core.__file__))[:16]}"
-
-
-def _read_exr(path: Path) -> np.ndarray:
-    import OpenImageIO as oiio
-
-    buf = oiio.ImageBuf(str(path))
-    return np.asarray(buf.get_pixels(oiio.FLOAT), dtype=np.float32)[..., :3]
-
-
-def _write_exr(path: Path, img: np.ndarray) -> None:
-    import OpenImageIO as oiio
-
-    img = np.ascontiguousarray(img[..., :3], dtype=np.float32)
-    spec = oiio.ImageSpec(img.shape[1], img.shape[0], 3, oiio.FLOAT)
-    tmp = path.with_suffix(".tmp.exr")
-    out = oiio.ImageOutput.create(str(tmp))
-    if out is None or not out.open(str(tmp), spec):
-        raise RuntimeError(f"cannot write {path}: {oiio.geterror()}")
-    out.write_image(img)
-    out.close()
-    os.replace(tmp, path)
-
-
-def cached_render(key: dict, render, log) -> tuple[np.ndarray, dict]:
-    """The image for `key` from the cache, or render() -> image, stored with its key and
-    render time. Returns (image, metadata)."""
-    digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:24]
-    directory = cache_dir()
-    exr, meta_path = directory / f"{digest}.exr", directory / f"{digest}.json"
-    if exr.is_file() and meta_path.is_file():
-        meta = json.loads(meta_path.read_text())
-        meta["cached"] = True
-        return _read_exr(exr), meta
-    log(f"  rendering reference {key['renderer']} {key['integrator']} {key['spp']} spp seed {key['seed']} "
-        f"({key['scene']}) ...")
-    start = time.perf_counter()
-    img = render()
-    seconds = time.perf_counter() - start
-    directory.mkdir(parents=True, exist_ok=True)
-    _write_exr(exr, img)
-    meta = {"key": key, "seconds": seconds, "file": str(exr)}
-    meta_path.write_text(json.dumps(meta, indent=2) + "\n")
-    meta["cached"] = False
-    log(f"    {seconds:.1f} s -> {exr}")
-    return img, meta
-
-
-# -- renderers -----------------------------------------------------------------------------
 
 def load_bench_scene(bs: BenchScene):
     from tessera_renderer import Scene, load_scene
@@ -582,134 +420,6 @@ def _ratios(info, cfg) -> dict:
         out[key] = entry
     return out
 
-
-def _write_csv(path: Path, rows) -> None:
-    fields = ["scene", "renderer", "integrator", "spp", "rep", "seed", "res", "seconds", "rel_mse", "rmse"]
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=fields)
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: (f"{r[k]:.6g}" if isinstance(r[k], float) else r[k]) for k in fields})
-
-
-def _plots(result, rows, out: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    budget = result["config"]["budget_seconds"]
-    for name, info in result["scenes"].items():
-        fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
-        for k, (label, s) in enumerate(info["series"].items()):
-            color = f"C{k}"
-            pts = [r for r in rows if r["scene"] == name and f"{r['renderer']} {r['integrator']}" == label]
-            secs = np.array([r["seconds"] for r in pts])
-            for ax, key in ((axes[0], "rel_mse"), (axes[1], "rmse")):
-                vals = np.array([r[key] for r in pts])
-                ax.loglog(secs, vals, "o", color=color, ms=3.5, alpha=0.6,
-                          label=label if key == "rmse" else None)
-                x = np.log10(secs)
-                b, a = np.polyfit(x, np.log10(vals), 1)
-                xs = np.linspace(x.min() - 0.3, x.max() + 0.5, 20)
-                ax.loglog(10 ** xs, 10 ** (a + b * xs), "-", color=color, lw=1.2,
-                          label=f"{label} (slope {b:.2f})" if key == "rel_mse" else None)
-        scene_rows = [r for r in rows if r["scene"] == name]
-        for ax, key in ((axes[0], "rel_mse"), (axes[1], "rmse")):
-            vals = [r[key] for r in scene_rows] + (list(TARGETS) if key == "rel_mse" else [])
-            ax.set_ylim(min(vals) / 3, max(vals) * 3)
-            secs = [r["seconds"] for r in scene_rows] + [budget]
-            ax.set_xlim(min(secs) / 2, max(secs) * 4)
-        for t in TARGETS:
-            axes[0].axhline(t, color="grey", ls="--", lw=0.8)
-        axes[0].axvline(budget, color="grey", ls=":", lw=0.8)
-        axes[0].set_ylabel("relMSE")
-        axes[1].set_ylabel("RMSE")
-        for ax in axes:
-            ax.set_xlabel("seconds (wall clock, 2 threads)")
-            ax.grid(True, which="both", alpha=0.25)
-        axes[0].legend(fontsize=7)
-        axes[1].legend(fontsize=7)
-        fig.suptitle(f"{name}: error vs time, {info['res']}x{info['res']} "
-                     f"(reference {info['reference']['integrator']} 2 x {info['reference']['spp']} spp)", fontsize=10)
-        fig.tight_layout()
-        fig.savefig(out / f"error-vs-time-{name}.png", dpi=90)
-        plt.close(fig)
-
-
-def _markdown(result) -> str:
-    cfg = result["config"]
-    L = ["# Error versus time: results", "",
-         f"Written by `tessera bench` ({result['tessera']}) on {result['started']}: "
-         f"{cfg['res']}x{cfg['res']} px, {cfg['threads']} threads, {cfg['reps']} interleaved repetitions, "
-         f"max depth {cfg['max_depth']}. Values are median ± half-range over the repetitions' own "
-         "log-log fits (relMSE = a · seconds^slope). Raw points: `error-vs-time.csv`; everything: "
-         "`error-vs-time.json`. How to read it: `error-vs-time.md`.", ""]
-    if "load_average_start" in result:
-        L += [f"Load average at start / end: {', '.join(f'{x:.2f}' for x in result['load_average_start'])} / "
-              f"{', '.join(f'{x:.2f}' for x in result.get('load_average_end', []))} "
-              f"on {result['cpu_count']} cores (other processes share the machine).", ""]
-    L += ["## References", "",
-          "| scene | reference | mutual relMSE of the two | mean's own relMSE ≈ | smallest measured relMSE | ok |",
-          "|---|---|---|---|---|---|"]
-    for name, info in result["scenes"].items():
-        r = info["reference"]
-        L.append(f"| {name} | {r['integrator']}, 2 × {r['spp']} spp | {r['mutual_rel_mse']:.2g} | "
-                 f"{r['estimated_rel_mse_of_mean']:.2g} | {r['smallest_measured_rel_mse']:.3g} | "
-                 f"{'yes' if r['ok'] else 'NO'} |")
-    for name, info in result["scenes"].items():
-        cc = info["reference"].get("cross_check")
-        if cc:
-            L += ["", f"{name}: a {cc['integrator']} reference ({cc['spp']} spp) against the "
-                      f"{info['reference']['integrator']} one: image means within {cc['worst_mean_deviation']:.2%}, "
-                      f"the {cc['regions_compared']} lit regions of a 4 × 4 grid within {cc['worst_region_deviation']:.2%} "
-                      f"(relMSE {cc['rel_mse_vs_reference']:.3g}) → {'agree' if cc['agree'] else 'DISAGREE'} at 1 %."]
-    L += ["", f"## Time to reach a relMSE, and relMSE at an equal time budget of {cfg['budget_seconds']:g} s", "",
-          "| scene | series | slope | s to relMSE 1e-2 | s to relMSE 1e-3 | relMSE at "
-          f"{cfg['budget_seconds']:g} s |", "|---|---|---|---|---|---|"]
-    for name, info in result["scenes"].items():
-        for label, s in info["series"].items():
-            t2, t3, eb = s["time_to_0.01"], s["time_to_0.001"], s["rel_mse_at_budget"]
-            L.append(f"| {name} | {label} | {s['fit']['slope']:.2f} | {fmt(t2)} ({t2['how'][:6]}.) | "
-                     f"{fmt(t3)} ({t3['how'][:6]}.) | {fmt(eb)} ({eb['how'][:6]}.) |")
-    L += ["", "## Ratios of times to equal error (same run, per repetition)", "",
-          "A ratio below 1 means the first series is faster to the same error.", "",
-          "| scene | ratio | at relMSE 1e-2 | at relMSE 1e-3 |", "|---|---|---|---|"]
-    for name, info in result["scenes"].items():
-        for key, r in info["ratios"].items():
-            if "units_agree" in r and not r["units_agree"]:
-                L.append(f"| {name} | {key} | not quoted: units disagree | |")
-                continue
-            L.append(f"| {name} | {key} | {fmt(r['0.01'])} ({r['0.01']['how'][:6]}.) | "
-                     f"{fmt(r['0.001'])} ({r['0.001']['how'][:6]}.) |")
-    peers = {n: i["peer"] for n, i in result["scenes"].items() if i.get("peer")}
-    L += ["", "## Mitsuba 3 side by side: unit agreement first", ""]
-    if result["peer"]:
-        L += ["Variants: " + "; ".join(f"`{k}`: {v}" for k, v in result["peer"].items()), ""]
-    if peers:
-        L += ["| scene | peer | peer reference | image-mean ratio (R, G, B) | worst region | agree within 1 % |",
-              "|---|---|---|---|---|---|"]
-        for name, pi in peers.items():
-            for tag, v in pi.items():
-                if "error" in v:
-                    L.append(f"| {name} | {tag} | not comparable: {v['error']} | | | |")
-                    continue
-                L.append(f"| {name} | {tag} | path, {v['reference_spp']} spp | "
-                         f"{', '.join(f'{x:.4f}' for x in v['mean_ratio'])} | {v['worst_region_deviation']:.2%} "
-                         f"({v['regions_compared']} regions) | {'yes' if v['agree'] else 'NO'} |")
-    else:
-        L.append("No peer in this run.")
-    L += ["", "## Points (median ± half-range over repetitions)", "",
-          "| scene | series | spp | seconds | relMSE | RMSE |", "|---|---|---|---|---|---|"]
-    for name, info in result["scenes"].items():
-        for label, s in info["series"].items():
-            for r in s["rungs"]:
-                L.append(f"| {name} | {label} | {r['spp']} | {fmt(r['seconds'])} | {fmt(r['rel_mse'])} | "
-                         f"{fmt(r['rmse'])} |")
-    return "\n".join(L) + "\n"
-
-
-# -- command line ------------------------------------------------------------------------
 
 def add_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenes", default=None,

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tessera_tools import bench, peer_mitsuba
+from tessera_tools import bench, bench_stats, peer_mitsuba
 
 
 @pytest.fixture(scope="module")
@@ -82,21 +82,21 @@ def test_quick_bench_mitsuba_units_agree(quick_run):
 def test_units_check_detects_a_one_and_a_half_percent_difference():
     rng = np.random.default_rng(1)
     img = rng.uniform(0.2, 1.0, (64, 64, 3)).astype(np.float32)
-    assert bench.units_agree(img, img * 1.005)["agree"]
-    assert not bench.units_agree(img, img * 1.015)["agree"]
+    assert bench_stats.units_agree(img, img * 1.005)["agree"]
+    assert not bench_stats.units_agree(img, img * 1.015)["agree"]
     local = img.copy()
     local[:16, :16] *= 1.015       # one region of the 4 x 4 grid
-    check = bench.units_agree(img, local)
+    check = bench_stats.units_agree(img, local)
     assert check["worst_mean_deviation"] < 0.01 and not check["agree"]
 
 
 def test_fit_reads_times_and_errors_off_the_line():
     secs = np.array([0.1, 0.4, 1.6, 6.4])
     errs = 0.02 / secs                          # relMSE = 0.02 / t
-    fit = bench.fit_loglog(secs, errs)
+    fit = bench_stats.fit_loglog(secs, errs)
     assert fit[1] == pytest.approx(-1.0)
-    assert bench.time_to(fit, 1e-2) == pytest.approx(2.0)
-    assert bench.error_at(fit, 4.0) == pytest.approx(0.005)
+    assert bench_stats.time_to(fit, 1e-2) == pytest.approx(2.0)
+    assert bench_stats.error_at(fit, 4.0) == pytest.approx(0.005)
 
 
 def test_peer_refuses_materials_it_cannot_match(cornell_path):

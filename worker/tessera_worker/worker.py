@@ -29,11 +29,8 @@ import secrets
 import shutil
 import signal
 import socket
-import subprocess
-import sys
 import threading
 import time
-from multiprocessing.connection import Connection
 from pathlib import PurePosixPath
 
 import redis
@@ -41,9 +38,10 @@ import redis
 from tessera_base import film, integrators, protocol
 from tessera_base import convergence
 from tessera_queue import redis_schema as rdb
-from tessera_base.process import die_with_parent, private_tempdir, remove_orphaned_tempdirs
+from tessera_base.process import private_tempdir, remove_orphaned_tempdirs
 from tessera_queue.tasks import TileTask
 
+from .child import Abandoned, RenderChild, RenderFailed
 from .settings import WorkerSettings
 
 log = logging.getLogger("tessera.worker")
@@ -53,25 +51,11 @@ IDLE_WAIT = 1.0            # longest wait for a wake-up token when there is no w
 REAP_INTERVAL = 2.0        # seconds between looks for tiles held by dead workers
 CLAIM_MIN_IDLE_MS = 1000   # two reapers do not both claim a tile claimed within this time
 MAX_DEATH_DELIVERIES = 10  # a tile whose worker died this often is poisoned
-CHILD_START_TIMEOUT = 120.0
 OOM_BACKOFF_MIN = 0.25     # first wait after Redis refused a result for lack of memory
 OOM_BACKOFF_MAX = 10.0
-CANCEL_POLL = 0.5          # seconds between looks at the job's state during a render
 SCENE_FILES = 8            # scene files kept on local disk (least recently used go)
 PRODUCTS_KEPT = 4          # scene-pass products kept in memory (least recently used go)
 SCENE_TASK = -1            # a fault rule's target "#scene": scene-wide tasks, not tiles
-
-class RenderFailed(Exception):
-    """A failed attempt at a tile. `fatal`: the job fails at once (retrying elsewhere
-    would fail the same way); otherwise the tile is queued again."""
-
-    def __init__(self, message: str, fatal: bool):
-        super().__init__(message)
-        self.fatal = fatal
-
-
-class Abandoned(Exception):
-    """The job ended (cancelled or failed elsewhere) while its tile rendered."""
 
 
 def default_worker_name() -> str:
@@ -118,118 +102,6 @@ def _install_signal_handlers(stop: threading.Event):
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return restore
-
-
-class RenderChild:
-    """The render process, started on first use and again after it dies."""
-
-    def __init__(self, memory_limit: int):
-        self.memory_limit = memory_limit
-        self.proc: subprocess.Popen | None = None
-        self.conn: Connection | None = None
-        self.serial = 0
-        self.blob_version: str | None = None  # the renderer's scene-blob version, if any
-        self._greeted = False
-
-    def start(self) -> None:
-        parent, child = socket.socketpair()
-        limit = self.memory_limit
-
-        def limits() -> None:  # between fork and exec: keep it minimal
-            import resource
-            if limit > 0:
-                resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-            resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
-            die_with_parent(signal.SIGKILL)  # no render outlives its worker
-
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "tessera_worker.render_child", "--fd", str(child.fileno())],
-            pass_fds=[child.fileno()], stdin=subprocess.DEVNULL, preexec_fn=limits)
-        child.close()
-        self.conn = Connection(parent.detach())
-        self._greeted = False
-
-    def ensure_started(self) -> None:
-        """Starts the child if needed and reads its greeting (which says whether the
-        renderer can load translated-scene blobs)."""
-        if self.proc is None or self.proc.poll() is not None:
-            self.start()
-        if self._greeted:
-            return
-        try:
-            ready = self.conn.poll(CHILD_START_TIMEOUT)
-            hello = self.conn.recv() if ready else None
-        except (EOFError, OSError):
-            hello = None
-        if not (isinstance(hello, tuple) and len(hello) == 2 and hello[0] == "hello"):
-            self.kill()
-            raise RenderFailed("the render process failed to start", fatal=False)
-        self.blob_version = hello[1]
-        self._greeted = True
-
-    def render(self, request: dict, timeout: float, abandoned) -> tuple:
-        """Sends one request and waits for its reply. Raises RenderFailed if the child dies
-        or exceeds `timeout`, Abandoned if abandoned() becomes true meanwhile (the child is
-        then killed, so that a cancelled job stops rendering at once). On any other error
-        the child is killed too: a reply must never be read for the wrong request."""
-        self.ensure_started()
-        self.serial += 1
-        request = {**request, "serial": self.serial}
-        try:
-            self.conn.send(request)
-            deadline = time.monotonic() + timeout
-            while not self.conn.poll(min(CANCEL_POLL, max(0.0, deadline - time.monotonic()))):
-                if self.proc.poll() is not None:
-                    break
-                if time.monotonic() >= deadline:
-                    self.kill()
-                    raise RenderFailed(f"exceeded the per-tile time limit of {timeout:g} s",
-                                       fatal=True)
-                if abandoned():
-                    self.kill()
-                    raise Abandoned()
-            reply = self.conn.recv()
-        except (EOFError, OSError):
-            code = self.proc.wait()
-            self.close()
-            if code < 0:
-                try:
-                    what = signal.Signals(-code).name
-                except ValueError:
-                    what = f"signal {-code}"
-            else:
-                what = f"exit code {code}"
-            raise RenderFailed(f"the renderer crashed ({what})", fatal=False) from None
-        except (RenderFailed, Abandoned):
-            raise
-        except BaseException:
-            self.kill()
-            raise
-        if reply[-1] != self.serial:
-            self.kill()
-            raise RenderFailed("the render process answered out of turn", fatal=False)
-        return reply[:-1]
-
-    def kill(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
-        self.close()
-
-    def close(self) -> None:
-        if self.conn is not None:
-            self.conn.close()
-        self.conn = None
-        self.proc = None if self.proc is None or self.proc.poll() is not None else self.proc
-
-    def stop(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.conn.close()  # EOF: the child exits on its own
-            try:
-                self.proc.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                self.kill()
-        self.proc = self.conn = None
 
 
 class Worker:
@@ -844,8 +716,6 @@ def _parse_faults(spec: str) -> list[tuple[str, str, int | None]]:
             raise ValueError(f"bad fault injection rule {item!r}: use KIND:GLOB[#TILE|#scene]")
         faults.append((kind, pattern, SCENE_TASK if tile == "scene" else int(tile) if tile else None))
     return faults
-
-
 
 
 def _size(n: int) -> str:

@@ -1,0 +1,89 @@
+"""The bench's statistics: relMSE and RMSE against a reference, the region means that
+check two renderers agree in units, log-log fits and what is read off them."""
+from __future__ import annotations
+
+import math
+import statistics
+
+import numpy as np
+
+UNIT_TOLERANCE = 0.01          # converged means must agree within 1 %
+REGIONS = 4                    # 4 x 4 regions for the per-region means
+TARGETS = (1e-2, 1e-3)         # relMSE targets whose time-to-reach is reported
+
+
+# -- errors --------------------------------------------------------------------------------
+
+def rel_mse(img: np.ndarray, ref: np.ndarray) -> float:
+    """Mean over pixels and channels of (x - ref)^2 / (ref^2 + 1e-2)."""
+    x, r = img[..., :3].astype(np.float64), ref[..., :3].astype(np.float64)
+    return float(np.mean((x - r) ** 2 / (r * r + 1e-2)))
+
+
+def rmse(img: np.ndarray, ref: np.ndarray) -> float:
+    x, r = img[..., :3].astype(np.float64), ref[..., :3].astype(np.float64)
+    return float(np.sqrt(np.mean((x - r) ** 2)))
+
+
+def region_means(img: np.ndarray, n: int = REGIONS) -> np.ndarray:
+    """(n, n, 3) channel means over an n x n grid of regions."""
+    h, w = img.shape[:2]
+    ys = np.linspace(0, h, n + 1).astype(int)
+    xs = np.linspace(0, w, n + 1).astype(int)
+    return np.array([[img[ys[i]:ys[i + 1], xs[j]:xs[j + 1], :3].astype(np.float64).mean((0, 1))
+                      for j in range(n)] for i in range(n)])
+
+
+def units_agree(a: np.ndarray, b: np.ndarray, tolerance: float = UNIT_TOLERANCE) -> dict:
+    """Compares two converged images of the same scene: the ratio b/a of the image means
+    (per channel) and of every region's mean (luminance-weighted channels summed, regions
+    with less than 2 % of the image's mean excluded as too dark to matter)."""
+    mean_a, mean_b = a[..., :3].astype(np.float64).mean((0, 1)), b[..., :3].astype(np.float64).mean((0, 1))
+    channel_ratio = mean_b / np.maximum(mean_a, 1e-30)
+    ra, rb = region_means(a).sum(-1), region_means(b).sum(-1)
+    lit = ra > 0.02 * ra.mean()
+    region_ratio = np.where(lit, rb / np.maximum(ra, 1e-30), np.nan)
+    worst = float(np.nanmax(np.abs(region_ratio - 1.0))) if lit.any() else float("nan")
+    worst_mean = float(np.max(np.abs(channel_ratio - 1.0)))
+    return {"mean_ratio": channel_ratio.tolist(), "region_ratio": region_ratio.tolist(),
+            "worst_mean_deviation": worst_mean, "worst_region_deviation": worst,
+            "regions_compared": int(lit.sum()), "tolerance": tolerance,
+            "agree": bool(worst_mean <= tolerance and worst <= tolerance)}
+
+
+# -- fits ----------------------------------------------------------------------------------
+
+def fit_loglog(seconds, errors) -> tuple[float, float]:
+    """(intercept a, slope b) of log10(error) = a + b log10(seconds), least squares."""
+    x, y = np.log10(np.asarray(seconds, float)), np.log10(np.asarray(errors, float))
+    b, a = np.polyfit(x, y, 1)
+    return float(a), float(b)
+
+
+FLAT_SLOPE = -0.2   # a fit flatter than this cannot be extrapolated to a target: no time
+
+
+def time_to(fit, target: float) -> float:
+    a, b = fit
+    return 10 ** ((math.log10(target) - a) / b) if b < FLAT_SLOPE else float("inf")
+
+
+def error_at(fit, seconds: float) -> float:
+    a, b = fit
+    return 10 ** (a + b * math.log10(seconds))
+
+
+def spread(values) -> dict:
+    v = [x for x in values if math.isfinite(x)]
+    if not v:
+        return {"median": float("nan"), "half_range": float("nan"), "n": 0}
+    return {"median": statistics.median(v), "half_range": (max(v) - min(v)) / 2, "n": len(v)}
+
+
+def fmt(s: dict, digits: int = 3) -> str:
+    if not s["n"]:
+        return "—"
+    return f"{s['median']:.{digits}g} ± {s['half_range']:.2g}"
+
+
+# -- references ----------------------------------------------------------------------------
