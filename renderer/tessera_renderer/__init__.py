@@ -43,7 +43,7 @@ class Scene:
 
     def __init__(self, data: SceneData, default_light: bool = True):
         """`default_light`: light a stage that has no light with the default lighting
-        (usd_scene.default_lighting, announced in the warnings); off, it renders black."""
+        (usd.lights.default_lighting, announced in the warnings); off, it renders black."""
         # What a render with default lighting off would warn (the pre-flight reports it).
         self.lit_by_default = bool(default_light and getattr(data, "default_lights", None))
         self.unlit_warnings = _with_default_lighting(data, False).warnings if self.lit_by_default else None
