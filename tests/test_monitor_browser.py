@@ -92,6 +92,14 @@ def job_row(job_id: str, css: str = "") -> tuple[str, str]:
     return By.CSS_SELECTOR, f'#jobs tr[data-job="{job_id}"] {css}'.strip()
 
 
+def listed_as(job_id: str, state: str):
+    """The job list shows the job in `state`."""
+    return lambda driver: driver.find_element(*job_row(job_id)).get_attribute("data-state") == state
+
+
+WORKER_CURRENT = (By.CSS_SELECTOR, f'#workers tr[data-worker="{WORKER}"] td.current')
+
+
 def shown_pixels(driver, img_id: str) -> np.ndarray:
     """The <img>'s pixels as the browser decoded them (drawn to a canvas), 8-bit RGB."""
     data_url = driver.execute_script("""
@@ -135,8 +143,27 @@ def check_shown_image(driver, img_id: str, expected_png: bytes) -> None:
     assert not same_image(shown, np.clip(expected + MAX_LEVEL_DIFFERENCE + 1, 0, 255))
 
 
-def submit_through_form(driver, scene: Path, **fields: str) -> str:
-    driver.find_element(By.ID, "file").send_keys(str(scene))
+def drop_file(driver, scene: Path) -> None:
+    """Drops the scene on the form's drop zone as a file dragged from the desktop would
+    arrive: a drop event whose DataTransfer holds the file."""
+    driver.execute_script("""
+        const bytes = Uint8Array.from(atob(arguments[1]), (c) => c.charCodeAt(0));
+        const transfer = new DataTransfer();
+        transfer.items.add(new File([bytes], arguments[0]));
+        const zone = document.getElementById('drop');
+        for (const type of ['dragover', 'drop']) {
+          zone.dispatchEvent(new DragEvent(type, {dataTransfer: transfer, bubbles: true,
+                                                  cancelable: true}));
+        }""", scene.name, base64.b64encode(scene.read_bytes()).decode())
+
+
+def submit_through_form(driver, scene: Path, dropped: bool = False, **fields: str) -> str:
+    if dropped:
+        drop_file(driver, scene)
+        assert driver.find_element(By.ID, "file-name").text == (
+            f"{scene.name} ({scene.stat().st_size} bytes)")
+    else:
+        driver.find_element(By.ID, "file").send_keys(str(scene))
     for name, value in fields.items():
         if name == "denoise":
             box = driver.find_element(By.ID, "denoise")
@@ -150,11 +177,10 @@ def submit_through_form(driver, scene: Path, **fields: str) -> str:
             element.send_keys(value)
     previous = driver.find_element(By.ID, "upload-result").get_attribute("data-job")
     driver.find_element(By.ID, "submit").click()
-    element = wait(driver, lambda d: (lambda e: e if e.get_attribute("data-job") not in (None, previous)
-                                      else False)(d.find_element(By.ID, "upload-result")),
-                   "the upload form did not report a new job: "
-                   + driver.find_element(By.ID, "upload-result").text)
-    return element.get_attribute("data-job")
+    wait(driver, lambda d: d.find_element(By.ID, "upload-result").get_attribute("data-job")
+         not in (None, previous),
+         "the upload form did not report a new job: " + driver.find_element(By.ID, "upload-result").text)
+    return driver.find_element(By.ID, "upload-result").get_attribute("data-job")
 
 
 def test_monitor_page(farm, browser, shots):
@@ -178,12 +204,13 @@ def test_monitor_page(farm, browser, shots):
     driver.save_screenshot(str(shots / "1-token.png"))
     driver.find_element(By.ID, "token").send_keys(TOKEN)
     driver.find_element(By.ID, "token").submit()
-    wait(driver, EC.visibility_of_element_located((By.ID, "monitor")), "the token was not accepted")
+    wait(driver, EC.visibility_of_element_located((By.ID, "monitor")),
+         "the token was not accepted")
     assert driver.execute_script("return sessionStorage.getItem('tessera.token')") == TOKEN
 
     # --- the worker is listed, with its heartbeat
-    row = wait(driver, EC.presence_of_element_located((By.CSS_SELECTOR, f'#workers tr[data-worker="{WORKER}"]')),
-               "the worker is not listed", processes)
+    row = wait(driver, EC.presence_of_element_located(
+        (By.CSS_SELECTOR, f'#workers tr[data-worker="{WORKER}"]')), "the worker is not listed", processes)
     assert "s ago" in row.text and "idle" in row.text
     driver.save_screenshot(str(shots / "2-signed-in.png"))
 
@@ -214,33 +241,30 @@ def test_monitor_page(farm, browser, shots):
                  f"/jobs/{job}/denoised.png", f"/jobs/{job}/priority"):
         assert anonymous.get(path).status_code == 401, path
 
-    # --- a second job, to a noise target it will not reach soon: its previews update as
-    # passes land, the worker shows its tile; then pause, resume, priority, cancel
-    long_job = submit_through_form(driver, CORNELL, width="128", height="128", spp="16",
-                                   target_error="0.0001", max_spp="1048576", denoise="true")
-    wait(driver, attribute_is("job-state", "data-state", "running"), "the long job is not running",
-         processes)
+    # --- a second job, dropped on the form, to a noise target it will not reach soon: its
+    # previews update as passes land, the worker shows its tile; then pause, resume,
+    # priority, cancel
+    long_job = submit_through_form(driver, CORNELL, dropped=True, width="128", height="128",
+                                   spp="16", target_error="0.0001", max_spp="1048576",
+                                   denoise="true")
+    wait(driver, attribute_is("job-state", "data-state", "running"),
+         "the long job is not running", processes)
     # Passes go out in queue order, so after 8 progress events every tile (2x2) has its
     # first pass, and previews fetched after them show the whole box.
     for img in ("preview", "denoised"):
-        wait(driver, lambda d: int(d.find_element(By.ID, img).get_attribute("data-events") or 0) >= 8,
-             f"the {img} did not update as passes landed", processes)
+        wait(driver, lambda d: int(d.find_element(By.ID, img).get_attribute("data-events") or 0)
+             >= 8, f"the {img} did not update as passes landed", processes)
         assert driver.find_element(By.ID, img).get_attribute("data-state") == "running"
         assert colourful(shown_pixels(driver, img)), f"the running job's {img} is black or grey"
     assert int(driver.find_element(By.ID, "preview").get_attribute("data-loads")) >= 2
-    wait(driver, EC.text_to_be_present_in_element(
-        (By.CSS_SELECTOR, f'#workers tr[data-worker="{WORKER}"] td.current'), long_job),
-        "the worker does not show the long job's tile", processes)
+    wait(driver, EC.text_to_be_present_in_element(WORKER_CURRENT, long_job),
+         "the worker does not show the long job's tile", processes)
     driver.save_screenshot(str(shots / "4-second-job-running.png"))
     driver.find_element(By.ID, "pause").click()
-    wait(driver, EC.presence_of_element_located(job_row(long_job, '')),
-         "the long job is not listed")
-    wait(driver, lambda d: d.find_element(*job_row(long_job)).get_attribute("data-state") == "paused",
-         "pausing did not show", processes)
+    wait(driver, listed_as(long_job, "paused"), "pausing did not show", processes)
     assert api.get(f"/jobs/{long_job}").json()["state"] == "paused"
     driver.find_element(By.ID, "resume").click()
-    wait(driver, lambda d: d.find_element(*job_row(long_job)).get_attribute("data-state") == "running",
-         "resuming did not show", processes)
+    wait(driver, listed_as(long_job, "running"), "resuming did not show", processes)
     priority = driver.find_element(By.ID, "priority")
     priority.clear()
     priority.send_keys("8")
@@ -249,16 +273,29 @@ def test_monitor_page(farm, browser, shots):
          "the priority change did not show", processes)
     assert api.get(f"/jobs/{long_job}").json()["priority"] == 8
     driver.find_element(By.ID, "cancel").click()
-    wait(driver, lambda d: d.find_element(*job_row(long_job)).get_attribute("data-state") == "cancelled",
-         "cancelling did not show in the job list", processes)
-    wait(driver, attribute_is("job-state", "data-state", "cancelled"), "the job panel is not cancelled",
-         processes)
+    wait(driver, listed_as(long_job, "cancelled"), "cancelling did not show in the list", processes)
+    wait(driver, attribute_is("job-state", "data-state", "cancelled"),
+         "the job panel is not cancelled", processes)
     assert api.get(f"/jobs/{long_job}").json()["state"] == "cancelled"
-    wait(driver, EC.text_to_be_present_in_element(
-        (By.CSS_SELECTOR, f'#workers tr[data-worker="{WORKER}"] td.current'), "idle"),
-        "the worker did not go idle after the cancel", processes)
+    wait(driver, EC.text_to_be_present_in_element(WORKER_CURRENT, "idle"),
+         "the worker did not go idle after the cancel", processes)
     driver.save_screenshot(str(shots / "5-second-job-cancelled.png"))
-    events = [e.text for e in driver.find_elements(By.CSS_SELECTOR, '#events li[data-type="state"]')]
-    assert [t.rsplit(" ", 1)[-1] for t in events] == ["queued", "running", "paused", "running",
-                                                       "cancelled"], events
-    # The scheduler took the new priority: the job hash says 8 (the API's status reads it).
+    states = [e.text.rsplit(" ", 1)[-1]
+              for e in driver.find_elements(By.CSS_SELECTOR, '#events li[data-type="state"]')]
+    assert states == ["queued", "running", "paused", "running", "cancelled"], states
+
+
+def test_page_without_tokens_asks_for_none(redis_server, browser, tmp_path):
+    """A `tessera serve` farm without tokens (anonymous loopback): the page shows the farm
+    at once, and offers no token to forget."""
+    api, base = start_api(redis_server, tmp_path)  # allow_anonymous_loopback
+    try:
+        browser.get(base + "/")
+        wait(browser, EC.visibility_of_element_located((By.ID, "monitor")),
+             "the page did not open without a token", [api])
+        assert not browser.find_element(By.ID, "login").is_displayed()
+        assert not browser.find_element(By.ID, "forget-token").is_displayed()
+        wait(browser, EC.text_to_be_present_in_element((By.ID, "status"), "updated"),
+             "the job list was not loaded", [api])
+    finally:
+        api.stop()

@@ -6,6 +6,7 @@
 (() => {
   const TOKEN_KEY = "tessera.token";
   const POLL_MS = 2000;
+  const PREVIEW_MS = 1000;
   const FINAL = new Set(["done", "failed", "cancelled"]);
   const $ = (id) => document.getElementById(id);
 
@@ -297,8 +298,8 @@
     list.scrollTop = list.scrollHeight;
   }
 
-  // One preview request at a time: events that land meanwhile ask for one more, so a fast
-  // job does not queue a merge per tile on the server.
+  // One preview request at a time, at most one a second: events that land meanwhile ask
+  // for one more, so a job with many tiles does not make the server merge per tile.
   async function refreshPreviews() {
     const job = selected;
     if (!job) return;
@@ -309,10 +310,14 @@
     job.loading = true;
     try {
       do {
+        const began = Date.now();
         job.pending = false;
         const seen = { state: job.state, events: job.progressEvents };
         await loadImage(job, $("preview"), "preview.png", seen);
         if (job.denoise) await loadImage(job, $("denoised"), "denoised.png", seen);
+        if (job.pending) {
+          await new Promise((resolve) => setTimeout(resolve, Math.max(0, PREVIEW_MS - (Date.now() - began))));
+        }
       } while (job.pending && selected === job);
     } finally {
       job.loading = false;
