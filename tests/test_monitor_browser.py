@@ -54,7 +54,7 @@ def browser():
     options = webdriver.ChromeOptions()
     options.binary_location = CHROMIUM
     for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu",
-                "--window-size=1280,1100", "--force-color-profile=srgb", "--no-first-run"):
+                "--window-size=1280,1400", "--force-color-profile=srgb", "--no-first-run"):
         options.add_argument(arg)
     driver = webdriver.Chrome(options=options,
                               service=webdriver.ChromeService(executable_path=CHROMEDRIVER))

@@ -203,6 +203,11 @@
     state.className = `state state-${job.state}`;
     state.dataset.state = job.state;
     if (document.activeElement !== $("priority")) $("priority").value = job.priority;
+    const at = (t) => (t ? new Date(t).toLocaleTimeString() : "–");
+    $("job-times").textContent = `${job.scene_name}, ${job.settings.width}×${job.settings.height}, `
+      + `${job.settings.integrator}; submitted ${at(job.created_at)}, started ${at(job.started_at)}, `
+      + `finished ${at(job.finished_at)}; ${job.tiles_done}/${job.tiles_total} tiles, `
+      + `${job.passes_done} passes, ${job.render_seconds.toFixed(1)} s rendering`;
     $("job-error").textContent = job.error || "";
     $("job-warnings").replaceChildren(...job.warnings.map((w) => {
       const li = document.createElement("li");
