@@ -14,6 +14,7 @@ APT_PACKAGES=(
   libosd-dev  # OpenSubdiv: subdivision surfaces refined at translation time
   libgtest-dev redis-server iproute2
   libllvm19  # Mitsuba's llvm_ad_rgb variant, the second peer in `tessera bench`
+  chromium chromium-driver  # the monitor page's browser tests (selenium drives them)
 )
 
 missing=()

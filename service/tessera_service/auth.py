@@ -29,7 +29,9 @@ from .users import LOCAL_USER, User, UserDirectory
 log = logging.getLogger("tessera.service.auth")
 
 _bearer = HTTPBearer(auto_error=False, description="a token from TESSERA_API_TOKENS")
-PUBLIC_PATHS = frozenset({"/healthz", "/docs", "/docs/oauth2-redirect", "/redoc", "/openapi.json"})
+PUBLIC_PATHS = frozenset({"/healthz", "/docs", "/docs/oauth2-redirect", "/redoc", "/openapi.json",
+                          # the monitor page (routers/monitor.py): static, holds no data
+                          "/", "/monitor/monitor.js", "/monitor/monitor.css"})
 SCOPE_KEY = "tessera.user"
 FORWARDING_HEADERS = (b"forwarded", b"x-forwarded-for", b"x-real-ip")
 

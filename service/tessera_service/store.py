@@ -203,6 +203,12 @@ class JobStore:
     def resume(self, job_id: str) -> bool:
         return self.scripts.resume_job(keys=self._keys(job_id), args=[job_id, repr(time.time())]) != b""
 
+    def set_priority(self, job_id: str, priority: int) -> bool:
+        """Changes the priority of a job not yet final (a final one is left as it is).
+        False if there is no such job."""
+        return self.scripts.set_priority(keys=self._keys(job_id),
+                                         args=[job_id, repr(time.time()), priority]) != b""
+
     def tiles(self, job_id: str) -> dict[bytes, bytes]:
         return self.redis.hgetall(rdb.job_tiles_key(job_id))
 
@@ -287,8 +293,11 @@ class JobStore:
 
 def _job(fields: dict[bytes, bytes]) -> Job:
     f = {k.decode(): v.decode() for k, v in fields.items()}
+    spec = JobSpec.model_validate_json(f["spec"])
+    if f.get("priority") and int(f["priority"]) != spec.priority:  # changed since submission
+        spec = spec.model_copy(update={"priority": int(f["priority"])})
     return Job(
-        spec=JobSpec.model_validate_json(f["spec"]),
+        spec=spec,
         state=f["state"],
         tiles_total=int(f["tiles_total"]),
         tiles_done=int(f.get("tiles_done") or 0),

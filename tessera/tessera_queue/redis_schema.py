@@ -10,7 +10,8 @@ Job hash fields (`job_key`), all written by the service at creation unless noted
     spec             JobSpec JSON (protocol.JobSpec)
     scene_hash       the scene the job renders (its scene_jobs entry; see `scene_key`)
     state            protocol.JobState (workers: running, done, failed; service: the rest)
-    priority         0-9 (protocol.DEFAULT_PRIORITY when absent)
+    priority         0-9 (protocol.DEFAULT_PRIORITY when absent); set_priority.lua changes
+                     it later (the spec keeps the priority the job was submitted with)
     created_at       unix seconds; started_at (first pick) and finished_at (final state)
     tiles_total      tiles of the grid; tiles_done: tiles whose last pass is stored
     passes_done      tile passes stored
@@ -283,7 +284,7 @@ _CONSTANTS = {
 }
 # Scripts that take job_script_keys (job.lua is prepended to them).
 JOB_SCRIPTS = ("admit_job", "fail_job", "cancel_job", "pause_job", "resume_job", "store_tile",
-               "decide_pass", "fail_tile", "store_product")
+               "decide_pass", "fail_tile", "store_product", "set_priority")
 OTHER_SCRIPTS = ("pick", "touch_scene", "drop_idle_consumer")
 
 
@@ -323,6 +324,7 @@ class Scripts:
     decide_pass: redis.commands.core.Script
     fail_tile: redis.commands.core.Script
     store_product: redis.commands.core.Script
+    set_priority: redis.commands.core.Script
     pick: redis.commands.core.Script
     touch_scene: redis.commands.core.Script
     drop_idle_consumer: redis.commands.core.Script
