@@ -477,6 +477,10 @@ def build_parser() -> argparse.ArgumentParser:
                                      "CSV, plots and a summary (docs/benchmarks/error-vs-time.md)")
     add_bench_options(b)
     b.set_defaults(func=cmd_bench)
+
+    from .refs_cli import add_parser as add_refs_parser
+
+    add_refs_parser(sub, _resolution, _positive, _add_integrator_option, _integrator_params)
     return parser
 
 
