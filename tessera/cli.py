@@ -19,6 +19,14 @@ def _resolution(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _crop(text: str) -> tuple[int, int, int, int]:
+    try:
+        x0, y0, x1, y1 = (int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"crop must look like X0,Y0,X1,Y1, not {text!r}") from None
+    return x0, y0, x1, y1
+
+
 def _positive(text: str) -> int:
     value = int(text)
     if value < 1:
@@ -64,6 +72,14 @@ def cmd_render(args: argparse.Namespace) -> int:
         print(f"tessera render: {exc}{hint}", file=sys.stderr)
         return 2
     width, height = args.res or (scene.width, scene.height)
+    if args.crop is not None:
+        from .images import check_crop
+
+        try:
+            check_crop(args.crop, width, height)
+        except ValueError as exc:
+            print(f"tessera render: --crop: {exc}", file=sys.stderr)
+            return 2
     try:
         settings = RenderSettings(width=width, height=height, spp=args.spp, seed=args.seed,
                                   max_depth=args.max_depth, tile_size=args.tile,
@@ -95,9 +111,13 @@ def cmd_render(args: argparse.Namespace) -> int:
         return 3
     output.parent.mkdir(parents=True, exist_ok=True)
     layers = _exr_layers(result)
-    write_exr(output, result.rgba, render_metadata(
-        settings.max_spp if settings.adaptive else settings.spp, settings.seed, scene_path.name,
-        settings.integrator, _variance_kind(result, layers)), aovs=layers)
+    from .exr_header import provenance
+
+    metadata = render_metadata(settings.max_spp if settings.adaptive else settings.spp, settings.seed,
+                               scene_path.name, settings.integrator, _variance_kind(result, layers))
+    metadata.update(provenance(scene_path, settings.target_error, result.rgba, result.variance,
+                               result.spp, _variance_kind(result, layers)))
+    write_exr(output, result.rgba, metadata, aovs=layers, crop=args.crop)
     preview = output.with_suffix(".png")
     write_png_preview(preview, result.rgba)
     if result.denoise_warning:
@@ -399,6 +419,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--subdivision-level", type=int, default=None, metavar="N",
                    help="times subdivision surfaces are refined, 0-6 (default 2; 0 renders "
                         "their control cage; see docs/scene-translation.md)")
+    r.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
+                   help="write only this pixel region (X1, Y1 exclusive) as the EXR's data "
+                        "window, the full frame as its display window; the whole frame is "
+                        "rendered (light paths from anywhere land in the region)")
     r.add_argument("--no-variance", action="store_true",
                    help="write no variance layer: light and bdpt then render each sample once "
                         "instead of twice (their variance comes from a second render in "

@@ -87,6 +87,7 @@ def render(scene_file: str | Path, ref: Reference, *, spp: int | None, seed: int
 
     from tessera_renderer import SceneError, load_scene
 
+    from .exr_header import provenance
     from .local import render_image
     from .protocol import RenderSettings
 
@@ -108,6 +109,8 @@ def render(scene_file: str | Path, ref: Reference, *, spp: int | None, seed: int
                         f"estimate (a splatting integrator needs at least 2 spp)")
     meta = images.render_metadata(settings.max_spp if settings.adaptive else settings.spp, seed,
                                   Path(scene_file).name, settings.integrator, result.variance_kind)
+    meta.update(provenance(scene_file, target_error, result.rgba, result.variance, result.spp,
+                           result.variance_kind))
     return images.RenderImage(result.rgba, result.variance, result.spp, meta, result.variance_kind)
 
 

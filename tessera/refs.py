@@ -11,7 +11,6 @@ The manifest is JSON so that a review diff shows exactly what a `refs update` ch
 """
 from __future__ import annotations
 
-import hashlib
 import json
 from pathlib import Path
 from typing import Literal
@@ -19,6 +18,7 @@ from typing import Literal
 from pydantic import BaseModel, Field, ValidationError, field_validator
 
 from . import images
+from .exr_header import scene_sha256
 
 MANIFEST = "refs.json"
 SCHEMA = 1
@@ -121,13 +121,6 @@ def scene_path(folder: str | Path, ref: Reference) -> Path:
     return (Path(folder) / ref.scene).resolve()
 
 
-def scene_sha256(path: str | Path) -> str:
-    """SHA-256 of the scene file's bytes (not of the layers or textures it references)."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def status(folder: str | Path, ref: Reference) -> list[str]:
