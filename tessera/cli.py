@@ -330,7 +330,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     try:
         comparison = compare_files(args.test, args.reference, alpha=args.alpha, method=args.method,
-                                   flip=not args.no_flip)
+                                   flip=not args.no_flip, pooled=args.pooled)
     except CompareError as exc:
         print(f"tessera compare: {exc}", file=sys.stderr)
         return 2
@@ -473,6 +473,10 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--report", help="write the JSON report here")
     c.add_argument("--heatmap", help="difference heatmap PNG (default: TEST with .compare.png)")
     c.add_argument("--no-flip", action="store_true", help="skip the FLIP metric")
+    c.add_argument("--pooled", action="store_true",
+                   help="one per-sample variance pooled from both images (use when their spp "
+                        "differ a lot, e.g. a cheap render against a costly reference: "
+                        "Welch's t is biased there; docs/accuracy.md)")
     c.set_defaults(func=cmd_compare)
 
     d = sub.add_parser("denoise", help="add a denoised layer to an EXR with albedo and normal AOVs "
