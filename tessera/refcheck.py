@@ -60,6 +60,7 @@ class CheckResult:
     max_spp: int
     regions: int
     undecided_regions: int
+    region: int                                # region edge in pixels
     looks: list[Look]
     comparison: compare.Comparison
     test: images.RenderImage
@@ -176,6 +177,21 @@ def undecided_regions(test: images.RenderImage, reference: images.RenderImage, *
     return (undecided | bad).any(axis=2), tests
 
 
+def region_z(test: images.RenderImage, reference: images.RenderImage, region: int) -> np.ndarray:
+    """Per region (rows, cols): the difference of the region means over its standard error,
+    signed, of the channel where it is largest (for the report's region map)."""
+    a = test.rgba[..., :3].astype(np.float64)
+    b = reference.rgba[..., :3].astype(np.float64)
+    s = _mean_variance(test) + _mean_variance(reference)
+    finite = np.isfinite(a) & np.isfinite(b) & np.isfinite(s)
+    d = compare._block_sums(np.where(finite, a - b, 0.0), region, region)
+    v = compare._block_sums(np.where(finite, s, 0.0), region, region)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(v > 0, d / np.sqrt(v), 0.0)
+    pick = np.abs(z).argmax(axis=2)[..., None]
+    return np.take_along_axis(z, pick, axis=2)[..., 0]
+
+
 def check(folder: str | Path, refset: RefSet, ref: Reference, *, seed: int | None = None,
           threads: int = 0, strict: bool = False, progress: bool = False,
           scene_file: str | Path | None = None) -> CheckResult:
@@ -236,6 +252,6 @@ def check(folder: str | Path, refset: RefSet, ref: Reference, *, seed: int | Non
         why = (f"no difference beyond noise at {done} spp, but {n_undecided} of {regions} regions "
                f"could not be shown to lie within {refset.tolerance:.1%} of the reference at this "
                f"budget" + (" (strict: fails)" if strict else ""))
-    return CheckResult(ref.name, verdict, passed, done, totals[-1], regions, n_undecided, looks,
+    return CheckResult(ref.name, verdict, passed, done, totals[-1], regions, n_undecided, refset.region, looks,
                        comparison, pooled, reference, time.perf_counter() - start, why,
                        refs.status(folder, ref))

@@ -11,7 +11,9 @@ import html
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from . import compare, images
+import numpy as np
+
+from . import compare, images, refcheck
 from .refcheck import CheckResult
 
 _STYLE = """
@@ -31,8 +33,8 @@ def _fmt(value, spec: str = ".4g") -> str:
 
 def write_html(results: list[CheckResult], folder: str | Path, title: str = "Tessera reference check",
                errors: dict[str, str] | None = None) -> Path:
-    """Writes folder/index.html and, per scene, NAME.reference.png, NAME.test.png and
-    NAME.heatmap.png. `errors`: scenes that could not be checked at all (name -> why)."""
+    """Writes folder/index.html and, per scene, NAME.reference.png, NAME.test.png,
+    NAME.heatmap.png and NAME.regions.png. `errors`: scenes that could not be checked at all (name -> why)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     failed = sum(not r.passed for r in results) + len(errors or {})
@@ -45,6 +47,7 @@ def write_html(results: list[CheckResult], folder: str | Path, title: str = "Tes
         images.write_png_preview(folder / f"{r.name}.reference.png", r.reference.rgba)
         images.write_png_preview(folder / f"{r.name}.test.png", r.test.rgba)
         images.write_png(folder / f"{r.name}.heatmap.png", compare.heatmap(r.comparison))
+        images.write_png(folder / f"{r.name}.regions.png", region_map(r))
         rep = r.comparison.report
         cls = "pass" if r.verdict == "same" else ("inconclusive" if r.passed else "fail")
         label = {"same": "PASS", "differs": "FAIL", "inconclusive": "PASS (inconclusive)" if r.passed
@@ -55,7 +58,8 @@ def write_html(results: list[CheckResult], folder: str | Path, title: str = "Tes
             parts.append(f"<p><em>note: {html.escape(note)}</em></p>")
         for kind, caption in (("reference", f"reference ({rep.reference_spp:g} spp)"),
                               ("test", f"this render ({rep.test_spp:g} spp)"),
-                              ("heatmap", "significant differences")):
+                              ("heatmap", "significant differences"),
+                              ("regions", f"{r.region}x{r.region} regions: red brighter, blue darker")):
             parts.append(f"<figure><img src='{html.escape(r.name)}.{kind}.png' alt='{kind}'>"
                          f"<figcaption>{html.escape(caption)}</figcaption></figure>")
         parts.append("<table><tr><th class='l'>statistic</th><th>value</th></tr>")
@@ -91,6 +95,20 @@ def write_html(results: list[CheckResult], folder: str | Path, title: str = "Tes
     index = folder / "index.html"
     index.write_text("\n".join(parts))
     return index
+
+
+def region_map(result: CheckResult) -> np.ndarray:
+    """Each region's mean difference in units of its standard error (refcheck.region_z):
+    red where this render is brighter, blue where darker, full colour at |z| >= 6, over
+    the reference's grey."""
+    z = refcheck.region_z(result.test, result.reference, result.region)
+    h, w = result.reference.rgba.shape[:2]
+    up = np.repeat(np.repeat(z, result.region, axis=0), result.region, axis=1)[:h, :w]
+    grey = images.tonemap_srgb8(result.reference.rgba).astype(np.float64).mean(axis=2, keepdims=True)
+    base = np.repeat(0.5 * grey, 3, axis=2)
+    k = np.clip(np.abs(up) / 6.0, 0.0, 1.0)[..., None]
+    colour = np.where((up > 0)[..., None], np.array([255.0, 40.0, 40.0]), np.array([40.0, 80.0, 255.0]))
+    return np.round((1 - k) * base + k * colour).astype(np.uint8)
 
 
 def write_junit(results: list[CheckResult], path: str | Path, suite: str = "tessera refs",

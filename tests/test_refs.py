@@ -117,11 +117,15 @@ def test_red_wall_two_percent_brighter_fails_with_reports(tmp_path):
     assert props["verdict"] == "differs" and int(props["spp"]) <= 512
     page = (report / "index.html").read_text()
     assert "cornell: FAIL" in page and "FLIP" in page
-    for kind in ("reference", "test", "heatmap"):
+    for kind in ("reference", "test", "heatmap", "regions"):
         assert f"cornell.{kind}.png" in page
         assert images.read_exr(report / f"cornell.{kind}.png").shape == (64, 64, 3)
     heat = images.read_exr(report / "cornell.heatmap.png")
     assert (heat[..., 0] - heat[..., 2] > 0.3).any()  # orange/red: inside a rejected block
+    # The region map points at the red wall (the left of the frame): brighter there.
+    regions = images.read_exr(report / "cornell.regions.png")
+    redness = regions[..., 0] - regions[..., 2]
+    assert redness[:, :32].mean() > redness[:, 32:].mean() + 0.1
 
 
 @pytest.mark.slow
