@@ -245,6 +245,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
                                   max_attempts=args.max_attempts, aovs=args.aovs,
                                   default_light="false" if args.no_default_light else None,
                                   denoise=args.denoise or None,
+                                  crop=",".join(map(str, args.crop)) if args.crop else None,
                                   **_noise_target(args)).items() if v is not None}
     if args.integrator_params:
         form["integrator_params"] = json.dumps(_integrator_params(args))
@@ -457,6 +458,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_integrator_option(m)
     _add_aov_option(m)
     _add_denoise_option(m)
+    m.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
+                   help="the EXR holds only this region (X1, Y1 exclusive) as its data window")
     m.set_defaults(func=cmd_submit)
 
     c = sub.add_parser("compare", help="do two renders differ beyond their noise? "

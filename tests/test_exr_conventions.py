@@ -106,3 +106,15 @@ def test_bad_crop_is_a_clear_error(tmp_path):
                        capture_output=True, text=True)
     assert r.returncode == 2 and "not a non-empty region of the 16x16 frame" in r.stderr
     assert not (tmp_path / "x.exr").exists()
+
+
+def test_crop_job_field_is_checked_against_the_frame():
+    from pydantic import ValidationError
+
+    from tessera.protocol import RenderSettings
+
+    assert RenderSettings(width=32, height=16, crop="0,0,32,16").crop == (0, 0, 32, 16)
+    assert RenderSettings(width=32, height=16, crop="").crop is None
+    for bad in ("0,0,33,16", "4,4,4,8", "1,2,3", "a,b,c,d", "-1,0,4,4"):
+        with pytest.raises(ValidationError):
+            RenderSettings(width=32, height=16, crop=bad)

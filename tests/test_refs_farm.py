@@ -46,3 +46,32 @@ def test_farm_reference_equals_the_local_one(farm_url, tmp_path, integrator):
     meta = [images.read_render(tmp_path / side / "cornell.exr").metadata for side in ("local", "farm")]
     shared = ("tessera:spp", "tessera:seed", "tessera:integrator", "tessera:variance", "tessera:version")
     assert {k: meta[0][k] for k in shared} == {k: meta[1][k] for k in shared}
+
+
+def test_crop_job_field_writes_the_region_as_data_window(farm_url, tmp_path):
+    """The job field `crop`: the farm's EXR holds the region as its data window inside the
+    full display window, with the pixels of the same job rendered whole, bit for bit."""
+    import httpx
+
+    exrs = {}
+    with httpx.Client(base_url=farm_url, timeout=60) as client:
+        for name, extra in (("full", {}), ("crop", {"crop": "4,2,20,14"}), ("bad", {"crop": "4,2,40,14"})):
+            with open(CORNELL, "rb") as f:
+                r = client.post("/jobs", files={"file": ("cornell.usda", f)},
+                                data={"width": "24", "height": "16", "spp": "8", "seed": "2", **extra})
+            if name == "bad":
+                assert r.status_code == 422 and "not a non-empty region" in r.text, r.text
+                continue
+            assert r.status_code == 201, r.text
+            job = r.json()["id"]
+            while (state := client.get(f"/jobs/{job}").json()["state"]) not in ("done", "failed", "cancelled"):
+                import time
+                time.sleep(0.1)
+            assert state == "done"
+            exrs[name] = tmp_path / f"{name}.exr"
+            exrs[name].write_bytes(client.get(f"/jobs/{job}/image.exr").content)
+    head = subprocess.run(["exrheader", str(exrs["crop"])], capture_output=True, text=True).stdout
+    assert "dataWindow (type box2i): (4 2) - (19 13)" in head
+    assert "displayWindow (type box2i): (0 0) - (23 15)" in head
+    full, crop = images.read_exr(exrs["full"]), images.read_exr(exrs["crop"])
+    assert np.array_equal(crop.view(np.uint32), full[2:14, 4:20].view(np.uint32))
