@@ -95,6 +95,8 @@ class CompareReport(BaseModel):
     flip: float | None = Field(description="mean LDR FLIP of the sRGB previews (0 = identical)")
     mean_test: list[float]
     mean_reference: list[float]
+    pooled: bool = Field(default=False, description="both sides judged with one pooled per-sample "
+                                                    "variance (compare_images' `pooled`)")
 
     @property
     def differs(self) -> bool:
@@ -102,7 +104,8 @@ class CompareReport(BaseModel):
 
     def summary(self) -> str:
         lines = [f"{self.verdict.upper()}: {self.width}x{self.height}, TEST {self.test_spp:g} spp, "
-                 f"REFERENCE {self.reference_spp:g} spp; Welch t-test, "
+                 f"REFERENCE {self.reference_spp:g} spp; "
+                 f"{'t-test with pooled variance' if self.pooled else 'Welch t-test'}, "
                  f"{'Benjamini-Hochberg' if self.method == 'bh' else 'Bonferroni'} at alpha {self.alpha:g}"]
         for s in self.scales:
             name = "image" if s.block == 0 else f"{s.block}x{s.block}"
@@ -301,7 +304,7 @@ def compare_images(test: images.RenderImage, reference: images.RenderImage, *, a
         exact_mismatch_pixels=int(mismatch.any(axis=2).sum()), first_difference=first,
         rmse=rmse, relmse=relmse, flip=flip_error(test.rgba, reference.rgba) if flip else None,
         mean_test=[v if math.isfinite(v) else 0.0 for v in mean_rgb(test)],
-        mean_reference=[v if math.isfinite(v) else 0.0 for v in mean_rgb(reference)])
+        mean_reference=[v if math.isfinite(v) else 0.0 for v in mean_rgb(reference)], pooled=pooled)
     return Comparison(report, pixel_t, significant, coarse & ~significant, nonfinite)
 
 
