@@ -12,6 +12,7 @@ APT_PACKAGES=(
   build-essential cmake ninja-build pkg-config python3-venv
   libembree-dev libtbb-dev libopenimageio-dev openimageio-tools libopenexr-dev
   libosd-dev  # OpenSubdiv: subdivision surfaces refined at translation time
+  openexr  # exrheader/exrinfo: tests check that OpenEXR's own tools read every EXR we write
   libgtest-dev redis-server iproute2
   libllvm19  # Mitsuba's llvm_ad_rgb variant, the second peer in `tessera bench`
   chromium chromium-driver  # the monitor page's browser tests (selenium drives them)

@@ -2,7 +2,8 @@
 # Sets everything up (scripts/setup.sh), then runs the whole test suite: the C++ unit
 # tests (GoogleTest through ctest, then again built with ASan + UBSan by
 # scripts/test-sanitize.sh) and the Python tests (pytest; they start their own
-# redis-server, API and worker processes). Exits non-zero if any test fails.
+# redis-server, API and worker processes), then `tessera refs check examples/refs` (the
+# examples against their committed references). Exits non-zero if any test fails.
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 bash "$ROOT/scripts/setup.sh" || { echo "[test] set-up failed"; exit 1; }
@@ -26,6 +27,12 @@ cd "$ROOT"
 rc=$?
 # pytest exits 5 when it collected nothing: that is a failure here, not a pass.
 [ $rc -eq 0 ] || status=1
+
+# Tessera guards its own look with its own tool: the examples against their committed
+# reference sets (docs/accuracy.md); the HTML report and JUnit file stay in build/.
+echo "[test] render checks of examples/ against examples/refs"
+"$VENV/bin/tessera" refs check "$ROOT/examples/refs" --report "$ROOT/build/refs-check" \
+  --junit "$ROOT/build/refs-check/junit.xml" || status=1
 
 if [ $status -eq 0 ]; then echo "[test] all passed"; else echo "[test] FAILED"; fi
 exit $status

@@ -104,7 +104,7 @@ def encode_image(rgba: np.ndarray, spec: JobSpec, fmt: str, aovs: dict[str, np.n
             s = spec.settings
             images.write_exr(path, rgba, images.render_metadata(
                 s.max_spp if s.adaptive else s.spp, s.seed, spec.scene_name, s.integrator,
-                farm_variance_kind(s, aovs)), aovs=aovs)
+                farm_variance_kind(s, aovs)), aovs=aovs, crop=s.crop)
         else:
             images.write_png_preview(path, rgba)
         return path.read_bytes()

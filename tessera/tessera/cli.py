@@ -19,6 +19,14 @@ def _resolution(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _crop(text: str) -> tuple[int, int, int, int]:
+    try:
+        x0, y0, x1, y1 = (int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"crop must look like X0,Y0,X1,Y1, not {text!r}") from None
+    return x0, y0, x1, y1
+
+
 def _positive(text: str) -> int:
     value = int(text)
     if value < 1:
@@ -48,6 +56,14 @@ def cmd_render(args: argparse.Namespace) -> int:
         print(f"tessera render: {exc}{hint}", file=sys.stderr)
         return 2
     width, height = args.res or (scene.width, scene.height)
+    if args.crop is not None:
+        from tessera_base.images import check_crop
+
+        try:
+            check_crop(args.crop, width, height)
+        except ValueError as exc:
+            print(f"tessera render: --crop: {exc}", file=sys.stderr)
+            return 2
     try:
         settings = RenderSettings(width=width, height=height, spp=args.spp, seed=args.seed,
                                   max_depth=args.max_depth, tile_size=args.tile,
@@ -77,7 +93,11 @@ def cmd_render(args: argparse.Namespace) -> int:
     except NonFiniteSampleError as exc:
         print(f"tessera render: renderer bug: {exc}", file=sys.stderr)
         return 3
-    image.write(output)
+    from tessera_base.exr_header import provenance
+
+    image.metadata.update(provenance(scene_path, settings.target_error, image.rgba, image.layers.get("variance"),
+                                     image.layers.get("spp"), image.metadata.get("tessera:variance")))
+    image.write(output, crop=args.crop)
     result = image.metadata
     preview = output.with_suffix(".png")
     write_png_preview(preview, image.rgba)
@@ -206,6 +226,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
                                   max_attempts=args.max_attempts, aovs=args.aovs,
                                   default_light="false" if args.no_default_light else None,
                                   denoise=args.denoise or None,
+                                  crop=",".join(map(str, args.crop)) if args.crop else None,
                                   **_noise_target(args)).items() if v is not None}
     if args.integrator_params:
         form["integrator_params"] = json.dumps(_integrator_params(args))
@@ -293,7 +314,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     try:
         comparison = compare_images(args.test, args.reference, alpha=args.alpha, method=args.method,
-                                    flip=not args.no_flip)
+                                    flip=not args.no_flip, pooled=args.pooled)
     except CompareError as exc:
         print(f"tessera compare: {exc}", file=sys.stderr)
         return 2
@@ -382,6 +403,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--subdivision-level", type=int, default=None, metavar="N",
                    help="times subdivision surfaces are refined, 0-6 (default 2; 0 renders "
                         "their control cage; see docs/scene-translation.md)")
+    r.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
+                   help="write only this pixel region (X1, Y1 exclusive) as the EXR's data "
+                        "window, the full frame as its display window; the whole frame is "
+                        "rendered (light paths from anywhere land in the region)")
     r.add_argument("--no-variance", action="store_true",
                    help="write no variance layer: light and bdpt then render each sample once "
                         "instead of twice (their variance comes from a second render in "
@@ -416,6 +441,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_integrator_option(m)
     _add_aov_option(m)
     _add_denoise_option(m)
+    m.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
+                   help="the EXR holds only this region (X1, Y1 exclusive) as its data window")
     m.set_defaults(func=cmd_submit)
 
     c = sub.add_parser("compare", help="do two renders differ beyond their noise? "
@@ -432,6 +459,10 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--report", help="write the JSON report here")
     c.add_argument("--heatmap", help="difference heatmap PNG (default: TEST with .compare.png)")
     c.add_argument("--no-flip", action="store_true", help="skip the FLIP metric")
+    c.add_argument("--pooled", action="store_true",
+                   help="one per-sample variance pooled from both images (use when their spp "
+                        "differ a lot, e.g. a cheap render against a costly reference: "
+                        "Welch's t is biased there; docs/accuracy.md)")
     c.set_defaults(func=cmd_compare)
 
     d = sub.add_parser("denoise", help="add a denoised layer to an EXR with albedo and normal AOVs "
@@ -460,6 +491,10 @@ def build_parser() -> argparse.ArgumentParser:
                                      "CSV, plots and a summary (docs/benchmarks/error-vs-time.md)")
     add_bench_options(b)
     b.set_defaults(func=cmd_bench)
+
+    from .refs_cli import add_parser as add_refs_parser
+
+    add_refs_parser(sub, _resolution, _positive, _add_integrator_option, _integrator_params)
     return parser
 
 

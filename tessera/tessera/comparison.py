@@ -15,23 +15,25 @@ Source = Union[str, Path, "Image"]
 
 
 def compare(test: Source, reference: Source, *, alpha: float | None = None, method: str = "bh",
-            flip: bool = True) -> "CompareReport":
+            flip: bool = True, pooled: bool = False) -> "CompareReport":
     """Compares `test` with `reference` (EXR paths written by Tessera, or Image objects
     from tessera.render; each needs its variance and spp layers) and returns the report:
     `report.differs`, `report.summary()`, per-scale statistics, RMSE, relMSE and FLIP.
     `alpha` is the false-alarm rate (default tessera_tools.compare.ALPHA), `method` the
-    multiple-testing correction ("bh" or "bonferroni"). Raises
+    multiple-testing correction ("bh" or "bonferroni"); `pooled` judges both sides with one
+    pooled per-sample variance (for a cheap render against a costly reference; see
+    docs/accuracy.md). Raises
     tessera_tools.compare.CompareError (a ValueError) for images that cannot be judged."""
-    return comparison(test, reference, alpha=alpha, method=method, flip=flip).report
+    return comparison(test, reference, alpha=alpha, method=method, flip=flip, pooled=pooled).report
 
 
 def comparison(test: Source, reference: Source, *, alpha: float | None = None, method: str = "bh",
-               flip: bool = True) -> "Comparison":
+               flip: bool = True, pooled: bool = False) -> "Comparison":
     """`compare` with the per-pixel maps behind the report (for
     tessera_tools.compare.heatmap)."""
     from tessera_tools import compare as library
 
-    kwargs = dict(alpha=library.ALPHA if alpha is None else alpha, method=method, flip=flip)
+    kwargs = dict(alpha=library.ALPHA if alpha is None else alpha, method=method, flip=flip, pooled=pooled)
     if isinstance(test, (str, Path)) and isinstance(reference, (str, Path)):
         return library.compare_files(test, reference, **kwargs)
     return library.compare_images(_render_image(test, "TEST"), _render_image(reference, "REFERENCE"),

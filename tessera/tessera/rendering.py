@@ -44,14 +44,16 @@ class Image:
         """The EXR header attributes (the `tessera:` keys of metadata)."""
         return {k: str(v) for k, v in self.metadata.items() if k.startswith("tessera:")}
 
-    def write(self, path: str | Path, *, png: bool = False) -> Path:
+    def write(self, path: str | Path, *, png: bool = False,
+              crop: tuple[int, int, int, int] | None = None) -> Path:
         """Writes the image as `tessera render` does: float EXR with every layer; with
-        `png`, an sRGB preview beside it (same name, .png)."""
+        `png`, an sRGB preview beside it (same name, .png); with `crop` (x0, y0, x1, y1,
+        exclusive), only that region as the data window inside the full display window."""
         from tessera_base.images import write_exr, write_png_preview
 
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        write_exr(path, self.rgba, self.header(), aovs=self.layers)
+        write_exr(path, self.rgba, self.header(), aovs=self.layers, crop=crop)
         if png:
             write_png_preview(path.with_suffix(".png"), self.rgba)
         return path
@@ -111,8 +113,14 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
         if (reason := unavailable_reason()) is not None:
             raise RuntimeError(f"denoise: {reason}")
     name = Path(scene).name if isinstance(scene, (str, Path)) else "scene"
-    return render_scene(loaded, settings, scene_name=name, threads=threads, progress=progress,
-                        variance=variance)
+    image = render_scene(loaded, settings, scene_name=name, threads=threads, progress=progress,
+                         variance=variance)
+    if isinstance(scene, (str, Path)):
+        from tessera_base.exr_header import provenance
+
+        image.metadata.update(provenance(scene, settings.target_error, image.rgba, image.layers.get("variance"),
+                                         image.layers.get("spp"), image.metadata.get("tessera:variance")))
+    return image
 
 
 def render_scene(scene, settings, *, scene_name: str, threads: int = 0, progress: bool = False,

@@ -56,10 +56,18 @@ def parse_variance_kind(kind: str | None) -> tuple[str, int | None]:
                      f"{_BATCH_MEANS}K with K >= 2)")
 
 
+# Linear Rec.709 primaries and D65 white (x, y of R, G, B, white): the EXR
+# `chromaticities` attribute, so compositing tools need not guess the colour space.
+REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
+
+
 def write_exr(path: str | Path, rgba: np.ndarray, metadata: dict[str, str] | None = None,
-              aovs: dict[str, np.ndarray] | None = None) -> None:
+              aovs: dict[str, np.ndarray] | None = None,
+              crop: tuple[int, int, int, int] | None = None) -> None:
     """Writes float32 linear RGBA (h, w, 4) as a float EXR (zip compression, lossless),
-    with each AOV (name -> (h, w[, c])) as extra channels named by AOV_EXR_CHANNELS."""
+    with each AOV (name -> (h, w[, c])) as extra channels named by AOV_EXR_CHANNELS.
+    `crop` (x0, y0, x1, y1; x1, y1 exclusive): only that region of the full-frame arrays,
+    as the data window, with the full frame as the display window (pbrt's --cropwindow)."""
     rgba = np.ascontiguousarray(rgba, dtype=np.float32)
     h, w, c = rgba.shape
     names = list(("R", "G", "B", "A")[:c])
@@ -74,14 +82,32 @@ def write_exr(path: str | Path, rgba: np.ndarray, metadata: dict[str, str] | Non
         names += channels
         layers.append(layer.reshape(h, w, len(channels)))
     pixels = np.ascontiguousarray(np.concatenate(layers, axis=2))
+    full_w, full_h = w, h
+    if crop is not None:
+        x0, y0, x1, y1 = check_crop(crop, w, h)
+        pixels, w, h = np.ascontiguousarray(pixels[y0:y1, x0:x1]), x1 - x0, y1 - y0
     spec = oiio.ImageSpec(w, h, len(names), oiio.FLOAT)
+    if crop is not None:
+        spec.x, spec.y = x0, y0
+        spec.full_x, spec.full_y, spec.full_width, spec.full_height = 0, 0, full_w, full_h
     spec.channelnames = tuple(names)
     if "Z" in names:
         spec.z_channel = names.index("Z")
     spec.attribute("compression", "zip")
+    spec.attribute("chromaticities", oiio.TypeDesc("float[8]"), REC709_CHROMATICITIES)
     for key, value in (metadata or {}).items():
         spec.attribute(key, str(value))
     _write(path, spec, pixels)
+
+
+def check_crop(crop: tuple[int, int, int, int], width: int, height: int) -> tuple[int, int, int, int]:
+    """The crop region (x0, y0, x1, y1), x1 and y1 exclusive; ValueError unless it is a
+    non-empty region inside the width x height frame."""
+    x0, y0, x1, y1 = (int(v) for v in crop)
+    if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
+        raise ValueError(f"crop {x0},{y0},{x1},{y1} is not a non-empty region of the "
+                         f"{width}x{height} frame (x0,y0,x1,y1 with x1, y1 exclusive)")
+    return x0, y0, x1, y1
 
 
 def read_exr_channels(path: str | Path) -> dict[str, np.ndarray]:

@@ -162,6 +162,36 @@ class RenderSettings(BaseModel):
         description="add an Open Image Denoise layer (denoised.R/G/B) and preview beside the "
                     "raw image; adds the albedo and normal AOVs (docs/denoise.md)")
 
+    # Added within schema 2 like aovs: the region the EXR holds (x0, y0, x1, y1; x1, y1
+    # exclusive) as its data window inside the full display window (docs/aovs.md). The
+    # whole frame is still rendered: splats from anywhere land in the region.
+    crop: tuple[int, int, int, int] | None = Field(
+        default=None,
+        description="write only this pixel region x0,y0,x1,y1 (x1, y1 exclusive) of the image "
+                    "to the EXR, as its data window inside the full-frame display window")
+
+    @field_validator("crop", mode="before")
+    @classmethod
+    def _crop_text(cls, value):
+        """Accepts "x0,y0,x1,y1" (a form field) as well as four numbers; "" is no crop."""
+        if isinstance(value, str):
+            if not value.strip():
+                return None
+            parts = value.split(",")
+            if len(parts) != 4:
+                raise ValueError(f"crop must look like x0,y0,x1,y1, not {value!r}")
+            return tuple(p.strip() for p in parts)
+        return value
+
+    @model_validator(mode="after")
+    def _crop_inside(self) -> "RenderSettings":
+        if self.crop is not None:
+            x0, y0, x1, y1 = self.crop
+            if not (0 <= x0 < x1 <= self.width and 0 <= y0 < y1 <= self.height):
+                raise ValueError(f"crop {x0},{y0},{x1},{y1} is not a non-empty region of the "
+                                 f"{self.width}x{self.height} frame (x1, y1 exclusive)")
+        return self
+
     @model_validator(mode="after")
     def _spp_range(self) -> "RenderSettings":
         if self.target_error is not None and self.min_spp > self.max_spp:

@@ -109,6 +109,9 @@ def create_job(
     integrator_params: Annotated[str, Form(description=(
         'the integrator\'s own settings as a JSON object of name -> number, e.g. '
         '{"max_distance": 2} for ao ("inf" as a string for infinity; docs/integrators.md)'))] = "",
+    crop: Annotated[str, Form(description="x0,y0,x1,y1 (x1, y1 exclusive): the EXR holds only this "
+                                          "region, as its data window inside the full frame "
+                                          "(docs/aovs.md); empty: the whole image")] = "",
 ) -> JobCreated:
     settings: Settings = request.app.state.settings
     store: JobStore = request.app.state.store
@@ -122,6 +125,8 @@ def create_job(
                   target_error=target_error, min_spp=min_spp, max_spp=max_spp,
                   time_limit=time_limit, aovs=aovs, default_light=default_light, denoise=denoise,
                   integrator_params=_integrator_params_form(integrator_params))
+    if crop.strip():
+        params["crop"] = crop
     if integrator is None:
         del params["integrator"]  # RenderSettings' default: the registry's first
     if denoise:  # the merge here denoises: refuse now rather than deliver a job without it
@@ -131,7 +136,8 @@ def create_job(
             raise HTTPException(422, f"denoise: this server cannot denoise: {reason}")
     # Check what can be checked before the (slow) inspection; resolution comes later.
     _render_settings(width=width if width is not None else 1,
-                     height=height if height is not None else 1, **params)
+                     height=height if height is not None else 1,
+                     **{k: v for k, v in params.items() if k != "crop"})  # the frame is not known yet
 
     with tempfile.TemporaryDirectory(prefix=f"tessera-upload-{os.getpid()}-") as tmp:
         path = Path(tmp, protocol.scene_file_name(suffix))
