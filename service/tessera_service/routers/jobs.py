@@ -119,8 +119,10 @@ def create_job(
     settings: Settings = request.app.state.settings
     store: JobStore = request.app.state.store
 
-    if (file is None) == (manifest is None):
-        raise HTTPException(422, "send the scene as `file`, or a packed scene as `manifest`; not both, not neither")
+    if (file is None) == (manifest is None):  # as FastAPI reports a missing field, naming it
+        raise RequestValidationError([{
+            "type": "missing", "loc": ("body", "file" if file is None else "manifest"), "input": None,
+            "msg": "send the scene as `file`, or a packed scene as `manifest` (not both)"}])
     packed = _read_manifest(manifest, settings.max_upload_bytes) if manifest is not None else None
     name = packed.scene_name if packed is not None else _file_name(file.filename)
     suffix = Path(name).suffix.lower()
