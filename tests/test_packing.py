@@ -200,3 +200,31 @@ def test_local_render_of_the_mini_car_kit_as_usdview_opens_it(tmp_path, capsys):
     np.testing.assert_array_equal(images.read_exr(tmp_path / "t.exr"), images.read_exr(tmp_path / "k.exr"))
     code, err = _render([str(scene), "-o", str(tmp_path / "s.exr"), "--sandbox"], capsys)
     assert code == 2 and "wheelVariants.usda" in err
+
+
+def test_gather_follows_the_textures_of_a_referenced_materialx_document(tmp_path):
+    """A .mtlx look (the usdMtlx convention) travels with the image files its `filename`
+    inputs name, relative to the document (fileprefix applied), as the translator reads them."""
+    import MaterialX as mx
+
+    from tessera_renderer.packing import gather
+
+    write_texture(tmp_path / "proj" / "tex" / "base.png", (10, 20, 30))
+    doc = mx.createDocument()
+    graph = doc.addNodeGraph("NG_look")
+    graph.setFilePrefix("../tex/")
+    for name in ("base", "gone"):
+        graph.addNode("image", name, "color3").setInputValue("file", f"{name}.png", "filename")
+    graph.addOutput("out", "color3").setConnectedNode(graph.getNode("base"))
+    shader = doc.addNode("standard_surface", "SR_look", "surfaceshader")
+    shader.addInput("base_color", "color3").setNodeGraphString("NG_look")
+    doc.addMaterialNode("Look", shader)
+    (tmp_path / "proj" / "looks").mkdir()
+    mx.writeToXmlFile(doc, str(tmp_path / "proj" / "looks" / "look.mtlx"))
+    shot = tmp_path / "proj" / "shots" / "a.usda"
+    shot.parent.mkdir()
+    shot.write_text(layer('def Material "Look" (references = @../looks/look.mtlx@</MaterialX/Materials/Look>) {}\n'
+                          + MESH))
+    pack = gather(shot)
+    assert set(pack.files) == {"shots/a.usda", "looks/look.mtlx", "tex/base.png"}
+    assert pack.missing == ["../tex/gone.png (in ../looks/look.mtlx)"]

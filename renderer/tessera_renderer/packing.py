@@ -104,10 +104,53 @@ def gather(entry: str | Path) -> Pack:
                 missing.append(label)
                 continue
             found.setdefault(target)
-            if os.path.splitext(target)[1].lower() in _WALKED and target not in opened:
+            suffix = os.path.splitext(target)[1].lower()
+            if suffix in _WALKED and target not in opened:
                 opened.add(target)
                 queue.append(target)
+            elif suffix == ".mtlx" and target not in opened:
+                opened.add(target)
+                _mtlx_textures(target, entry_path.parent, found, missing, unportable)
     root = Path(os.path.commonpath([os.path.dirname(p) for p in found]))
     files = {Path(p).relative_to(root).as_posix(): Path(p) for p in found}
     return Pack(root=root, entry=entry_path.relative_to(root).as_posix(), files=files,
                 missing=list(dict.fromkeys(missing)), unportable=list(dict.fromkeys(unportable)))
+
+
+def _mtlx_textures(path: str, base: Path, found: dict, missing: list, unportable: list) -> None:
+    """The image files a MaterialX document names (its `filename` inputs, with fileprefix
+    applied), anchored at its folder as the translator reads them (mtlx.py)."""
+    import MaterialX as mx
+
+    where = os.path.relpath(path, base)
+    doc = mx.createDocument()
+    opts = mx.XmlReadOptions()
+    opts.readXIncludeFunction = None   # as the translator reads it: includes are not followed
+    try:
+        with open(path, encoding="utf-8") as f:
+            mx.readFromXmlString(doc, f.read(), mx.FileSearchPath(), opts)
+    except (OSError, UnicodeDecodeError, mx.Exception) as exc:
+        unportable.append(f"{where}: cannot be read as MaterialX ({exc}), packed as it is")
+        return
+    for element in doc.traverseTree():
+        if not element.isA(mx.Input) or element.getType() != "filename":
+            continue
+        authored = element.getResolvedValueString()
+        if not authored:
+            continue
+        label = f"{authored} (in {where})"
+        if _URI.match(authored) or os.path.isabs(authored):
+            unportable.append(f"{label}: not a relative path; the farm resolves only relative paths "
+                              f"inside the bundle")
+            continue
+        target = os.path.normpath(os.path.join(os.path.dirname(path), authored))
+        if "<UDIM>" in target:
+            tiles = sorted(glob.glob(glob.escape(target).replace("<UDIM>", "1[0-9][0-9][0-9]")))
+            for tile in tiles:
+                found.setdefault(tile)
+            if not tiles:
+                missing.append(label)
+        elif os.path.isfile(target):
+            found.setdefault(target)
+        else:
+            missing.append(label)
