@@ -180,3 +180,39 @@ def test_blobs_are_verified_limited_and_manifests_stay_inside_the_bundle(farm, r
     assert r.status_code == 201, r.text
     status = wait_for_job(farm, r.json()["id"], processes=farm.processes)
     assert status["state"] == "done" and status["scene_name"] == "s.usda.zip", status
+
+
+def test_a_packed_submit_works_under_the_farms_redis_users(tmp_path):
+    """On Redis with the farm's ACL users (tessera_service.redis_acl): the API stores and
+    assembles blobs, the worker renders the assembled scene, and the worker user cannot
+    read the blobs (only the API needs them)."""
+    import redis
+
+    from conftest import start_api, start_worker
+    from tessera_service.embedded import redis_server
+    from tessera_service.redis_acl import Credentials
+
+    shot = make_project(tmp_path / "proj")
+    (tmp_path / "acl").mkdir()
+    with redis_server(str(tmp_path / "acl"), credentials=Credentials.generate()) as local:
+        api, base = start_api(local.url, tmp_path)
+        worker = start_worker(local.worker_url, "acl-packing", tmp_path)
+        try:
+            proc = tessera("submit", str(shot), "--server", base, "--wait", "-o", str(tmp_path / "f.exr"), *ARGS)
+            assert proc.returncode == 0, proc.stderr + api.log() + worker.log()
+            assert uploaded(proc.stderr)[:2] == (6, 6)
+        finally:
+            worker.stop()
+            api.stop()
+        digest = hashlib.sha256((tmp_path / "proj" / "top.usda").read_bytes()).hexdigest()
+        as_api = redis.Redis.from_url(local.url)
+        as_worker = redis.Redis.from_url(local.worker_url)
+        try:
+            assert as_api.exists(rdb.blob_key(digest))   # the control: it is there
+            with pytest.raises(redis.ResponseError, match="(?i)no permissions"):
+                as_worker.get(rdb.blob_key(digest))
+        finally:
+            as_api.close()
+            as_worker.close()
+    for p in (api, worker):
+        assert "NOPERM" not in p.log_path.read_text(errors="replace"), p.log(80)
