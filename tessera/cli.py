@@ -307,7 +307,8 @@ def cmd_submit(args: argparse.Namespace) -> int:
 def _post_scene(client, scene: Path, form: dict[str, str]):
     """POST /jobs. A loose layer travels with its assets: its dependencies are gathered
     (tessera_renderer.packing), what they are and what is missing is reported, and only
-    the files the farm lacks are uploaded (tessera.upload). A .usdz or .zip is sent as it is."""
+    the files the farm lacks are uploaded (tessera.upload). A .usdz or .zip is sent as it
+    is, and so is a layer that cannot be read here: the farm's pre-flight then says why."""
     if scene.suffix.lower() in (".usdz", ".zip"):
         with open(scene, "rb") as f:
             return client.post("/jobs", files={"file": (scene.name, f)}, data=form)
@@ -319,7 +320,11 @@ def _post_scene(client, scene: Path, form: dict[str, str]):
     try:
         pack = gather(scene)
     except SceneError as exc:
-        raise ValueError(str(exc)) from None
+        if not scene.is_file():
+            raise ValueError(str(exc)) from None
+        print(f"warning: not packed, sent alone: {exc}", file=sys.stderr)
+        with open(scene, "rb") as f:
+            return client.post("/jobs", files={"file": (scene.name, f)}, data=form)
     for line in pack.missing:
         print(f"warning: not found, not packed: {line}", file=sys.stderr)
     for line in pack.unportable:
