@@ -119,16 +119,18 @@ def create_job(
     settings: Settings = request.app.state.settings
     store: JobStore = request.app.state.store
 
+    name = _file_name(file.filename) if file is not None else None
+    suffix = Path(name).suffix.lower() if name is not None else ".zip"
+    if suffix not in SCENE_SUFFIXES:
+        raise HTTPException(400, f"unsupported file type {suffix or '(no suffix)'!r} in {name!r}: "
+                                 f"upload a {', '.join(SCENE_SUFFIXES)} file")
     if (file is None) == (manifest is None):  # as FastAPI reports a missing field, naming it
         raise RequestValidationError([{
             "type": "missing", "loc": ("body", "file" if file is None else "manifest"), "input": None,
             "msg": "send the scene as `file`, or a packed scene as `manifest` (not both)"}])
     packed = _read_manifest(manifest, settings.max_upload_bytes) if manifest is not None else None
-    name = packed.scene_name if packed is not None else _file_name(file.filename)
-    suffix = Path(name).suffix.lower()
-    if suffix not in SCENE_SUFFIXES:
-        raise HTTPException(400, f"unsupported file type {suffix or '(no suffix)'!r} in {name!r}: "
-                                 f"upload a {', '.join(SCENE_SUFFIXES)} file")
+    if packed is not None:
+        name = packed.scene_name   # the entry's name, packed: .zip, as the worker stores it
     params = dict(spp=spp, seed=seed, max_depth=max_depth, tile_size=tile_size, integrator=integrator,
                   target_error=target_error, min_spp=min_spp, max_spp=max_spp,
                   time_limit=time_limit, aovs=aovs, default_light=default_light, denoise=denoise,
