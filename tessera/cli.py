@@ -454,7 +454,9 @@ def build_parser() -> argparse.ArgumentParser:
     w.set_defaults(func=cmd_worker)
 
     m = sub.add_parser("submit", help="send a scene to a farm's API (see `tessera serve`)")
-    m.add_argument("scene", help=".usda/.usdc/.usdz file")
+    m.add_argument("scene", help=".usda/.usdc/.usd file, packed with the layers and textures it "
+                                 "references (only files the farm lacks are uploaded); or a "
+                                 ".usdz/.zip bundle, sent as it is")
     m.add_argument("--server", default=os.environ.get("TESSERA_SERVER", "http://127.0.0.1:8000"),
                    help="API base URL (default: $TESSERA_SERVER or http://127.0.0.1:8000)")
     m.add_argument("--token", help="bearer token (default: $TESSERA_TOKEN)")
