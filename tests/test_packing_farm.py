@@ -216,3 +216,21 @@ def test_a_packed_submit_works_under_the_farms_redis_users(tmp_path):
             as_worker.close()
     for p in (api, worker):
         assert "NOPERM" not in p.log_path.read_text(errors="replace"), p.log(80)
+
+
+def test_the_mini_car_kit_renders_on_the_farm_as_it_does_locally(farm, tmp_path):
+    """The issue's example: vehicleVariants.usda references ../../../wheels/...; submitted
+    as a loose layer it is packed from the kit's folder, and the farm's image equals the
+    local (trusted) render bit for bit."""
+    scene = SCENES / "usdwg_mini_car_kit" / "USD_Mini_Car_Kit" / "assets" / "vehicles" / "vehicleVariants.usda"
+    if not scene.exists():
+        pytest.skip(f"{scene} is not on this machine")
+    out, local = tmp_path / "farm.exr", tmp_path / "local.exr"
+    proc = tessera("submit", str(scene), "--server", str(farm.base_url), "--wait", "-o", str(out), *ARGS)
+    assert proc.returncode == 0, proc.stderr
+    assert uploaded(proc.stderr)[0] == 53 and "USD_Mini_Car_Kit)" in proc.stderr
+    proc = tessera("render", str(scene), "-o", str(local), "-q", "--threads", "1", *ARGS)
+    assert proc.returncode == 0, proc.stderr
+    farm_image, local_image = images.read_exr(out), images.read_exr(local)
+    np.testing.assert_array_equal(farm_image, local_image)
+    assert farm_image[..., 3].any()   # the vehicle is in the picture
