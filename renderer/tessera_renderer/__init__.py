@@ -411,7 +411,7 @@ def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path
                subdivision_level: int | None = None) -> Scene:
     """Reads a bundle (.usda/.usdc/.usd, .usdz or .zip) through the sandbox and builds it.
     For a loose layer, `root` (default: its directory) is the bundle every asset must stay
-    in. `instancing`: "auto" (default: Embree instances, one BVH per prototype, unless
+    in; `root="/"` trusts the local filesystem (what `tessera render` does by default). `instancing`: "auto" (default: Embree instances, one BVH per prototype, unless
     lights sit inside native-instance prototypes), "instances" or "flatten" (every
     instance copied). `default_light`: a stage without any light (emissive geometry
     counts as light) gets the default lighting, announced in one warning; off, it renders

@@ -47,11 +47,12 @@ def cmd_render(args: argparse.Namespace) -> int:
     scene_path = Path(args.scene)
     output = Path(args.output) if args.output else Path(scene_path.stem + ".exr")
     try:
-        scene = load_scene(scene_path, frame=args.frame, root=args.root,
+        scene = load_scene(scene_path, frame=args.frame, root=_local_root(args),
                            default_light=not args.no_default_light,
                            subdivision_level=args.subdivision_level)
     except SceneError as exc:
-        hint = ("; if that folder is yours, let assets resolve within it with --root DIR"
+        hint = ("; if that folder is yours, let assets resolve within it with --root DIR, "
+                "or render without --sandbox"
                 if "outside the bundle" in str(exc) and not args.root else "")
         print(f"tessera render: {exc}{hint}", file=sys.stderr)
         return 2
@@ -114,6 +115,15 @@ def cmd_render(args: argparse.Namespace) -> int:
     print(f"wrote {output} and {preview} in {result['seconds']:.2f} s "
           f"({result['samples_per_second'] / 1e6:.2f} M samples/s)", file=sys.stderr)
     return 0
+
+
+def _local_root(args: argparse.Namespace) -> str:
+    """Where a local render's assets may resolve: the user's own files are trusted (the
+    whole filesystem, as usdview opens them) unless --sandbox or --root asks for the
+    sandbox a farm upload gets (docs/scene-translation.md, "The bundle sandbox")."""
+    if args.root:
+        return args.root
+    return str(Path(args.scene).absolute().parent) if args.sandbox else "/"
 
 
 def _noise_target(args: argparse.Namespace) -> dict:
@@ -236,10 +246,8 @@ def cmd_submit(args: argparse.Namespace) -> int:
         with httpx.Client(base_url=args.server.rstrip("/"), headers=headers,
                           timeout=httpx.Timeout(60, read=None)) as client:
             try:
-                with open(scene, "rb") as f:
-                    r = client.post("/jobs", files={"file": (scene.name, f)},
-                                    data={k: str(v) for k, v in form.items()})
-            except OSError as exc:
+                r = _post_scene(client, scene, {k: str(v) for k, v in form.items()})
+            except (OSError, ValueError, RuntimeError) as exc:  # a scene unreadable here, UploadError
                 print(f"tessera submit: {exc}", file=sys.stderr)
                 return 2
             if r.status_code != 201:
@@ -296,6 +304,36 @@ def cmd_submit(args: argparse.Namespace) -> int:
     except httpx.HTTPError as exc:
         print(f"tessera submit: cannot talk to {args.server}: {exc}", file=sys.stderr)
         return 2
+
+
+def _post_scene(client, scene: Path, form: dict[str, str]):
+    """POST /jobs. A loose layer travels with its assets: its dependencies are gathered
+    (tessera_renderer.usd.packing), what they are and what is missing is reported, and only
+    the files the farm lacks are uploaded (tessera.upload). A .usdz or .zip is sent as it
+    is, and so is a layer that cannot be read here: the farm's pre-flight then says why."""
+    if scene.suffix.lower() in (".usdz", ".zip"):
+        with open(scene, "rb") as f:
+            return client.post("/jobs", files={"file": (scene.name, f)}, data=form)
+    from tessera_renderer import SceneError
+    from tessera_renderer.usd.packing import gather
+
+    from .upload import submit_packed
+
+    try:
+        pack = gather(scene)
+    except SceneError as exc:
+        if not scene.is_file():
+            raise ValueError(str(exc)) from None
+        print(f"warning: not packed, sent alone: {exc}", file=sys.stderr)
+        with open(scene, "rb") as f:
+            return client.post("/jobs", files={"file": (scene.name, f)}, data=form)
+    for line in pack.missing:
+        print(f"warning: not found, not packed: {line}", file=sys.stderr)
+    for line in pack.unportable:
+        print(f"warning: cannot travel: {line}", file=sys.stderr)
+    r, report = submit_packed(client, pack.files, pack.entry, form)
+    print(f"{scene.name}: {report.summary()} (from {pack.root})", file=sys.stderr)
+    return r
 
 
 def _detail(response) -> str:
@@ -392,8 +430,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--max-depth", type=_positive, default=64, help="maximum bounces (default 64)")
     r.add_argument("--tile", type=_positive, default=64, help="tile size in pixels (default 64)")
     r.add_argument("--frame", type=float, help="time code to render (default: the stage's default time)")
-    r.add_argument("--root", help="folder every asset path must resolve within (default: the scene's "
-                                  "folder); e.g. the project folder when layers reference ../assets")
+    r.add_argument("--root", help="with the sandbox: the folder every asset path must resolve within "
+                                  "(implies --sandbox; default: the scene's folder)")
+    r.add_argument("--sandbox", action="store_true",
+                   help="read the scene as the farm reads an upload: every asset must resolve inside "
+                        "the scene's folder (or --root), no absolute paths (default: trust the local "
+                        "files, so references to ../ and absolute paths work)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     _add_noise_target_options(r)
     _add_integrator_option(r, renders=True)
@@ -420,7 +462,9 @@ def build_parser() -> argparse.ArgumentParser:
     w.set_defaults(func=cmd_worker)
 
     m = sub.add_parser("submit", help="send a scene to a farm's API (see `tessera serve`)")
-    m.add_argument("scene", help=".usda/.usdc/.usdz file")
+    m.add_argument("scene", help=".usda/.usdc/.usd file, packed with the layers and textures it "
+                                 "references (only files the farm lacks are uploaded); or a "
+                                 ".usdz/.zip bundle, sent as it is")
     m.add_argument("--server", default=os.environ.get("TESSERA_SERVER", "http://127.0.0.1:8000"),
                    help="API base URL (default: $TESSERA_SERVER or http://127.0.0.1:8000)")
     m.add_argument("--token", help="bearer token (default: $TESSERA_TOKEN)")

@@ -104,6 +104,15 @@ def preflight_key(scene_hash: str) -> str:
     return f"{PREFIX}:preflight:{scene_hash}"
 
 
+def blob_key(content_hash: str) -> str:
+    """String: one file of a packed scene (content-addressed upload: PUT /blobs/<sha256>),
+    its bytes under their SHA-256 (hex), verified when stored. A manifest of such files
+    (relative path -> hash) is assembled into a zip bundle that is then stored as a scene
+    (`scene_key`). TTL: the scene retention, renewed whenever a client asks for it or a
+    manifest uses it. Only the API reads or writes it."""
+    return f"{PREFIX}:blob:{content_hash}"
+
+
 def job_key(job_id: str) -> str:
     """Hash: the job's spec, state, counters and timings (fields: module docstring)."""
     return f"{_JOB}{job_id}"

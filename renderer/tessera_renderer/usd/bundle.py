@@ -75,6 +75,10 @@ class Bundle:
     # where): whether that is fatal depends on whether the composed stage uses them
     # (an unselected variant's layer is not used); open_stage decides.
     unresolved_layers: list[tuple[str, str, str]] = field(default_factory=list)
+    # Rooted at "/": the user's own files on their own machine (`tessera render` without
+    # --sandbox). Every path is inside such a bundle, and absolute asset paths are
+    # allowed too; URIs and search-path lookups still are not.
+    trusted: bool = False
 
     def __post_init__(self) -> None:
         if self._tmp:
@@ -293,12 +297,17 @@ def unpack_archive(archive: Path, dest: Path, limits: Limits = DEFAULT_LIMITS) -
     return names
 
 
-def _pick_root_layer(names: list[str], label: str, package: bool) -> str:
-    """The root layer: the first member for a .usdz (the package rule); for a .zip the only
+def _pick_root_layer(names: list[str], label: str, package: bool, entry: str | None = None) -> str:
+    """The root layer: the first member for a .usdz (the package rule); for a .zip the
+    member its comment names (`tessera-entry: PATH`, as a packed scene has), else the only
     USD file at the top level, else the first member when it is a USD file."""
     usd = [n for n in names if PurePosixPath(n).suffix.lower() in USD_SUFFIXES]
     if not usd:
         raise SceneError(f"{label}: no USD layer inside ({', '.join(names[:5]) or 'empty archive'})")
+    if entry is not None and not package:
+        if entry not in usd:
+            raise SceneError(f"{label}: the entry layer {entry!r} its comment names is not a USD layer in it")
+        return entry
     if package:
         if PurePosixPath(names[0]).suffix.lower() not in (".usda", ".usdc", ".usd"):
             raise SceneError(f"{label}: the first member {names[0]!r} of a usdz must be a USD layer")
@@ -312,10 +321,27 @@ def _pick_root_layer(names: list[str], label: str, package: bool) -> str:
                      f"put it first in the archive or make it the only USD file at the top level")
 
 
+_ENTRY_COMMENT = b"tessera-entry: "
+
+
+def _zip_entry(path: Path) -> str | None:
+    """The root layer a zip's comment names (`tessera-entry: PATH`, written by the
+    service when it assembles a packed scene), or None."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            comment = zf.comment
+    except (zipfile.BadZipFile, OSError, ValueError):
+        return None  # unpack_archive has refused it already
+    if not comment.startswith(_ENTRY_COMMENT):
+        return None
+    return comment[len(_ENTRY_COMMENT):].decode("utf-8", "replace").strip()
+
+
 def open_bundle(path: str | Path, *, root: str | Path | None = None,
                 limits: Limits = DEFAULT_LIMITS) -> Bundle:
     """Unpacks (if needed) and pre-flights a bundle. Raises SceneError naming the offending
-    file or asset path. For a loose layer, `root` (default: its directory) is the sandbox."""
+    file or asset path. For a loose layer, `root` (default: its directory) is the sandbox;
+    `root="/"` trusts the whole local filesystem (Bundle.trusted)."""
     path = Path(path).absolute()
     if not path.is_file():
         raise SceneError(f"scene file not found: {path}")
@@ -329,7 +355,7 @@ def open_bundle(path: str | Path, *, root: str | Path | None = None,
         tmp = tempfile.mkdtemp(prefix="tessera-bundle-")
         try:
             names = unpack_archive(path, Path(tmp), limits)
-            rel = _pick_root_layer(names, path.name, suffix == ".usdz")
+            rel = _pick_root_layer(names, path.name, suffix == ".usdz", _zip_entry(path))
             bundle = Bundle(Path(os.path.realpath(tmp)), Path(os.path.realpath(tmp), rel), limits, _tmp=tmp)
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -339,7 +365,7 @@ def open_bundle(path: str | Path, *, root: str | Path | None = None,
         real = Path(os.path.realpath(path))
         if os.path.commonpath([str(real), str(base)]) != str(base):
             raise SceneError(f"{path.name}: the root layer is outside its bundle {base}")
-        bundle = Bundle(base, real, limits)
+        bundle = Bundle(base, real, limits, trusted=str(base) == os.path.realpath("/"))
     try:
         preflight(bundle)
     except BaseException:
@@ -433,7 +459,7 @@ def _check_dependency(bundle: Bundle, layer, authored: str, where: str) -> str |
         raise SceneError(f"{where}: asset path {authored!r} contains a NUL byte")
     if _URI.match(authored):
         raise SceneError(f"{where}: asset path {authored!r} is a URI; only files inside the bundle are allowed")
-    if authored.startswith(("/", "\\")) or os.path.isabs(authored):
+    if (authored.startswith(("/", "\\")) or os.path.isabs(authored)) and not bundle.trusted:
         raise SceneError(f"{where}: asset path {authored!r} is absolute; only relative paths inside "
                          f"the bundle are allowed")
     real = layer.realPath or layer.identifier
@@ -522,6 +548,8 @@ def _clear_search_paths() -> None:
 
 
 def _rel(path: str, root: Path) -> str:
+    if Path(root) == Path("/"):
+        return path  # a trusted local render: the full path says most
     try:
         return str(Path(path.split("[", 1)[0]).relative_to(root)) + (
             "[" + path.split("[", 1)[1] if "[" in path else "")
@@ -550,7 +578,8 @@ def user_terms(text: str, root=None) -> str:
     """An error text for the person who uploaded the scene: the bundle's directory (and
     its real path) removed from paths, and USD's internals left out."""
     for base in {str(root), os.path.realpath(str(root))} if root is not None else ():
-        text = text.replace(base.rstrip("/") + "/", "")
+        if base.rstrip("/"):  # a bundle rooted at "/" (a trusted local render) keeps its paths
+            text = text.replace(base.rstrip("/") + "/", "")
     text = _USD_SOURCE.sub("", text)
     text = _USD_NAMESPACE.sub("", text)
     return _POINTER.sub("<address>", text)

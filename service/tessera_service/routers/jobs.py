@@ -68,6 +68,7 @@ def upload_too_large(limit: int) -> HTTPException:
 
 @router.post("", status_code=201, response_model=JobCreated,
              responses={400: {"description": "not a USD file"},
+                        409: {"description": "the manifest names files the farm lacks: upload them"},
                         413: {"description": "file too large"},
                         422: {"description": "invalid settings, or a scene the renderer rejects"},
                         429: {"description": "the server is inspecting as many scenes as it may; "
@@ -76,8 +77,13 @@ def create_job(
     request: Request,
     response: Response,
     user: CurrentUser,
-    file: Annotated[UploadFile, File(
-        description="the scene: .usda, .usdc, .usdz or .usd, or a .zip bundle (root layer first)")],
+    file: Annotated[UploadFile | None, File(
+        description="the scene: .usda, .usdc, .usdz or .usd, or a .zip bundle (root layer "
+                    "first); or send `manifest` instead")] = None,
+    manifest: Annotated[UploadFile | None, File(
+        description='instead of `file`: a packed scene, as JSON {"entry": PATH, "files": '
+                    '{PATH: SHA256}} of files uploaded to PUT /blobs/SHA256 (docs/farm.md, '
+                    '"Packed scenes")')] = None,
     width: Annotated[int | None, Form(description="default: the scene's render settings, else 512")] = None,
     height: Annotated[int | None, Form(description="default: the scene's render settings, else 512")] = None,
     spp: Annotated[int, Form(description="samples per pixel")] = _DEFAULTS["spp"],
@@ -116,11 +122,18 @@ def create_job(
     settings: Settings = request.app.state.settings
     store: JobStore = request.app.state.store
 
-    name = _file_name(file.filename)
-    suffix = Path(name).suffix.lower()
+    name = _file_name(file.filename) if file is not None else None
+    suffix = Path(name).suffix.lower() if name is not None else ".zip"
     if suffix not in SCENE_SUFFIXES:
         raise HTTPException(400, f"unsupported file type {suffix or '(no suffix)'!r} in {name!r}: "
                                  f"upload a {', '.join(SCENE_SUFFIXES)} file")
+    if (file is None) == (manifest is None):  # as FastAPI reports a missing field, naming it
+        raise RequestValidationError([{
+            "type": "missing", "loc": ("body", "file" if file is None else "manifest"), "input": None,
+            "msg": "send the scene as `file`, or a packed scene as `manifest` (not both)"}])
+    packed = _read_manifest(manifest, settings.max_upload_bytes) if manifest is not None else None
+    if packed is not None:
+        name = packed.scene_name   # the entry's name, packed: .zip, as the worker stores it
     params = dict(spp=spp, seed=seed, max_depth=max_depth, tile_size=tile_size, integrator=integrator,
                   target_error=target_error, min_spp=min_spp, max_spp=max_spp,
                   time_limit=time_limit, aovs=aovs, default_light=default_light, denoise=denoise,
@@ -141,7 +154,8 @@ def create_job(
 
     with tempfile.TemporaryDirectory(prefix=f"tessera-upload-{os.getpid()}-") as tmp:
         path = Path(tmp, protocol.scene_file_name(suffix))
-        scene_hash = _save_upload(file, path, settings.max_upload_bytes)
+        scene_hash = (_save_upload(file, path, settings.max_upload_bytes) if packed is None
+                      else _assemble(request, packed, path, settings.max_upload_bytes))
         info = _inspect(request, path, scene_hash)
         render = _render_settings(width=width if width is not None else info.width,
                                   height=height if height is not None else info.height, **params)
@@ -467,6 +481,33 @@ def _file_name(raw: str | None) -> str:
         raise HTTPException(400, "the upload has no file name; name the file *.usda, *.usdc, "
                                  "*.usdz or *.usd")
     return name
+
+
+def _read_manifest(upload: UploadFile, limit: int):
+    """A packed scene's manifest (tessera_service.blobs), refused with a 422 in the user's terms."""
+    from ..blobs import ManifestError, parse_manifest
+
+    data = upload.file.read(limit + 1)
+    if len(data) > limit:
+        raise upload_too_large(limit)
+    try:
+        return parse_manifest(data)
+    except ManifestError as exc:
+        raise HTTPException(422, f"manifest: {exc}") from None
+
+
+def _assemble(request: Request, packed, path: Path, limit: int) -> str:
+    """Builds a packed scene's bundle from the stored files; 409 naming the files the farm
+    lacks (the client uploads them and posts again)."""
+    from ..blobs import BlobsMissing, BlobStore, ManifestError
+
+    blobs = BlobStore(request.app.state.store.redis, request.app.state.settings.scene_retention)
+    try:
+        return blobs.assemble(packed, path, limit)
+    except BlobsMissing as exc:
+        raise HTTPException(409, str(exc)) from None
+    except ManifestError as exc:
+        raise HTTPException(422, f"manifest: {exc}") from None
 
 
 def _save_upload(upload: UploadFile, path: Path, limit: int) -> str:

@@ -241,16 +241,17 @@ def test_arnold_disk_light_radiance_follows_its_animated_attributes(frame):
 
 
 def test_tessera_render_widens_the_sandbox_only_with_root(tmp_path, capsys):
-    """rect.usda's lights name ../ies/... (outside its data/ folder): `tessera render` refuses
-    it by default, naming the path and the --root option, and renders it with --root set to
-    the scene's project folder (the IES profile itself is ignored with a warning)."""
+    """rect.usda's lights name ../ies/... (outside its data/ folder): `tessera render
+    --sandbox` refuses it, naming the path and the --root option, and renders it with --root
+    set to the scene's project folder (the IES profile itself is ignored with a warning).
+    (Without --sandbox a local render trusts the files: tests/renderer/usd/test_packing.py.)"""
     from tessera_base import images
     from tessera.cli import main
 
     project = SCENES / "arnoldusd_disk_rect_lights" / "test_2439.5"
     out = tmp_path / "rect.exr"
     args = ["render", str(project / "data" / "rect.usda"), "-o", str(out), "--res", "16x12", "--spp", "2", "-q"]
-    assert main(args) == 2
+    assert main(args + ["--sandbox"]) == 2
     err = capsys.readouterr().err
     assert "../ies/bega_omni002_4777lm.ies" in err and "--root" in err and not out.exists()
     assert main(args + ["--root", str(project)]) == 0

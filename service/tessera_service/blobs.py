@@ -1,0 +1,184 @@
+"""Content-addressed scene files (as Flamenco's Shaman does): a client uploads only the
+files the farm lacks, by SHA-256, then posts a manifest (relative path -> hash) naming
+the entry layer; the service assembles the bundle from the stored files.
+
+The assembled bundle is a zip, laid out as the manifest says, with the entry layer first
+and named in the archive comment (`tessera-entry: PATH`, read by the renderer's bundle
+sandbox), so that it is an ordinary .zip upload from there on: the same pre-flight, the
+same sandbox (a path escaping the bundle is refused), the same scene lifetime. The zip is
+byte-for-byte a function of the manifest and the files (fixed dates, stored members,
+sorted order), so the same scene packed twice is the same scene hash and its pre-flight
+is remembered.
+
+Limits: one file is at most `max_upload_bytes`, as is the whole bundle (a packed scene is
+an upload); a manifest names at most TESSERA_MAX_FILES files (the bundle sandbox's own
+limit, 20 000). Files are kept for the scene retention after their last use.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+
+import redis
+
+from tessera_queue import redis_schema as rdb
+
+HASH = re.compile(r"[0-9a-f]{64}")
+ENTRY_COMMENT = "tessera-entry: "
+LAYER_SUFFIXES = (".usda", ".usdc", ".usd", ".usdz")
+# The bundle sandbox's file limit (tessera_renderer.usd.bundle.Limits.files; the API does not
+# import the renderer): a manifest cannot name more files than the pre-flight would unpack.
+MAX_FILES = int(os.environ.get("TESSERA_MAX_FILES", 20_000) or 20_000)
+_ZIP_DATE = (1980, 1, 1, 0, 0, 0)
+
+
+class ManifestError(ValueError):
+    """A manifest the service refuses; the message is for the user."""
+
+
+class BlobsMissing(ManifestError):
+    """The manifest names files that are not (or no longer) stored."""
+
+    def __init__(self, missing: dict[str, str]):
+        self.missing = missing
+        names = ", ".join(list(missing)[:5]) + (" ..." if len(missing) > 5 else "")
+        super().__init__(f"{len(missing)} file(s) of the manifest are not on the farm (never uploaded, "
+                         f"or expired): {names}; upload them (PUT /blobs/<sha256>) and post again")
+
+
+@dataclass
+class Manifest:
+    entry: str
+    files: dict[str, str]   # relative POSIX path -> sha256 hex
+
+    @property
+    def scene_name(self) -> str:
+        """The job's scene name: the entry layer's file name, packed."""
+        return f"{PurePosixPath(self.entry).name}.zip"
+
+
+def parse_manifest(data: bytes) -> Manifest:
+    """The manifest JSON {"entry": PATH, "files": {PATH: SHA256}}, with every path checked
+    to stay inside the bundle."""
+    try:
+        value = json.loads(data)
+    except (ValueError, RecursionError) as exc:
+        raise ManifestError(f"the manifest is not JSON: {exc}") from None
+    if not isinstance(value, dict) or not isinstance(value.get("files"), dict) \
+            or not isinstance(value.get("entry"), str):
+        raise ManifestError('the manifest must be {"entry": "scene.usda", "files": {"scene.usda": "<sha256>", ...}}')
+    files: dict[str, str] = {}
+    folded: dict[str, str] = {}
+    if len(value["files"]) > MAX_FILES:
+        raise ManifestError(f"the manifest names {len(value['files'])} files, more than the limit of "
+                            f"{MAX_FILES} (TESSERA_MAX_FILES)")
+    for path, digest in value["files"].items():
+        name = _member_path(path)
+        if not isinstance(digest, str) or not HASH.fullmatch(digest):
+            raise ManifestError(f"manifest entry {path!r}: {digest!r} is not a SHA-256 in lower-case hex")
+        if name in files or name.lower() in folded:
+            # Two names for one place (or ones that collide on a case-insensitive disk).
+            raise ManifestError(f"manifest entry {path!r} duplicates {folded.get(name.lower(), name)!r}")
+        files[name] = digest
+        folded[name.lower()] = path
+    if not files:
+        raise ManifestError("the manifest names no files")
+    prefixes = {"/".join(p.split("/")[:i]) for p in files for i in range(1, p.count("/") + 1)}
+    if clash := prefixes & set(files):
+        raise ManifestError(f"manifest entry {sorted(clash)[0]!r} is both a file and a folder")
+    entry = _member_path(value["entry"])
+    if entry not in files:
+        raise ManifestError(f"the entry layer {value['entry']!r} is not among the manifest's files")
+    if PurePosixPath(entry).suffix.lower() not in LAYER_SUFFIXES:
+        raise ManifestError(f"the entry {value['entry']!r} is not a USD layer ({', '.join(LAYER_SUFFIXES)})")
+    return Manifest(entry=entry, files=files)
+
+
+def _member_path(path) -> str:
+    """A relative path that stays inside the bundle, as a zip member name."""
+    if not isinstance(path, str) or not path or len(path) > 4096:
+        raise ManifestError(f"manifest path {path!r} is not a file path")
+    if "\x00" in path or "\\" in path or path.startswith("/") or re.match(r"^[A-Za-z][A-Za-z0-9+.\-]*:", path):
+        raise ManifestError(f"manifest path {path!r} is absolute or invalid; paths are relative, with '/'")
+    parts = PurePosixPath(path).parts
+    if ".." in parts:
+        raise ManifestError(f"manifest path {path!r} escapes the bundle with '..'")
+    clean = [p for p in parts if p != "."]
+    if not clean or path.endswith("/"):
+        raise ManifestError(f"manifest path {path!r} names no file")
+    return "/".join(clean)
+
+
+class BlobStore:
+    """The API's side of content-addressed files in Redis (`redis_schema.blob_key`)."""
+
+    def __init__(self, client: redis.Redis, retention: float):
+        self.redis = client
+        self.ttl = int(retention) if retention > 0 else 0
+
+    def missing(self, hashes: list[str]) -> list[str]:
+        """Those of `hashes` that are not stored; the stored ones have their retention
+        renewed, so they outlive the upload of the rest."""
+        unique = list(dict.fromkeys(hashes))
+        with self.redis.pipeline(transaction=False) as pipe:
+            for digest in unique:
+                pipe.expire(rdb.blob_key(digest), self.ttl) if self.ttl else pipe.exists(rdb.blob_key(digest))
+            present = pipe.execute()
+        return [d for d, ok in zip(unique, present) if not ok]
+
+    def put(self, digest: str, data: bytes) -> bool:
+        """Stores verified bytes; False when they were stored already."""
+        key = rdb.blob_key(digest)
+        stored = self.redis.set(key, data, nx=True, ex=self.ttl or None)
+        if not stored and self.ttl:
+            self.redis.expire(key, self.ttl)
+        return bool(stored)
+
+    def sizes(self, hashes: list[str]) -> dict[str, int]:
+        with self.redis.pipeline(transaction=False) as pipe:
+            for digest in hashes:
+                pipe.strlen(rdb.blob_key(digest))
+            return {d: int(n) for d, n in zip(hashes, pipe.execute())}
+
+    def assemble(self, manifest: Manifest, out: Path, limit: int) -> str:
+        """Writes the manifest's bundle to `out` (a zip; see the module docstring) and
+        returns its SHA-256. Every file is checked against its hash again as it is read,
+        and the bundle against `limit` bytes before anything is read."""
+        unique = list(dict.fromkeys(manifest.files.values()))
+        sizes = self.sizes(unique)
+        gone = {p: d for p, d in manifest.files.items() if sizes[d] == 0 and not self.redis.exists(rdb.blob_key(d))}
+        if gone:
+            raise BlobsMissing(gone)
+        total = sum(sizes[d] for d in manifest.files.values())
+        if total > limit:
+            raise ManifestError(f"the packed scene is {total} bytes, more than the upload limit of "
+                                f"{limit} bytes (TESSERA_MAX_UPLOAD_BYTES)")
+        order = [manifest.entry] + sorted(p for p in manifest.files if p != manifest.entry)
+        with zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as zf:
+            zf.comment = (ENTRY_COMMENT + manifest.entry).encode()
+            for name in order:
+                digest = manifest.files[name]
+                data = self.redis.get(rdb.blob_key(digest))
+                if data is None:
+                    raise BlobsMissing({name: digest})
+                if hashlib.sha256(data).hexdigest() != digest:
+                    raise ManifestError(f"the stored file for {name!r} does not match its hash")
+                info = zipfile.ZipInfo(name, date_time=_ZIP_DATE)
+                info.create_system = 3
+                info.external_attr = 0o644 << 16
+                zf.writestr(info, data)
+        if self.ttl:
+            with self.redis.pipeline(transaction=False) as pipe:
+                for digest in unique:
+                    pipe.expire(rdb.blob_key(digest), self.ttl)
+                pipe.execute()
+        digest = hashlib.sha256()
+        with open(out, "rb") as f:
+            while chunk := f.read(1 << 20):
+                digest.update(chunk)
+        return digest.hexdigest()

@@ -1,0 +1,72 @@
+"""/blobs: the content-addressed files of packed scenes (tessera_service.blobs). A client
+asks which of its files' hashes the farm lacks, uploads only those, then submits the
+manifest to POST /jobs."""
+from __future__ import annotations
+
+import hashlib
+
+from fastapi import APIRouter, HTTPException, Request
+from pydantic import BaseModel, Field
+from starlette.concurrency import run_in_threadpool
+
+from ..blobs import HASH, MAX_FILES, BlobStore
+
+router = APIRouter(prefix="/blobs", tags=["blobs"])
+
+
+class HashList(BaseModel):
+    hashes: list[str] = Field(max_length=MAX_FILES, description="SHA-256 (lower-case hex) of each file")
+
+
+class MissingHashes(BaseModel):
+    missing: list[str] = Field(description="the hashes the farm does not store: upload these")
+
+
+class BlobStored(BaseModel):
+    hash: str
+    size: int
+    stored: bool = Field(description="false when the farm had these bytes already")
+
+
+def _blobs(request: Request) -> BlobStore:
+    return BlobStore(request.app.state.store.redis, request.app.state.settings.scene_retention)
+
+
+@router.post("/missing", response_model=MissingHashes)
+def missing_blobs(body: HashList, request: Request) -> MissingHashes:
+    """Which of these files the farm lacks. Those it has are kept for another scene
+    retention from now."""
+    for digest in body.hashes:
+        if not HASH.fullmatch(digest):
+            raise HTTPException(422, f"{digest[:80]!r} is not a SHA-256 in lower-case hex")
+    return MissingHashes(missing=_blobs(request).missing(body.hashes))
+
+
+@router.put("/{digest}", status_code=201, response_model=BlobStored,
+            responses={413: {"description": "larger than the upload limit"},
+                       422: {"description": "the bytes do not have this hash"}},
+            openapi_extra={"requestBody": {"required": True,
+                                           "content": {"application/octet-stream": {"schema": {
+                                               "type": "string", "format": "binary"}}}}})
+async def put_blob(digest: str, request: Request) -> BlobStored:
+    """Stores one file under its SHA-256, which is checked against the bytes received."""
+    if not HASH.fullmatch(digest):
+        raise HTTPException(422, f"{digest[:80]!r} is not a SHA-256 in lower-case hex")
+    limit = request.app.state.settings.max_upload_bytes
+    too_large = HTTPException(413, f"the file is larger than the upload limit of {limit} bytes")
+    length = request.headers.get("content-length")
+    if length is not None and length.isdigit() and int(length) > limit:
+        raise too_large
+    data = bytearray()
+    hasher = hashlib.sha256()
+    async for chunk in request.stream():
+        data += chunk
+        if len(data) > limit:
+            raise too_large
+        hasher.update(chunk)
+    if hasher.hexdigest() != digest:
+        raise HTTPException(422, f"the uploaded bytes have SHA-256 {hasher.hexdigest()}, not {digest}: "
+                                 f"the file changed or was damaged on the way; nothing was stored")
+    # The store is the synchronous client: off the event loop, as the sync routes are.
+    stored = await run_in_threadpool(_blobs(request).put, digest, bytes(data))
+    return BlobStored(hash=digest, size=len(data), stored=stored)
