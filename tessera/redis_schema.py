@@ -282,7 +282,7 @@ _CONSTANTS = {
 }
 # Scripts that take job_script_keys (job.lua is prepended to them).
 JOB_SCRIPTS = ("admit_job", "fail_job", "cancel_job", "pause_job", "resume_job", "store_tile",
-               "decide_pass", "fail_tile", "store_product")
+               "decide_pass", "fail_tile", "store_product", "hand_back")
 OTHER_SCRIPTS = ("pick", "touch_scene", "drop_idle_consumer")
 
 
@@ -322,6 +322,7 @@ class Scripts:
     decide_pass: redis.commands.core.Script
     fail_tile: redis.commands.core.Script
     store_product: redis.commands.core.Script
+    hand_back: redis.commands.core.Script
     pick: redis.commands.core.Script
     touch_scene: redis.commands.core.Script
     drop_idle_consumer: redis.commands.core.Script
