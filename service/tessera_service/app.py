@@ -19,7 +19,7 @@ from tessera.process import remove_orphaned_tempdirs
 from .auth import AuthGate, parse_networks, require_user
 from .inspection_pool import InspectionPool
 from .redis_acl import redacted
-from .routers import compare, farm, jobs
+from .routers import compare, farm, jobs, scaling
 from .schemas import Health, Problem
 from .settings import Settings
 from .store import JobStore
@@ -72,6 +72,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(jobs.router, dependencies=[Depends(require_user)], responses=errors)
     app.include_router(farm.router, dependencies=[Depends(require_user)], responses=errors)
     app.include_router(compare.router, dependencies=[Depends(require_user)], responses=errors)
+    app.include_router(scaling.router, dependencies=[Depends(require_user)], responses=errors)
     app.add_middleware(UploadLimit, path="/jobs",
                        max_bytes=settings.max_upload_bytes + FORM_OVERHEAD,
                        file_limit=settings.max_upload_bytes)
