@@ -301,6 +301,13 @@ def test_keda_scaled_object_is_complete():
     key = auth["spec"]["secretTargetRef"][0]["key"]
     (var,) = [n for n, e in env.items() if e.get("valueFrom", {}).get("secretKeyRef", {}).get("key") == key]
     assert re.search(rf"\w+:\$\({var}\)", env["TESSERA_API_TOKENS"]["value"])
+    # As Kubernetes expands it, with tokens in the Secret's format, the API reads a valid
+    # user list in which KEDA's token names a user.
+    from tessera_service.users import UserDirectory
+    expanded = re.sub(r"\$\((\w+)\)", lambda v: {var: "k" * 48}.get(v.group(1), "alice:" + "a" * 48),
+                      env["TESSERA_API_TOKENS"]["value"])
+    users = UserDirectory(Settings(api_tokens=expanded).api_tokens)
+    assert users.authenticate("k" * 48) is not None and users.authenticate("a" * 48) is not None
 
 
 def test_scaled_object_names_the_queue_layout_it_works_around():
