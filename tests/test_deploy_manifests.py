@@ -15,7 +15,6 @@ The SIGTERM budget is checked against each orchestrator's grace period."""
 from __future__ import annotations
 
 import re
-import shlex
 import shutil
 import subprocess
 from pathlib import Path

@@ -6,7 +6,6 @@ directory). Then the health checks of compose and Kubernetes, and a worker and i
 authenticated as the ACL users with the passwords the command filled in."""
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 import time
