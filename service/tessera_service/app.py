@@ -19,7 +19,7 @@ from tessera_base.process import remove_orphaned_tempdirs
 from .auth import AuthGate, parse_networks, require_user
 from .inspection_pool import InspectionPool
 from .redis_acl import redacted
-from .routers import blobs, compare, farm, jobs, monitor, priority
+from .routers import blobs, compare, farm, jobs, monitor, priority, scaling
 from .schemas import Health, Problem
 from .settings import Settings
 from .store import JobStore
@@ -75,6 +75,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(priority.router, dependencies=[Depends(require_user)], responses=errors)
     app.include_router(monitor.router)  # public static page: AuthGate lets only its paths through
     app.include_router(blobs.router, dependencies=[Depends(require_user)], responses=errors)
+    app.include_router(scaling.router, dependencies=[Depends(require_user)], responses=errors)
     app.add_middleware(UploadLimit, path="/jobs",
                        max_bytes=settings.max_upload_bytes + FORM_OVERHEAD,
                        file_limit=settings.max_upload_bytes)

@@ -293,7 +293,7 @@ _CONSTANTS = {
 }
 # Scripts that take job_script_keys (job.lua is prepended to them).
 JOB_SCRIPTS = ("admit_job", "fail_job", "cancel_job", "pause_job", "resume_job", "store_tile",
-               "decide_pass", "fail_tile", "store_product", "set_priority")
+               "decide_pass", "fail_tile", "store_product", "set_priority", "hand_back")
 OTHER_SCRIPTS = ("pick", "touch_scene", "drop_idle_consumer")
 
 
@@ -334,6 +334,7 @@ class Scripts:
     fail_tile: redis.commands.core.Script
     store_product: redis.commands.core.Script
     set_priority: redis.commands.core.Script
+    hand_back: redis.commands.core.Script
     pick: redis.commands.core.Script
     touch_scene: redis.commands.core.Script
     drop_idle_consumer: redis.commands.core.Script

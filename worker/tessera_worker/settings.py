@@ -25,6 +25,12 @@ class WorkerSettings(BaseSettings):
     tile_timeout: float = Field(default=1800.0, gt=0,
                                 description="seconds one tile pass may render; exceeding it "
                                             "fails the job")
+    stop_grace: float = Field(default=20.0, ge=0,
+                              description="seconds a stopping worker (SIGTERM) keeps rendering "
+                                          "its current tile; then it hands the tile back to "
+                                          "the queue and exits. Keep it below the "
+                                          "orchestrator's grace period (Kubernetes: "
+                                          "terminationGracePeriodSeconds)")
     faults: str = Field(default="", description="fault injection for drills and tests: "
                                                 "comma-separated KIND:GLOB[#TILE], KIND one of "
                                                 "segv, abort, hang, oom, exit; GLOB matches "
@@ -40,11 +46,14 @@ def add_worker_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--memory-limit", type=int,
                         help="address-space limit of the render process in bytes (0: none)")
     parser.add_argument("--tile-timeout", type=float, help="seconds one tile pass may render")
+    parser.add_argument("--stop-grace", type=float,
+                        help="seconds a stopping worker keeps rendering its tile before it "
+                             "hands it back to the queue")
 
 
 def settings_from_args(args: argparse.Namespace) -> WorkerSettings:
     settings = WorkerSettings()
     update = {k: getattr(args, k) for k in ("redis_url", "threads", "heartbeat_ttl",
-                                           "memory_limit", "tile_timeout")
+                                           "memory_limit", "tile_timeout", "stop_grace")
               if getattr(args, k, None) is not None}
     return settings.model_copy(update=update)

@@ -43,6 +43,7 @@ from tessera_queue.tasks import TileTask
 
 from .child import Abandoned, RenderChild, RenderFailed
 from .settings import WorkerSettings
+from .stop_grace import HandBack, StopGrace
 
 log = logging.getLogger("tessera.worker")
 
@@ -66,8 +67,9 @@ def run_worker(redis_url: str | None = None, name: str | None = None, threads: i
                stop_event: threading.Event | None = None, *,
                heartbeat_ttl: float | None = None, settings: WorkerSettings | None = None) -> None:
     """Runs a worker until stop_event is set or SIGTERM/SIGINT arrives (when called from
-    the main thread). A stop request lets the current tile finish; a second signal kills
-    the process at once. Arguments given here override `settings` (default: from the
+    the main thread). A stop request lets the current tile finish, for up to
+    settings.stop_grace seconds (then the tile is handed back to the queue: stop_grace.py);
+    a second signal kills the process at once. Arguments given here override `settings` (default: from the
     environment)."""
     settings = settings or WorkerSettings()
     overrides = {k: v for k, v in dict(redis_url=redis_url, threads=threads,
@@ -120,6 +122,7 @@ class Worker:
         self._child = RenderChild(settings.memory_limit)
         self.current = ""
         self._stop: threading.Event | None = None
+        self._stop_grace = StopGrace(settings.stop_grace)
         self.tiles_rendered = 0
         self.started_at = time.time()
 
@@ -235,6 +238,9 @@ class Worker:
                 log.info("job %s ended while tile %d rendered; dropped it", job_id, task.tile.index)
                 self._ack(queue, entry_id)
                 return
+            except HandBack:
+                self._hand_back(task, entry_id, f"tile {task.tile.index} (pass {task.pass_index})")
+                return
             except RenderFailed as e:
                 self._failed(task, entry_id, str(e), e.fatal)
                 return
@@ -325,6 +331,7 @@ class Worker:
         job_key = rdb.job_key(task.job_id)
 
         def abandoned() -> bool:
+            self._stop_grace.check(self._stop)  # raises HandBack: the child is killed
             try:
                 state = _text(self.redis.hget(job_key, "state"))
             except redis.RedisError:
@@ -363,6 +370,9 @@ class Worker:
                 product, seconds = self._render(task, scene_pass=True)
             except Abandoned:
                 self._ack(queue, entry_id)
+                return
+            except HandBack:
+                self._hand_back(task, entry_id, f"scene pass {p}")
                 return
             except RenderFailed as e:
                 self._failed(task, entry_id, str(e), e.fatal)
@@ -496,6 +506,15 @@ class Worker:
         elif outcome == "blocklisted":
             log.warning("this worker is blocklisted for job %s", task.job_id)
             self._fail_if_nobody_left(task.job_id, message)
+
+    def _hand_back(self, task: TileTask, entry_id: bytes, what: str) -> None:
+        """Stopping, with the task unfinished after the stop budget: queue it again for
+        the other workers (hand_back.lua) rather than leave it pending under this worker."""
+        log.warning("stopping: job %s %s is not done after the stop budget of %g s; "
+                    "handing it back to the queue", task.job_id, what, self._stop_grace.budget)
+        self.scripts.hand_back(keys=self._keys(task.job_id, task.scene_hash),
+                               args=[task.job_id, entry_id, self.name, repr(time.time()),
+                                     task.model_dump_json(), what])
 
     def _fail_if_nobody_left(self, job_id: str, last_error: str) -> None:
         """A job every live worker is blocklisted for would wait forever: fail it."""
