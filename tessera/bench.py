@@ -100,7 +100,7 @@ class Config:
     ladders: dict = field(default_factory=lambda: {
         "path": (4, 16, 64, 256), "light": (4, 16, 64, 256), "bdpt": (1, 4, 16, 64),
         "local": (4, 16, 64, 256), "whitted": (4, 16, 64, 256), "mitsuba": (4, 16, 64, 256),
-        "photon": (1, 4, 16, 64), "sppm": (4, 16, 64, 256)})
+        "photon": (1, 4, 16), "sppm": (4, 16, 64)})
     ref_spp: dict = field(default_factory=lambda: {"path": 4096, "bdpt": 1024, "light": 4096})
     peer_ref_spp: int = 4096
     budget: float = 1.0          # seconds, for the equal-time error

@@ -7,7 +7,7 @@
 // with a few copies and finds every photon within its own kernel radius (<= cell) in the
 // 27 cells around a point. A photon is 26 bytes: its position (3 floats), its kernel
 // radius (a float), the direction it came from (octahedral, 2 x 16 bits) and its power
-// relative to the map's largest (3 half floats); the bucket table adds 4 bytes per photon.
+// relative to the map's largest (3 half floats); the bucket table adds 4-8 bytes per photon.
 // Everything is a pure function of the photons, so the bytes are too.
 #pragma once
 
