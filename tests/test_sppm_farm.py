@@ -110,8 +110,10 @@ def test_a_worker_killed_mid_iteration_changes_nothing(farm, redis_client, tmp_p
                                               consumername=f"sppm-victim-{target}")
         if not pending:
             return None
-        _, fields = redis_client.xrange(queue, pending[0]["message_id"], pending[0]["message_id"])[0]
-        return protocol.TileTask.from_fields(fields)
+        entry = redis_client.xrange(queue, pending[0]["message_id"], pending[0]["message_id"])
+        if not entry:  # finished and acknowledged between the two reads
+            return None
+        return protocol.TileTask.from_fields(entry[0][1])
 
     while True:
         task = hanging_task()
