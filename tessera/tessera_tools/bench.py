@@ -69,6 +69,7 @@ class BenchScene:
 
 CORNELL = REPO / "examples" / "cornell" / "cornell.usda"
 CAUSTIC = REPO / "examples" / "caustic" / "caustic.usda"
+CAUSTIC_MIRROR = REPO / "examples" / "caustic" / "caustic_mirror.usda"
 
 SCENES = {s.name: s for s in (
     BenchScene("cornell", CORNELL, "the Cornell box as authored (UsdPreviewSurface, roughness 1)"),
@@ -78,6 +79,8 @@ SCENES = {s.name: s for s in (
                integrators=("path", "bdpt")),
     BenchScene("caustic", CAUSTIC, "glass sphere on a Lambertian floor, small sphere light "
                "(examples/caustic)", reference="bdpt", cross_check="path", peer=True, ref_scale=2),
+    BenchScene("caustic-mirror", CAUSTIC_MIRROR, "the glass sphere's caustic seen only in a mirror: L S D S E "
+               "(examples/caustic/caustic_mirror.usda)", reference="bdpt", cross_check="path", ref_scale=4),
     BenchScene("dome-glass", SHARED_SCENES / "openusd_testenv" / "testUsdImagingGLDomeLight" / "domeLightYup.usda",
                "OpenUSD test scene: smooth dielectric sphere under a PNG dome light (shared/scenes)"),
     BenchScene("instancing", SHARED_SCENES / "openusd_testenv" / "testUsdImagingGLInstancingWithMaterials"
@@ -94,7 +97,8 @@ class Config:
     reps: int = 3
     ladders: dict = field(default_factory=lambda: {
         "path": (4, 16, 64, 256), "light": (4, 16, 64, 256), "bdpt": (1, 4, 16, 64),
-        "local": (4, 16, 64, 256), "whitted": (4, 16, 64, 256), "mitsuba": (4, 16, 64, 256)})
+        "local": (4, 16, 64, 256), "whitted": (4, 16, 64, 256), "mitsuba": (4, 16, 64, 256),
+        "photon": (1, 4, 16), "sppm": (4, 16, 64)})
     ref_spp: dict = field(default_factory=lambda: {"path": 4096, "bdpt": 1024, "light": 4096})
     peer_ref_spp: int = 4096
     budget: float = 1.0          # seconds, for the equal-time error
@@ -129,15 +133,24 @@ def render_tessera(scene, integrator: str, spp: int, seed: int, res: int, cfg: C
     """One image as one tile pass, rendered and assembled as every Tessera render is."""
     from tessera_base import integrators
     from tessera_base.film import assemble_image, render_tile_pass, run_scene_pass
+    from tessera_base import protocol
     from tessera_base.protocol import RenderSettings, TileRect
 
     settings = RenderSettings(width=res, height=res, spp=spp, seed=seed, max_depth=cfg.max_depth,
                               tile_size=max(8, res), integrator=integrator)
-    # One iteration: an integrator with scene passes runs its scene pass first (timed with it).
-    product = (run_scene_pass(scene, settings, 0, integrator=integrator, threads=cfg.threads)
-               if integrators.scene_passes(integrator) else None)
-    result, _ = render_tile_pass(scene, settings, TileRect(index=0, x0=0, y0=0, width=res, height=res),
-                                 0, integrator=integrator, threads=cfg.threads, scene_product=product)
+    rect = TileRect(index=0, x0=0, y0=0, width=res, height=res)
+    if integrators.scene_passes(integrator):
+        # Iterations as the farm runs them (passes of 1, 1, 2, 4, ... samples up to spp),
+        # each scene pass timed with its tile pass: progressive methods need them all.
+        settings = settings.model_copy(update=dict(target_error=1e-12, min_spp=1, max_spp=spp))
+        results, k = [], 0
+        while protocol.pass_range(settings, k) is not None:
+            product = run_scene_pass(scene, settings, k, integrator=integrator, threads=cfg.threads)
+            results.append(render_tile_pass(scene, settings, rect, k, integrator=integrator, threads=cfg.threads,
+                                            scene_product=product)[0])
+            k += 1
+        return assemble_image(settings, {0: results}).rgba[..., :3]
+    result, _ = render_tile_pass(scene, settings, rect, 0, integrator=integrator, threads=cfg.threads)
     return assemble_image(settings, {0: [result]}).rgba[..., :3]
 
 

@@ -17,7 +17,9 @@
     X(WhittedIntegratorEntry)  \
     X(LocalIntegratorEntry)    \
     X(AOIntegratorEntry)       \
-    X(PhotonDirectIntegratorEntry)
+    X(PhotonDirectIntegratorEntry) \
+    X(PhotonIntegratorEntry)       \
+    X(SPPMIntegratorEntry)
 
 namespace tessera {
 
