@@ -17,7 +17,8 @@
     X(WhittedIntegratorEntry)  \
     X(LocalIntegratorEntry)    \
     X(AOIntegratorEntry)       \
-    X(PhotonDirectIntegratorEntry)
+    X(PhotonDirectIntegratorEntry) \
+    X(VCMIntegratorEntry)
 
 namespace tessera {
 
