@@ -146,3 +146,20 @@ def test_a_sphere_light_seen_through_a_mirror_obeys_the_inverse_square_law(tmp_p
     images = iterations(scene, "vcm", 32, spp=8, seed=4, max_depth=2,
                         params={"light_paths": 100000, "radius": 0.02})
     check_closed_form([im[..., :3].mean() for im in images], expected, "ceiling lit through a mirror")
+
+
+def test_vcm_images_do_not_depend_on_tiling_or_threads():
+    """Which light vertices a camera vertex merges with, and which light subpath it connects
+    to, are functions of the iteration's product and the pixel sample only: 4 x 4 tiles of
+    8 pixels with 1 thread give the image of one 32-pixel tile with 2 threads."""
+    scene = load_scene(str(CORNELL))
+    form = dict(width=32, height=32, seed=9, max_depth=6, target_error=1e-6, min_spp=1, max_spp=2,
+                integrator="vcm", integrator_params={"light_paths": 20000, "radius": 0.05})
+    whole = local.render_image(scene, RenderSettings(**form, tile_size=32), threads=2, progress=False,
+                               variance=False).rgba
+    tiled = local.render_image(scene, RenderSettings(**form, tile_size=8), threads=1, progress=False,
+                               variance=False).rgba
+    assert np.array_equal(whole.view(np.uint32), tiled.view(np.uint32))
+    other_seed = local.render_image(scene, RenderSettings(**{**form, "seed": 10}, tile_size=32), threads=2,
+                                    progress=False, variance=False).rgba
+    assert not np.array_equal(whole, other_seed)
