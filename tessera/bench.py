@@ -95,7 +95,7 @@ class Config:
     res: int = 128
     reps: int = 3
     ladders: dict = field(default_factory=lambda: {
-        "path": (4, 16, 64, 256), "light": (4, 16, 64, 256), "bdpt": (1, 4, 16, 64),
+        "path": (4, 16, 64, 256), "light": (4, 16, 64, 256), "bdpt": (1, 4, 16, 64), "vcm": (1, 4, 16, 64),
         "local": (4, 16, 64, 256), "whitted": (4, 16, 64, 256), "mitsuba": (4, 16, 64, 256)})
     ref_spp: dict = field(default_factory=lambda: {"path": 4096, "bdpt": 1024, "light": 4096})
     peer_ref_spp: int = 4096
@@ -291,15 +291,24 @@ def render_tessera(scene, integrator: str, spp: int, seed: int, res: int, cfg: C
     """One image as one tile pass, rendered and assembled as every Tessera render is."""
     from . import integrators
     from .film import assemble_image, render_tile_pass, run_scene_pass
-    from .protocol import RenderSettings, TileRect
+    from .protocol import RenderSettings, TileRect, pass_range
 
     settings = RenderSettings(width=res, height=res, spp=spp, seed=seed, max_depth=cfg.max_depth,
                               tile_size=max(8, res), integrator=integrator)
-    # One iteration: an integrator with scene passes runs its scene pass first (timed with it).
-    product = (run_scene_pass(scene, settings, 0, integrator=integrator, threads=cfg.threads)
-               if integrators.scene_passes(integrator) else None)
-    result, _ = render_tile_pass(scene, settings, TileRect(index=0, x0=0, y0=0, width=res, height=res),
-                                 0, integrator=integrator, threads=cfg.threads, scene_product=product)
+    tile = TileRect(index=0, x0=0, y0=0, width=res, height=res)
+    if integrators.scene_passes(integrator):
+        # Progressive (vcm): the farm's iterations of 1, 1, 2, 4, ... samples up to spp, each
+        # after its own scene pass (timed with it); a noise target nothing reaches.
+        settings = RenderSettings(width=res, height=res, seed=seed, max_depth=cfg.max_depth, tile_size=max(8, res),
+                                  integrator=integrator, target_error=1e-9, min_spp=1, max_spp=spp)
+        results, p = [], 0
+        while pass_range(settings, p) is not None:
+            product = run_scene_pass(scene, settings, p, integrator=integrator, threads=cfg.threads)
+            results.append(render_tile_pass(scene, settings, tile, p, integrator=integrator, threads=cfg.threads,
+                                            scene_product=product)[0])
+            p += 1
+        return assemble_image(settings, {0: results}).rgba[..., :3]
+    result, _ = render_tile_pass(scene, settings, tile, 0, integrator=integrator, threads=cfg.threads)
     return assemble_image(settings, {0: [result]}).rgba[..., :3]
 
 
