@@ -17,7 +17,12 @@ Statistics as in test_caustic.py: per region, independent runs give a mean and s
 error (vcm: its iterations, each with fresh light paths and its own samples; bdpt: seeds),
 compared with Welch's t at a family-wise false-alarm rate of 1e-3 (Bonferroni over the
 three regions). The test states the difference it can detect (t limit x standard error)
-and proves it: vcm's caustic scaled by 1.02 must fail the same comparison.
+and proves it: vcm's caustic scaled by 1.02 (and 0.98) must fail the same comparison.
+Measured (64 bdpt seeds of 256 spp; vcm 56 iterations of 32 spp on the caustic's box, 12
+of 8 spp on the frame): caustic +0.14 % (detects 1.80 %), shadow +5.2 % (t = 1.3; vcm's
+12 iterations there only detect 20 %), open floor +0.11 % (detects 1.7 %).
+
+The L S D S E scene (caustic_mirror.usda) is not tested here yet.
 """
 from __future__ import annotations
 
@@ -110,9 +115,9 @@ def caustic_runs():
     crop = bounding_box(masks["caustic"])
     vcm = {"caustic": [region_means(render_iteration(scene, "vcm", k, spp=32, seed=1, width=W, height=H,
                                                      params=VCM_CAUSTIC, crop=crop), masks)["caustic"]
-                       for k in range(40)]}
+                       for k in range(56)]}
     whole = [region_means(render_iteration(scene, "vcm", k, spp=8, seed=2, width=W, height=H, params=VCM), masks)
-             for k in range(8)]
+             for k in range(12)]
     for region in ("shadow", "open"):
         vcm[region] = [m[region] for m in whole]
     return vcm, bdpt
