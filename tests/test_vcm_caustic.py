@@ -22,7 +22,7 @@ Measured (64 bdpt seeds of 256 spp; vcm 56 iterations of 32 spp on the caustic's
 of 8 spp on the frame): caustic +0.14 % (detects 1.80 %), shadow +5.2 % (t = 1.3; vcm's
 12 iterations there only detect 20 %), open floor +0.11 % (detects 1.7 %).
 
-The L S D S E scene (caustic_mirror.usda) is not tested here yet.
+caustic_mirror.usda (L S D S E): below, against a high-sample path reference.
 """
 from __future__ import annotations
 
@@ -142,3 +142,64 @@ def test_vcm_and_bdpt_agree_per_region_on_the_caustic(caustic_runs):
         t2, df2, _ = welch([scale * x for x in vcm["caustic"]], bdpt["caustic"])
         assert abs(t2) > student_t_quantile(1 - FAMILY_ALPHA / (2 * 3), df2), \
             f"a caustic x {scale} passes (t = {t2:.2f})"
+
+
+# caustic_mirror.usda: the same ball and light, the back wall (z = -2) a mirror, and a
+# camera that sees the caustic only in the mirror: L S S D S E, which connections cannot
+# build (every vertex next to D is specular) and light tracing cannot splat (the last
+# scatter before the eye is specular). bdpt has only s = 0 there, i.e. path tracing.
+MIRROR_CAMERA = np.array([(1.0, 0, 0), (0, 0.9856743186602538, -0.16865982785964342),
+                          (0, 0.16865982785964342, 0.9856743186602538), (0.9, 1.2, 2.5)])
+MIRROR_TAN_HALF = 26.79492 / 2 / 50
+MIRROR_Z = -2.0
+
+
+def mirrored_caustic_mask() -> np.ndarray:
+    """Pixels whose ray meets the mirror, and whose reflection reaches the floor within 0.3
+    of the caustic's centre without passing near the ball."""
+    right, up, back, o = MIRROR_CAMERA
+    sx = (2 * (np.arange(W) + 0.5) / W - 1) * MIRROR_TAN_HALF
+    sy = (1 - 2 * (np.arange(H) + 0.5) / H) * MIRROR_TAN_HALF
+    d = -back + right * sx[None, :, None] + up * sy[:, None, None]
+    d /= np.linalg.norm(d, axis=2, keepdims=True)
+    pm = o + d * ((MIRROR_Z - o[2]) / d[..., 2])[..., None]
+    on_mirror = (d[..., 2] < 0) & (pm[..., 1] > 0.05) & (pm[..., 1] < 2.95) & (np.abs(pm[..., 0]) < 2.95)
+    dr = d * np.array([1.0, 1.0, -1.0])
+    pf = pm + dr * (-pm[..., 1] / dr[..., 1])[..., None]
+    oc = pm - BALL_CENTRE
+    b = (dr * oc).sum(axis=2)
+    disc = b * b - ((oc * oc).sum(axis=2) - (BALL_RADIUS + 0.05) ** 2)
+    near_ball = (disc > 0) & (-b - np.sqrt(np.maximum(disc, 0)) > 0)
+    mask = on_mirror & (dr[..., 1] < 0) & ~near_ball & (np.linalg.norm(pf - CAUSTIC_CENTRE, axis=2) < 0.3)
+    assert mask.sum() >= 8, f"the mirrored caustic has too few pixels ({mask.sum()})"
+    return mask
+
+
+def test_vcm_finds_the_caustic_seen_in_a_mirror(tmp_path):
+    """vcm's mean over the mirrored caustic (48 iterations) against a high-sample path
+    reference (64 seeds of 8192 samples on the caustic's box: path tracing is cheap per
+    sample there, as it splats nothing), by Welch's t at a false-alarm rate of 1e-3. It
+    detects about 3.5 % (required: 4 %; the 2 % of the direct caustic would need about
+    twice the samples), proven with a 5 % negative control. Measured: vcm 0.9940, path
+    0.9965 (-0.26 %, t = -0.29), detecting 3.06 %."""
+    scene = load_scene(str(MIRROR))
+    mask = mirrored_caustic_mask()
+    crop = bounding_box(mask)
+
+    def region(img):
+        return float(img[..., :3].astype(np.float64).mean(axis=2)[mask].mean())
+
+    path = [region(render_iteration(scene, "path", 0, spp=8192, seed=300 + s, width=W, height=H, crop=crop))
+            for s in range(64)]
+    vcm = [region(render_iteration(scene, "vcm", k, spp=32, seed=3, width=W, height=H, params=VCM_CAUSTIC,
+                                   crop=crop)) for k in range(48)]
+    t, df, se = welch(vcm, path)
+    limit = student_t_quantile(1 - FAMILY_ALPHA / 2, df)
+    detectable = limit * se / np.mean(path)
+    print(f"mirrored caustic: vcm {np.mean(vcm):.4f}, path {np.mean(path):.4f} "
+          f"({np.mean(vcm) / np.mean(path) - 1:+.2%}), t = {t:.2f} (limit {limit:.2f}), detects {detectable:.2%}")
+    assert abs(t) <= limit, f"t = {t:.2f}, limit {limit:.2f}"
+    assert detectable <= 0.04, detectable
+    for scale in (1.05, 0.95):
+        t2, df2, _ = welch([scale * x for x in vcm], path)
+        assert abs(t2) > student_t_quantile(1 - FAMILY_ALPHA / 2, df2), f"vcm x {scale} passes (t = {t2:.2f})"
