@@ -96,7 +96,7 @@ class Config:
     res: int = 128
     reps: int = 3
     ladders: dict = field(default_factory=lambda: {
-        "path": (4, 16, 64, 256), "light": (4, 16, 64, 256), "bdpt": (1, 4, 16, 64),
+        "path": (4, 16, 64, 256), "light": (4, 16, 64, 256), "bdpt": (1, 4, 16, 64), "vcm": (1, 4, 16, 64),
         "local": (4, 16, 64, 256), "whitted": (4, 16, 64, 256), "mitsuba": (4, 16, 64, 256),
         "photon": (1, 4, 16), "sppm": (4, 16, 64)})
     ref_spp: dict = field(default_factory=lambda: {"path": 4096, "bdpt": 1024, "light": 4096})

@@ -50,6 +50,12 @@ struct Vertex {
 
 inline float Remap0(float f) { return f != 0.f ? f : 1.f; }
 
+// Vertex merging (vcm) can end a light and a camera subpath at this vertex: a surface
+// scattered by a non-delta lobe on the path.
+inline bool Mergeable(const Vertex& v) {
+    return v.type == VertexType::kSurface && !v.delta && v.bsdf.IsNonSpecular();
+}
+
 // Unit direction from `from` toward `to`.
 inline Vec3 DirectionTo(const Vertex& from, const Vertex& to) {
     if (to.infinite) return -to.dir;
@@ -253,7 +259,12 @@ public:
 
     // The power-heuristic weight of strategy (s, t) for the path it built; `sampled`
     // replaces light[0] (s = 1) or camera[0] (t = 1) for the strategy's own endpoint.
-    float MISWeight(Vertex* light, Vertex* camera, const Vertex& sampled, int s, int t) const {
+    // `merge_eta` > 0 (vcm: light paths merged per camera sample times the merging disk's
+    // area) also counts vertex merging at every interior non-delta surface vertex, whose
+    // density relative to the connection with that vertex first on the camera side is
+    // its light-side density times merge_eta (Georgiev et al. 2012); 0 is plain BDPT.
+    float MISWeight(Vertex* light, Vertex* camera, const Vertex& sampled, int s, int t,
+                    float merge_eta = 0.f) const {
         if (s + t == 2) return 1.f;
         Vertex saved_endpoint;
         Vertex* endpoint = nullptr;
@@ -282,6 +293,11 @@ public:
         // Ratios p_i / p_s of the other strategies along each subpath.
         float sum = 0.f, r = 1.f;
         for (int i = t - 1; i > 0; --i) {
+            // Merging at camera[i] (not at the light's own vertex, which s = 0 puts last).
+            if (merge_eta > 0.f && Mergeable(camera[i]) && !(s == 0 && i == t - 1)) {
+                const float m = r * Remap0(camera[i].pdf_rev) * merge_eta;
+                sum += m * m;
+            }
             r *= Remap0(camera[i].pdf_rev) / Remap0(camera[i].pdf_fwd);
             if (!camera[i].delta && !camera[i - 1].delta) sum += r * r;
         }
@@ -290,6 +306,10 @@ public:
             r *= Remap0(light[i].pdf_rev) / Remap0(light[i].pdf_fwd);
             bool delta_before = i > 0 ? light[i - 1].delta : light[0].delta_light;
             if (!light[i].delta && !delta_before) sum += r * r;
+            if (merge_eta > 0.f && i > 0 && Mergeable(light[i])) {
+                const float m = r * Remap0(light[i].pdf_fwd) * merge_eta;
+                sum += m * m;
+            }
         }
 
         pt->delta = pt_delta;

@@ -19,7 +19,8 @@
     X(AOIntegratorEntry)       \
     X(PhotonDirectIntegratorEntry) \
     X(PhotonIntegratorEntry)       \
-    X(SPPMIntegratorEntry)
+    X(SPPMIntegratorEntry)         \
+    X(VCMIntegratorEntry)
 
 namespace tessera {
 

@@ -1,0 +1,314 @@
+// Vertex connection and merging (Georgiev et al. 2012; Hachisuka et al. 2012's unified path
+// sampling is the same idea): BDPT's connections plus photon-style merging of camera
+// vertices with the light vertices of many light paths, all under one power-heuristic MIS.
+//
+// Per iteration the scene pass traces `light_paths` light subpaths (streams keyed by seed,
+// iteration and path index) and keeps every vertex a camera vertex can merge with: a
+// non-delta surface vertex past the light's own, with its position, the direction it came
+// from, its throughput and the light-side quantities its MIS weight needs (below), sorted
+// into a PointHashGrid of cells one merging radius wide. The grid is the product.
+//
+// A pixel sample is first exactly a bdpt sample: its own light subpath (stream 1), every
+// (s, t) connection, the t = 1 strategies splatted. Its MIS weights also count merging
+// (bdpt_internal's MISWeight with merge_eta). Then every non-delta surface vertex of its
+// camera subpath merges with the product's light vertices within the radius r:
+//     L += beta_cam * f(wo, wi_light) * beta_light * w_VM / (N pi r^2)
+// with N the light paths of the iteration. Which light vertices a camera vertex sees is
+// a function of the product and the vertex only, so the image does not depend on tiling.
+//
+// MIS (in pbrt's ratio form, as in bdpt_internal.h): strategies of one path y_0 (light) ..
+// y_k (camera) are the connections VC_b (y_0..y_{b-1} from the light, the rest from the
+// camera) and the mergings VM_j at interior non-delta surfaces, with
+//     p(VM_j) = p(VC_j) * p_L(y_j) * eta,   eta = N pi r^2,
+// p_L(y_j) the light side's area density of y_j. A merge's weight sums the ratios of all
+// strategies to VC_j: the camera side's from the camera subpath, the light side's
+// R_{j-1}^2 Q_{j-1}, where the scene pass folds everything below y_{j-1} into
+//     Q_m = [VC_m] + [VM_m] (p_L(y_m) eta)^2 + R_{m-1}^2 Q_{m-1},   Q_0 = [VC_0],
+//     R_m = p_E(y_m) / p_L(y_m),
+// and only p_E(y_{j-1}) (the camera vertex's BSDF sampling toward y_{j-1}) is left to the
+// merge. Densities past a delta lobe are 0 and remapped to 1, as bdpt does: any rule the
+// strategies share keeps the weights a partition of unity.
+//
+// Radius schedule (Georgiev et al. 2012, from Knaus & Zwicker 2011): iteration i (from 1)
+// merges within r_i = r_1 i^((alpha - 1) / 2), so the kernel's bias and the merging
+// variance both vanish as iterations grow (consistent for 0 < alpha < 1).
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include <cmath>
+#include <cstring>
+#include <stdexcept>
+#include <vector>
+
+#include "bdpt_internal.h"
+#include "integrator.h"
+#include "point_hash_grid.h"
+
+namespace tessera {
+
+namespace {
+
+using namespace bdpt_internal;
+
+constexpr float kDefaultRadiusOfDiameter = 0.005f;
+constexpr float kDefaultLightPaths = 100000.f;
+constexpr float kDefaultAlpha = 0.75f;
+// Light-path streams are keyed by the iteration in a pixel-index range no image reaches
+// and apart from photon_direct's (2^40 + iteration), so they are independent of every
+// camera sample's streams and of other integrators' photons.
+constexpr uint64_t kLightPathStreamBase = (uint64_t(1) << 40) + (uint64_t(1) << 36);
+constexpr uint32_t kLightPathStream = 4;
+
+// A stored light vertex y_j (j >= 1).
+struct LightVertex {
+    float p[3];
+    float wo[3];          // unit, toward y_{j-1}
+    float beta[3];        // light subpath throughput up to y_j
+    float pdf_fwd;        // p_L(y_j), area (0 past a delta lobe)
+    float prev_pdf_fwd;   // p_L(y_{j-1})
+    float prev_convert;   // solid angle at y_j toward y_{j-1} -> y_{j-1}'s measure
+    float prev_sum;       // Q_{j-1}
+    uint16_t index;       // j
+    uint8_t prev_delta;   // y_{j-1} scattered by a delta lobe: VC_j does not exist
+    uint8_t pad = 0;
+};
+static_assert(sizeof(LightVertex) == 56);
+
+constexpr char kMagic[4] = {'T', 'V', 'C', '1'};
+struct Header {
+    char magic[4];
+    uint32_t iteration;
+    uint32_t light_paths;
+    uint32_t merging;
+    float radius;  // r_i of this iteration
+};
+
+class VCMIntegrator final : public Integrator {
+public:
+    VCMIntegrator(int max_depth, uint32_t light_paths, float radius, float alpha, bool merging,
+                  const std::string& product)
+        : max_depth_(max_depth), light_paths_(light_paths), radius_(radius), alpha_(alpha), merging_(merging) {
+        if (!product.empty()) Load(product);
+    }
+
+    static const IntegratorInfo& Info() {
+        static const IntegratorInfo info{
+            .name = "vcm",
+            .description = "vertex connection and merging: bdpt plus merging with a scene pass's light "
+                           "vertices under one MIS; shrinking radius (consistent); t = 1 splats",
+            .splats = true,
+            .scene_passes = true,
+            .stop_per_tile = false,
+            // Consistent, not unbiased: `auto` does not choose it (yet).
+            .complete = false,
+            .delta_caustics = true,
+            .params = {{"light_paths", "light subpaths traced per iteration for merging (default 100000)"},
+                       {"radius", "merging radius of the first iteration in scene units (default: 0.005 of the "
+                                  "scene's bounding diameter)"},
+                       {"alpha", "radius schedule r_i = r_1 i^((alpha-1)/2), 0 < alpha < 1 (default 0.75)"},
+                       {"merging", "1 to merge, 0 for connections only: then exactly bdpt (default 1)"}},
+        };
+        return info;
+    }
+    const IntegratorInfo& info() const override { return Info(); }
+
+    float IterationRadius(uint32_t iteration) const {
+        return radius_ * std::pow(float(iteration) + 1.f, 0.5f * (alpha_ - 1.f));
+    }
+
+    std::string RunScenePass(const Scene& scene, uint32_t seed, uint32_t iteration, int threads) const override {
+        Header h{};
+        std::memcpy(h.magic, kMagic, 4);
+        h.iteration = iteration;
+        h.light_paths = light_paths_;
+        h.merging = merging_ ? 1 : 0;
+        h.radius = IterationRadius(iteration);
+        std::string bytes(sizeof(Header), '\0');
+        std::memcpy(bytes.data(), &h, sizeof(Header));
+        if (!merging_) return bytes;  // connections only: nothing to merge with
+
+        const float eta = float(light_paths_) * kPi * h.radius * h.radius;
+        std::vector<std::vector<LightVertex>> slots(light_paths_);
+        const Camera no_camera{};  // light subpaths never consult the camera
+        auto trace = [&](const tbb::blocked_range<uint32_t>& range) {
+            thread_local std::vector<Vertex> path;
+            if (path.size() < size_t(max_depth_) + 1) path.resize(size_t(max_depth_) + 1);
+            Walker walker(scene, no_camera, max_depth_);
+            for (uint32_t i = range.begin(); i != range.end(); ++i) {
+                PixelSampler sampler(seed, kLightPathStreamBase + iteration, i, kLightPathStream);
+                const int n = walker.LightSubpath(sampler, path.data());
+                if (n < 2) continue;
+                float q = (!path[0].delta && !path[0].delta_light) ? 1.f : 0.f;  // Q_0
+                for (int j = 1; j < n; ++j) {
+                    const Vertex& v = path[j];
+                    const Vertex& prev = path[j - 1];
+                    const bool mergeable = Mergeable(v);
+                    if (mergeable && !IsBlack(v.beta)) {
+                        LightVertex lv{};
+                        lv.p[0] = v.p.x, lv.p[1] = v.p.y, lv.p[2] = v.p.z;
+                        lv.wo[0] = v.wo.x, lv.wo[1] = v.wo.y, lv.wo[2] = v.wo.z;
+                        lv.beta[0] = v.beta.x, lv.beta[1] = v.beta.y, lv.beta[2] = v.beta.z;
+                        lv.pdf_fwd = v.pdf_fwd;
+                        lv.prev_pdf_fwd = prev.pdf_fwd;
+                        lv.prev_convert = ConvertDensity(1.f, v, prev);
+                        lv.prev_sum = q;
+                        lv.index = uint16_t(j);
+                        lv.prev_delta = prev.delta ? 1 : 0;
+                        slots[i].push_back(lv);
+                    }
+                    // Q_j, for the vertices further along.
+                    const float r = Remap0(prev.pdf_rev) / Remap0(prev.pdf_fwd);
+                    float next = r * r * q;
+                    if (!v.delta && !prev.delta) next += 1.f;
+                    if (mergeable) {
+                        const float m = Remap0(v.pdf_fwd) * eta;
+                        next += m * m;
+                    }
+                    q = next;
+                }
+            }
+        };
+        // Each path fills its own slot and the slots are joined in path order, so the
+        // product does not depend on the thread count.
+        tbb::task_arena arena(threads > 0 ? threads : tbb::this_task_arena::max_concurrency());
+        arena.execute([&] { tbb::parallel_for(tbb::blocked_range<uint32_t>(0, light_paths_, 256), trace); });
+        size_t total = 0;
+        for (const auto& s : slots) total += s.size();
+        std::vector<LightVertex> all;
+        all.reserve(total);
+        for (auto& s : slots) all.insert(all.end(), s.begin(), s.end());
+        return bytes + PointHashGrid<LightVertex>(all, h.radius).Serialize();
+    }
+
+    PathSample Sample(const Scene& scene, const Camera& camera, const CameraSample& cs, PixelSampler& sampler,
+                      SplatFilm& film, IntegratorCounters* counters) const override {
+        thread_local std::vector<Vertex> camera_path, light_path;
+        if (camera_path.size() < size_t(max_depth_) + 2) camera_path.resize(size_t(max_depth_) + 2);
+        if (light_path.size() < size_t(max_depth_) + 1) light_path.resize(size_t(max_depth_) + 1);
+        PixelSampler light_sampler = cs.Stream(1);
+
+        // Connections, as BDPTIntegrator::SampleStrategies (same streams, same order: with
+        // merging off the image is bdpt's bit for bit).
+        Walker walker(scene, camera, max_depth_);
+        PathSample result;
+        const int n_camera = walker.CameraSubpath(cs.ray, sampler, camera_path.data());
+        const int n_light = walker.LightSubpath(light_sampler, light_path.data());
+        if (n_camera > 1 && camera_path[1].type == VertexType::kSurface) result.alpha = 1.f;
+        Color L(0.f);
+        for (int t = 1; t <= n_camera; ++t) {
+            for (int s = 0; s <= n_light; ++s) {
+                const int depth = t + s - 2;
+                if ((s == 1 && t == 1) || depth < 0 || depth > max_depth_) continue;
+                Vertex sampled;
+                float px = 0.f, py = 0.f;
+                Color c = walker.Connect(light_path.data(), camera_path.data(), s, t, sampler, &sampled, &px, &py);
+                if (IsBlack(c)) continue;
+                c *= walker.MISWeight(light_path.data(), camera_path.data(), sampled, s, t, eta_);
+                if (t == 1) {
+                    if (!film.Add(px, py, c) && counters) ++counters->rejected_splats;
+                } else {
+                    L += c;
+                }
+            }
+        }
+        if (eta_ > 0.f)
+            for (int t = 2; t <= n_camera; ++t) L += Merge(camera_path.data(), t);
+        result.radiance = L;
+        return result;
+    }
+
+private:
+    // Merging at camera[t - 1] with every light vertex within the radius.
+    Color Merge(const Vertex* camera, int t) const {
+        const Vertex& pt = camera[t - 1];
+        if (pt.type != VertexType::kSurface || !pt.bsdf.IsNonSpecular() || IsBlack(pt.beta)) return Color(0.f);
+        const Vec3 wo_local = pt.frame.ToLocal(pt.wo);
+        Color sum(0.f);
+        grid_.ForEachNear(pt.p, [&](const LightVertex& q) {
+            if (int(q.index) + t - 2 > max_depth_) return;
+            const Vec3 wi(q.wo[0], q.wo[1], q.wo[2]);
+            const Vec3 wi_local = pt.frame.ToLocal(wi);
+            if (!SidesAgree(pt.wo, wi, pt.ng, wo_local, wi_local)) return;
+            const Color f = pt.bsdf.f(wo_local, wi_local);
+            if (IsBlack(f)) return;
+            sum += f * Color(q.beta[0], q.beta[1], q.beta[2]) * MergeWeight(camera, t, q, wo_local, wi_local);
+        });
+        return pt.beta * sum * inv_merge_area_;
+    }
+
+    // The power-heuristic weight of merging camera[t - 1] with light vertex q: the
+    // merging's own ratio to VC_j squared over the sum of every strategy's (header).
+    float MergeWeight(const Vertex* camera, int t, const LightVertex& q, Vec3 wo_local, Vec3 wi_local) const {
+        const Vertex& pt = camera[t - 1];
+        const float vm = Remap0(q.pdf_fwd) * eta_;
+        float total = vm * vm + (q.prev_delta ? 0.f : 1.f);
+        // Camera side: p_L of camera[t - 2] is pt's BSDF sampling it from the light's side.
+        const float pl_before = ConvertDensity(pt.bsdf.PDF(wi_local, wo_local), pt, camera[t - 2]);
+        auto pl = [&](int i) { return i == t - 1 ? q.pdf_fwd : i == t - 2 ? pl_before : camera[i].pdf_rev; };
+        float r = 1.f;
+        for (int i = t - 1; i > 0; --i) {
+            r *= Remap0(pl(i)) / Remap0(camera[i].pdf_fwd);
+            const bool delta_i = i == t - 1 ? false : camera[i].delta;
+            if (!delta_i && !camera[i - 1].delta) total += r * r;
+            if (i - 1 >= 1 && Mergeable(camera[i - 1])) {
+                const float m = r * Remap0(pl(i - 1)) * eta_;
+                total += m * m;
+            }
+        }
+        // Light side: R_{j-1}^2 Q_{j-1}, with p_E(y_{j-1}) pt's BSDF sampling toward it.
+        const float pe_prev = pt.bsdf.PDF(wo_local, wi_local) * q.prev_convert;
+        const float rl = Remap0(pe_prev) / Remap0(q.prev_pdf_fwd);
+        total += rl * rl * q.prev_sum;
+        return vm * vm / total;
+    }
+
+    void Load(const std::string& product) {
+        Header h;
+        if (product.size() < sizeof(Header) || std::memcmp(product.data(), kMagic, 4) != 0)
+            throw std::invalid_argument("vcm: the scene product is not a vcm light-vertex grid");
+        std::memcpy(&h, product.data(), sizeof(Header));
+        if (h.light_paths != light_paths_ || h.merging != (merging_ ? 1u : 0u))
+            throw std::invalid_argument("vcm: the scene product was made with other settings");
+        if (!h.merging) {
+            if (product.size() != sizeof(Header)) throw std::invalid_argument("vcm: the scene product has the wrong size");
+            return;
+        }
+        grid_ = PointHashGrid<LightVertex>::Deserialize(product.data() + sizeof(Header), product.size() - sizeof(Header));
+        eta_ = float(h.light_paths) * kPi * h.radius * h.radius;
+        inv_merge_area_ = 1.f / eta_;
+    }
+
+    int max_depth_;
+    uint32_t light_paths_;
+    float radius_, alpha_;
+    bool merging_;
+    PointHashGrid<LightVertex> grid_;
+    float eta_ = 0.f;             // N pi r_i^2 of the product's iteration; 0 without merging
+    float inv_merge_area_ = 0.f;  // 1 / (N pi r_i^2)
+};
+
+}  // namespace
+
+IntegratorEntry VCMIntegratorEntry() {
+    return {VCMIntegrator::Info, [](const IntegratorSettings& s, const Scene& scene) -> std::unique_ptr<Integrator> {
+                const float paths = s.Param("light_paths", kDefaultLightPaths);
+                if (!(paths >= 1.f && paths <= 4e6f && paths == std::floor(paths)))
+                    throw std::invalid_argument(
+                        "vcm light_paths must be a whole number from 1 to 4e6 (each keeps its merging vertices, "
+                        "56 bytes each, in a product kept in Redis)");
+                const float radius = s.Param("radius", kDefaultRadiusOfDiameter * 2.f * scene.scene_radius());
+                if (!(radius > 0.f && std::isfinite(radius)))
+                    throw std::invalid_argument("vcm radius must be a finite number > 0");
+                const float alpha = s.Param("alpha", kDefaultAlpha);
+                if (!(alpha > 0.f && alpha < 1.f))
+                    throw std::invalid_argument("vcm alpha must lie strictly between 0 and 1");
+                const float merging = s.Param("merging", 1.f);
+                if (merging != 0.f && merging != 1.f) throw std::invalid_argument("vcm merging must be 0 or 1");
+                if (s.max_depth > 65535) throw std::invalid_argument("vcm max_depth must be at most 65535");
+                return std::make_unique<VCMIntegrator>(s.max_depth, uint32_t(paths), radius, alpha, merging == 1.f,
+                                                       s.scene_product);
+            }};
+}
+
+}  // namespace tessera

@@ -1,0 +1,39 @@
+"""Rendering vcm iteration by iteration for the tests: each iteration runs its scene pass
+(fresh light paths, the radius of the schedule) and renders its own sample range with that
+product, so the per-iteration images are independent estimates whose spread gives the
+standard error."""
+from __future__ import annotations
+
+import numpy as np
+
+from tessera_base.film import resolve_splats
+from tessera_renderer.film import new_splat_buffer
+
+
+def render_iteration(scene, integrator: str, iteration: int, *, spp: int, seed: int, max_depth: int = 8,
+                     params: dict | None = None, width: int | None = None, height: int | None = None,
+                     threads: int = 2, crop: tuple[int, int, int, int] | None = None) -> np.ndarray:
+    """Iteration `iteration` of `integrator` over the whole image, or over the pixels of
+    `crop` = (x0, y0, w, h) only (the rest of the frame then holds just the splats of the
+    crop's light paths): samples [iteration * spp, (iteration + 1) * spp), splats resolved
+    by the light paths traced (one per pixel sample)."""
+    w, h = width or scene.width, height or scene.height
+    x0, y0, cw, ch = crop or (0, 0, w, h)
+    product = (scene.scene_pass(integrator, iteration, seed=seed, max_depth=max_depth, threads=threads,
+                                integrator_params=params) if integrator == "vcm" else None)
+    splats = new_splat_buffer(w, h)
+    tile = scene.render_tile(x0, y0, cw, ch, width=w, height=h, spp=spp, seed=seed, max_depth=max_depth,
+                             threads=threads, integrator=integrator, splats=splats, integrator_params=params,
+                             scene_product=product, sample_start=iteration * spp)
+    full = np.zeros((h, w, 4), np.float32)
+    full[y0:y0 + ch, x0:x0 + cw] = tile
+    return resolve_splats(full, splats, cw * ch * spp, scene.splat_exponent)
+
+
+def iterations(scene, integrator: str, count: int, **kw) -> list[np.ndarray]:
+    return [render_iteration(scene, integrator, k, **kw) for k in range(count)]
+
+
+def mean_and_stderr(values) -> tuple[float, float]:
+    v = np.asarray(values, dtype=np.float64)
+    return float(v.mean()), float(v.std(ddof=1) / np.sqrt(len(v)))
