@@ -17,7 +17,9 @@
     X(WhittedIntegratorEntry)  \
     X(LocalIntegratorEntry)    \
     X(AOIntegratorEntry)       \
-    X(PhotonDirectIntegratorEntry)
+    X(PhotonDirectIntegratorEntry) \
+    X(RadiosityIntegratorEntry)    \
+    X(HybridIntegratorEntry)
 
 namespace tessera {
 
