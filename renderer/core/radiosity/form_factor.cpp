@@ -1,6 +1,7 @@
 #include "form_factor.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 
 namespace tessera {
@@ -8,11 +9,15 @@ namespace tessera {
 float PointToPolygonFormFactor(Vec3 x, Vec3 n, const std::vector<Vec3>& poly) {
     // Clip to the half-space above x's tangent plane (Sutherland-Hodgman, one plane): the
     // contour formula holds for the part the receiver can see.
-    double rel[16][3];
-    int m = 0;
+    // Clipping adds at most one vertex; triangles (the solver's case) stay on the stack.
     const size_t k = poly.size();
+    double stack[8][3];
+    std::vector<std::array<double, 3>> heap;
+    if (k + 1 > 8) heap.resize(k + 1);
+    double (*rel)[3] = k + 1 > 8 ? reinterpret_cast<double (*)[3]>(heap.data()) : stack;
+    int m = 0;
     auto height = [&](Vec3 p) { return double(Dot(p - x, n)); };
-    for (size_t i = 0; i < k && m < 14; ++i) {
+    for (size_t i = 0; i < k; ++i) {
         const Vec3 a = poly[i], b = poly[(i + 1) % k];
         const double ha = height(a), hb = height(b);
         if (ha > 0.0) {
