@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <mutex>
 #include <stdexcept>
 
 namespace tessera {
@@ -82,15 +83,32 @@ std::string SolveRadiosityProduct(const Scene& scene, const RadiositySettings& s
     return out;
 }
 
-RadiosityLookup::RadiosityLookup(const Scene& scene, float element_size, const std::string& product,
-                                 bool interpolate, const char* who)
-    : mesh_(scene, element_size), interpolate_(interpolate) {
+namespace {
+
+// Every tile builds its integrator, and the preview renders a frame as one tile: without
+// this, each would rebuild the mesh and re-parse the product (most of a preview frame's
+// time). The last few (scene, element size, product) are kept; the product's bytes are
+// compared whole, so a different solution is never taken for a cached one.
+struct CachedLookup {
+    const Scene* scene;
+    size_t triangles;
+    float element_size;
+    std::string product;
+    std::shared_ptr<const RadiosityLookup::Data> data;
+};
+std::mutex cache_mutex;
+std::vector<CachedLookup> cache;
+constexpr size_t kCachedLookups = 4;
+
+std::shared_ptr<const RadiosityLookup::Data> Parse(const Scene& scene, float element_size, const std::string& product,
+                                                   const char* who) {
     Header h;
     if (product.size() < sizeof(Header) || std::memcmp(product.data(), kMagic, 4) != 0)
         throw std::invalid_argument(std::string(who) + ": the scene product is not a radiosity solution");
     std::memcpy(&h, product.data(), sizeof(Header));
+    auto data = std::make_shared<RadiosityLookup::Data>(scene, element_size);
     const size_t ne = 2 * size_t(h.elements), nv = 2 * size_t(h.vertices);
-    if (h.elements != mesh_.elements().size() || h.vertices != mesh_.num_vertices() ||
+    if (h.elements != data->mesh.elements().size() || h.vertices != data->mesh.num_vertices() ||
         product.size() != sizeof(Header) + (2 * ne + 2 * nv) * sizeof(Color))
         throw std::invalid_argument(std::string(who) +
                                     ": the scene product is a radiosity solution of another scene or element_size");
@@ -100,30 +118,52 @@ RadiosityLookup::RadiosityLookup(const Scene& scene, float element_size, const s
         if (count) std::memcpy(v->data(), p, count * sizeof(Color));
         p += count * sizeof(Color);
     };
-    read(&element_reflected_, ne);
-    read(&element_direct_, ne);
-    read(&vertex_reflected_, nv);
-    read(&vertex_direct_, nv);
+    read(&data->element_reflected, ne);
+    read(&data->element_direct, ne);
+    read(&data->vertex_reflected, nv);
+    read(&data->vertex_direct, nv);
+    return data;
+}
+
+}  // namespace
+
+RadiosityLookup::RadiosityLookup(const Scene& scene, float element_size, const std::string& product,
+                                 bool interpolate, const char* who)
+    : interpolate_(interpolate) {
+    {
+        std::lock_guard<std::mutex> lock(cache_mutex);
+        for (const CachedLookup& c : cache)
+            if (c.scene == &scene && c.triangles == scene.num_triangles() && c.element_size == element_size &&
+                c.product == product) {
+                data_ = c.data;
+                return;
+            }
+    }
+    data_ = Parse(scene, element_size, product, who);
+    std::lock_guard<std::mutex> lock(cache_mutex);
+    if (cache.size() >= kCachedLookups) cache.erase(cache.begin());
+    cache.push_back({&scene, scene.num_triangles(), element_size, product, data_});
 }
 
 bool RadiosityLookup::Reflected(const SurfaceHit& hit, Vec3 wo, Color* reflected, Color* direct) const {
     float w[3];
-    const int32_t e = mesh_.Locate(hit, w);
+    const Data& d = *data_;
+    const int32_t e = d.mesh.Locate(hit, w);
     if (e < 0) return false;
-    const RadiosityElement& el = mesh_.elements()[e];
+    const RadiosityElement& el = d.mesh.elements()[e];
     const int side = Dot(wo, el.n) > 0.f ? 0 : 1;
     if (!interpolate_) {
-        *reflected = element_reflected_[2 * e + side];
-        *direct = element_direct_[2 * e + side];
+        *reflected = d.element_reflected[2 * e + side];
+        *direct = d.element_direct[2 * e + side];
         return true;
     }
-    Color r(0.f), d(0.f);
+    Color r(0.f), dir(0.f);
     for (int k = 0; k < 3; ++k) {
-        r += vertex_reflected_[2 * el.vertex[k] + side] * w[k];
-        d += vertex_direct_[2 * el.vertex[k] + side] * w[k];
+        r += d.vertex_reflected[2 * el.vertex[k] + side] * w[k];
+        dir += d.vertex_direct[2 * el.vertex[k] + side] * w[k];
     }
     *reflected = r;
-    *direct = d;
+    *direct = dir;
     return true;
 }
 

@@ -4,6 +4,7 @@
 // and element_size, and the product names its element and vertex counts to check that.
 #pragma once
 
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -31,10 +32,15 @@ public:
     // the side wo points to, and its direct part; false if the hit is on no element.
     bool Reflected(const SurfaceHit& hit, Vec3 wo, Color* reflected, Color* direct) const;
 
+    struct Data {
+        Data(const Scene& scene, float element_size) : mesh(scene, element_size) {}
+        RadiosityMesh mesh;
+        std::vector<Color> element_reflected, element_direct, vertex_reflected, vertex_direct;
+    };
+
 private:
-    RadiosityMesh mesh_;
+    std::shared_ptr<const Data> data_;
     bool interpolate_;
-    std::vector<Color> element_reflected_, element_direct_, vertex_reflected_, vertex_direct_;
 };
 
 }  // namespace tessera
