@@ -26,6 +26,34 @@ double Power(Color c, float area) { return double(Luminance(c)) * area; }
 
 }  // namespace
 
+std::vector<uint32_t> UnmeshedLights(const Scene& scene, const RadiosityMesh& mesh) {
+    std::unordered_set<int32_t> meshed;
+    for (const RadiosityElement& e : mesh.elements())
+        if (e.emitter != Scene::kNoEmitter) meshed.insert(e.emitter);
+    std::vector<uint32_t> other;
+    for (uint32_t e = 0; e < scene.num_emitters(); ++e)
+        if (!meshed.count(int32_t(e))) other.push_back(e);
+    return other;
+}
+
+Color GatherIrradiance(const Scene& scene, Vec3 x, Vec3 n, const std::vector<uint32_t>& lights, uint32_t samples,
+                       uint32_t seed, uint64_t stream, float eps) {
+    Color irradiance(0.f);
+    for (uint32_t s = 0; s < samples; ++s) {
+        PixelSampler sampler(seed, kGatherStreamBase + stream, s, kGatherStream);
+        for (uint32_t light : lights) {
+            LightSample ls;
+            const Vec2 u = sampler.Get2D();
+            if (!scene.SampleEmitter(light, x, u, &ls) || !(ls.pdf > 0.f)) continue;
+            const float cos = Dot(ls.wi, n);
+            if (!(cos > 0.f) || IsBlack(ls.radiance)) continue;
+            if (!scene.Unoccluded(x, eps, n, ls)) continue;
+            irradiance += ls.radiance * (cos / ls.pdf);
+        }
+    }
+    return irradiance / float(std::max(1u, samples));
+}
+
 RadiositySolution SolveProgressive(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings) {
     const std::vector<RadiosityElement>& el = mesh.elements();
     const size_t n = el.size();
@@ -41,12 +69,7 @@ RadiositySolution SolveProgressive(const Scene& scene, const RadiosityMesh& mesh
     tbb::task_arena arena(settings.threads > 0 ? settings.threads : tbb::this_task_arena::max_concurrency());
 
     // Step 1a: lights that are not meshed, gathered per element side.
-    std::unordered_set<int32_t> meshed;
-    for (const RadiosityElement& e : el)
-        if (e.emitter != Scene::kNoEmitter) meshed.insert(e.emitter);
-    std::vector<uint32_t> other_lights;
-    for (uint32_t e = 0; e < scene.num_emitters(); ++e)
-        if (!meshed.count(int32_t(e))) other_lights.push_back(e);
+    const std::vector<uint32_t> other_lights = UnmeshedLights(scene, mesh);
     if (!other_lights.empty()) {
         arena.execute([&] {
             tbb::parallel_for(tbb::blocked_range<size_t>(0, 2 * n, 64), [&](const tbb::blocked_range<size_t>& r) {
@@ -54,20 +77,8 @@ RadiositySolution SolveProgressive(const Scene& scene, const RadiosityMesh& mesh
                     const RadiosityElement& e = el[k / 2];
                     if (IsBlack(e.rho)) continue;
                     const Vec3 nr = (k % 2) ? -e.n : e.n;
-                    Color irradiance(0.f);
-                    for (uint32_t s = 0; s < settings.light_samples; ++s) {
-                        PixelSampler sampler(settings.seed, kGatherStreamBase + k, s, kGatherStream);
-                        for (uint32_t light : other_lights) {
-                            LightSample ls;
-                            const Vec2 u = sampler.Get2D();
-                            if (!scene.SampleEmitter(light, e.center, u, &ls) || !(ls.pdf > 0.f)) continue;
-                            const float cos = Dot(ls.wi, nr);
-                            if (!(cos > 0.f) || IsBlack(ls.radiance)) continue;
-                            if (!scene.Unoccluded(e.center, eps, nr, ls)) continue;
-                            irradiance += ls.radiance * (cos / ls.pdf);
-                        }
-                    }
-                    const Color b = e.rho * irradiance / float(std::max(1u, settings.light_samples));
+                    const Color b = e.rho * GatherIrradiance(scene, e.center, nr, other_lights, settings.light_samples,
+                                                             settings.seed, k, eps);
                     sol.direct[k] = b;
                     sol.radiosity[k] = b;
                     sol.unshot[k] = b;

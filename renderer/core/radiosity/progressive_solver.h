@@ -25,6 +25,7 @@ struct RadiositySettings {
     uint32_t light_samples = 16; // per element side and non-meshed light
     uint32_t seed = 0;
     int threads = 0;             // 0: all
+    bool hierarchical = false;   // SolveHierarchical instead of SolveProgressive
 };
 
 struct RadiositySolution {
@@ -39,7 +40,16 @@ struct RadiositySolution {
     uint32_t shots = 0;
     bool converged = false;
     size_t cached_factors = 0;     // form factors kept for reuse
+    size_t links = 0;              // hierarchical: links between nodes (progressive: 0)
+    size_t nodes = 0;              // hierarchical: quadtree nodes
 };
+
+// The scene's emitters that are not meshed (points, distant lights, the dome, spheres).
+std::vector<uint32_t> UnmeshedLights(const Scene& scene, const RadiosityMesh& mesh);
+// Irradiance at x (normal n) from those lights by next event estimation with shadow rays,
+// `samples` samples each from sampler stream `stream` (a pure function of its arguments).
+Color GatherIrradiance(const Scene& scene, Vec3 x, Vec3 n, const std::vector<uint32_t>& lights, uint32_t samples,
+                       uint32_t seed, uint64_t stream, float eps);
 
 RadiositySolution SolveProgressive(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings);
 

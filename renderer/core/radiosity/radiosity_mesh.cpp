@@ -73,6 +73,7 @@ void RadiosityMesh::AddSource(const Scene& scene, uint32_t mesh, uint32_t prim, 
     if (instance == kNoInstance) world_[prim] = src;
     else instanced_[(uint64_t(instance) << 32) | prim] = src;
     ++num_sources_;
+    source_list_.push_back({{p[0], p[1], p[2]}, src.first, n});
 
     const Vec3 cross = Cross(e1, e2) * sign;
     const float len = Length(cross);

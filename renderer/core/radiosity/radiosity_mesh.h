@@ -33,6 +33,13 @@ public:
     RadiosityMesh(const Scene& scene, float target_size);
 
     const std::vector<RadiosityElement>& elements() const { return elements_; }
+    // The scene triangles the elements were cut from, in order: the elements of source s
+    // are [first, first + n^2), n cuts per edge (hierarchical_solver.cpp refines these).
+    struct SourceTriangle {
+        Vec3 p[3];
+        uint32_t first = 0, n = 1;
+    };
+    const std::vector<SourceTriangle>& sources() const { return source_list_; }
     size_t num_vertices() const { return num_vertices_; }
     size_t num_source_triangles() const { return num_sources_; }
 
@@ -54,6 +61,7 @@ private:
     uint32_t Vertex(Vec3 p, Vec3 n);
 
     std::vector<RadiosityElement> elements_;
+    std::vector<SourceTriangle> source_list_;
     std::vector<Source> world_;                           // world mesh, by prim
     std::unordered_map<uint64_t, Source> instanced_;      // (instance, prim)
     struct VertexKey {

@@ -1,5 +1,7 @@
 #include "radiosity_product.h"
 
+#include "hierarchical_solver.h"
+
 #include <cmath>
 #include <cstring>
 #include <mutex>
@@ -36,6 +38,7 @@ const std::vector<IntegratorParam>& RadiosityParams() {
     {"tolerance", "stop shooting when the unshot power is below this fraction of the emitted (default 0.001)"},
     {"light_samples", "samples per element of each point, distant, dome or sphere light (default 16)"},
     {"interpolate", "1: radiosity interpolated from the element vertices (default); 0: constant per element"},
+        {"solver", "0: progressive refinement, Southwell shooting (default); 1: hierarchical, BF-refined links"},
     };
     return params;
 }
@@ -52,6 +55,10 @@ RadiositySettings RadiositySettingsFrom(const IntegratorSettings& s, const Scene
     if (!(samples >= 1.f && samples <= 65536.f && samples == std::floor(samples)))
         throw std::invalid_argument(std::string(who) + " light_samples must be a whole number from 1 to 65536");
     r.light_samples = uint32_t(samples);
+    const float solver = s.Param("solver", 0.f);
+    if (solver != 0.f && solver != 1.f)
+        throw std::invalid_argument(std::string(who) + " solver must be 0 (progressive) or 1 (hierarchical)");
+    r.hierarchical = solver == 1.f;
     return r;
 }
 
@@ -65,14 +72,15 @@ std::string SolveRadiosityProduct(const Scene& scene, const RadiositySettings& s
     const RadiosityMesh mesh(scene, settings.element_size);
     if (mesh.elements().size() > (size_t(1) << 26))
         throw std::invalid_argument("radiosity: element_size gives more than 2^26 elements; make it larger");
-    const RadiositySolution sol = SolveProgressive(scene, mesh, settings);
+    const RadiositySolution sol = settings.hierarchical ? SolveHierarchical(scene, mesh, settings)
+                                                        : SolveProgressive(scene, mesh, settings);
     const std::vector<Color> reflected = ReflectedRadiosity(mesh, sol);
     Header h{};
     std::memcpy(h.magic, kMagic, 4);
     h.elements = uint32_t(mesh.elements().size());
     h.vertices = uint32_t(mesh.num_vertices());
     h.shots = sol.shots;
-    h.relative_residual = sol.entered_power > 0.0 ? float(sol.residual.back() / sol.entered_power) : 0.f;
+    h.relative_residual = sol.entered_power > 0.0 && !sol.residual.empty() ? float(sol.residual.back() / sol.entered_power) : 0.f;
     h.converged = sol.converged;
     std::string out(sizeof(Header), '\0');
     std::memcpy(out.data(), &h, sizeof(Header));
