@@ -31,18 +31,22 @@ from tessera_renderer import load_scene
 scene = load_scene(sys.argv[1])
 before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 t = time.perf_counter()
-product = scene.scene_pass("radiosity", 0, threads=int(sys.argv[3]), integrator_params={"element_size": float(sys.argv[2])})
+product = scene.scene_pass("radiosity", 0, threads=int(sys.argv[3]),
+                           integrator_params={"element_size": float(sys.argv[2]), "solver": float(sys.argv[4]),
+                                              "tolerance": float(sys.argv[5])})
 seconds = time.perf_counter() - t
 after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 _, elements, vertices, shots, residual, converged = struct.unpack("4sIIIfI", product[:24])
-print(json.dumps(dict(element_size=float(sys.argv[2]), elements=elements, vertices=vertices, shots=shots,
+print(json.dumps(dict(element_size=float(sys.argv[2]), solver="hierarchical" if sys.argv[4] == "1" else "progressive",
+                      tolerance=float(sys.argv[5]), elements=elements, vertices=vertices, shots=shots,
                       residual=residual, converged=bool(converged), seconds=seconds,
                       peak_rss_mb=(after - before) / 1024, product_bytes=len(product))))
 """
 
 
-def solve(size: float, threads: int) -> dict:
-    out = subprocess.run([sys.executable, "-c", CHILD, str(CORNELL), str(size), str(threads)],
+def solve(size: float, threads: int, solver: int = 0, tolerance: float = 1e-3) -> dict:
+    out = subprocess.run([sys.executable, "-c", CHILD, str(CORNELL), str(size), str(threads), str(solver),
+                          str(tolerance)],
                          check=True, capture_output=True, text=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
@@ -69,6 +73,9 @@ def main() -> None:
     for size in (float(s) for s in args.sizes.split(",")):
         solves.append(solve(size, args.threads))
         print(solves[-1], flush=True)
+        # The hierarchical solver at its oracle tolerance 1e-4 ("shots" are then links).
+        solves.append(solve(size, args.threads, 1, 1e-4))
+        print(solves[-1], flush=True)
     rate = preview_rate(args.frames, args.threads)
     print(rate)
     OUT.mkdir(parents=True, exist_ok=True)
@@ -76,10 +83,11 @@ def main() -> None:
     lines = ["# Radiosity: solve and preview (benchmarks/radiosity.py)", "",
              f"Cornell box (examples/cornell/cornell.usda, 32 triangles), {args.threads} threads, "
              f"load average {rate['load_average']:.1f} when the preview ran (the machine is shared).", "",
-             "| element size | elements | vertices | shots | residual | solve s | peak RSS MB | product KB |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| solver | element size | elements | vertices | element pairs | shots (progressive) / links (hierarchical) | residual | solve s | peak RSS MB | product KB |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for s in solves:
-        lines.append(f"| {s['element_size']:g} | {s['elements']} | {s['vertices']} | {s['shots']} | "
+        lines.append(f"| {s['solver']} (tolerance {s['tolerance']:g}) | {s['element_size']:g} | {s['elements']} | "
+                     f"{s['vertices']} | {s['elements'] ** 2} | {s['shots']} | "
                      f"{s['residual']:.1e} | {s['seconds']:.2f} | {s['peak_rss_mb']:.1f} | {s['product_bytes'] / 1024:.0f} |")
     lines += ["", f"Preview (default element size, 256 x 256, 1 sample per pixel, {args.threads} threads, "
               f"{rate['frames']} frames along an orbit): {rate['fps']:.1f} frames/s by wall clock, "
