@@ -101,6 +101,8 @@ def test_solution_is_one_product_per_scene_and_settings(cornell):
 def test_bad_settings_and_foreign_products_are_refused(cornell):
     with pytest.raises(ValueError, match="element_size must be a finite number > 0"):
         cornell.scene_pass("radiosity", 0, integrator_params={"element_size": 0})
+    with pytest.raises(ValueError, match="elements .at most 4194304.; make it larger"):
+        cornell.scene_pass("radiosity", 0, integrator_params={"element_size": 1e-3})
     with pytest.raises(ValueError, match="tolerance"):
         cornell.scene_pass("radiosity", 0, integrator_params={"tolerance": 2})
     product = cornell.scene_pass("radiosity", 0, threads=2, integrator_params={"element_size": 150.0})

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
+#include <string>
 
 #include "sampling.h"
 
@@ -44,6 +45,18 @@ RadiosityMesh::RadiosityMesh(const Scene& scene, float target_size) {
         throw std::invalid_argument("radiosity element_size must be a finite number > 0");
     // Welding tolerance: far below any element, far above rounding in the corners.
     quantum_ = 1e-4f * std::max(1.f, scene.scene_radius());
+    // Count first: a tiny element_size must be refused before it allocates (a worker
+    // must not run out of memory on a bad setting).
+    double count = 0.0;
+    scene.ForEachTriangle([&](uint32_t, uint32_t, uint32_t, const Vec3* p, float) {
+        const float longest = std::max({Length(p[1] - p[0]), Length(p[2] - p[0]), Length(p[2] - p[1])});
+        const double n = std::clamp(std::ceil(double(longest) / target_size), 1.0, 4096.0);
+        count += n * n;
+    });
+    if (count > double(kMaxElements))
+        throw std::invalid_argument("radiosity element_size " + std::to_string(target_size) + " would cut the scene into " +
+                                    std::to_string(uint64_t(count)) + " elements (at most " +
+                                    std::to_string(kMaxElements) + "); make it larger");
     world_.resize(scene.num_triangles());
     scene.ForEachTriangle([&](uint32_t mesh, uint32_t prim, uint32_t instance, const Vec3* p, float sign) {
         AddSource(scene, mesh, prim, instance, p, sign, target_size);

@@ -70,8 +70,6 @@ bool RadiosityInterpolates(const IntegratorSettings& s, const char* who) {
 
 std::string SolveRadiosityProduct(const Scene& scene, const RadiositySettings& settings) {
     const RadiosityMesh mesh(scene, settings.element_size);
-    if (mesh.elements().size() > (size_t(1) << 26))
-        throw std::invalid_argument("radiosity: element_size gives more than 2^26 elements; make it larger");
     const RadiositySolution sol = settings.hierarchical ? SolveHierarchical(scene, mesh, settings)
                                                         : SolveProgressive(scene, mesh, settings);
     const std::vector<Color> reflected = ReflectedRadiosity(mesh, sol);
