@@ -4,7 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
-#include <cstdlib>
+#include <cstdio>
 
 #include "hierarchical_solver.h"
 #include "scene_helpers.h"
