@@ -21,7 +21,7 @@ struct RadiositySettings {
     float element_size = 1.f;
     // Stop when the unshot power is below tolerance times the power that entered.
     float tolerance = 1e-3f;
-    uint32_t max_shots = 0;      // 0: 50 per element side
+    uint32_t max_shots = 0;      // 0: 100 per element
     uint32_t light_samples = 16; // per element side and non-meshed light
     uint32_t seed = 0;
     int threads = 0;             // 0: all
