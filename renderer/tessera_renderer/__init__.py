@@ -171,7 +171,7 @@ class Scene:
                     integrator: str | None = None, splats: np.ndarray | None = None,
                     sampler: str = "sobol", aovs=(), stats: dict | None = None,
                     integrator_params: dict[str, float] | None = None,
-                    scene_product: bytes | None = None):
+                    scene_product: bytes | None = None, camera: "_core.Camera | None" = None):
         """Renders pixels [x0, x0+w) x [y0, y0+h) of a width x height image, averaging samples
         [sample_start, sample_start + spp) of each pixel. Returns float32 linear RGBA of shape
         (h, w, 4); with return_variance, (rgba, variance) where variance is float32 (h, w, 3),
@@ -198,7 +198,10 @@ class Scene:
             raise ValueError(f"unknown AOV {unknown[0]!r} (known: {', '.join(AOV_NAMES)})")
         want_variance = return_variance or "variance" in aovs
         core_aovs = [a for a in aovs if a != "variance"]
-        rgba, info = _core.render_tile(self._core, self.camera(width, height), x0, y0, w, h,
+        # camera: another view than the scene's (the radiosity preview moves it), built
+        # for this width and height.
+        camera = camera if camera is not None else self.camera(width, height)
+        rgba, info = _core.render_tile(self._core, camera, x0, y0, w, h,
                                        spp, seed, max_depth, threads, sample_start, want_variance,
                                        integrator, splats, sampler, core_aovs,
                                        {k: float(v) for k, v in (integrator_params or {}).items()},

@@ -415,6 +415,29 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return bench_main(args)
 
 
+def cmd_preview(args: argparse.Namespace) -> int:
+    """Solve a scene's radiosity once, then re-render it as the camera moves (tessera/preview.py)."""
+    from tessera_renderer import SceneError, load_scene
+
+    from .preview import RadiosityPreview, serve
+    width, height = args.res
+    try:
+        scene = load_scene(args.scene)
+        preview = RadiosityPreview(scene, width=width, height=height, threads=args.threads,
+                                   integrator_params={k: float(v) for k, v in _integrator_params(args).items()})
+    except (SceneError, ValueError, OSError) as exc:
+        print(f"tessera preview: {exc}", file=sys.stderr)
+        return 2
+    print(f"solved in {preview.solve_seconds:.2f} s ({len(preview.product)} bytes)")
+    if args.frames:
+        b = preview.benchmark(args.frames)
+        print(f"{b['frames']} frames of {width}x{height} on {args.threads} threads in {b['seconds']:.2f} s: "
+              f"{b['fps']:.1f} frames/s")
+        return 0
+    serve(preview, port=args.port)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tessera", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log more")
@@ -539,6 +562,19 @@ def build_parser() -> argparse.ArgumentParser:
     from .refs_cli import add_parser as add_refs_parser
 
     add_refs_parser(sub, _resolution, _positive, _add_integrator_option, _integrator_params)
+
+    pv = sub.add_parser("preview", help="solve a scene's radiosity once and re-render it as the camera moves "
+                                        "(a browser view on localhost; docs/integrators.md, radiosity)")
+    pv.add_argument("scene", help=".usda/.usdc/.usdz file")
+    pv.add_argument("--res", type=_resolution, default=(256, 256), help="WxH of the frames (default 256x256)")
+    pv.add_argument("--threads", type=_positive, default=2, help="render threads (default 2)")
+    pv.add_argument("--port", type=int, default=8765, help="localhost port of the view (default 8765)")
+    pv.add_argument("--frames", type=_positive, default=None,
+                    help="no server: render N frames along an orbit and print the frame rate")
+    pv.add_argument("--integrator-param", dest="integrator_params", action="append", default=None,
+                    type=_integrator_param, metavar="NAME=VALUE",
+                    help="a radiosity setting (`tessera render --integrator help` lists them)")
+    pv.set_defaults(func=cmd_preview)
     return parser
 
 

@@ -20,7 +20,9 @@
     X(PhotonDirectIntegratorEntry) \
     X(PhotonIntegratorEntry)       \
     X(SPPMIntegratorEntry)         \
-    X(VCMIntegratorEntry)
+    X(VCMIntegratorEntry)          \
+    X(RadiosityIntegratorEntry)    \
+    X(HybridIntegratorEntry)
 
 namespace tessera {
 

@@ -191,6 +191,12 @@ public:
     void ForEachEnvironmentLight(Vec3 dir, Visit&& visit) const;
     bool has_environment() const { return !environment_lights_.empty(); }
 
+    // Every triangle a ray can hit, world mesh first, then each instance's, in a fixed order
+    // (the radiosity mesher's input): visit(mesh, prim, instance, world corners, sign), the
+    // sign as TriangleVertices returns it (sign * Cross(p1 - p0, p2 - p0) faces as ng).
+    template <typename Visit>
+    void ForEachTriangle(Visit&& visit) const;
+
     size_t num_triangles() const { return num_triangles_; }
     RTCScene embree_scene() const { return scene_; }  // for raw-Embree benchmarks
     size_t num_emitters() const { return emitters_.size(); }
@@ -283,6 +289,22 @@ void Scene::ForEachEnvironmentLight(Vec3 dir, Visit&& visit) const {
         float pdf = 0.f;
         Color L = EnvironmentRadiance(emitters_[i], dir, &pdf);
         if (!IsBlack(L)) visit(i, L, pdf);
+    }
+}
+
+template <typename Visit>
+void Scene::ForEachTriangle(Visit&& visit) const {
+    Vec3 p[3];
+    for (uint32_t prim = 0; prim < meshes_[0].num_triangles; ++prim) {
+        const float sign = TriangleVertices(0, prim, kNoInstance, p);
+        visit(0u, prim, kNoInstance, p, sign);
+    }
+    for (uint32_t i = 0; i < instances_.size(); ++i) {
+        const uint32_t mesh = instances_[i].mesh;
+        for (uint32_t prim = 0; prim < meshes_[mesh].num_triangles; ++prim) {
+            const float sign = TriangleVertices(mesh, prim, i, p);
+            visit(mesh, prim, i, p, sign);
+        }
     }
 }
 

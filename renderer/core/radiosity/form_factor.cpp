@@ -1,0 +1,92 @@
+#include "form_factor.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+
+namespace tessera {
+
+float PointToPolygonFormFactor(Vec3 x, Vec3 n, const std::vector<Vec3>& poly) {
+    // Clip to the half-space above x's tangent plane (Sutherland-Hodgman, one plane): the
+    // contour formula holds for the part the receiver can see.
+    // Clipping adds at most one vertex; triangles (the solver's case) stay on the stack.
+    const size_t k = poly.size();
+    double stack[8][3];
+    std::vector<std::array<double, 3>> heap;
+    if (k + 1 > 8) heap.resize(k + 1);
+    double (*rel)[3] = k + 1 > 8 ? reinterpret_cast<double (*)[3]>(heap.data()) : stack;
+    int m = 0;
+    auto height = [&](Vec3 p) { return double(Dot(p - x, n)); };
+    for (size_t i = 0; i < k; ++i) {
+        const Vec3 a = poly[i], b = poly[(i + 1) % k];
+        const double ha = height(a), hb = height(b);
+        if (ha > 0.0) {
+            rel[m][0] = a.x - x.x, rel[m][1] = a.y - x.y, rel[m][2] = a.z - x.z;
+            ++m;
+        }
+        if ((ha > 0.0) != (hb > 0.0)) {
+            const double t = ha / (ha - hb);
+            rel[m][0] = (a.x - x.x) + t * (b.x - a.x);
+            rel[m][1] = (a.y - x.y) + t * (b.y - a.y);
+            rel[m][2] = (a.z - x.z) + t * (b.z - a.z);
+            ++m;
+        }
+    }
+    if (m < 3) return 0.f;
+    // Lambert: F = (1/2pi) |sum_i gamma_i n . (R_i x R_i+1) / |R_i x R_i+1||, in double:
+    // the factor of a far small element is a difference of nearly equal angles.
+    double sum = 0.0;
+    for (int i = 0; i < m; ++i) {
+        const double* a = rel[i];
+        const double* b = rel[(i + 1) % m];
+        const double c[3] = {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+        const double cl = std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+        if (!(cl > 0.0)) continue;
+        const double dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        const double gamma = std::atan2(cl, dot);
+        sum += gamma * (n.x * c[0] + n.y * c[1] + n.z * c[2]) / cl;
+    }
+    const double f = std::abs(sum) / (2.0 * kPi);
+    return static_cast<float>(f);
+}
+
+float PointToTriangleFormFactor(Vec3 x, Vec3 n, const Vec3 tri[3]) {
+    return PointToPolygonFormFactor(x, n, {tri[0], tri[1], tri[2]});
+}
+
+float PolygonToPolygonFormFactor(const std::vector<Vec3>& a, const std::vector<Vec3>& b, int cells_per_edge) {
+    const Vec3 na = Normalize(Cross(a[1] - a[0], a[2] - a[0]));
+    const int c = std::max(1, cells_per_edge);
+    double sum = 0.0, area = 0.0;
+    for (size_t t = 1; t + 1 < a.size(); ++t) {
+        const Vec3 p0 = a[0], e1 = a[t] - a[0], e2 = a[t + 1] - a[0];
+        const double cell_area = 0.5 * Length(Cross(e1, e2)) / (double(c) * c);
+        // Cell centroids of the regular subdivision: upward (i+1/3, j+1/3), downward (i+2/3, j+2/3).
+        for (int i = 0; i < c; ++i)
+            for (int j = 0; i + j < c; ++j) {
+                for (int down = 0; down < 2; ++down) {
+                    if (down && i + j + 1 >= c) continue;
+                    const float o = down ? 2.f / 3.f : 1.f / 3.f;
+                    const Vec3 x = p0 + e1 * ((i + o) / c) + e2 * ((j + o) / c);
+                    sum += double(PointToPolygonFormFactor(x, na, b)) * cell_area;
+                    area += cell_area;
+                }
+            }
+    }
+    return area > 0.0 ? float(sum / area) : 0.f;
+}
+
+float TriangleVisibility(const Scene& scene, Vec3 x, Vec3 nx, const Vec3 src[3], Vec3 nsrc, float eps) {
+    // Centroids of the four sub-triangles cut at the edge midpoints.
+    static constexpr float kBary[4][3] = {
+        {2.f / 3.f, 1.f / 6.f, 1.f / 6.f}, {1.f / 6.f, 2.f / 3.f, 1.f / 6.f},
+        {1.f / 6.f, 1.f / 6.f, 2.f / 3.f}, {1.f / 3.f, 1.f / 3.f, 1.f / 3.f}};
+    int visible = 0;
+    for (const auto& w : kBary) {
+        const Vec3 q = src[0] * w[0] + src[1] * w[1] + src[2] * w[2];
+        if (scene.Unoccluded(x, eps, nx, q, eps, nsrc)) ++visible;
+    }
+    return float(visible) / 4.f;
+}
+
+}  // namespace tessera

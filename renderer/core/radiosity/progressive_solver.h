@@ -1,0 +1,59 @@
+// Progressive refinement radiosity (Cohen, Chen, Wallace & Greenberg 1988): Southwell
+// iteration that repeatedly shoots the element side with the largest unshot power,
+// B_j += rho_j F_ji dB_i for every receiver j, with the ambient term for display.
+//
+// Light enters in two steps, so the solution knows its direct component (the hybrid
+// integrator traces that part itself):
+//   1. lights that are not meshed (points, distant lights, the dome, sphere lights) are
+//      gathered at every element by next event estimation, light_samples samples each;
+//      emissive elements shoot their emission once. What this deposits is the direct part.
+//   2. Southwell shooting of what remains unshot: the interreflection.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "radiosity_mesh.h"
+
+namespace tessera {
+
+struct RadiositySettings {
+    float element_size = 1.f;
+    // Stop when the unshot power is below tolerance times the power that entered.
+    float tolerance = 1e-3f;
+    uint32_t max_shots = 0;      // 0: 100 per element
+    uint32_t light_samples = 16; // per element side and non-meshed light
+    uint32_t seed = 0;
+    int threads = 0;             // 0: all
+    bool hierarchical = false;   // SolveHierarchical instead of SolveProgressive
+};
+
+struct RadiositySolution {
+    // Per element side (index 2 e + side, side 0 the front), W m^-2:
+    std::vector<Color> radiosity;  // B, emission included, ambient not
+    std::vector<Color> direct;     // the reflected direct part of B (step 1)
+    std::vector<Color> unshot;
+    Color ambient;                 // the ambient radiosity estimate (Cohen et al. 1988)
+    // Unshot power (luminance-weighted W) before the first shot of step 2 and after every shot.
+    std::vector<double> residual;
+    double entered_power = 0.0;    // what step 1 put into the scene
+    uint32_t shots = 0;
+    bool converged = false;
+    size_t cached_factors = 0;     // form factors kept for reuse
+    size_t links = 0;              // hierarchical: links between nodes (progressive: 0)
+    size_t nodes = 0;              // hierarchical: quadtree nodes
+};
+
+// The scene's emitters that are not meshed (points, distant lights, the dome, spheres).
+std::vector<uint32_t> UnmeshedLights(const Scene& scene, const RadiosityMesh& mesh);
+// Irradiance at x (normal n) from those lights by next event estimation with shadow rays,
+// `samples` samples each from sampler stream `stream` (a pure function of its arguments).
+Color GatherIrradiance(const Scene& scene, Vec3 x, Vec3 n, const std::vector<uint32_t>& lights, uint32_t samples,
+                       uint32_t seed, uint64_t stream, float eps);
+
+RadiositySolution SolveProgressive(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings);
+
+// The ambient-corrected reflected radiosity B - E + rho ambient, per element side.
+std::vector<Color> ReflectedRadiosity(const RadiosityMesh& mesh, const RadiositySolution& solution);
+
+}  // namespace tessera

@@ -1,0 +1,176 @@
+#include "radiosity_product.h"
+
+#include "hierarchical_solver.h"
+
+#include <cmath>
+#include <cstring>
+#include <mutex>
+#include <stdexcept>
+
+namespace tessera {
+
+namespace {
+
+constexpr char kMagic[4] = {'T', 'R', 'A', '1'};
+struct Header {
+    char magic[4];
+    uint32_t elements;
+    uint32_t vertices;
+    uint32_t shots;
+    float relative_residual;  // unshot / entered power at the end
+    uint32_t converged;
+};
+// Default element size as a fraction of the scene's bounding diameter (unit-free).
+constexpr float kDefaultElementOfDiameter = 1.f / 10.f;
+
+void Append(std::string* out, const std::vector<Color>& v) {
+    const size_t at = out->size();
+    out->resize(at + v.size() * sizeof(Color));
+    if (!v.empty()) std::memcpy(out->data() + at, v.data(), v.size() * sizeof(Color));
+}
+
+}  // namespace
+
+const std::vector<IntegratorParam>& RadiosityParams() {
+    static const std::vector<IntegratorParam> params = {
+    {"element_size", "longest edge of a radiosity element, scene units (default: a tenth of the scene's "
+                     "bounding diameter)"},
+    {"tolerance", "stop shooting when the unshot power is below this fraction of the emitted (default 0.001)"},
+    {"light_samples", "samples per element of each point, distant, dome or sphere light (default 16)"},
+    {"interpolate", "1: radiosity interpolated from the element vertices (default); 0: constant per element"},
+        {"solver", "0: progressive refinement, Southwell shooting (default); 1: hierarchical, BF-refined links"},
+    };
+    return params;
+}
+
+RadiositySettings RadiositySettingsFrom(const IntegratorSettings& s, const Scene& scene, const char* who) {
+    RadiositySettings r;
+    r.element_size = s.Param("element_size", kDefaultElementOfDiameter * 2.f * scene.scene_radius());
+    if (!(r.element_size > 0.f) || !std::isfinite(r.element_size))
+        throw std::invalid_argument(std::string(who) + " element_size must be a finite number > 0");
+    r.tolerance = s.Param("tolerance", 1e-3f);
+    if (!(r.tolerance > 0.f && r.tolerance < 1.f))
+        throw std::invalid_argument(std::string(who) + " tolerance must be a number in (0, 1)");
+    const float samples = s.Param("light_samples", 16.f);
+    if (!(samples >= 1.f && samples <= 65536.f && samples == std::floor(samples)))
+        throw std::invalid_argument(std::string(who) + " light_samples must be a whole number from 1 to 65536");
+    r.light_samples = uint32_t(samples);
+    const float solver = s.Param("solver", 0.f);
+    if (solver != 0.f && solver != 1.f)
+        throw std::invalid_argument(std::string(who) + " solver must be 0 (progressive) or 1 (hierarchical)");
+    r.hierarchical = solver == 1.f;
+    return r;
+}
+
+bool RadiosityInterpolates(const IntegratorSettings& s, const char* who) {
+    const float v = s.Param("interpolate", 1.f);
+    if (v != 0.f && v != 1.f) throw std::invalid_argument(std::string(who) + " interpolate must be 0 or 1");
+    return v == 1.f;
+}
+
+std::string SolveRadiosityProduct(const Scene& scene, const RadiositySettings& settings) {
+    const RadiosityMesh mesh(scene, settings.element_size);
+    const RadiositySolution sol = settings.hierarchical ? SolveHierarchical(scene, mesh, settings)
+                                                        : SolveProgressive(scene, mesh, settings);
+    const std::vector<Color> reflected = ReflectedRadiosity(mesh, sol);
+    Header h{};
+    std::memcpy(h.magic, kMagic, 4);
+    h.elements = uint32_t(mesh.elements().size());
+    h.vertices = uint32_t(mesh.num_vertices());
+    h.shots = sol.shots;
+    h.relative_residual = sol.entered_power > 0.0 && !sol.residual.empty() ? float(sol.residual.back() / sol.entered_power) : 0.f;
+    h.converged = sol.converged;
+    std::string out(sizeof(Header), '\0');
+    std::memcpy(out.data(), &h, sizeof(Header));
+    Append(&out, reflected);
+    Append(&out, sol.direct);
+    Append(&out, mesh.VertexAverage(reflected));
+    Append(&out, mesh.VertexAverage(sol.direct));
+    return out;
+}
+
+namespace {
+
+// Every tile builds its integrator, and the preview renders a frame as one tile: without
+// this, each would rebuild the mesh and re-parse the product (most of a preview frame's
+// time). The last few (scene, element size, product) are kept; the product's bytes are
+// compared whole, so a different solution is never taken for a cached one.
+struct CachedLookup {
+    const Scene* scene;
+    size_t triangles;
+    float element_size;
+    std::string product;
+    std::shared_ptr<const RadiosityLookup::Data> data;
+};
+std::mutex cache_mutex;
+std::vector<CachedLookup> cache;
+constexpr size_t kCachedLookups = 4;
+
+std::shared_ptr<const RadiosityLookup::Data> Parse(const Scene& scene, float element_size, const std::string& product,
+                                                   const char* who) {
+    Header h;
+    if (product.size() < sizeof(Header) || std::memcmp(product.data(), kMagic, 4) != 0)
+        throw std::invalid_argument(std::string(who) + ": the scene product is not a radiosity solution");
+    std::memcpy(&h, product.data(), sizeof(Header));
+    auto data = std::make_shared<RadiosityLookup::Data>(scene, element_size);
+    const size_t ne = 2 * size_t(h.elements), nv = 2 * size_t(h.vertices);
+    if (h.elements != data->mesh.elements().size() || h.vertices != data->mesh.num_vertices() ||
+        product.size() != sizeof(Header) + (2 * ne + 2 * nv) * sizeof(Color))
+        throw std::invalid_argument(std::string(who) +
+                                    ": the scene product is a radiosity solution of another scene or element_size");
+    const char* p = product.data() + sizeof(Header);
+    auto read = [&](std::vector<Color>* v, size_t count) {
+        v->resize(count);
+        if (count) std::memcpy(v->data(), p, count * sizeof(Color));
+        p += count * sizeof(Color);
+    };
+    read(&data->element_reflected, ne);
+    read(&data->element_direct, ne);
+    read(&data->vertex_reflected, nv);
+    read(&data->vertex_direct, nv);
+    return data;
+}
+
+}  // namespace
+
+RadiosityLookup::RadiosityLookup(const Scene& scene, float element_size, const std::string& product,
+                                 bool interpolate, const char* who)
+    : interpolate_(interpolate) {
+    {
+        std::lock_guard<std::mutex> lock(cache_mutex);
+        for (const CachedLookup& c : cache)
+            if (c.scene == &scene && c.triangles == scene.num_triangles() && c.element_size == element_size &&
+                c.product == product) {
+                data_ = c.data;
+                return;
+            }
+    }
+    data_ = Parse(scene, element_size, product, who);
+    std::lock_guard<std::mutex> lock(cache_mutex);
+    if (cache.size() >= kCachedLookups) cache.erase(cache.begin());
+    cache.push_back({&scene, scene.num_triangles(), element_size, product, data_});
+}
+
+bool RadiosityLookup::Reflected(const SurfaceHit& hit, Vec3 wo, Color* reflected, Color* direct) const {
+    float w[3];
+    const Data& d = *data_;
+    const int32_t e = d.mesh.Locate(hit, w);
+    if (e < 0) return false;
+    const RadiosityElement& el = d.mesh.elements()[e];
+    const int side = Dot(wo, el.n) > 0.f ? 0 : 1;
+    if (!interpolate_) {
+        *reflected = d.element_reflected[2 * e + side];
+        *direct = d.element_direct[2 * e + side];
+        return true;
+    }
+    Color r(0.f), dir(0.f);
+    for (int k = 0; k < 3; ++k) {
+        r += d.vertex_reflected[2 * el.vertex[k] + side] * w[k];
+        dir += d.vertex_direct[2 * el.vertex[k] + side] * w[k];
+    }
+    *reflected = r;
+    *direct = dir;
+    return true;
+}
+
+}  // namespace tessera

@@ -1,0 +1,46 @@
+// The radiosity solution as a scene-wide product (docs/integrators.md, "Scene-wide
+// passes"): the reflected radiosity, and its direct part, per element side and per display
+// vertex side. No geometry: every reader rebuilds the same RadiosityMesh from the scene
+// and element_size, and the product names its element and vertex counts to check that.
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "integrator.h"
+#include "progressive_solver.h"
+#include "radiosity_mesh.h"
+
+namespace tessera {
+
+// The settings the radiosity and hybrid integrators share, and their parsing
+// (IntegratorSettings -> RadiositySettings; throws std::invalid_argument on bad values).
+const std::vector<IntegratorParam>& RadiosityParams();
+RadiositySettings RadiositySettingsFrom(const IntegratorSettings& s, const Scene& scene, const char* who);
+bool RadiosityInterpolates(const IntegratorSettings& s, const char* who);
+
+// Solves and encodes: what RunScenePass of both integrators returns.
+std::string SolveRadiosityProduct(const Scene& scene, const RadiositySettings& settings);
+
+// A tile's view of a product: the radiosity leaving a surface point.
+class RadiosityLookup {
+public:
+    RadiosityLookup(const Scene& scene, float element_size, const std::string& product, bool interpolate,
+                    const char* who);
+    // Reflected radiosity (W m^-2, emission excluded, ambient included) leaving the hit on
+    // the side wo points to, and its direct part; false if the hit is on no element.
+    bool Reflected(const SurfaceHit& hit, Vec3 wo, Color* reflected, Color* direct) const;
+
+    struct Data {
+        Data(const Scene& scene, float element_size) : mesh(scene, element_size) {}
+        RadiosityMesh mesh;
+        std::vector<Color> element_reflected, element_direct, vertex_reflected, vertex_direct;
+    };
+
+private:
+    std::shared_ptr<const Data> data_;
+    bool interpolate_;
+};
+
+}  // namespace tessera

@@ -1,0 +1,128 @@
+"""Radiosity and the hybrid against path tracing on the Cornell box (examples/cornell).
+
+The box's UsdPreviewSurface walls have a rough specular lobe whose Fresnel term brightens
+grazing views: no view-independent method can reproduce that, so the comparisons use the
+same box made Lambertian (the same diffuse colours, material_params dropped), where
+radiosity's model is exact and only meshing and the solver's tolerance separate it from
+the path tracer.
+
+Precision: the path reference has 1024 samples per pixel; each wall region holds 70 to 240
+pixels, so its mean has a relative standard error of about 0.3 %. The radiosity check
+allows 2 % per region (the issue's bound), so it detects a 2 % error once the meshing bias
+is below ~1.5 %; the negative control scales the solution by 1.03 (transport is linear,
+so that is the image of a light 3 % brighter) and requires the same check to fail.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from conftest import CORNELL
+from tessera.preview import RadiosityPreview
+from tessera_renderer import Scene, load_scene
+
+W = 64
+LUM = np.array([0.2126, 0.7152, 0.0722])
+# Pixel rows and columns (64 x 64) of each wall, clear of the blocks, the light and the edges
+# (the ceiling starts two rows below its open front edge, where radiosity changes fastest).
+REGIONS = {"back": (8, 18, 22, 42), "left": (16, 40, 2, 9), "right": (16, 40, 55, 62),
+           "ceiling": (3, 8, 8, 22), "floor": (58, 63, 4, 20)}
+FINE, COARSE = 50.0, 100.0  # element sizes (the box is 555 units wide)
+
+
+@pytest.fixture(scope="module")
+def cornell() -> Scene:
+    data = load_scene(str(CORNELL)).data
+    return Scene(dataclasses.replace(data, material_params=None))
+
+
+@pytest.fixture(scope="module")
+def path_reference(cornell) -> np.ndarray:
+    return cornell.render_tile(0, 0, W, W, width=W, height=W, spp=1024, threads=2, integrator="path", seed=1)
+
+
+def region_means(img: np.ndarray) -> dict[str, float]:
+    return {k: float((img[r0:r1, c0:c1, :3] @ LUM).mean()) for k, (r0, r1, c0, c1) in REGIONS.items()}
+
+
+def relative_errors(img: np.ndarray, ref: np.ndarray) -> dict[str, float]:
+    a, b = region_means(img), region_means(ref)
+    return {k: a[k] / b[k] - 1 for k in a}
+
+
+def render(scene: Scene, integrator: str, params: dict, spp: int, product: bytes | None = None) -> np.ndarray:
+    product = product or scene.scene_pass(integrator, 0, threads=2, integrator_params=params)
+    return scene.render_tile(0, 0, W, W, width=W, height=W, spp=spp, threads=2, integrator=integrator,
+                             integrator_params=params, scene_product=product, seed=2)
+
+
+@pytest.mark.slow
+def test_radiosity_matches_path_per_wall_and_meshing_bias_shrinks(cornell, path_reference):
+    fine = relative_errors(render(cornell, "radiosity", {"element_size": FINE}, 4), path_reference)
+    coarse = relative_errors(render(cornell, "radiosity", {"element_size": COARSE}, 4), path_reference)
+    print("fine", fine, "coarse", coarse)
+    assert max(abs(e) for e in fine.values()) < 0.02, fine
+    # Meshing bias shrinks under refinement: in the worst region and on average.
+    assert max(abs(e) for e in fine.values()) < max(abs(e) for e in coarse.values())
+    assert sum(abs(e) for e in fine.values()) < sum(abs(e) for e in coarse.values())
+    # Negative control: a solution 3 % too bright fails the same check.
+    brighter = {k: (1 + e) * 1.03 - 1 for k, e in fine.items()}
+    assert max(abs(e) for e in brighter.values()) >= 0.02, brighter
+
+
+@pytest.mark.slow
+def test_hybrid_matches_path_and_counts_direct_light_once(cornell, path_reference):
+    """The hybrid's noise per region is about 0.5 % at 256 spp and its gather reads the
+    coarse solution one bounce away, where the meshing bias is diluted by the bounce: the
+    check allows 2 %. Counting direct light twice (NEE plus the solution's direct part at
+    the first vertex) would add the direct image once more, `local` minus nothing (no
+    region sees an emitter): the same check must refuse that."""
+    params = {"element_size": COARSE}
+    hybrid = render(cornell, "hybrid", params, 256)
+    errors = relative_errors(hybrid, path_reference)
+    print("hybrid", errors)
+    assert max(abs(e) for e in errors.values()) < 0.02, errors
+    direct = cornell.render_tile(0, 0, W, W, width=W, height=W, spp=256, threads=2, integrator="local", seed=3)
+    twice = relative_errors(hybrid + direct, path_reference)
+    assert max(abs(e) for e in twice.values()) >= 0.02, twice
+
+
+def test_solution_is_one_product_per_scene_and_settings(cornell):
+    params = {"element_size": 120.0}
+    first = cornell.scene_pass("radiosity", 0, threads=2, integrator_params=params)
+    assert cornell.scene_pass("radiosity", 3, threads=1, integrator_params=params) == first
+    assert cornell.scene_pass("hybrid", 0, threads=2, integrator_params=params) == first
+    assert cornell.scene_pass("radiosity", 0, threads=2, integrator_params={"element_size": 150.0}) != first
+
+
+def test_bad_settings_and_foreign_products_are_refused(cornell):
+    with pytest.raises(ValueError, match="element_size must be a finite number > 0"):
+        cornell.scene_pass("radiosity", 0, integrator_params={"element_size": 0})
+    with pytest.raises(ValueError, match="elements .at most 4194304.; make it larger"):
+        cornell.scene_pass("radiosity", 0, integrator_params={"element_size": 1e-3})
+    with pytest.raises(ValueError, match="tolerance"):
+        cornell.scene_pass("radiosity", 0, integrator_params={"tolerance": 2})
+    product = cornell.scene_pass("radiosity", 0, threads=2, integrator_params={"element_size": 150.0})
+    with pytest.raises(ValueError, match="another scene or element_size"):
+        render(cornell, "radiosity", {"element_size": 120.0}, 1, product=product)
+    photons = cornell.scene_pass("photon_direct", 0, integrator_params={"photons": 100})
+    with pytest.raises(ValueError, match="not a radiosity solution"):
+        render(cornell, "radiosity", {"element_size": 150.0}, 1, product=photons)
+
+
+def test_preview_frames_are_the_radiosity_image_from_a_moved_camera():
+    scene = load_scene(str(CORNELL))
+    params = {"element_size": 150.0}
+    preview = RadiosityPreview(scene, width=48, height=48, threads=2, integrator_params=params)
+    still = scene.render_tile(0, 0, 48, 48, width=48, height=48, spp=1, threads=2, integrator="radiosity",
+                              integrator_params=params, scene_product=preview.product)
+    assert np.array_equal(preview.frame(), still)
+    turned = preview.frame(yaw=math.radians(20))
+    assert not np.array_equal(turned, still)
+    # Orbiting left and right by the same angle mirrors the view of the box's symmetric
+    # shell; the blocks are not symmetric, so only the frame's mean brightness is compared.
+    other = preview.frame(yaw=-math.radians(20))
+    assert abs(float(turned[..., 3].mean()) - float(other[..., 3].mean())) < 0.05
