@@ -221,126 +221,67 @@ def cmd_worker(args: argparse.Namespace) -> int:
 
 
 def cmd_submit(args: argparse.Namespace) -> int:
-    """Uploads a scene to a farm's API; with --wait follows its progress and downloads
-    the image."""
-    import httpx
+    """Uploads a scene to a farm's API (through tessera.Client: a loose layer travels with
+    its assets); with --wait follows its progress and downloads the image."""
     from tqdm import tqdm
 
-    from tessera_queue.redis_schema import JobEvent
+    from .client import Client, FarmError
 
     scene = Path(args.scene)
-    token = args.token or os.environ.get("TESSERA_TOKEN")
-    headers = {"Authorization": f"Bearer {token}"} if token else {}
-    form = {k: v for k, v in dict(spp=args.spp, seed=args.seed, max_depth=args.max_depth,
-                                  tile_size=args.tile, priority=args.priority, integrator=args.integrator,
-                                  max_attempts=args.max_attempts, aovs=args.aovs,
-                                  default_light="false" if args.no_default_light else None,
-                                  denoise=args.denoise or None,
-                                  crop=",".join(map(str, args.crop)) if args.crop else None,
-                                  **_noise_target(args)).items() if v is not None}
-    if args.integrator_params:
-        form["integrator_params"] = json.dumps(_integrator_params(args))
-    if args.res:
-        form["width"], form["height"] = args.res
+    settings = {k: v for k, v in dict(spp=args.spp, seed=args.seed, max_depth=args.max_depth,
+                                      tile_size=args.tile, priority=args.priority, integrator=args.integrator,
+                                      max_attempts=args.max_attempts,
+                                      default_light="false" if args.no_default_light else None,
+                                      denoise=args.denoise or None,
+                                      crop=",".join(map(str, args.crop)) if args.crop else None,
+                                      **_noise_target(args)).items() if v is not None}
+    report = lambda line: print(line, file=sys.stderr)  # noqa: E731
     try:
-        with httpx.Client(base_url=args.server.rstrip("/"), headers=headers,
-                          timeout=httpx.Timeout(60, read=None)) as client:
+        with Client(args.server, args.token or os.environ.get("TESSERA_TOKEN")) as farm:
             try:
-                r = _post_scene(client, scene, {k: str(v) for k, v in form.items()})
+                job = farm.submit(scene, res=args.res, aovs=args.aovs.split(",") if args.aovs else (),
+                                  integrator_params=_integrator_params(args) or None,
+                                  report=report, **settings)
+            except FarmError as exc:
+                if exc.status_code is None:
+                    raise
+                print(f"tessera submit: the server refused the job ({exc.status_code}): {exc.detail}",
+                      file=sys.stderr)
+                return 2
             except (OSError, ValueError, RuntimeError) as exc:  # a scene unreadable here, UploadError
                 print(f"tessera submit: {exc}", file=sys.stderr)
                 return 2
-            if r.status_code != 201:
-                print(f"tessera submit: the server refused the job ({r.status_code}): "
-                      f"{_detail(r)}", file=sys.stderr)
-                return 2
-            job = r.json()
-            for w in job["warnings"]:
+            for w in job.warnings:
                 print(f"warning: {w}", file=sys.stderr)
-            print(job["id"])
+            print(job.id)
             if not args.wait:
                 return 0
-            total = job["tiles_total"]
-            with tqdm(total=total, unit="tile", desc=job["id"][:8], disable=args.quiet,
+            with tqdm(total=job.tiles_total, unit="tile", desc=job.id[:8], disable=args.quiet,
                       dynamic_ncols=True) as bar:
-                state = job["state"]
-                while state not in ("done", "failed", "cancelled"):
-                    # The event stream ends with the job's final state; reconnect if the
-                    # connection drops before that.
-                    try:
-                        with client.stream("GET", f"/jobs/{job['id']}/events") as events:
-                            for line in events.iter_lines():
-                                if not line.startswith("data: "):
-                                    continue
-                                event = JobEvent.model_validate_json(line[6:])
-                                if event.type == "tile" and event.tiles_done is not None:
-                                    bar.n = event.tiles_done
-                                    bar.refresh()
-                                elif event.type == "state":
-                                    state = event.state
-                    except httpx.TransportError:
-                        pass
-                    status = client.get(f"/jobs/{job['id']}").json()
-                    state = status["state"]
-                    bar.n = status["tiles_done"]
-                    bar.refresh()
-            if state != "done":
-                print(f"tessera submit: job {job['id']} {state}"
-                      + (f": {status['error']}" if status.get("error") else ""), file=sys.stderr)
+                for event in farm.events(job.id):
+                    if event.type == "tile" and event.tiles_done is not None:
+                        bar.n = event.tiles_done
+                        bar.refresh()
+                status = farm.status(job.id)
+                bar.n = status.tiles_done
+                bar.refresh()
+            if status.state != "done":
+                print(f"tessera submit: job {job.id} {status.state}"
+                      + (f": {status.error}" if status.error else ""), file=sys.stderr)
                 return 1
             output = Path(args.output) if args.output else Path(scene.stem + ".exr")
-            output.parent.mkdir(parents=True, exist_ok=True)
-            with client.stream("GET", f"/jobs/{job['id']}/image.exr") as r, open(output, "wb") as out:
-                if r.status_code != 200:
-                    r.read()
-                    print(f"tessera submit: cannot download the image: {_detail(r)}",
-                          file=sys.stderr)
-                    return 1
-                for chunk in r.iter_bytes():
-                    out.write(chunk)
-            print(f"wrote {output} ({status['elapsed_seconds']:.2f} s on the farm)",
-                  file=sys.stderr)
+            try:
+                farm.download(job.id, output)
+            except FarmError as exc:
+                if exc.status_code is None:
+                    raise
+                print(f"tessera submit: cannot download the image: {exc.detail}", file=sys.stderr)
+                return 1
+            print(f"wrote {output} ({status.elapsed_seconds:.2f} s on the farm)", file=sys.stderr)
             return 0
-    except httpx.HTTPError as exc:
-        print(f"tessera submit: cannot talk to {args.server}: {exc}", file=sys.stderr)
+    except FarmError as exc:
+        print(f"tessera submit: {exc}", file=sys.stderr)
         return 2
-
-
-def _post_scene(client, scene: Path, form: dict[str, str]):
-    """POST /jobs. A loose layer travels with its assets: its dependencies are gathered
-    (tessera_renderer.usd.packing), what they are and what is missing is reported, and only
-    the files the farm lacks are uploaded (tessera.upload). A .usdz or .zip is sent as it
-    is, and so is a layer that cannot be read here: the farm's pre-flight then says why."""
-    if scene.suffix.lower() in (".usdz", ".zip"):
-        with open(scene, "rb") as f:
-            return client.post("/jobs", files={"file": (scene.name, f)}, data=form)
-    from tessera_renderer import SceneError
-    from tessera_renderer.usd.packing import gather
-
-    from .upload import submit_packed
-
-    try:
-        pack = gather(scene)
-    except SceneError as exc:
-        if not scene.is_file():
-            raise ValueError(str(exc)) from None
-        print(f"warning: not packed, sent alone: {exc}", file=sys.stderr)
-        with open(scene, "rb") as f:
-            return client.post("/jobs", files={"file": (scene.name, f)}, data=form)
-    for line in pack.missing:
-        print(f"warning: not found, not packed: {line}", file=sys.stderr)
-    for line in pack.unportable:
-        print(f"warning: cannot travel: {line}", file=sys.stderr)
-    r, report = submit_packed(client, pack.files, pack.entry, form)
-    print(f"{scene.name}: {report.summary()} (from {pack.root})", file=sys.stderr)
-    return r
-
-
-def _detail(response) -> str:
-    try:
-        return str(response.json().get("detail"))
-    except ValueError:
-        return response.text[:200]
 
 
 def cmd_compare(args: argparse.Namespace) -> int:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterable, Iterator, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Mapping
 
 import httpx
 
@@ -27,9 +27,10 @@ class FarmError(RuntimeError):
     """The farm refused a request or could not be reached; `status_code` is the HTTP
     status (None when there was no answer) and the message is the server's detail."""
 
-    def __init__(self, message: str, status_code: int | None = None):
+    def __init__(self, message: str, status_code: int | None = None, detail: str | None = None):
         super().__init__(message)
         self.status_code = status_code
+        self.detail = detail if detail is not None else message
 
 
 @dataclass
@@ -81,11 +82,16 @@ class Client:
     def submit(self, scene: str | Path, *, spp: int | None = None, integrator: str | None = None,
                res: tuple[int, int] | None = None, aovs: Iterable[str] = (), seed: int | None = None,
                priority: int | None = None, integrator_params: Mapping[str, float] | None = None,
-               **settings: Any) -> Job:
-        """Uploads `scene` (a USD file or a .zip/.usdz bundle) as a new job and returns it
-        (state "queued"). The keywords are tessera.render's; `priority` is 0-9 and any other
-        job setting of POST /jobs (max_depth, tile_size, target_error, min_spp, max_spp,
-        time_limit, max_attempts, default_light, denoise) passes through `settings`."""
+               report: Callable[[str], None] | None = None, **settings: Any) -> Job:
+        """Uploads `scene` as a new job and returns it (state "queued"). A .zip/.usdz bundle
+        is sent as it is; a loose USD layer travels with its assets: its dependencies are
+        gathered (tessera_renderer.usd.packing) and only the files the farm lacks are
+        uploaded (tessera.upload), and `report` (if given) receives one line per file that
+        could not be packed and a summary of what was sent. A layer that cannot be read
+        here is sent alone, so that the farm's pre-flight says why. The keywords are
+        tessera.render's; `priority` is 0-9 and any other job setting of POST /jobs
+        (max_depth, tile_size, target_error, min_spp, max_spp, time_limit, max_attempts,
+        default_light, denoise, crop) passes through `settings`."""
         form: dict[str, Any] = dict(spp=spp, integrator=integrator, seed=seed, priority=priority, **settings)
         if res is not None:
             form["width"], form["height"] = res
@@ -95,10 +101,40 @@ class Client:
         if integrator_params:
             form["integrator_params"] = json.dumps(dict(integrator_params))
         data = {k: (str(v).lower() if isinstance(v, bool) else str(v)) for k, v in form.items() if v is not None}
-        scene = Path(scene)
-        with open(scene, "rb") as f:
-            r = self._request("POST", "/jobs", files={"file": (scene.name, f)}, data=data)
+        r = self._post_scene(Path(scene), data, report or (lambda line: None))
+        if r.status_code >= 400:
+            raise FarmError(f"POST /jobs: {r.status_code}: {_detail(r)}", r.status_code, _detail(r))
         return Job.from_json(r.json())
+
+    def _post_scene(self, scene: Path, form: dict[str, str], report: Callable[[str], None]) -> httpx.Response:
+        def send_alone() -> httpx.Response:
+            with open(scene, "rb") as f:
+                return self._send("POST", "/jobs", files={"file": (scene.name, f)}, data=form)
+
+        if scene.suffix.lower() in (".usdz", ".zip"):
+            return send_alone()
+        from tessera_renderer import SceneError
+        from tessera_renderer.usd.packing import gather
+
+        from .upload import submit_packed
+
+        try:
+            pack = gather(scene)
+        except SceneError as exc:
+            if not scene.is_file():
+                raise ValueError(str(exc)) from None
+            report(f"warning: not packed, sent alone: {exc}")
+            return send_alone()
+        for line in pack.missing:
+            report(f"warning: not found, not packed: {line}")
+        for line in pack.unportable:
+            report(f"warning: cannot travel: {line}")
+        try:
+            r, sent = submit_packed(self._http, pack.files, pack.entry, form)
+        except httpx.HTTPError as exc:
+            raise FarmError(f"cannot talk to {self.url}: {exc}") from None
+        report(f"{scene.name}: {sent.summary()} (from {pack.root})")
+        return r
 
     def status(self, job_id: str) -> Job:
         """The job's state, progress, timings, warnings and error."""
@@ -160,13 +196,16 @@ class Client:
         return Job.from_json(self._request("DELETE", f"/jobs/{job_id}").json())
 
     # -- plumbing -----------------------------------------------------------------------
-    def _request(self, method: str, path: str, **kwargs) -> httpx.Response:
+    def _send(self, method: str, path: str, **kwargs) -> httpx.Response:
         try:
-            r = self._http.request(method, path, **kwargs)
+            return self._http.request(method, path, **kwargs)
         except httpx.HTTPError as exc:
             raise FarmError(f"cannot talk to {self.url}: {exc}") from None
+
+    def _request(self, method: str, path: str, **kwargs) -> httpx.Response:
+        r = self._send(method, path, **kwargs)
         if r.status_code >= 400:
-            raise FarmError(f"{method} {path}: {r.status_code}: {_detail(r)}", r.status_code)
+            raise FarmError(f"{method} {path}: {r.status_code}: {_detail(r)}", r.status_code, _detail(r))
         return r
 
 

@@ -12,7 +12,7 @@ import pytest
 
 from test_bundles import MESH, layer
 
-SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
+SCENES = Path(os.environ.get("TESSERA_SHARED_SCENES", Path(__file__).resolve().parents[4] / "shared" / "scenes"))
 CAR_KIT = SCENES / "usdwg_mini_car_kit" / "USD_Mini_Car_Kit"
 SHARED = [CAR_KIT / "assets" / "vehicles" / "vehicleVariants.usda",
           SCENES / "usdwg_teapot" / "Teapot.usd",
