@@ -101,10 +101,17 @@ def encode_image(rgba: np.ndarray, spec: JobSpec, fmt: str, aovs: dict[str, np.n
     with tempfile.TemporaryDirectory(prefix=f"tessera-merge-{os.getpid()}-") as tmp:
         path = Path(tmp, f"image.{fmt}")
         if fmt == "exr":
+            from tessera_base.exr_header import noise_attributes
+
             s = spec.settings
-            images.write_exr(path, rgba, images.render_metadata(
-                s.max_spp if s.adaptive else s.spp, s.seed, spec.scene_name, s.integrator,
-                farm_variance_kind(s, aovs)), aovs=aovs, crop=s.crop)
+            kind = farm_variance_kind(s, aovs)
+            metadata = images.render_metadata(s.max_spp if s.adaptive else s.spp, s.seed, spec.scene_name,
+                                              s.integrator, kind)
+            # The noise asked for and reached, as a local render writes them (the scene
+            # file's own hash is local only: the farm holds the uploaded bundle).
+            layers = aovs or {}
+            metadata.update(noise_attributes(s.target_error, rgba, layers.get("variance"), layers.get("spp"), kind))
+            images.write_exr(path, rgba, metadata, aovs=aovs, crop=s.crop)
         else:
             images.write_png_preview(path, rgba)
         return path.read_bytes()

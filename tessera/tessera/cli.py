@@ -94,10 +94,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     except NonFiniteSampleError as exc:
         print(f"tessera render: renderer bug: {exc}", file=sys.stderr)
         return 3
-    from tessera_base.exr_header import provenance
+    from tessera_base.exr_header import scene_sha256
 
-    image.metadata.update(provenance(scene_path, settings.target_error, image.rgba, image.layers.get("variance"),
-                                     image.layers.get("spp"), image.metadata.get("tessera:variance")))
+    image.metadata["tessera:scene_sha256"] = scene_sha256(scene_path)
     image.write(output, crop=args.crop)
     result = image.metadata
     preview = output.with_suffix(".png")

@@ -116,10 +116,9 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
     image = render_scene(loaded, settings, scene_name=name, threads=threads, progress=progress,
                          variance=variance)
     if isinstance(scene, (str, Path)):
-        from tessera_base.exr_header import provenance
+        from tessera_base.exr_header import scene_sha256
 
-        image.metadata.update(provenance(scene, settings.target_error, image.rgba, image.layers.get("variance"),
-                                         image.layers.get("spp"), image.metadata.get("tessera:variance")))
+        image.metadata["tessera:scene_sha256"] = scene_sha256(scene)
     return image
 
 
@@ -142,6 +141,10 @@ def render_scene(scene, settings, *, scene_name: str, threads: int = 0, progress
     variance_kind = result.variance_kind if "variance" in layers and result.variance is not None else None
     metadata: dict[str, Any] = render_metadata(settings.max_spp if settings.adaptive else settings.spp,
                                                settings.seed, scene_name, settings.integrator, variance_kind)
+    from tessera_base.exr_header import noise_attributes
+
+    metadata.update(noise_attributes(settings.target_error, result.rgba, layers.get("variance"), layers.get("spp"),
+                                     variance_kind))
     metadata.update(integrator=result.integrator, seconds=result.seconds, samples=result.samples,
                     samples_per_second=result.samples_per_second, passes=result.passes,
                     warnings=list(getattr(scene, "warnings", [])), denoise_warning=result.denoise_warning)

@@ -40,7 +40,15 @@ def reached_error(rgba: np.ndarray, variance: np.ndarray | None, spp: np.ndarray
 def provenance(scene: str | Path, target_error: float | None, rgba: np.ndarray,
                variance: np.ndarray | None, spp: np.ndarray | None,
                variance_kind: str | None) -> dict[str, str]:
-    out = {"tessera:scene_sha256": scene_sha256(scene)}
+    return {"tessera:scene_sha256": scene_sha256(scene),
+            **noise_attributes(target_error, rgba, variance, spp, variance_kind)}
+
+
+def noise_attributes(target_error: float | None, rgba: np.ndarray, variance: np.ndarray | None,
+                     spp: np.ndarray | None, variance_kind: str | None) -> dict[str, str]:
+    """The noise target asked for and the noise reached (reached_error), as header
+    attributes; local renders and the farm's merge write them alike."""
+    out = {}
     if target_error is not None:
         out["tessera:target_error"] = f"{target_error:g}"
     error = reached_error(rgba, variance, spp, variance_kind)

@@ -45,7 +45,8 @@ def test_farm_reference_equals_the_local_one(farm_url, tmp_path, integrator):
     for name in local:
         assert np.array_equal(local[name].view(np.uint32), farm[name].view(np.uint32)), name
     meta = [images.read_render(tmp_path / side / "cornell.exr").metadata for side in ("local", "farm")]
-    shared = ("tessera:spp", "tessera:seed", "tessera:integrator", "tessera:variance", "tessera:version")
+    shared = ("tessera:spp", "tessera:seed", "tessera:integrator", "tessera:variance", "tessera:version",
+              "tessera:reached_error")
     assert {k: meta[0][k] for k in shared} == {k: meta[1][k] for k in shared}
 
 

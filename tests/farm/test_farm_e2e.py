@@ -356,15 +356,20 @@ def test_farm_aovs_equal_a_local_render(farm, tmp_path, form):
     download_exr(farm, status["id"], tmp_path / "farm.exr")
     settings = RenderSettings(aovs="all", **form)
     local = render_image(load_scene(str(CORNELL)), settings, progress=False)
-    images.write_exr(tmp_path / "local.exr", local.rgba, images.render_metadata(
-        settings.max_spp if settings.adaptive else settings.spp, settings.seed, CORNELL.name,
-        settings.integrator, local.variance_kind), aovs=local.aovs)
+    from tessera_base.exr_header import noise_attributes
+
+    local_meta = images.render_metadata(settings.max_spp if settings.adaptive else settings.spp, settings.seed,
+                                        CORNELL.name, settings.integrator, local.variance_kind)
+    local_meta.update(noise_attributes(settings.target_error, local.rgba, local.aovs.get("variance", local.variance),
+                                       local.aovs.get("spp", local.spp), local.variance_kind))
+    images.write_exr(tmp_path / "local.exr", local.rgba, local_meta, aovs=local.aovs)
     farm_channels = images.read_exr_channels(tmp_path / "farm.exr")
     local_channels = images.read_exr_channels(tmp_path / "local.exr")
     assert set(farm_channels) == set(local_channels) and "N.Y" in farm_channels and "Z" in farm_channels
     for name, values in local_channels.items():  # the variance too: bdpt's from batch means
         assert_bit_identical(farm_channels[name], values)
-    # The same header: integrator, spp, seed, version and what the variance layer means.
+    # The same header: integrator, spp, seed, version, what the variance layer means and
+    # the noise reached (the farm's from its merged layers).
     farm_meta, local_meta = (
         {k: v for k, v in images.read_render(tmp_path / f).metadata.items() if k.startswith("tessera:")}
         for f in ("farm.exr", "local.exr"))
