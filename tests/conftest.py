@@ -1,6 +1,7 @@
 """Shared fixtures: real redis-server, real uvicorn and worker subprocesses (no fakes)."""
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -87,6 +88,21 @@ def redis_client(redis_server) -> redis.Redis:
     client = redis.Redis.from_url(redis_server)
     yield client
     client.close()
+
+
+@contextlib.contextmanager
+def api_client(redis_url: str, log_dir: Path):
+    """An API process on `redis_url` with no workers of its own, and an httpx client for
+    it carrying `.api` (the process), `.redis_url` and `.log_dir` (for the tests' own
+    start_worker calls). The process stops when the block ends."""
+    api_proc, base = start_api(redis_url, log_dir)
+    try:
+        with httpx.Client(base_url=base, timeout=60) as client:
+            client.api = api_proc
+            client.redis_url, client.log_dir = redis_url, log_dir
+            yield client
+    finally:
+        api_proc.stop()
 
 
 def start_api(redis_url: str, log_dir: Path, host: str = "127.0.0.1",

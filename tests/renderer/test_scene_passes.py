@@ -19,11 +19,10 @@ import shutil
 import signal
 import time
 
-import httpx
 import numpy as np
 import pytest
 
-from conftest import CORNELL, child_pids, farm_image, start_api, start_worker, submit, wait_for_job
+from conftest import CORNELL, api_client, child_pids, farm_image, start_worker, submit, wait_for_job
 from tessera import local
 from tessera_base.protocol import RenderSettings
 from tessera_queue import redis_schema as rdb
@@ -40,13 +39,8 @@ ITERATIONS = 3
 
 @pytest.fixture(scope="module")
 def farm(redis_server, tmp_path_factory):
-    logs = tmp_path_factory.mktemp("scene-passes")
-    api_proc, base = start_api(redis_server, logs)
-    with httpx.Client(base_url=base, timeout=60) as client:
-        client.api = api_proc
-        client.redis_url, client.log_dir = redis_server, logs
+    with api_client(redis_server, tmp_path_factory.mktemp("scene-passes")) as client:
         yield client
-    api_proc.stop()
 
 
 def local_image(form: dict, params: dict, counter: list | None = None) -> np.ndarray:

@@ -15,11 +15,10 @@ import shutil
 import signal
 import time
 
-import httpx
 import numpy as np
 import pytest
 
-from conftest import REPO, child_pids, farm_image, start_api, start_worker, submit, wait_for_job
+from conftest import REPO, api_client, child_pids, farm_image, start_worker, submit, wait_for_job
 from tessera import local
 from tessera_base import protocol
 from tessera_queue import redis_schema as rdb
@@ -37,12 +36,8 @@ pytestmark = pytest.mark.slow  # about a minute: real farms, four iterations eac
 
 @pytest.fixture(scope="module")
 def farm(redis_server, tmp_path_factory):
-    logs = tmp_path_factory.mktemp("sppm-farm")
-    api_proc, base = start_api(redis_server, logs)
-    with httpx.Client(base_url=base, timeout=60) as client:
-        client.redis_url, client.log_dir = redis_server, logs
+    with api_client(redis_server, tmp_path_factory.mktemp("sppm-farm")) as client:
         yield client
-    api_proc.stop()
 
 
 def local_image(form: dict, params: dict, scene_path=CAUSTIC) -> np.ndarray:
