@@ -164,14 +164,18 @@ def submit(client: httpx.Client, scene: Path, **form) -> httpx.Response:
 
 
 def wait_for_job(client: httpx.Client, job_id: str, timeout: float = 60.0,
-                 processes: list[Process] = ()) -> dict:
-    """Polls the job until it reaches a final state; returns its last status."""
+                 processes: list[Process] = (), expect: str | None = None) -> dict:
+    """Polls the job until it reaches a final state; returns its last status. With
+    `expect`, asserts that state, showing the job's error and the processes' logs if not."""
     deadline = time.monotonic() + timeout
     while True:
         r = client.get(f"/jobs/{job_id}")
         assert r.status_code == 200, r.text
         status = r.json()
         if status["state"] in protocol.FINAL_STATES:
+            assert expect is None or status["state"] == expect, (
+                f"job {job_id} is {status['state']}, not {expect}: {status.get('error')}\n"
+                f"{status}\n" + "\n".join(p.log() for p in processes))
             return status
         assert time.monotonic() < deadline, (
             f"job {job_id} not finished after {timeout} s: {status}\n"

@@ -56,8 +56,7 @@ def assert_farm_renders_the_cornell_box(farm, scene: Path, form: dict, out: Path
     """`scene` submitted with `form` finishes, and its image is the local Cornell box's."""
     r = submit(farm, scene, **form)
     assert r.status_code == 201, r.text
-    status = wait_for_job(farm, r.json()["id"], processes=farm.processes)
-    assert status["state"] == "done", status
+    status = wait_for_job(farm, r.json()["id"], processes=farm.processes, expect="done")
     assert_bit_identical(download_exr(farm, status["id"], out), reference(form))
 
 
@@ -83,8 +82,7 @@ def test_farm_image_equals_local_render(farm, redis_client, tmp_path):
     job = r.json()
     assert job["tiles_total"] == 20 and (job["width"], job["height"]) == (72, 56)
 
-    status = wait_for_job(farm, job["id"], processes=farm.processes)
-    assert status["state"] == "done", status
+    status = wait_for_job(farm, job["id"], processes=farm.processes, expect="done")
     assert status["tiles_done"] == status["tiles_total"] == 20
     assert status["started_at"] and status["finished_at"] and status["render_seconds"] > 0
     assert status["error"] is None
@@ -168,8 +166,7 @@ def test_sigterm_lets_the_worker_finish_its_tile(farm, redis_server, redis_clien
         if redis_client.exists(queue):
             assert all(c["name"] != b"w-c" for c in
                        redis_client.xinfo_consumers(queue, rdb.WORKER_GROUP))
-        status = wait_for_job(farm, job_id, processes=farm.processes)
-        assert status["state"] == "done", status
+        status = wait_for_job(farm, job_id, processes=farm.processes, expect="done")
     finally:
         worker.stop()
 
@@ -200,8 +197,7 @@ def test_killed_worker_tile_is_taken_over(farm, redis_client, tmp_path):
     victim.popen.wait(timeout=10)
     assert status["state"] == "running"
 
-    status = wait_for_job(farm, job_id, processes=farm.processes)
-    assert status["state"] == "done", status
+    status = wait_for_job(farm, job_id, processes=farm.processes, expect="done")
     assert status["tiles_done"] == 25
     assert_bit_identical(download_exr(farm, job_id, tmp_path / "farm.exr"), reference(form))
 
@@ -255,8 +251,7 @@ def test_embedded_serve_runs_a_whole_farm_and_stops_it(tmp_path):
         with httpx.Client(base_url=base, timeout=60) as client:
             r = submit(client, CORNELL, width=16, height=16, spp=1, tile_size=8)
             assert r.status_code == 201, r.text
-            status = wait_for_job(client, r.json()["id"], processes=[serve])
-            assert status["state"] == "done", status
+            status = wait_for_job(client, r.json()["id"], processes=[serve], expect="done")
 
         serve.popen.send_signal(signal.SIGTERM)
         assert serve.popen.wait(timeout=30) == 0, serve.log()
@@ -304,8 +299,7 @@ def test_embedded_serve_restarts_a_killed_worker(tmp_path):
         with httpx.Client(base_url=base, timeout=60) as client:
             r = submit(client, CORNELL, width=16, height=16, spp=1, tile_size=8)
             assert r.status_code == 201, r.text
-            status = wait_for_job(client, r.json()["id"], processes=[serve])
-            assert status["state"] == "done", status
+            status = wait_for_job(client, r.json()["id"], processes=[serve], expect="done")
     finally:
         serve.stop()
 
@@ -329,8 +323,7 @@ def test_splatting_integrators_on_the_farm_equal_a_local_render(farm, tmp_path, 
     form = dict(width=40, height=24, spp=4, seed=5, max_depth=8, tile_size=16, integrator=integrator)
     r = submit(farm, CORNELL, **form)
     assert r.status_code == 201, r.text
-    status = wait_for_job(farm, r.json()["id"], processes=farm.processes)
-    assert status["state"] == "done", status
+    status = wait_for_job(farm, r.json()["id"], processes=farm.processes, expect="done")
     actual = download_exr(farm, status["id"], tmp_path / "farm.exr")
     local = render_image(load_scene(str(CORNELL)), RenderSettings(**form), progress=False,
                          variance=False).rgba
@@ -351,8 +344,7 @@ def test_farm_aovs_equal_a_local_render(farm, tmp_path, form):
 
     r = submit(farm, CORNELL, aovs="all", **form)
     assert r.status_code == 201, r.text
-    status = wait_for_job(farm, r.json()["id"], processes=farm.processes)
-    assert status["state"] == "done", status
+    status = wait_for_job(farm, r.json()["id"], processes=farm.processes, expect="done")
     download_exr(farm, status["id"], tmp_path / "farm.exr")
     settings = RenderSettings(aovs="all", **form)
     local = render_image(load_scene(str(CORNELL)), settings, progress=False)
@@ -391,8 +383,7 @@ def test_farm_denoised_layer_equals_the_local_one(farm, tmp_path):
     form = dict(width=48, height=40, spp=4, seed=2, max_depth=8, tile_size=16)
     r = submit(farm, CORNELL, denoise="true", **form)
     assert r.status_code == 201, r.text
-    status = wait_for_job(farm, r.json()["id"], processes=farm.processes)
-    assert status["state"] == "done", status
+    status = wait_for_job(farm, r.json()["id"], processes=farm.processes, expect="done")
     assert status["settings"]["denoise"] is True
     assert status["settings"]["aovs"] == ["albedo", "normal"]
     download_exr(farm, status["id"], tmp_path / "farm.exr")

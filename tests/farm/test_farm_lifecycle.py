@@ -170,8 +170,7 @@ def test_worker_that_keeps_failing_a_job_is_blocklisted(farm, tmp_path):
     r = submit(farm, scene_named(tmp_path, "blocky.usda"), **form)
     assert r.status_code == 201
     job_id = r.json()["id"]
-    status = wait_for_job(farm, job_id, processes=farm.processes)
-    assert status["state"] == "done", status
+    status = wait_for_job(farm, job_id, processes=farm.processes, expect="done")
     log = farm.get(f"/jobs/{job_id}/log").json()["lines"]
     assert any("worker w-y is blocklisted for this job" in line for line in log), log
     # w-y crashed exactly until it was blocklisted; w-x rendered everything correctly.
@@ -291,8 +290,7 @@ def test_noise_target_passes_equal_the_local_render(farm, redis_client, tmp_path
     r = submit(farm, CORNELL, **form)
     assert r.status_code == 201, r.text
     job_id = r.json()["id"]
-    status = wait_for_job(farm, job_id, processes=farm.processes)
-    assert status["state"] == "done", status
+    status = wait_for_job(farm, job_id, processes=farm.processes, expect="done")
     # Tiles converge unevenly: more passes than tiles, fewer than the full schedule.
     assert 9 < status["passes_done"] < 9 * 5, status
     fields = redis_client.hkeys(rdb.job_tiles_key(job_id))
@@ -310,8 +308,7 @@ def test_lockstep_noise_target_equals_the_local_render(farm, redis_client, tmp_p
     r = submit(farm, CORNELL, **form)
     assert r.status_code == 201, r.text
     job_id = r.json()["id"]
-    status = wait_for_job(farm, job_id, processes=farm.processes)
-    assert status["state"] == "done", status
+    status = wait_for_job(farm, job_id, processes=farm.processes, expect="done")
     assert status["tiles_done"] == status["tiles_total"] == 4
     fields = {f.decode() for f in redis_client.hkeys(rdb.job_tiles_key(job_id))}
     passes = status["passes_done"] // 4

@@ -123,8 +123,7 @@ def test_workers_on_other_hosts_one_host_dies(hosts, tmp_path):
                 time.sleep(0.01)
             for w in w1:
                 os.kill(w.pid, signal.SIGKILL)
-            status = wait_for_job(client, job_id, timeout=180, processes=processes)
-            assert status["state"] == "done", status
+            status = wait_for_job(client, job_id, timeout=180, processes=processes, expect="done")
             rendered_by_w2 = int(hub_redis.hget(rdb.worker_key("w2-0"), "tiles_done") or 0)
             assert rendered_by_w2 > 0
             r = client.get(f"/jobs/{job_id}/image.exr")

@@ -230,8 +230,7 @@ def test_restarting_redis_api_and_all_workers_loses_nothing(tmp_path):
         workers[:] = [start_worker(url, f"r-new-{i}", tmp_path) for i in range(2)]
         expected = local_reference(form)
         for job_id in ids:
-            status = wait_for_job(client, job_id, timeout=180, processes=[api, *workers])
-            assert status["state"] == "done", status
+            status = wait_for_job(client, job_id, timeout=180, processes=[api, *workers], expect="done")
             assert status["tiles_done"] == 16
             assert_bit_identical(farm_image(client, job_id, tmp_path), expected, job_id)
 

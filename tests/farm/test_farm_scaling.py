@@ -55,8 +55,7 @@ def test_scaling_counts_the_open_tasks_of_runnable_jobs(api, redis_server, tmp_p
     assert open_tasks(api) == TILES
     worker = start_worker(redis_server, "sc-w", tmp_path)
     try:
-        status = wait_for_job(api, job_id, processes=[worker])
-        assert status["state"] == "done", status
+        status = wait_for_job(api, job_id, processes=[worker], expect="done")
         assert api.get("/scaling").json() == {"open_tasks": 0, "workers": 1}
     finally:
         worker.stop()

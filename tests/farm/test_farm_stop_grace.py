@@ -109,8 +109,7 @@ def test_a_tile_not_done_within_the_budget_is_handed_back(farm, redis_client, re
         assert f"job {job_id} tile 0 (pass 0) is not done after the stop budget of 0.5 s" in log, log
         assert "rendered in" not in log, log  # it stopped rendering rather than finished
         assert not redis_client.exists(rdb.worker_key("sg-stopping"))
-        status = wait_for_job(farm, job_id, timeout=120, processes=[taker, *farm.processes])
-        assert status["state"] == "done", status
+        status = wait_for_job(farm, job_id, timeout=120, processes=[taker, *farm.processes], expect="done")
         assert stats(redis_client, "handed_back") == handed + 1
         assert stats(redis_client, "reclaimed") == reclaimed  # no reaper was involved
         assert int(redis_client.hget(rdb.worker_key("sg-taker"), "tiles_done")) == 1
@@ -139,8 +138,7 @@ def test_a_tile_done_within_the_budget_is_finished_before_the_exit(farm, redis_c
         assert worker.popen.wait(timeout=EXIT_TIMEOUT + 120) == 0, worker.log()
         assert f"job {job_id} tile 0 pass 0 rendered" in worker.log(200), worker.log()
         # The only worker is gone: the job is done because it stored the tile before leaving.
-        status = wait_for_job(farm, job_id, timeout=10, processes=farm.processes)
-        assert status["state"] == "done", status
+        status = wait_for_job(farm, job_id, timeout=10, processes=farm.processes, expect="done")
         assert stats(redis_client, "handed_back") == handed
         assert_bit_identical(farm_image(farm, job_id, tmp_path), reference)
     finally:

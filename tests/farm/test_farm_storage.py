@@ -151,8 +151,7 @@ def test_a_full_redis_refuses_writes_and_loses_no_tile(tmp_path):
                 assert refused.headers["retry-after"] == "30"
                 assert [j["id"] for j in http.get("/jobs").json()["jobs"]] == [job_id]
                 client.config_set("maxmemory", 0)
-                status = wait_for_job(http, job_id, processes=[worker, late])
-                assert status["state"] == "done", status
+                status = wait_for_job(http, job_id, processes=[worker, late], expect="done")
                 assert_bit_identical(farm_image(http, job_id, tmp_path), local_reference(form))
                 assert "keeping it and trying again" in worker.log(400)
                 wait_until(lambda: client.exists(rdb.worker_key("oom-late")), 30,
@@ -201,8 +200,7 @@ def test_a_scene_lives_as_long_as_a_job_needs_it(tmp_path):
                 # One job still needs it: still no expiry.
                 assert client.pttl(scene) == -1
                 assert http.post(f"/jobs/{paused}/resume").status_code == 200
-                status = wait_for_job(http, paused, processes=[worker])
-                assert status["state"] == "done", status
+                status = wait_for_job(http, paused, processes=[worker], expect="done")
                 # The last job ended: the retention starts, and the scene goes.
                 assert 0 < client.pttl(scene) <= 2000
                 expected = local_reference(form)

@@ -74,8 +74,7 @@ def test_farm_image_equals_local(farm, redis_client, tmp_path, integrator, param
     workers = [start_worker(farm.redis_url, f"sppm-{integrator}-{i}", farm.log_dir) for i in range(2)]
     try:
         job = submit_job(farm, CAUSTIC, form, params)
-        status = wait_for_job(farm, job, timeout=180, processes=workers)
-        assert status["state"] == "done", status
+        status = wait_for_job(farm, job, timeout=180, processes=workers, expect="done")
         expected = local_image(form, params)
         assert_bit_identical(farm_image(farm, job, tmp_path), expected)
         fields = redis_client.hgetall(rdb.job_key(job))
@@ -125,8 +124,7 @@ def test_a_worker_killed_mid_iteration_changes_nothing(farm, redis_client, tmp_p
     victim.stop()
     rescuer = start_worker(farm.redis_url, f"sppm-rescuer-{target}", farm.log_dir)
     try:
-        status = wait_for_job(farm, job, timeout=180, processes=[rescuer])
-        assert status["state"] == "done", status
+        status = wait_for_job(farm, job, timeout=180, processes=[rescuer], expect="done")
         assert int(redis_client.hget(rdb.STATS, "reclaimed") or 0) > reclaimed_before
         assert int(redis_client.hget(rdb.job_key(job), "scene_passes_stored")) == ITERATIONS
         assert_bit_identical(farm_image(farm, job, tmp_path), local_image(FORM, PARAMS, scene))

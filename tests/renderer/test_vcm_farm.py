@@ -65,8 +65,7 @@ def test_farm_vcm_image_equals_local(farm, redis_client, tmp_path, expected):
     workers = [start_worker(farm.redis_url, f"vcm-{i}", farm.log_dir) for i in range(2)]
     try:
         job = submit_job(farm, CORNELL)
-        status = wait_for_job(farm, job, timeout=180, processes=workers)
-        assert status["state"] == "done", status
+        status = wait_for_job(farm, job, timeout=180, processes=workers, expect="done")
         assert_bit_identical(farm_image(farm, job, tmp_path), expected)
         fields = redis_client.hgetall(rdb.job_key(job))
         assert int(fields[b"scene_passes_stored"]) == ITERATIONS
@@ -112,8 +111,7 @@ def test_a_worker_killed_mid_iteration_leaves_the_image_unchanged(farm, redis_cl
     victim.stop()
     rescuer = start_worker(farm.redis_url, "vcm-rescuer", farm.log_dir)
     try:
-        status = wait_for_job(farm, job, timeout=180, processes=[rescuer])
-        assert status["state"] == "done", status
+        status = wait_for_job(farm, job, timeout=180, processes=[rescuer], expect="done")
         assert_bit_identical(farm_image(farm, job, tmp_path), expected)
     finally:
         rescuer.stop()

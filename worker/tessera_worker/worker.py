@@ -433,11 +433,18 @@ class Worker:
         read one at a time, so memory stays at a few full frames."""
         job_id, s, p = task.job_id, task.settings, task.pass_index
         key = rdb.job_key(job_id)
-        decided = _text(self.redis.hget(key, "decided_pass"))
+        # Read together (decide_pass.lua writes both at once): read apart, a barrier
+        # reclaimed from a slow worker could see the other's accumulator of pass p + 1 with
+        # the decision still unread, and fail a healthy job.
+        with self.redis.pipeline(transaction=True) as pipe:
+            pipe.hget(key, "decided_pass")
+            pipe.get(rdb.job_passes_key(job_id))
+            decided, accumulated = pipe.execute()
+        decided = _text(decided)
         if decided and int(decided) >= p:  # a redelivery
             self._ack(rdb.job_queue_key(job_id), entry_id)
             return
-        acc = convergence.PassAccumulator.from_bytes(self.redis.get(rdb.job_passes_key(job_id)))
+        acc = convergence.PassAccumulator.from_bytes(accumulated)
         if acc.passes != p:
             self._fail(job_id, f"pass barrier {p} found {acc.passes} passes accumulated",
                        task.scene_hash)

@@ -67,8 +67,7 @@ def test_malicious_bundles_get_a_4xx_and_a_valid_bundle_still_renders(farm, tmp_
         ("textures/t.png", (tmp_path / "t.png").read_bytes())])
     r = submit(farm, good, width=16, height=16, spp=2, tile_size=8)
     assert r.status_code == 201, r.text
-    status = wait_for_job(farm, r.json()["id"], processes=farm.processes)
-    assert status["state"] == "done", status
+    status = wait_for_job(farm, r.json()["id"], processes=farm.processes, expect="done")
     assert all(p.alive() for p in farm.processes)
     with zipfile.ZipFile(good) as zf:
         assert zf.namelist()[0] == "scene.usda"
