@@ -190,6 +190,12 @@ def _add_default_light_option(parser: argparse.ArgumentParser) -> None:
                              "default lighting (white dome + camera key light)")
 
 
+def _add_subdivision_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--subdivision-level", type=int, choices=range(7), default=None, metavar="N",
+                        help="times subdivision surfaces are refined, 0-6 (default 2; 0 renders "
+                             "their control cage; see docs/scene-translation.md)")
+
+
 def _add_denoise_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--denoise", action="store_true",
                         help="add an Open Image Denoise layer (denoised.R/G/B) and a denoised PNG "
@@ -232,6 +238,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
                                       max_attempts=args.max_attempts,
                                       default_light="false" if args.no_default_light else None,
                                       denoise=args.denoise or None,
+                                      subdivision_level=args.subdivision_level,
                                       crop=",".join(map(str, args.crop)) if args.crop else None,
                                       **_noise_target(args)).items() if v is not None}
     report = lambda line: print(line, file=sys.stderr)  # noqa: E731
@@ -405,9 +412,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_aov_option(r)
     _add_default_light_option(r)
     _add_denoise_option(r)
-    r.add_argument("--subdivision-level", type=int, default=None, metavar="N",
-                   help="times subdivision surfaces are refined, 0-6 (default 2; 0 renders "
-                        "their control cage; see docs/scene-translation.md)")
+    _add_subdivision_option(r)
     r.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
                    help="write only this pixel region (X1, Y1 exclusive) as the EXR's data "
                         "window, the full frame as its display window; the whole frame is "
@@ -448,6 +453,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_integrator_option(m)
     _add_aov_option(m)
     _add_denoise_option(m)
+    _add_subdivision_option(m)
     m.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
                    help="the EXR holds only this region (X1, Y1 exclusive) as its data window")
     m.set_defaults(func=cmd_submit)

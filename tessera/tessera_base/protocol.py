@@ -103,6 +103,13 @@ class RenderSettings(BaseModel):
                                   "the default lighting: a white dome and a camera-relative key light "
                                   "(docs/scene-translation.md); false renders such a stage black")
 
+    # Added within schema 2: optional, None meaning the renderer's default, so earlier
+    # messages stay valid and keep their images.
+    subdivision_level: int | None = Field(
+        default=None, ge=0, le=6,
+        description="how many times subdivision surfaces are refined (0-6; default: the renderer's, "
+                    "2; 0 renders their control cage; docs/scene-translation.md)")
+
     @field_validator("integrator")
     @classmethod
     def _integrator_name(cls, value: str) -> str:

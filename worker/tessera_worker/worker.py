@@ -555,11 +555,16 @@ class Worker:
         worker stored in Redis (no USD parsing), else the scene file, translated here and
         written as a blob (`blob_out`) that _share_blob then stores for the others."""
         suffix = PurePosixPath(task.scene_name).suffix.lower()
-        source = {"scene_key": f"{task.scene_hash}{suffix}", "scene_path": None,
-                  "blob_path": None, "blob_out": None}
+        level = task.settings.subdivision_level
+        # A subdivision level other than the default translates to other triangles: its
+        # own blob (and cached Scene), never the default one.
+        variant = "" if level is None else f".subdiv{level}"
+        source = {"scene_key": f"{task.scene_hash}{variant}{suffix}", "scene_path": None,
+                  "blob_path": None, "blob_out": None, "subdivision_level": level}
         if blob_version is None:
             source["scene_path"] = self._scene_file(task)
             return source
+        blob_version += variant
         name = f"{task.scene_hash}.{blob_version}.blob"
         path = self._scene_files.get(name)
         if path is not None and os.path.exists(path):

@@ -107,6 +107,9 @@ def create_job(
     default_light: Annotated[bool, Form(description="light a scene that has no light with the default "
                                                    "lighting (white dome + camera key light); false: "
                                                    "it renders black")] = True,
+    subdivision_level: Annotated[int | None, Form(ge=0, le=6, description=(
+        "how many times subdivision surfaces are refined, 0-6 (0: their control cage); "
+        "default: the renderer's, 2"))] = None,
     aovs: Annotated[str, Form(description="comma-separated extra EXR layers: albedo, normal, depth, "
                                           "spp, variance, or all (docs/aovs.md)")] = "",
     denoise: Annotated[bool, Form(description="add a denoised layer (denoised.R/G/B) and "
@@ -137,7 +140,8 @@ def create_job(
     params = dict(spp=spp, seed=seed, max_depth=max_depth, tile_size=tile_size, integrator=integrator,
                   target_error=target_error, min_spp=min_spp, max_spp=max_spp,
                   time_limit=time_limit, aovs=aovs, default_light=default_light, denoise=denoise,
-                  integrator_params=_integrator_params_form(integrator_params))
+                  integrator_params=_integrator_params_form(integrator_params),
+                  subdivision_level=subdivision_level)
     if crop.strip():
         params["crop"] = crop
     if integrator is None:
