@@ -333,7 +333,8 @@ NB_MODULE(_core, m) {
             "__init__",
             [](Camera* self, std::array<float, 3> origin, std::array<float, 3> right, std::array<float, 3> up,
                std::array<float, 3> forward, float tan_half_width, float tan_half_height, uint32_t width,
-               uint32_t height, float lens_radius, float focal_distance, float near, float far) {
+               uint32_t height, float lens_radius, float focal_distance, float near, float far, float shift_x,
+               float shift_y, bool orthographic) {
                 if (width == 0 || height == 0) throw std::invalid_argument("image size must be positive");
                 if (!(lens_radius >= 0.f) || !std::isfinite(lens_radius) || !(focal_distance > 0.f) ||
                     !std::isfinite(focal_distance))
@@ -343,15 +344,23 @@ NB_MODULE(_core, m) {
                 if (!(tan_half_width > 0.f) || !(tan_half_height > 0.f) || !std::isfinite(tan_half_width) ||
                     !std::isfinite(tan_half_height))
                     throw std::invalid_argument("camera field of view must be finite and positive");
+                if (!std::isfinite(shift_x) || !std::isfinite(shift_y))
+                    throw std::invalid_argument("camera window shift must be finite");
+                if (orthographic && lens_radius > 0.f)
+                    throw std::invalid_argument("an orthographic camera has no lens (lens_radius must be 0)");
                 new (self) Camera{ToVec3(origin), Normalize(ToVec3(right)), Normalize(ToVec3(up)),
                                   Normalize(ToVec3(forward)), tan_half_width, tan_half_height, width, height,
-                                  lens_radius, focal_distance, near, far};
+                                  lens_radius, focal_distance, near, far, shift_x, shift_y,
+                                  orthographic ? Projection::kOrthographic : Projection::kPerspective};
             },
             "origin"_a, "right"_a, "up"_a, "forward"_a, "tan_half_width"_a, "tan_half_height"_a, "width"_a,
             "height"_a, "lens_radius"_a = 0.f, "focal_distance"_a = 1.f, "near"_a = 0.f,
-            "far"_a = std::numeric_limits<float>::infinity(),
+            "far"_a = std::numeric_limits<float>::infinity(), "shift_x"_a = 0.f, "shift_y"_a = 0.f,
+            "orthographic"_a = false,
             "A pinhole, or a thin lens of radius lens_radius focused at focal_distance; primary rays see "
-            "depths in [near, far].")
+            "depths in [near, far]. The image window spans +-tan_half_width/height around (shift_x, "
+            "shift_y): at distance 1 for perspective, in scene units on the film plane for orthographic "
+            "(parallel rays along forward; renderer/core/scene/camera.h).")
         .def_ro("width", &Camera::width)
         .def_ro("height", &Camera::height);
 

@@ -151,10 +151,11 @@ class Scene:
 
     def camera(self, width: int, height: int) -> "_core.Camera":
         c = self.data.camera
-        tan_w, tan_h = c.tan_half_angles(width, height)
-        return _core.Camera(c.origin, c.right, c.up, c.forward, tan_w, tan_h, width, height,
+        half_w, half_h, shift_x, shift_y = c.window(width, height)
+        return _core.Camera(c.origin, c.right, c.up, c.forward, half_w, half_h, width, height,
                             lens_radius=c.lens_radius, focal_distance=c.focus_distance, near=c.clip_near,
-                            far=c.clip_far)
+                            far=c.clip_far, shift_x=shift_x, shift_y=shift_y,
+                            orthographic=getattr(c, "orthographic", False))
 
     def scene_pass(self, integrator: str, iteration: int, *, seed: int = 0, max_depth: int = 64,
                    threads: int = 0, integrator_params: dict[str, float] | None = None) -> bytes:
@@ -411,7 +412,7 @@ def _rows(table, columns: int) -> np.ndarray:
 
 def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path | None = None,
                instancing: str = "auto", default_light: bool = True,
-               subdivision_level: int | None = None) -> Scene:
+               subdivision_level: int | None = None, camera: str | None = None) -> Scene:
     """Reads a bundle (.usda/.usdc/.usd, .usdz or .zip) through the sandbox and builds it.
     For a loose layer, `root` (default: its directory) is the bundle every asset must stay
     in; `root="/"` trusts the local filesystem (what `tessera render` does by default). `instancing`: "auto" (default: Embree instances, one BVH per prototype, unless
@@ -419,8 +420,9 @@ def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path
     instance copied). `default_light`: a stage without any light (emissive geometry
     counts as light) gets the default lighting, announced in one warning; off, it renders
     black. `subdivision_level`: how many times subdivision surfaces are refined (default
-    tessera_renderer.usd.subdivision.DEFAULT_LEVEL; 0 renders their control cage). Raises
-    SceneError for bad input."""
+    tessera_renderer.usd.subdivision.DEFAULT_LEVEL; 0 renders their control cage).
+    `camera`: the path of the Camera prim to render through (default: the RenderSettings'
+    camera, else the first camera, else a default view). Raises SceneError for bad input."""
     from .usd.subdivision import DEFAULT_LEVEL
 
     path = Path(path)
@@ -428,7 +430,8 @@ def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path
         raise SceneError(f"scene file not found: {path}")
     data = translate_stage(str(path), frame, root=None if root is None else str(root),
                            instancing=instancing,
-                           subdivision_level=DEFAULT_LEVEL if subdivision_level is None else subdivision_level)
+                           subdivision_level=DEFAULT_LEVEL if subdivision_level is None else subdivision_level,
+                           camera=camera)
     scene = Scene(data, default_light=default_light)
     for w in scene.warnings:
         log.warning("%s: %s", path.name, w)

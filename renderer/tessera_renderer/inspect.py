@@ -3,7 +3,7 @@
     python -m tessera_renderer.inspect FILE
 
 Prints one JSON object: {"ok": true, "width", "height", "warnings", "triangles", "lights",
-"unlit_warnings"}, the last present for a stage without any light: the warnings of a
+"cameras", "camera_note", "unlit_warnings"}, the last present for a stage without any light: the warnings of a
 render with default lighting off (the job setting default_light=false),
 and exits 0, or {"ok": false, "error": "..."} and exits 2. A crash of the USD parser takes
 only this process with it.
@@ -34,6 +34,7 @@ def main(argv: list[str] | None = None) -> int:
     from .usd.bundle import open_bundle, open_stage
     from .usd.census import take_census
     from .usd import translate_stage
+    from .usd.camera import CAMERA_CHOICE_NOTE, camera_paths
 
     try:
         bundle = open_bundle(argv[0])
@@ -47,6 +48,7 @@ def main(argv: list[str] | None = None) -> int:
                              f"pre-flight's memory (triangle limit {bundle.limits.triangles})") from None
         bundle.warnings[:] = warnings  # translate_stage opens the stage again and adds its own
         scene = Scene(translate_stage(argv[0], bundle=bundle, instancing="auto"))
+        cameras = camera_paths(stage)
         del stage
     except SceneError as exc:
         print(json.dumps({"ok": False, "error": str(exc)}))
@@ -57,7 +59,9 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps({"ok": False, "error": f"cannot translate the scene: {type(exc).__name__}: {exc}"}))
         return 2
     info = {"ok": True, "width": scene.width, "height": scene.height, "warnings": scene.warnings,
-            "triangles": scene.num_triangles, "lights": scene.num_emitters}
+            "triangles": scene.num_triangles, "lights": scene.num_emitters, "cameras": cameras,
+            # The warning naming the camera chosen among several: void for a job naming its own.
+            "camera_note": next((w for w in scene.warnings if CAMERA_CHOICE_NOTE in w), None)}
     if scene.lit_by_default:
         info["unlit_warnings"] = scene.unlit_warnings
     print(json.dumps(info))

@@ -45,8 +45,9 @@ BLOB_VERSION = 1
 # three-quarter default camera, partial opacity as presence (opacity_threshold -1),
 # UsdSkel skinning, MaterialX looks; 6: subdivision surfaces refined onto their limit
 # surface (OpenSubdiv, level 2) instead of their cages; shaped point lights (ShapingAPI
-# cones, focus, IES) with 6 + 192 columns; BasisCurves as triangle tubes.
-TRANSLATOR_VERSION = 6
+# cones, focus, IES) with 6 + 192 columns; BasisCurves as triangle tubes; 7: orthographic
+# cameras and aperture offsets (CameraDesc.projection, *_aperture_offset).
+TRANSLATOR_VERSION = 7
 _ALIGN = 64
 _PROTO_FIELDS = ("positions", "indices", "triangle_material", "shading_normals", "uvs")
 
@@ -58,16 +59,19 @@ def format_tag() -> str:
 
 
 def translate_to_blob(path: str | Path, frame: float | None = None, *, root: str | Path | None = None,
-                      instancing: str = "auto", subdivision_level: int | None = None) -> bytes:
+                      instancing: str = "auto", subdivision_level: int | None = None,
+                      camera: str | None = None) -> bytes:
     """Sandboxes, pre-flights and translates a bundle; returns the blob. SceneError for
     bad input. A light-less stage's default lighting travels in the blob unapplied:
-    scene_from_blob(blob, default_light=...) decides. `subdivision_level` as in load_scene."""
+    scene_from_blob(blob, default_light=...) decides. `subdivision_level` and `camera` as
+    in load_scene."""
     from .usd import translate_stage
     from .usd.subdivision import DEFAULT_LEVEL
 
     data = translate_stage(str(path), frame, root=None if root is None else str(root),
                            instancing=instancing,
-                           subdivision_level=DEFAULT_LEVEL if subdivision_level is None else subdivision_level)
+                           subdivision_level=DEFAULT_LEVEL if subdivision_level is None else subdivision_level,
+                           camera=camera)
     try:
         return scene_data_to_blob(data)
     finally:

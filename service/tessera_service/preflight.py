@@ -49,6 +49,9 @@ class SceneInfo:
     lights: int = 0
     # For a stage without any light: the warnings when default lighting is off.
     unlit_warnings: list[str] | None = None
+    # The stage's Camera prims (None: an inspection remembered from before they were listed).
+    cameras: list[str] | None = None
+    camera_note: str | None = None  # the warning naming which of several cameras renders
 
 
 def _limits(memory_bytes: int):
@@ -86,7 +89,10 @@ def inspect_scene(path: str, *, timeout: float, memory_bytes: int,
                              triangles=int(result.get("triangles", 0)),
                              lights=int(result.get("lights", 0)),
                              unlit_warnings=([str(w) for w in result["unlit_warnings"]]
-                                             if result.get("unlit_warnings") is not None else None))
+                                             if result.get("unlit_warnings") is not None else None),
+                             cameras=([str(c) for c in result["cameras"]]
+                                      if result.get("cameras") is not None else None),
+                             camera_note=(str(result["camera_note"]) if result.get("camera_note") else None))
         except (KeyError, TypeError, ValueError) as e:
             raise PreflightBroken(f"scene inspection returned an unexpected answer: {result!r}") from e
 

@@ -49,7 +49,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     try:
         scene = load_scene(scene_path, frame=args.frame, root=_local_root(args),
                            default_light=not args.no_default_light,
-                           subdivision_level=args.subdivision_level)
+                           subdivision_level=args.subdivision_level, camera=args.camera)
     except SceneError as exc:
         hint = ("; if that folder is yours, let assets resolve within it with --root DIR, "
                 "or render without --sandbox"
@@ -196,6 +196,13 @@ def _add_subdivision_option(parser: argparse.ArgumentParser) -> None:
                              "their control cage; see docs/scene-translation.md)")
 
 
+def _add_camera_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--camera", default=None, metavar="PRIM_PATH",
+                        help="the Camera prim to render through, e.g. /World/Cameras/closeup (default: "
+                             "the RenderSettings' camera, else the first camera, else a three-quarter "
+                             "view framing the scene; docs/scene-translation.md)")
+
+
 def _add_denoise_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--denoise", action="store_true",
                         help="add an Open Image Denoise layer (denoised.R/G/B) and a denoised PNG "
@@ -238,7 +245,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
                                       max_attempts=args.max_attempts,
                                       default_light="false" if args.no_default_light else None,
                                       denoise=args.denoise or None,
-                                      subdivision_level=args.subdivision_level,
+                                      subdivision_level=args.subdivision_level, camera=args.camera,
                                       crop=",".join(map(str, args.crop)) if args.crop else None,
                                       **_noise_target(args)).items() if v is not None}
     report = lambda line: print(line, file=sys.stderr)  # noqa: E731
@@ -413,6 +420,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_default_light_option(r)
     _add_denoise_option(r)
     _add_subdivision_option(r)
+    _add_camera_option(r)
     r.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
                    help="write only this pixel region (X1, Y1 exclusive) as the EXR's data "
                         "window, the full frame as its display window; the whole frame is "
@@ -454,6 +462,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_aov_option(m)
     _add_denoise_option(m)
     _add_subdivision_option(m)
+    _add_camera_option(m)
     m.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
                    help="the EXR holds only this region (X1, Y1 exclusive) as its data window")
     m.set_defaults(func=cmd_submit)

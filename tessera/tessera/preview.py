@@ -42,7 +42,9 @@ class RadiosityPreview:
         self.origin = np.asarray(c.origin, float)
         self.right, self.up = np.asarray(c.right, float), np.asarray(c.up, float)
         self.forward = np.asarray(c.forward, float)
-        self.tan_w, self.tan_h = c.tan_half_angles(width, height)
+        # The scene's own window: shifted, or orthographic (zoom then scales the window).
+        self.tan_w, self.tan_h, self.shift_x, self.shift_y = c.window(width, height)
+        self.orthographic = c.orthographic
         # Orbit about the point of the view axis nearest the scene's centre.
         p = np.asarray(scene.data.positions, float).reshape(-1, 3)
         centre = (p.min(axis=0) + p.max(axis=0)) / 2 if len(p) else self.origin + self.forward
@@ -58,8 +60,10 @@ class RadiosityPreview:
         fwd = _rotate(fwd, right / np.linalg.norm(right), pitch)
         up = _rotate(self.up, right / np.linalg.norm(right), pitch)
         origin = self.pivot - fwd * self.distance * zoom
-        return _core.Camera(tuple(origin), tuple(right), tuple(up), tuple(fwd), self.tan_w, self.tan_h,
-                            self.width, self.height)
+        scale = zoom if self.orthographic else 1.0
+        return _core.Camera(tuple(origin), tuple(right), tuple(up), tuple(fwd), self.tan_w * scale,
+                            self.tan_h * scale, self.width, self.height, shift_x=self.shift_x * scale,
+                            shift_y=self.shift_y * scale, orthographic=self.orthographic)
 
     def frame(self, yaw: float = 0.0, pitch: float = 0.0, zoom: float = 1.0) -> np.ndarray:
         """Linear RGBA (height, width, 4) of the solution from that view, 1 sample per pixel."""

@@ -82,12 +82,15 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
            integrator_params: Mapping[str, float] | None = None, denoise: bool = False,
            variance: bool = True, threads: int = 0, progress: bool = False,
            frame: float | None = None, root: str | Path | None = None,
-           default_light: bool = True, subdivision_level: int | None = None) -> Image:
+           default_light: bool = True, subdivision_level: int | None = None,
+           camera: str | None = None) -> Image:
     """Renders `scene` locally and returns the image.
 
     `scene` is a USD file or .zip/.usdz bundle path, or a scene already loaded with
-    tessera_renderer.load_scene (then frame, root, default_light and subdivision_level are
-    the loader's business). `res` is (width, height); by default the stage's
+    tessera_renderer.load_scene (then frame, root, default_light, subdivision_level and
+    camera are the loader's business). `camera` is the path of the Camera prim to render
+    through (default: the RenderSettings' camera, else the first camera, else a default
+    three-quarter view). `res` is (width, height); by default the stage's
     UsdRenderSettings or 512x512. `integrator` is a registered name (default: the
     registry's first; `tessera render --integrator help` lists them). `aovs` names extra
     layers (albedo, normal, depth, spp, variance). With `variance` (the default) the image
@@ -100,7 +103,7 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
     from tessera_base.protocol import RenderSettings
 
     loaded = _load(scene, frame=frame, root=root, default_light=default_light,
-                   subdivision_level=subdivision_level)
+                   subdivision_level=subdivision_level, camera=camera)
     width, height = res or (loaded.width, loaded.height)
     optional = dict(integrator=integrator, max_depth=max_depth, tile_size=tile_size,
                     target_error=target_error, min_spp=min_spp, max_spp=max_spp, time_limit=time_limit)
@@ -151,10 +154,10 @@ def render_scene(scene, settings, *, scene_name: str, threads: int = 0, progress
     return Image(result.rgba, layers, metadata)
 
 
-def _load(scene, *, frame, root, default_light, subdivision_level):
+def _load(scene, *, frame, root, default_light, subdivision_level, camera):
     if not isinstance(scene, (str, Path)):
         return scene
     from tessera_renderer import load_scene
 
     return load_scene(scene, frame=frame, root=root, default_light=default_light,
-                      subdivision_level=subdivision_level)
+                      subdivision_level=subdivision_level, camera=camera)

@@ -109,6 +109,10 @@ class RenderSettings(BaseModel):
         default=None, ge=0, le=6,
         description="how many times subdivision surfaces are refined (0-6; default: the renderer's, "
                     "2; 0 renders their control cage; docs/scene-translation.md)")
+    camera: str | None = Field(
+        default=None, min_length=1, max_length=1024, pattern=r"^/\S*$",
+        description="the path of the Camera prim to render through (default: the RenderSettings' "
+                    "camera, else the first camera, else a three-quarter view framing the scene)")
 
     @field_validator("integrator")
     @classmethod

@@ -137,6 +137,10 @@ def _check_supported(data) -> None:
         raise Unmatched("textured materials")
     if data.camera.lens_radius > 0:
         raise Unmatched("thin-lens camera")
+    if getattr(data.camera, "orthographic", False):
+        raise Unmatched("orthographic camera")
+    if getattr(data.camera, "horizontal_aperture_offset", 0.0) or getattr(data.camera, "vertical_aperture_offset", 0.0):
+        raise Unmatched("aperture offsets (a shifted image window)")
 
 
 def scene_dict(data, width: int, height: int, mesh_dir: str | Path, *, max_depth: int = 64,

@@ -555,12 +555,15 @@ class Worker:
         worker stored in Redis (no USD parsing), else the scene file, translated here and
         written as a blob (`blob_out`) that _share_blob then stores for the others."""
         suffix = PurePosixPath(task.scene_name).suffix.lower()
-        level = task.settings.subdivision_level
-        # A subdivision level other than the default translates to other triangles: its
-        # own blob (and cached Scene), never the default one.
+        level, camera = task.settings.subdivision_level, task.settings.camera
+        # A subdivision level other than the default translates to other triangles, another
+        # camera to other camera-relative coordinates: each its own blob (and cached Scene),
+        # never the default one.
         variant = "" if level is None else f".subdiv{level}"
+        if camera is not None:
+            variant += ".cam" + hashlib.sha256(camera.encode()).hexdigest()[:16]
         source = {"scene_key": f"{task.scene_hash}{variant}{suffix}", "scene_path": None,
-                  "blob_path": None, "blob_out": None, "subdivision_level": level}
+                  "blob_path": None, "blob_out": None, "subdivision_level": level, "camera": camera}
         if blob_version is None:
             source["scene_path"] = self._scene_file(task)
             return source

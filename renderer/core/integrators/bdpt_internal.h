@@ -23,6 +23,7 @@ struct Vertex {
     bool delta = false;        // scattered by a delta lobe: cannot be connected to
     bool infinite = false;     // a light at infinity: only its direction matters
     bool delta_light = false;  // a point or delta-distant light: cannot be hit
+    bool parallel = false;     // an orthographic camera: densities from it are per film area
     int32_t emitter = -1;      // light vertices; surface vertices that emit
     bool importance = false;   // on a light subpath: BSDFs transport importance
     Vec3 p, ng;                // ng is zero off surfaces (pinhole, points, infinity)
@@ -63,11 +64,14 @@ inline Vec3 DirectionTo(const Vertex& from, const Vertex& to) {
 }
 
 // Solid-angle density at `from` converted to the measure of `to`.
+// From an orthographic camera the density is per unit film area, and a parallel beam
+// keeps it along the ray: only `to`'s cosine converts it.
 inline float ConvertDensity(float pdf, const Vertex& from, const Vertex& to) {
     if (to.infinite) return pdf;
     Vec3 w = to.p - from.p;
     float d2 = LengthSquared(w);
     if (!(d2 > 0.f)) return 0.f;
+    if (from.parallel) return to.OnSurface() ? pdf * std::abs(Dot(to.ng, w)) / std::sqrt(d2) : pdf;
     if (to.OnSurface()) pdf *= std::abs(Dot(to.ng, w)) / std::sqrt(d2);
     return pdf / d2;
 }
@@ -211,7 +215,8 @@ public:
     int CameraSubpath(const Ray& ray, PixelSampler& sampler, Vertex* path) const {
         path[0] = Vertex{};
         path[0].type = VertexType::kCamera;
-        path[0].p = ray.o;  // the lens point
+        path[0].p = ray.o;  // the lens point (orthographic: the film point)
+        path[0].parallel = camera_.IsOrthographic();
         path[0].beta = Color(1.f);
         float t_min, t_max;
         camera_.ClipRange(ray.d, &t_min, &t_max);
@@ -344,6 +349,7 @@ public:
             *sampled = Vertex{};
             sampled->type = VertexType::kCamera;
             sampled->p = lens;
+            sampled->parallel = camera_.IsOrthographic();
             return qs.beta * F(qs, *sampled) * (std::abs(Dot(wc, qs.ns)) * importance);
         }
         if (s == 1) {

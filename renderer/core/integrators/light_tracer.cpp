@@ -44,6 +44,20 @@ PathSample LightTracer::Sample(const Scene& scene, const Camera& camera, const C
 
 bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, float p_error, Vec3 ng, Vec2 u_lens, float* px, float* py,
                      Vec3* wc, float* importance_over_d2, Vec3* lens_point) {
+    if (camera.IsOrthographic()) {
+        // The one film point that sees p: its projection onto the film plane.
+        const Vec3 v = p - camera.origin;
+        const float depth = Dot(v, camera.forward);
+        if (!(depth > 0.f) || depth < camera.near || depth > camera.far) return false;
+        const Vec3 film = p - camera.forward * depth;
+        float cos_camera;
+        if (!camera.Project(film, camera.forward, px, py, &cos_camera)) return false;
+        if (!scene.Unoccluded(p, p_error, ng, film, 0.f, Vec3(0.f))) return false;
+        *wc = -camera.forward;
+        *importance_over_d2 = 1.f / camera.ImagePlaneArea();  // parallel rays: no 1/d^2
+        if (lens_point) *lens_point = film;
+        return true;
+    }
     const Vec3 lens = camera.LensPoint(u_lens);
     Vec3 to_camera = lens - p;
     float d2 = LengthSquared(to_camera);

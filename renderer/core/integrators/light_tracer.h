@@ -19,6 +19,8 @@ namespace tessera {
 // raster position, the unit direction to the camera and the importance estimate
 // We cos_camera / (d^2 pdf_lens) = 1 / (A cos^3 theta_camera d^2) (the lens area cancels).
 // With a thin lens, u_lens picks the lens point the connection goes to; *lens_point gets it.
+// Orthographic: the connection goes to p's projection on the film along -forward, and the
+// estimate is 1 / A (parallel rays; camera.h).
 bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, float p_error, Vec3 ng, Vec2 u_lens, float* px, float* py,
                      Vec3* wc, float* importance_over_d2, Vec3* lens_point = nullptr);
 

@@ -1,6 +1,19 @@
-// Perspective camera: a pinhole, or a thin lens for depth of field. Pixel (0, 0) is the
-// top-left of the image; the camera looks along `forward` (USD: the camera's local -Z)
-// with `up` its local +Y.
+// Camera: perspective (a pinhole, or a thin lens for depth of field) or orthographic.
+// Pixel (0, 0) is the top-left of the image; the camera looks along `forward` (USD: the
+// camera's local -Z) with `up` its local +Y.
+//
+// Image window: raster (px, py) maps to window coordinates
+//   sx = (2 px / width - 1) tan_half_width + shift_x,  sy = (1 - 2 py / height) tan_half_height + shift_y,
+// on the image plane at distance 1 (perspective: the ray direction is forward + sx right +
+// sy up) or in scene units on the film plane through `origin` (orthographic: every ray
+// leaves origin + sx right + sy up along forward). The shifts are USD's aperture offsets:
+// an off-centre window, as a shift lens or a tiled render makes.
+//
+// Orthographic importance: the rays are a parallel beam, W_e = delta(w - forward) / A with
+// A the window's area (scene units^2), so a pixel measures mean radiance as for a pinhole.
+// A surface point p is seen by exactly one film point, its projection, and its connection
+// carries |cos_p| / A with no 1/d^2 (ConnectToCamera); densities from the camera are per
+// unit film area, converted to the next vertex by its cosine alone (bdpt's ConvertDensity).
 //
 // Thin lens: a ray leaves a point on the lens disk (radius lens_radius, centred on
 // origin, perpendicular to forward) toward the point of the focus plane (at focal_distance
@@ -18,17 +31,24 @@
 
 namespace tessera {
 
+enum class Projection : uint8_t { kPerspective, kOrthographic };
+
 struct Camera {
     Vec3 origin;
     Vec3 right, up, forward;        // orthonormal, world space
-    float tan_half_width = 0.5f;    // tan(horizontal fov / 2), aperture already fit to the image
+    // Half the image window, already fit to the image: perspective, tan(fov / 2);
+    // orthographic, half the view's extent in scene units.
+    float tan_half_width = 0.5f;
     float tan_half_height = 0.5f;
     uint32_t width = 1, height = 1; // full image, not the tile
-    float lens_radius = 0.f;
+    float lens_radius = 0.f;        // perspective only
     float focal_distance = 1.f;
     float near = 0.f, far = std::numeric_limits<float>::infinity();
+    float shift_x = 0.f, shift_y = 0.f;  // the window's centre, in the window's units
+    Projection projection = Projection::kPerspective;
 
-    bool HasLens() const { return lens_radius > 0.f; }
+    bool HasLens() const { return lens_radius > 0.f && !IsOrthographic(); }
+    bool IsOrthographic() const { return projection == Projection::kOrthographic; }
 
     Vec3 LensPoint(Vec2 u) const {
         if (!HasLens()) return origin;
@@ -37,10 +57,11 @@ struct Camera {
     }
 
     // (px, py) in continuous raster coordinates, [0, width) x [0, height); u_lens picks the
-    // lens point (unused for a pinhole).
+    // lens point (unused for a pinhole and orthographic cameras).
     Ray GenerateRay(float px, float py, Vec2 u_lens = {0.5f, 0.5f}) const {
-        float sx = (2.f * px / float(width) - 1.f) * tan_half_width;
-        float sy = (1.f - 2.f * py / float(height)) * tan_half_height;
+        float sx = (2.f * px / float(width) - 1.f) * tan_half_width + shift_x;
+        float sy = (1.f - 2.f * py / float(height)) * tan_half_height + shift_y;
+        if (IsOrthographic()) return {origin + right * sx + up * sy, forward};
         Vec3 pinhole_dir = forward + right * sx + up * sy;  // length 1 along forward
         if (!HasLens()) return {origin, Normalize(pinhole_dir)};
         Vec3 focus = origin + pinhole_dir * focal_distance;
@@ -56,21 +77,30 @@ struct Camera {
         *t_max = c > 0.f ? far / c : std::numeric_limits<float>::infinity();
     }
 
-    // Area of the image plane at distance 1. The importance is We = 1 / (A a cos^4 theta)
-    // per unit lens area a (a point for the pinhole), so a pixel measures mean radiance.
+    // Area of the image window: at distance 1 for perspective (the importance is
+    // We = 1 / (A a cos^4 theta) per unit lens area a, a point for the pinhole, so a pixel
+    // measures mean radiance), in scene units^2 for orthographic (see the header).
     float ImagePlaneArea() const { return 4.f * tan_half_width * tan_half_height; }
 
     // Raster position of the ray leaving lens point `p_lens` along unit `dir`; false if it
-    // misses the image. Writes cos(theta) to the optical axis.
+    // misses the image. Writes cos(theta) to the optical axis. Orthographic: `p_lens` is the
+    // film point (the ray's origin) and fixes the position; `dir` only has to face forward.
     bool Project(Vec3 p_lens, Vec3 dir, float* px, float* py, float* cos_theta) const {
         float c = Dot(dir, forward);
         if (!(c > 0.f)) return false;
-        Vec3 v = dir;  // the pinhole ray with the same raster position
-        if (HasLens()) v = (p_lens + dir * (focal_distance / c)) - origin;
-        float depth = Dot(v, forward);
-        if (!(depth > 0.f)) return false;
-        float sx = Dot(v, right) / (depth * tan_half_width);
-        float sy = Dot(v, up) / (depth * tan_half_height);
+        float sx, sy;
+        if (IsOrthographic()) {
+            const Vec3 v = p_lens - origin;
+            sx = (Dot(v, right) - shift_x) / tan_half_width;
+            sy = (Dot(v, up) - shift_y) / tan_half_height;
+        } else {
+            Vec3 v = dir;  // the pinhole ray with the same raster position
+            if (HasLens()) v = (p_lens + dir * (focal_distance / c)) - origin;
+            float depth = Dot(v, forward);
+            if (!(depth > 0.f)) return false;
+            sx = (Dot(v, right) / depth - shift_x) / tan_half_width;
+            sy = (Dot(v, up) / depth - shift_y) / tan_half_height;
+        }
         *px = (sx + 1.f) * 0.5f * float(width);
         *py = (1.f - sy) * 0.5f * float(height);
         *cos_theta = c;
@@ -81,10 +111,12 @@ struct Camera {
     }
 
     // Solid-angle density of GenerateRay's direction from lens point p_lens (uniform over
-    // the image plane).
+    // the image plane). Orthographic: the direction is a delta, and this is the density of
+    // the film point per unit area, 1 / A (bdpt converts it without 1/d^2).
     float PdfDirection(Vec3 p_lens, Vec3 dir) const {
         float px, py, c;
         if (!Project(p_lens, dir, &px, &py, &c)) return 0.f;
+        if (IsOrthographic()) return 1.f / ImagePlaneArea();
         return 1.f / (ImagePlaneArea() * c * c * c);
     }
     float PdfDirection(Vec3 dir) const { return PdfDirection(origin, dir); }

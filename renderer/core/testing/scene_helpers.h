@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <vector>
 
+#include "integrator.h"
 #include "render.h"
 #include "scene.h"
 #include "splat_film.h"
@@ -123,32 +124,37 @@ inline Welch WelchT(double ma, double va, int na, double mb, double vb, int nb) 
     return {(ma - mb) / se, (sa + sb) * (sa + sb) / (sa * sa / (na - 1) + sb * sb / (nb - 1)), se};
 }
 
-// Path, light and bdpt agree on the image mean of channel c: K runs of each with
-// independent seeds (opt.seed + k), light vs path and bdpt vs path compared with Welch's t at
-// a family-wise false-alarm rate of 1e-3 (Bonferroni over the 2 comparisons). Power: each
-// comparison must detect a relative difference of 2 % (limit x standard error / mean), and
-// the negative control -- the same comparison with light or bdpt scaled by 2 % away from path
-// -- must fail; the path mean must exceed min_mean. Returns the worst detectable relative
-// difference.
+// Path and each of `others` (default: light and bdpt) agree on the image mean of channel c:
+// K runs of each with independent seeds (opt.seed + k), each compared with path by Welch's
+// t at a family-wise false-alarm rate of 1e-3 (Bonferroni over the comparisons). Power:
+// each comparison must detect a relative difference of 2 % (limit x standard error / mean),
+// and the negative control -- the same comparison with the other integrator scaled by 2 %
+// away from path -- must fail; the path mean must exceed min_mean. Returns the worst
+// detectable relative difference.
 inline double ExpectPathLightBDPTAgree(const Scene& scene, const Camera& cam, RenderOptions opt, int c, int K,
-                                       double min_mean) {
-    const char* const order[3] = {"path", "light", "bdpt"};
-    double mean[3] = {0, 0, 0}, var[3] = {0, 0, 0};
-    for (int i = 0; i < 3; ++i) {
+                                       double min_mean,
+                                       const std::vector<const char*>& others = {"light", "bdpt"}) {
+    std::vector<const char*> order{"path"};
+    order.insert(order.end(), others.begin(), others.end());
+    const size_t n = order.size();
+    std::vector<double> mean(n, 0.0), var(n, 0.0);
+    for (size_t i = 0; i < n; ++i) {
         std::vector<double> x;
         RenderOptions o = opt;
         o.integrator = order[i];
+        const IntegratorInfo* info = FindIntegrator(order[i]);
         for (int k = 0; k < K; ++k) {
             o.seed = opt.seed + uint32_t(k);
+            if (info && info->scene_passes) o.scene_product = RunScenePass(scene, o, 0);
             x.push_back(MeanChannel(RenderResolved(scene, cam, o), c));
         }
         for (double v : x) mean[i] += v / K;
         for (double v : x) var[i] += (v - mean[i]) * (v - mean[i]) / (K - 1);
     }
     EXPECT_GT(mean[0], min_mean);  // not a black image
-    const double alpha = 1e-3 / 2;
+    const double alpha = 1e-3 / double(n - 1);
     double worst = 0;
-    for (int i = 1; i < 3; ++i) {
+    for (size_t i = 1; i < n; ++i) {
         Welch w = WelchT(mean[i], var[i], K, mean[0], var[0], K);
         const double limit = StudentTCritical(alpha, w.df);
         EXPECT_LT(std::abs(w.t), limit) << "integrator " << order[i] << ": " << mean[i] << " vs path "

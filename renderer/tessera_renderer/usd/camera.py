@@ -26,17 +26,35 @@ class CameraDesc:
     focus_distance: float = 1.0
     clip_near: float = 0.0
     clip_far: float = math.inf
+    # "perspective" or "orthographic"; the aperture offsets shift the image window (a
+    # shift lens), in the apertures' unit.
+    projection: str = "perspective"
+    horizontal_aperture_offset: float = 0.0
+    vertical_aperture_offset: float = 0.0
+
+    @property
+    def orthographic(self) -> bool:
+        return self.projection == "orthographic"
+
+    def window(self, width: int, height: int) -> tuple[float, float, float, float]:
+        """The image window (half width, half height, centre x, centre y) as UsdGeomCamera
+        defines it (GfCamera's frustum): perspective, on the image plane at distance 1,
+        aperture / focalLength; orthographic, in scene units, the apertures being tenths of
+        a scene unit. Fit to the image's aspect ratio by expanding it about its centre
+        (never cropping)."""
+        scale = 0.1 if self.orthographic else 1.0 / self.focal_length
+        half_w, half_h = self.horizontal_aperture * scale / 2.0, self.vertical_aperture * scale / 2.0
+        image_aspect = width / height
+        if image_aspect >= half_w / half_h:
+            half_w = half_h * image_aspect
+        else:
+            half_h = half_w / image_aspect
+        return half_w, half_h, self.horizontal_aperture_offset * scale, self.vertical_aperture_offset * scale
 
     def tan_half_angles(self, width: int, height: int) -> tuple[float, float]:
-        """Fits the aperture to the image by expanding it (never cropping)."""
-        tan_w = self.horizontal_aperture / (2.0 * self.focal_length)
-        tan_h = self.vertical_aperture / (2.0 * self.focal_length)
-        image_aspect = width / height
-        if image_aspect >= tan_w / tan_h:
-            tan_w = tan_h * image_aspect
-        else:
-            tan_h = tan_w / image_aspect
-        return tan_w, tan_h
+        """tan(fov / 2) both ways for a perspective camera (window())."""
+        half_w, half_h, _, _ = self.window(width, height)
+        return half_w, half_h
 
 
 def _find_render_settings(stage, warn):
@@ -63,19 +81,22 @@ def _camera_from_prim(prim, xform_cache, time, warn) -> CameraDesc:
     focal = authored(cam.GetFocalLengthAttr(), 50.0)
     hap = authored(cam.GetHorizontalApertureAttr(), 20.955)
     vap = authored(cam.GetVerticalApertureAttr(), 15.2908)
+    h_off = authored(cam.GetHorizontalApertureOffsetAttr(), 0.0)
+    v_off = authored(cam.GetVerticalApertureOffsetAttr(), 0.0)
     path = str(prim.GetPath())
-    if not all(math.isfinite(v) and v > 0 for v in (focal, hap, vap)):
+    orthographic = cam.GetProjectionAttr().Get(time) == UsdGeom.Tokens.orthographic
+    if not all(math.isfinite(v) and v > 0 for v in (hap, vap)) or not (orthographic or (math.isfinite(focal) and focal > 0)):
         raise SceneError(f"{path}: focalLength and apertures must be positive "
                          f"(got {focal}, {hap}, {vap})")
-    # The core takes tan(half angle) = aperture / (2 focalLength) as a float32: it must be
-    # neither 0 nor infinite there (e.g. focalLength 1e-45 passes the check above).
-    if not all(1e-30 < ap / (2.0 * focal) < 1e30 for ap in (hap, vap)):
-        raise SceneError(f"{path}: the field of view is degenerate (apertures {hap}, {vap} over "
-                         f"focalLength {focal})")
-    if cam.GetProjectionAttr().Get(time) == UsdGeom.Tokens.orthographic:
-        warn(f"{path}: orthographic projection is not supported yet; rendered as perspective")
-    if (cam.GetHorizontalApertureOffsetAttr().Get(time) or 0.0) or (cam.GetVerticalApertureOffsetAttr().Get(time) or 0.0):
-        warn(f"{path}: aperture offsets are ignored")
+    if not (math.isfinite(h_off) and math.isfinite(v_off)):
+        raise SceneError(f"{path}: aperture offsets must be finite (got {h_off}, {v_off})")
+    # The core takes the window's half extent (perspective: aperture / (2 focalLength);
+    # orthographic: 0.05 aperture) as a float32: it must be neither 0 nor infinite there
+    # (e.g. focalLength 1e-45 passes the check above).
+    scale = 0.1 if orthographic else 1.0 / focal
+    if not all(1e-30 < ap * scale / 2.0 < 1e30 for ap in (hap, vap)):
+        raise SceneError(f"{path}: the field of view is degenerate (apertures {hap}, {vap}"
+                         + ("" if orthographic else f" over focalLength {focal}") + ")")
     m = np.array(xform_cache.GetLocalToWorldTransform(prim), dtype=np.float64)
     origin = m[3, :3]
     forward = _unit(-m[2, :3])
@@ -87,7 +108,9 @@ def _camera_from_prim(prim, xform_cache, time, warn) -> CameraDesc:
     f_stop = float(cam.GetFStopAttr().Get(time) or 0.0)
     focus = float(cam.GetFocusDistanceAttr().Get(time) or 0.0)
     lens_radius = 0.0
-    if f_stop > 0.0 and math.isfinite(f_stop):
+    if f_stop > 0.0 and math.isfinite(f_stop) and orthographic:
+        warn(f"{path}: fStop {f_stop:g} on an orthographic camera; rendered without depth of field")
+    elif f_stop > 0.0 and math.isfinite(f_stop):
         if focus > 0.0 and math.isfinite(focus):
             lens_radius = 0.1 * focal / (2.0 * f_stop)
         else:
@@ -102,7 +125,51 @@ def _camera_from_prim(prim, xform_cache, time, warn) -> CameraDesc:
         near, far = 0.0, math.inf
     return CameraDesc(_floats(origin), _floats(right), _floats(up), _floats(forward), hap, vap, focal, path,
                       lens_radius=lens_radius, focus_distance=focus if lens_radius > 0 else 1.0,
-                      clip_near=near, clip_far=far)
+                      clip_near=near, clip_far=far,
+                      projection="orthographic" if orthographic else "perspective",
+                      horizontal_aperture_offset=h_off, vertical_aperture_offset=v_off)
+
+
+# In the warning select_camera gives when it picks the first of several cameras.
+CAMERA_CHOICE_NOTE = "cameras and no RenderSettings camera; using"
+
+
+def camera_paths(stage) -> list[str]:
+    """The paths of the stage's Camera prims (instance proxies included), in traversal order."""
+    from pxr import Usd, UsdGeom
+
+    return [str(p.GetPath()) for p in Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate))
+            if p.IsA(UsdGeom.Camera)]
+
+
+def select_camera(stage, requested: str | None, settings, cameras: list, warn):
+    """The camera prim to render through: `requested` (a prim path: `--camera`, the job's
+    `camera`), else the RenderSettings' camera, else the only/first camera found, else
+    None (the default camera). A requested path that is not a Camera is a SceneError that
+    lists the stage's cameras."""
+    from pxr import Sdf, UsdGeom
+
+    if requested is not None:
+        found = ", ".join(str(c.GetPath()) for c in cameras) or "none"
+        if not Sdf.Path.IsValidPathString(requested) or not Sdf.Path(requested).IsAbsolutePath():
+            raise SceneError(f"camera {requested!r} is not an absolute prim path (the stage's cameras: {found})")
+        prim = stage.GetPrimAtPath(requested)
+        if not prim or not prim.IsA(UsdGeom.Camera):
+            what = "is not a Camera prim" if prim else "does not exist"
+            raise SceneError(f"camera {requested} {what} (the stage's cameras: {found})")
+        return prim
+    if settings:
+        targets = settings.GetCameraRel().GetForwardedTargets()
+        if targets:
+            prim = stage.GetPrimAtPath(targets[0])
+            if not prim or not prim.IsA(UsdGeom.Camera):
+                raise SceneError(f"{settings.GetPath()}: camera {targets[0]} is not a Camera prim")
+            return prim
+    if cameras:
+        if len(cameras) > 1:
+            warn(f"{len(cameras)} {CAMERA_CHOICE_NOTE} {cameras[0].GetPath()} (--camera picks another)")
+        return cameras[0]
+    return None
 
 
 # The default camera's view: a three-quarter view from the front-right, above (degrees),

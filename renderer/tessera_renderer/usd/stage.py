@@ -25,7 +25,8 @@ from typing import Any
 import numpy as np
 
 from . import light_shaping, subdivision
-from .camera import CameraDesc, _camera_from_prim, _default_camera, _find_render_settings, _move_to_camera
+from .camera import (CameraDesc, _camera_from_prim, _default_camera, _find_render_settings, _move_to_camera,
+                     select_camera)
 from .errors import SceneError
 from .instancing import _InstanceReader, _instance_corners
 from .lights import NO_LIGHT_WARNING, _LightReader, _emits, apply_default_lighting, default_lighting
@@ -249,7 +250,7 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader):
 def translate_stage(path: str, frame: float | None = None, *, bundle=None, instancing: str = "flatten",
                     default_light: bool = False, root: str | None = None,
                     camera_relative: bool = True,
-                    subdivision_level: int = subdivision.DEFAULT_LEVEL) -> SceneData:
+                    subdivision_level: int = subdivision.DEFAULT_LEVEL, camera: str | None = None) -> SceneData:
     """Opens a USD file through the bundle sandbox and translates it. `instancing` is
     "flatten" (every instance copied into the flat arrays), "instances" (prototypes +
     instance transforms, prototypes kept out of the flat arrays; the core builds one BVH
@@ -259,7 +260,8 @@ def translate_stage(path: str, frame: float | None = None, *, bundle=None, insta
     the camera's position, so that float32 holds them as finely as the view needs
     (_move_to_camera); without, they are world coordinates. Raises SceneError with a
     readable message. `subdivision_level` is how many times subdivision surfaces are
-    refined (0: their control cage)."""
+    refined (0: their control cage). `camera`, a Camera prim's path, is the camera to
+    render through instead of the RenderSettings' (or the first found)."""
     from . import bundle as bundle_mod
 
     if bundle is None:
@@ -267,7 +269,7 @@ def translate_stage(path: str, frame: float | None = None, *, bundle=None, insta
     stage = bundle_mod.open_stage(bundle)
     data = translate_opened_stage(stage, frame, bundle=bundle, instancing=instancing,
                                   default_light=default_light, camera_relative=camera_relative,
-                                  subdivision_level=subdivision_level)
+                                  subdivision_level=subdivision_level, camera=camera)
     data.warnings[:0] = bundle.warnings
     data._bundle = bundle  # keeps an unpack directory (and the textures in it) alive
     return data
@@ -275,7 +277,8 @@ def translate_stage(path: str, frame: float | None = None, *, bundle=None, insta
 
 def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, instancing: str = "flatten",
                            default_light: bool = False, limits=None, camera_relative: bool = True,
-                           subdivision_level: int = subdivision.DEFAULT_LEVEL) -> SceneData:
+                           subdivision_level: int = subdivision.DEFAULT_LEVEL,
+                           camera: str | None = None) -> SceneData:
     from pxr import Usd, UsdGeom
 
     from .bundle import DEFAULT_LIMITS
@@ -288,12 +291,12 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
         # keeps. Such scenes are translated again, flattened.
         data = translate_opened_stage(stage, frame, bundle=bundle, instancing="instances",
                                       default_light=default_light, limits=limits, camera_relative=camera_relative,
-                                      subdivision_level=subdivision_level)
+                                      subdivision_level=subdivision_level, camera=camera)
         if not getattr(data, "_native_prototype_lights", 0):
             return data
         flat = translate_opened_stage(stage, frame, bundle=bundle, instancing="flatten",
                                       default_light=default_light, limits=limits, camera_relative=camera_relative,
-                                      subdivision_level=subdivision_level)
+                                      subdivision_level=subdivision_level, camera=camera)
         flat.warnings.append("lights inside native instances: the scene was flattened so that they render")
         return flat
     limits = limits or (bundle.limits if bundle is not None else DEFAULT_LIMITS)
@@ -315,29 +318,20 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
         warn(f"instancing was flattened into {tr.instanced_triangles} triangles; "
              f"instancing='instances' keeps one copy per prototype")
 
-    # Camera and resolution: RenderSettings, else the only/first camera, else a default.
+    # Resolution from the RenderSettings; the camera requested, else the RenderSettings',
+    # else the only/first camera, else a default (select_camera).
     settings = _find_render_settings(stage, warn)
     resolution, from_stage = DEFAULT_RESOLUTION, False
-    camera_prim = None
     if settings:
         res = settings.GetResolutionAttr().Get(time)
         if res is not None:
             if res[0] < 1 or res[1] < 1:
                 raise SceneError(f"{settings.GetPath()}: resolution {tuple(res)} must be positive")
             resolution, from_stage = (int(res[0]), int(res[1])), True
-        targets = settings.GetCameraRel().GetForwardedTargets()
-        if targets:
-            camera_prim = stage.GetPrimAtPath(targets[0])
-            if not camera_prim or not camera_prim.IsA(UsdGeom.Camera):
-                raise SceneError(f"{settings.GetPath()}: camera {targets[0]} is not a Camera prim")
-    cameras = tr.cameras
-    if camera_prim is None and cameras:
-        camera_prim = cameras[0]
-        if len(cameras) > 1:
-            warn(f"{len(cameras)} cameras and no RenderSettings camera; using {camera_prim.GetPath()}")
+    camera_prim = select_camera(stage, camera, settings, tr.cameras, warn)
     up_axis = UsdGeom.GetStageUpAxis(stage)
     if camera_prim is not None:
-        camera = _camera_from_prim(camera_prim, tr.xform_cache, time, warn)
+        view = _camera_from_prim(camera_prim, tr.xform_cache, time, warn)
     else:
         # Every point (not the chunks' boxes): the fit is to what is seen.
         corners = [c.points for c in tr.chunks if len(c.points)]
@@ -350,13 +344,13 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
         signs = np.array([(a, b, c) for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], np.float64)
         corners += [(spheres[:, None, :3] + spheres[:, None, 3:4] * signs[None]).reshape(-1, 3)]
         bound_pts = np.concatenate(corners) if corners else np.zeros((0, 3))
-        camera = _default_camera(bound_pts, up_axis, resolution)
+        view = _default_camera(bound_pts, up_axis, resolution)
         warn("the scene has no camera: using a default camera, a three-quarter view framing the scene")
     camera_offset = (0.0, 0.0, 0.0)
     if camera_relative:
-        _move_to_camera(tr, camera)
-        camera_offset = camera.origin
-        camera = dataclasses.replace(camera, origin=(0.0, 0.0, 0.0))
+        _move_to_camera(tr, view)
+        camera_offset = view.origin
+        view = dataclasses.replace(view, origin=(0.0, 0.0, 0.0))
 
 
     positions, indices, tri_material, normals, uvs = _assemble(tr.chunks)
@@ -402,11 +396,11 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
         # Light-less assets are the rule for props and usdz files; viewers light them by
         # default. What to add is recorded here and applied (or not) when the Scene is
         # built, so one translation serves renders with and without it.
-        default_lights = default_lighting(camera)
+        default_lights = default_lighting(view)
         warn(NO_LIGHT_WARNING)
     data = SceneData(positions=positions, indices=indices, triangle_material=tri_material,
                      albedo=albedo, emission=emission, two_sided_emission=two_sided,
-                     sphere_lights=sphere_lights, camera=camera, resolution=resolution,
+                     sphere_lights=sphere_lights, camera=view, resolution=resolution,
                      resolution_from_stage=from_stage, warnings=warnings,
                      material_params=params, shading_normals=normals, uvs=uvs,
                      textures=tr.materials.textures, material_textures=material_textures,

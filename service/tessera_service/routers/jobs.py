@@ -110,6 +110,9 @@ def create_job(
     subdivision_level: Annotated[int | None, Form(ge=0, le=6, description=(
         "how many times subdivision surfaces are refined, 0-6 (0: their control cage); "
         "default: the renderer's, 2"))] = None,
+    camera: Annotated[str | None, Form(description=(
+        "the path of the Camera prim to render through, e.g. /World/closeup (default: the "
+        "RenderSettings' camera, else the first camera, else a three-quarter view)"))] = None,
     aovs: Annotated[str, Form(description="comma-separated extra EXR layers: albedo, normal, depth, "
                                           "spp, variance, or all (docs/aovs.md)")] = "",
     denoise: Annotated[bool, Form(description="add a denoised layer (denoised.R/G/B) and "
@@ -141,7 +144,7 @@ def create_job(
                   target_error=target_error, min_spp=min_spp, max_spp=max_spp,
                   time_limit=time_limit, aovs=aovs, default_light=default_light, denoise=denoise,
                   integrator_params=_integrator_params_form(integrator_params),
-                  subdivision_level=subdivision_level)
+                  subdivision_level=subdivision_level, camera=camera or None)
     if crop.strip():
         params["crop"] = crop
     if integrator is None:
@@ -161,6 +164,9 @@ def create_job(
         scene_hash = (_save_upload(file, path, settings.max_upload_bytes) if packed is None
                       else _assemble(request, packed, path, settings.max_upload_bytes))
         info = _inspect(request, path, scene_hash)
+        if params["camera"] is not None and info.cameras is not None and params["camera"] not in info.cameras:
+            raise HTTPException(422, f"camera {params['camera']} is not a Camera prim of the scene "
+                                     f"(its cameras: {', '.join(info.cameras) or 'none'})")
         render = _render_settings(width=width if width is not None else info.width,
                                   height=height if height is not None else info.height, **params)
         tiles = math.ceil(render.width / render.tile_size) * math.ceil(render.height / render.tile_size)
@@ -181,6 +187,8 @@ def create_job(
     spec = JobSpec(job_id=uuid.uuid4().hex, scene_hash=scene_hash, scene_name=name,
                    settings=render, priority=priority, max_attempts=max_attempts)
     warnings = info.warnings if render.default_light or info.unlit_warnings is None else info.unlit_warnings
+    if render.camera is not None:  # the inspection's choice of camera is not the job's
+        warnings = [w for w in warnings if w != info.camera_note]
     tiles_total = store.create_job(spec, warnings, owner=user.name)
     response.headers["Location"] = f"/jobs/{spec.job_id}"
     return JobCreated(id=spec.job_id, state="queued", tiles_total=tiles_total,
