@@ -186,3 +186,19 @@ def test_orthographic_fstop_is_named_not_silently_dropped(tmp_path):
     data = translate_stage(str(tmp_path / "o.usda"))
     assert data.camera.lens_radius == 0.0
     assert any("/Cam: fStop 2.8 on an orthographic camera" in w for w in data.warnings), data.warnings
+
+
+def test_cli_camera_option_renders_through_that_camera_and_names_a_missing_one(tmp_path, capsys):
+    import OpenImageIO as oiio
+
+    from tessera.cli import main
+
+    _square_scene(tmp_path / "two.usda", cameras=("/Cams/A", "/Cams/B"))
+    boxes = {}
+    for cam in ("/Cams/A", "/Cams/B"):
+        out = tmp_path / f"{cam[-1]}.exr"
+        assert main(["render", str(tmp_path / "two.usda"), "--spp", "16", "-q", "--camera", cam, "-o", str(out)]) == 0
+        boxes[cam] = _lit_box(oiio.ImageBuf(str(out)).get_pixels(oiio.FLOAT)[..., :3])
+    assert boxes["/Cams/A"][0] - boxes["/Cams/B"][0] == pytest.approx(2.5, abs=0.05)  # as above
+    assert main(["render", str(tmp_path / "two.usda"), "-q", "--camera", "/Cams/Z"]) == 2
+    assert "camera /Cams/Z does not exist (the stage's cameras: /Cams/A, /Cams/B)" in capsys.readouterr().err
