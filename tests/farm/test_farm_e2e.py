@@ -295,7 +295,9 @@ def test_embedded_serve_restarts_a_killed_worker(tmp_path):
         wait_for("a new worker", lambda: len(_worker_children(serve.pid)) == 1)
         [second] = _worker_children(serve.pid)
         assert second != first and is_running(second)
-        assert "restarting it in" in serve.log() and "restarted a local worker" in serve.log()
+        # The supervisor logs the restart after the new process is up: wait for the line.
+        wait_for("the restart logged", lambda: "restarted a local worker" in serve.log())
+        assert "restarting it in" in serve.log()
         with httpx.Client(base_url=base, timeout=60) as client:
             r = submit(client, CORNELL, width=16, height=16, spp=1, tile_size=8)
             assert r.status_code == 201, r.text
