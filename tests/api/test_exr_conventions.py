@@ -33,7 +33,11 @@ def read_with_tools(path: Path) -> dict[str, str]:
     out = {}
     for tool, args in (("exrheader", []), ("exrinfo", ["-v"]), ("oiiotool", ["--info", "-v"])):
         r = subprocess.run([tool, *args, str(path)], capture_output=True, text=True)
-        assert r.returncode == 0 and "error" not in r.stderr.lower(), (tool, r.stdout, r.stderr)
+        # Debian 12's exrinfo (OpenEXR 3.1.5) exits with an arbitrary status after a
+        # successful read (0, 16, 79, 191 for the same file, run to run): for it, a read
+        # is the parts listing on stdout and nothing on stderr.
+        ok = r.returncode == 0 if tool != "exrinfo" else ("parts: 1" in r.stdout and not r.stderr.strip())
+        assert ok and "error" not in r.stderr.lower(), (tool, r.returncode, r.stdout, r.stderr)
         out[tool] = r.stdout
     return out
 
@@ -97,7 +101,8 @@ def test_every_kind_of_file_reads_with_the_tools(renders, tmp_path):
     broken.write_bytes((renders / "full.exr").read_bytes()[:300])
     for tool, args in (("exrheader", []), ("exrinfo", ["-v"]), ("oiiotool", ["--info", "-v"])):
         r = subprocess.run([tool, *args, str(broken)], capture_output=True, text=True)
-        assert r.returncode != 0 or "error" in r.stderr.lower(), (tool, r.stdout, r.stderr)
+        refused = "error" in r.stderr.lower() if tool == "exrinfo" else (r.returncode != 0 or "error" in r.stderr.lower())
+        assert refused, (tool, r.stdout, r.stderr)
 
 
 def test_bad_crop_is_a_clear_error(tmp_path):
