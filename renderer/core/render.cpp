@@ -103,6 +103,9 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
         throw std::invalid_argument("integrator '" + options.integrator +
                                     "' splats across tiles and needs a full-frame splat buffer");
     SplatFilm film(splats, camera.width, camera.height, scene.splat_exponent());
+    // Integrators whose tiles reuse a scene pass's product (photon maps, vcm, radiosity)
+    // cannot match one camera sample's instant to the product's: they see mid-shutter.
+    const bool sample_time = scene.has_motion() && !info.scene_passes;
     std::atomic<uint64_t> nonfinite{0}, rejected_splats{0}, closest_rays{0}, shadow_rays{0};
     const bool want_aovs = aovs.any();
     std::mutex first_mutex;
@@ -130,6 +133,9 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                 // their sample streams.
                 Ray ray = camera.GenerateRay(float(x) + jitter.x, float(y) + jitter.y,
                                              camera.HasLens() ? sampler.Get2D() : Vec2{0.5f, 0.5f});
+                // The sample's instant in the shutter (a box shutter): its own dimension,
+                // drawn only when something moves, so static images keep their streams.
+                const ShutterTimeScope instant(sample_time ? sampler.Get1D() : 0.5f);
                 float t_min, t_max;
                 camera.ClipRange(ray.d, &t_min, &t_max);
                 if (want_aovs) {

@@ -58,6 +58,9 @@ struct Extras {
     std::optional<nb::list> prototypes;
     std::optional<InVector<uint32_t>> instance_prototype;
     std::optional<Matrices> instance_transforms;
+    std::optional<InVector<uint32_t>> motion_instances;
+    std::optional<InVector<uint32_t>> motion_time_steps;
+    std::optional<Matrices> motion_transforms;
 };
 
 WrapMode ToWrap(float v) {
@@ -159,6 +162,18 @@ void AddExtras(SceneDesc* d, const Extras& x) {
         for (size_t i = 0; i < n; ++i)
             for (int r = 0; r < 3; ++r)
                 for (int c = 0; c < 4; ++c) d->instance_transforms[12 * i + 4 * r + c] = (*x.instance_transforms)(i, c, r);
+    }
+    if (x.motion_instances) {
+        if (!x.motion_time_steps || !x.motion_transforms)
+            throw std::invalid_argument("motion_instances needs motion_time_steps and motion_transforms");
+        d->motion_instances.assign(x.motion_instances->data(), x.motion_instances->data() + x.motion_instances->shape(0));
+        d->motion_time_steps.assign(x.motion_time_steps->data(),
+                                    x.motion_time_steps->data() + x.motion_time_steps->shape(0));
+        const size_t n = x.motion_transforms->shape(0);
+        d->motion_transforms.resize(12 * n);
+        for (size_t i = 0; i < n; ++i)
+            for (int r = 0; r < 3; ++r)
+                for (int c = 0; c < 4; ++c) d->motion_transforms[12 * i + 4 * r + c] = (*x.motion_transforms)(i, c, r);
     }
 }
 using DomeImage = nb::ndarray<const float, nb::shape<-1, -1, 3>, nb::c_contig, nb::device::cpu>;
@@ -283,12 +298,14 @@ NB_MODULE(_core, m) {
                std::optional<InArray<int32_t, 100>> texture_tiles,
                std::optional<InArray<int32_t, kNumTextureSlots>> material_textures,
                std::optional<nb::list> prototypes, std::optional<InVector<uint32_t>> instance_prototype,
-               std::optional<Matrices> instance_transforms) {
+               std::optional<Matrices> instance_transforms, std::optional<InVector<uint32_t>> motion_instances,
+               std::optional<InVector<uint32_t>> motion_time_steps, std::optional<Matrices> motion_transforms) {
                 SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
                                           sphere_lights, point_lights, distant_lights, dome_radiance, preview_params,
                                           preview_mask, dome_texture, dome_world_to_light, shading_normals);
                 AddExtras(&desc, Extras{uvs, images, image_srgb, texture_table, texture_tiles, material_textures,
-                                        prototypes, instance_prototype, instance_transforms});
+                                        prototypes, instance_prototype, instance_transforms, motion_instances,
+                                        motion_time_steps, motion_transforms});
                 nb::gil_scoped_release release;
                 new (self) Scene(desc);
             },
@@ -299,6 +316,7 @@ NB_MODULE(_core, m) {
             "images"_a = nb::none(), "image_srgb"_a = nb::none(), "texture_table"_a = nb::none(),
             "texture_tiles"_a = nb::none(), "material_textures"_a = nb::none(), "prototypes"_a = nb::none(),
             "instance_prototype"_a = nb::none(), "instance_transforms"_a = nb::none(),
+            "motion_instances"_a = nb::none(), "motion_time_steps"_a = nb::none(), "motion_transforms"_a = nb::none(),
             "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
             "(x, y, z, r, g, b intensity W/sr, then optionally the shaping columns of light_shaping.h: "
             "shaped, axis xyz, cutoff, smooth start, focus, focus tint rgb, has IES, 181 IES factors); distant_lights (dx, dy, dz travel direction, half angle in "
@@ -317,7 +335,11 @@ NB_MODULE(_core, m) {
             "specularColor, metallic, roughness, clearcoat, clearcoatRoughness, opacity, ior, normal), -1 none. "
             "prototypes: list of (positions, indices, triangle_material, normals or None, uvs or None) in "
             "prototype space; instance_prototype uint32 (N,) and instance_transforms float32 (N, 4, 4) (USD "
-            "row-vector convention) place them without copying triangles.")
+            "row-vector convention) place them without copying triangles. Transform motion: instance "
+            "motion_instances[k] moves through motion_time_steps[k] (2-129) matrices evenly spaced over the "
+            "shutter, taken in order from motion_transforms float32 (total steps, 4, 4), interpolated "
+            "linearly between them (renderer/core/scene/scene.h).")
+        .def_prop_ro("has_motion", &Scene::has_motion)
         .def_prop_ro("num_triangles", &Scene::num_triangles)
         .def_prop_ro("num_emitters", &Scene::num_emitters)
         .def_prop_ro("num_instances", &Scene::num_instances)

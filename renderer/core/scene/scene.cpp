@@ -5,6 +5,7 @@
 #include <atomic>
 #include <cstring>
 #include <limits>
+#include <map>
 #include <stdexcept>
 #include <string>
 
@@ -159,6 +160,22 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
     if (desc.instance_transforms.size() != 12 * num_instances)
         throw std::invalid_argument("instance_transforms must hold one 3x4 matrix per instance");
     instances_.resize(num_instances);
+    // Moving instances: instance -> (its first matrix in motion_transforms, its step count).
+    if (desc.motion_instances.size() != desc.motion_time_steps.size())
+        throw std::invalid_argument("motion_instances and motion_time_steps must have one entry each per moving instance");
+    std::map<uint32_t, std::pair<size_t, uint32_t>> motion_steps;
+    size_t motion_total = 0;
+    for (size_t k = 0; k < desc.motion_instances.size(); ++k) {
+        const uint32_t inst = desc.motion_instances[k], steps = desc.motion_time_steps[k];
+        if (inst >= num_instances || steps < 2 || steps > kMaxTimeSteps ||
+            !motion_steps.emplace(inst, std::make_pair(motion_total, steps)).second)
+            throw std::invalid_argument("moving instance " + std::to_string(inst) + ": needs an instance index below " +
+                                        std::to_string(num_instances) + ", listed once, with 2 to " +
+                                        std::to_string(kMaxTimeSteps) + " time steps (got " + std::to_string(steps) + ")");
+        motion_total += steps;
+    }
+    if (desc.motion_transforms.size() != 12 * motion_total)
+        throw std::invalid_argument("motion_transforms must hold one 3x4 matrix per time step of every moving instance");
     num_triangles_ = meshes_[0].num_triangles;
     for (size_t i = 0; i < num_instances; ++i) {
         const uint32_t proto = desc.instance_prototype[i];
@@ -168,26 +185,35 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
         Instance& inst = instances_[i];
         inst.mesh = 1 + proto;
         std::copy(desc.instance_transforms.begin() + 12 * i, desc.instance_transforms.begin() + 12 * (i + 1), inst.m);
-        const float* m = inst.m;
-        bool finite = true;
-        for (int j = 0; j < 12; ++j) finite = finite && std::isfinite(m[j]);
-        // Inverse transpose of the 3x3 part = cofactor matrix / determinant.
-        const double c00 = double(m[5]) * m[10] - double(m[6]) * m[9], c01 = double(m[6]) * m[8] - double(m[4]) * m[10],
-                     c02 = double(m[4]) * m[9] - double(m[5]) * m[8];
-        const double c10 = double(m[2]) * m[9] - double(m[1]) * m[10], c11 = double(m[0]) * m[10] - double(m[2]) * m[8],
-                     c12 = double(m[1]) * m[8] - double(m[0]) * m[9];
-        const double c20 = double(m[1]) * m[6] - double(m[2]) * m[5], c21 = double(m[2]) * m[4] - double(m[0]) * m[6],
-                     c22 = double(m[0]) * m[5] - double(m[1]) * m[4];
-        const double det = double(m[0]) * c00 + double(m[1]) * c01 + double(m[2]) * c02;
-        if (!finite || !(std::abs(det) > 1e-30) || !std::isfinite(det))
-            throw std::invalid_argument("instance " + std::to_string(i) +
-                                        " has a non-finite or singular transform");
-        const double cof[9] = {c00, c01, c02, c10, c11, c12, c20, c21, c22};
-        for (int j = 0; j < 9; ++j) inst.n[j] = float(cof[j] / det);
-        inst.orientation = det < 0.0 ? -1.f : 1.f;
+        auto check = [&](const float* m, float* n) {
+            bool finite = true;
+            for (int j = 0; j < 12; ++j) finite = finite && std::isfinite(m[j]);
+            float scratch[9];
+            const double det = NormalMatrixOf(m, n ? n : scratch);
+            if (!finite || !(std::abs(det) > 1e-30) || !std::isfinite(det))
+                throw std::invalid_argument("instance " + std::to_string(i) +
+                                            " has a non-finite or singular transform");
+            return det;
+        };
+        inst.orientation = check(inst.m, inst.n) < 0.0 ? -1.f : 1.f;
+        if (auto it = motion_steps.find(uint32_t(i)); it != motion_steps.end()) {
+            inst.time_steps = it->second.second;
+            inst.first_step = uint32_t(motion_m_.size() / 12);
+            const float* steps = desc.motion_transforms.data() + 12 * size_t(it->second.first);
+            motion_m_.insert(motion_m_.end(), steps, steps + 12 * size_t(inst.time_steps));
+            for (uint32_t k = 0; k < inst.time_steps; ++k) check(steps + 12 * k, nullptr);
+            std::copy(steps, steps + 12, inst.m);  // the first step is the static view
+            inst.orientation = check(inst.m, inst.n) < 0.0 ? -1.f : 1.f;
+        }
         RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_INSTANCE);
         rtcSetGeometryInstancedScene(geom, meshes_[inst.mesh].scene);
-        rtcSetGeometryTransform(geom, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, inst.m);
+        if (inst.time_steps > 1) {
+            rtcSetGeometryTimeStepCount(geom, inst.time_steps);
+            for (uint32_t k = 0; k < inst.time_steps; ++k)
+                rtcSetGeometryTransform(geom, k, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, &motion_m_[12 * size_t(inst.first_step + k)]);
+        } else {
+            rtcSetGeometryTransform(geom, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, inst.m);
+        }
         rtcCommitGeometry(geom);
         rtcAttachGeometryByID(scene_, geom, kFirstInstanceGeometry + uint32_t(i));
         rtcReleaseGeometry(geom);

@@ -82,6 +82,14 @@ struct SceneDesc {
     std::vector<MeshDesc> prototypes;
     std::vector<uint32_t> instance_prototype;
     std::vector<float> instance_transforms;
+    // Transform motion: instance motion_instances[k] moves through motion_time_steps[k]
+    // matrices (>= 2), evenly spaced over the shutter (step j at shutter time j / (T - 1)),
+    // taken in order from motion_transforms (12 floats each, as instance_transforms);
+    // between steps the matrix is interpolated linearly, as Embree does. Its
+    // instance_transforms entry is the first step's.
+    std::vector<uint32_t> motion_instances;
+    std::vector<uint32_t> motion_time_steps;
+    std::vector<float> motion_transforms;
     std::vector<Material> materials;
     std::vector<SphereLight> sphere_lights;
     std::vector<PointLight> point_lights;
@@ -96,6 +104,43 @@ struct SceneDesc {
 };
 
 inline constexpr uint32_t kNoInstance = 0xFFFFFFFFu;
+
+// The row-major inverse transpose of row-major 3x4 m's 3x3 part (cofactors over the
+// determinant): it transforms normals. Returns the determinant; n is untouched when it is
+// zero or not finite.
+inline double NormalMatrixOf(const float* m, float* n) {
+    const double c00 = double(m[5]) * m[10] - double(m[6]) * m[9], c01 = double(m[6]) * m[8] - double(m[4]) * m[10],
+                 c02 = double(m[4]) * m[9] - double(m[5]) * m[8];
+    const double c10 = double(m[2]) * m[9] - double(m[1]) * m[10], c11 = double(m[0]) * m[10] - double(m[2]) * m[8],
+                 c12 = double(m[1]) * m[8] - double(m[0]) * m[9];
+    const double c20 = double(m[1]) * m[6] - double(m[2]) * m[5], c21 = double(m[2]) * m[4] - double(m[0]) * m[6],
+                 c22 = double(m[0]) * m[5] - double(m[1]) * m[4];
+    const double det = double(m[0]) * c00 + double(m[1]) * c01 + double(m[2]) * c02;
+    if (!(std::abs(det) > 1e-30) || !std::isfinite(det)) return det;
+    const double cof[9] = {c00, c01, c02, c10, c11, c12, c20, c21, c22};
+    for (int j = 0; j < 9; ++j) n[j] = float(cof[j] / det);
+    return det;
+}
+
+// The instant at which this thread's scene queries see moving geometry, as a fraction of
+// the shutter interval in [0, 1] (Embree's ray time). RenderTile sets it once per camera
+// sample (ShutterTimeScope), so every ray of the sample -- its camera path, shadow rays,
+// and the light subpaths light and bdpt trace for it -- sees one consistent instant
+// without each integrator threading it through every query. Everywhere else (scene
+// passes, and integrators whose tiles reuse a scene pass's product) it stays 0.5: the
+// scene frozen at mid-shutter. A static scene ignores it.
+inline thread_local float tls_shutter_time = 0.5f;
+
+class ShutterTimeScope {
+public:
+    explicit ShutterTimeScope(float time) : saved_(tls_shutter_time) { tls_shutter_time = time; }
+    ~ShutterTimeScope() { tls_shutter_time = saved_; }
+    ShutterTimeScope(const ShutterTimeScope&) = delete;
+    ShutterTimeScope& operator=(const ShutterTimeScope&) = delete;
+
+private:
+    float saved_;
+};
 
 struct SurfaceHit {
     float t = 0.f;
@@ -201,6 +246,8 @@ public:
     RTCScene embree_scene() const { return scene_; }  // for raw-Embree benchmarks
     size_t num_emitters() const { return emitters_.size(); }
     size_t num_instances() const { return instances_.size(); }
+    // Some geometry moves during the shutter: camera samples then draw a time.
+    bool has_motion() const { return !motion_m_.empty(); }
     // Triangles stored (world mesh + one copy of each prototype), not counting instancing.
     size_t num_stored_triangles() const;
 
@@ -235,8 +282,19 @@ private:
         float n[9];   // row-major inverse transpose of m's 3x3: transforms normals
         float orientation = 1.f;  // -1 for a mirroring transform
         int32_t emitter_base = -1;
+        // Moving: time_steps matrices from motion_m_[12 first_step]; m is the first.
+        uint32_t time_steps = 1;
+        uint32_t first_step = 0;
     };
+    // The instance's object-to-world matrix at this thread's shutter time: m, or the
+    // interpolation of its time steps written to `scratch`. With `normals`, also the
+    // matrix transforming its normals (n, or computed into `normals_scratch`).
+    const float* InstanceMatrix(const Instance& in, float* scratch) const;
+    const float* InstanceNormalMatrix(const Instance& in, const float* m, float* normals_scratch) const;
+    // A triangle emitter's area now (moving instances may scale it).
+    float EmitterArea(const Emitter& e) const;
     static constexpr uint32_t kFirstInstanceGeometry = 2;
+    static constexpr uint32_t kMaxTimeSteps = 129;  // Embree's own limit
 
     Color EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const;
     // Emitter e (a triangle) as its light kind sees it, in world space.
@@ -265,6 +323,7 @@ private:
 
     std::vector<Mesh> meshes_;
     std::vector<Instance> instances_;
+    std::vector<float> motion_m_;  // time steps of moving instances, 12 floats each
     TextureSet textures_;
     std::vector<uint8_t> material_is_cutout_;
     std::vector<uint8_t> material_has_textures_;  // some slot other than -1: evaluate per hit

@@ -36,7 +36,7 @@ TriangleLight Scene::TriangleLightOf(const Emitter& e) const {
     t.p0 = tri[0];
     t.p1 = tri[1];
     t.p2 = tri[2];
-    t.area = e.area;
+    t.area = EmitterArea(e);
     t.two_sided = MaterialOf(e.mesh, e.index).two_sided_emission;
     t.instanced = e.instance != kNoInstance;
     return t;
@@ -104,7 +104,7 @@ float Scene::EmissionPdfPosition(uint32_t emitter) const {
     switch (e.kind) {
         case LightKind::kPoint: return PointLight::PdfPosition();
         case LightKind::kSphere:
-        case LightKind::kTriangle: return 1.f / e.area;
+        case LightKind::kTriangle: return 1.f / EmitterArea(e);
         case LightKind::kDistant:
         case LightKind::kDome: return InfiniteEmissionPdfPosition(scene_radius_);
     }
@@ -139,7 +139,16 @@ Color Scene::EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const {
 float Scene::EmitterPdf(uint32_t emitter, Vec3 ref, const SurfaceHit& hit) const {
     const Emitter& e = emitters_[emitter];
     if (e.kind == LightKind::kSphere) return spheres_[e.index].Pdf(ref);
-    return TriangleLightPdf(ref, hit.p, hit.ng, e.area);
+    return TriangleLightPdf(ref, hit.p, hit.ng, EmitterArea(e));
+}
+
+float Scene::EmitterArea(const Emitter& e) const {
+    if (e.kind != LightKind::kTriangle || e.instance == kNoInstance || instances_[e.instance].time_steps <= 1)
+        return e.area;
+    // A moving instance may scale its triangles: the area at this instant.
+    Vec3 p[3];
+    TriangleVertices(e.mesh, e.index, e.instance, p);
+    return std::max(1e-30f, 0.5f * Length(Cross(p[1] - p[0], p[2] - p[0])));
 }
 
 }  // namespace tessera

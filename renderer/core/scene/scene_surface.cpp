@@ -63,11 +63,33 @@ inline Vec3 TransformNormal(const float* n, Vec3 v) {  // n: row-major 3x3
 
 }  // namespace
 
+const float* Scene::InstanceMatrix(const Instance& in, float* scratch) const {
+    if (in.time_steps <= 1) return in.m;
+    // Embree's interpolation: steps evenly spaced over [0, 1], linear in between.
+    const float t = std::clamp(tls_shutter_time, 0.f, 1.f) * float(in.time_steps - 1);
+    const uint32_t k = std::min(uint32_t(t), in.time_steps - 2);
+    const float f = t - float(k);
+    const float* a = &motion_m_[12 * size_t(in.first_step + k)];
+    const float* b = a + 12;
+    for (int j = 0; j < 12; ++j) scratch[j] = (1.f - f) * a[j] + f * b[j];
+    return scratch;
+}
+
+const float* Scene::InstanceNormalMatrix(const Instance& in, const float* m, float* normals_scratch) const {
+    if (m == in.m) return in.n;
+    // A singular instant (a scale through zero) keeps the first step's normals.
+    std::copy(in.n, in.n + 9, normals_scratch);
+    NormalMatrixOf(m, normals_scratch);
+    return normals_scratch;
+}
+
 float Scene::TriangleVertices(uint32_t mesh, uint32_t prim, uint32_t instance, Vec3 p[3]) const {
     const Mesh& m = meshes_[mesh];
+    float scratch[12];
+    const float* xf = instance != kNoInstance ? InstanceMatrix(instances_[instance], scratch) : nullptr;
     for (int c = 0; c < 3; ++c) {
         p[c] = LocalVertex(m.positions, m.indices, prim, c);
-        if (instance != kNoInstance) p[c] = TransformPoint(instances_[instance].m, p[c]);
+        if (xf) p[c] = TransformPoint(xf, p[c]);
     }
     // A mirroring instance transform reverses the winding of the transformed corners; the
     // flattened copy reverses its corner order instead, so the side a triangle faces is
@@ -128,8 +150,10 @@ void Scene::ApplyNormalMap(SurfaceHit* hit) const {
     if (!(std::abs(det) > 1e-20f)) return;  // degenerate st: no frame
     Vec3 dpds = (e1 * dv2 - e2 * dv1) / det, dpdt = (e2 * du1 - e1 * du2) / det;
     if (hit->instance != kNoInstance) {
-        dpds = TransformVector(instances_[hit->instance].m, dpds);
-        dpdt = TransformVector(instances_[hit->instance].m, dpdt);
+        float scratch[12];
+        const float* xf = InstanceMatrix(instances_[hit->instance], scratch);
+        dpds = TransformVector(xf, dpds);
+        dpdt = TransformVector(xf, dpdt);
     }
     const Vec3 n = hit->ns;
     Vec3 t = dpds - n * Dot(n, dpds);
@@ -191,7 +215,7 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceH
     rh.ray.dir_z = ray.d.z;
     rh.ray.tnear = t_near;
     rh.ray.tfar = t_far;
-    rh.ray.time = 0.f;
+    rh.ray.time = tls_shutter_time;
     rh.ray.mask = 0xFFFFFFFFu;
     rh.ray.id = 0;
     rh.ray.flags = 0;
@@ -241,10 +265,13 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceH
         // transform the inverse transpose keeps the normal on the side the flattened copy
         // (whose winding is reversed) faces.
         const Instance& in = instances_[hit->instance];
-        p_error = TransformedPointError(in.m, p, p_error);
-        p = TransformPoint(in.m, p);
-        ng = TransformNormal(in.n, ng);
-        ns = TransformNormal(in.n, ns);
+        float m_scratch[12], n_scratch[9];
+        const float* m = InstanceMatrix(in, m_scratch);
+        const float* n = InstanceNormalMatrix(in, m, n_scratch);
+        p_error = TransformedPointError(m, p, p_error);
+        p = TransformPoint(m, p);
+        ng = TransformNormal(n, ng);
+        ns = TransformNormal(n, ns);
     }
     hit->p = p;
     hit->p_error = p_error;
@@ -275,7 +302,7 @@ bool Scene::Occluded(Vec3 origin, Vec3 dir, float t_far) const {
     ray.dir_z = dir.z;
     ray.tnear = 0.f;
     ray.tfar = t_far;
-    ray.time = 0.f;
+    ray.time = tls_shutter_time;
     ray.mask = 0xFFFFFFFFu;
     ray.id = 0;
     ray.flags = 0;
