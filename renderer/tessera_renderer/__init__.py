@@ -100,6 +100,11 @@ class Scene:
         return self._core.splat_exponent
 
     @property
+    def has_motion(self) -> bool:
+        """Something moves during the shutter: each camera sample then draws its instant."""
+        return self._core.has_motion
+
+    @property
     def num_instances(self) -> int:
         return self._core.num_instances
 
@@ -373,9 +378,15 @@ def _instance_tables(data, with_uvs: bool) -> dict:
                        np.ascontiguousarray(p["triangle_material"], np.uint32).reshape(-1),
                        None if normals is None else np.ascontiguousarray(normals, np.float32).reshape(-1, 3, 3),
                        None if uvs is None else np.ascontiguousarray(uvs, np.float32).reshape(-1, 3, 2)))
-    return {"prototypes": protos,
-            "instance_prototype": np.ascontiguousarray(instances, np.uint32).reshape(-1),
-            "instance_transforms": np.ascontiguousarray(data.instance_transforms, np.float32).reshape(-1, 4, 4)}
+    tables = {"prototypes": protos,
+              "instance_prototype": np.ascontiguousarray(instances, np.uint32).reshape(-1),
+              "instance_transforms": np.ascontiguousarray(data.instance_transforms, np.float32).reshape(-1, 4, 4)}
+    moving = getattr(data, "motion_instances", None)
+    if moving is not None and len(moving):
+        tables.update(motion_instances=np.ascontiguousarray(moving, np.uint32).reshape(-1),
+                      motion_time_steps=np.ascontiguousarray(data.motion_time_steps, np.uint32).reshape(-1),
+                      motion_transforms=np.ascontiguousarray(data.motion_transforms, np.float32).reshape(-1, 4, 4))
+    return tables
 
 
 def _corner_normals(normals) -> np.ndarray | None:
@@ -412,7 +423,8 @@ def _rows(table, columns: int) -> np.ndarray:
 
 def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path | None = None,
                instancing: str = "auto", default_light: bool = True,
-               subdivision_level: int | None = None, camera: str | None = None) -> Scene:
+               subdivision_level: int | None = None, camera: str | None = None,
+               shutter: tuple[float, float] | None = None) -> Scene:
     """Reads a bundle (.usda/.usdc/.usd, .usdz or .zip) through the sandbox and builds it.
     For a loose layer, `root` (default: its directory) is the bundle every asset must stay
     in; `root="/"` trusts the local filesystem (what `tessera render` does by default). `instancing`: "auto" (default: Embree instances, one BVH per prototype, unless
@@ -422,7 +434,10 @@ def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path
     black. `subdivision_level`: how many times subdivision surfaces are refined (default
     tessera_renderer.usd.subdivision.DEFAULT_LEVEL; 0 renders their control cage).
     `camera`: the path of the Camera prim to render through (default: the RenderSettings'
-    camera, else the first camera, else a default view). Raises SceneError for bad input."""
+    camera, else the first camera, else a default view). `frame`: the time code to render
+    (default: the stage's startTimeCode, else the default time); `shutter`: (open, close)
+    offsets from it in time codes, in place of the camera's shutter:open/close ((0, 0): no
+    motion blur; docs/motion.md). Raises SceneError for bad input."""
     from .usd.subdivision import DEFAULT_LEVEL
 
     path = Path(path)
@@ -431,7 +446,7 @@ def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path
     data = translate_stage(str(path), frame, root=None if root is None else str(root),
                            instancing=instancing,
                            subdivision_level=DEFAULT_LEVEL if subdivision_level is None else subdivision_level,
-                           camera=camera)
+                           camera=camera, shutter=shutter)
     scene = Scene(data, default_light=default_light)
     for w in scene.warnings:
         log.warning("%s: %s", path.name, w)

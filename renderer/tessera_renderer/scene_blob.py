@@ -46,8 +46,10 @@ BLOB_VERSION = 1
 # UsdSkel skinning, MaterialX looks; 6: subdivision surfaces refined onto their limit
 # surface (OpenSubdiv, level 2) instead of their cages; shaped point lights (ShapingAPI
 # cones, focus, IES) with 6 + 192 columns; BasisCurves as triangle tubes; 7: orthographic
-# cameras and aperture offsets (CameraDesc.projection, *_aperture_offset).
-TRANSLATOR_VERSION = 7
+# cameras and aperture offsets (CameraDesc.projection, *_aperture_offset); 8: transform
+# motion over the camera's shutter (moving instances, motion_* arrays), and the stage's
+# startTimeCode as the render time when no frame is given.
+TRANSLATOR_VERSION = 8
 _ALIGN = 64
 _PROTO_FIELDS = ("positions", "indices", "triangle_material", "shading_normals", "uvs")
 
@@ -60,18 +62,18 @@ def format_tag() -> str:
 
 def translate_to_blob(path: str | Path, frame: float | None = None, *, root: str | Path | None = None,
                       instancing: str = "auto", subdivision_level: int | None = None,
-                      camera: str | None = None) -> bytes:
+                      camera: str | None = None, shutter: tuple[float, float] | None = None) -> bytes:
     """Sandboxes, pre-flights and translates a bundle; returns the blob. SceneError for
     bad input. A light-less stage's default lighting travels in the blob unapplied:
-    scene_from_blob(blob, default_light=...) decides. `subdivision_level` and `camera` as
-    in load_scene."""
+    scene_from_blob(blob, default_light=...) decides. `frame`, `subdivision_level`,
+    `camera` and `shutter` as in load_scene."""
     from .usd import translate_stage
     from .usd.subdivision import DEFAULT_LEVEL
 
     data = translate_stage(str(path), frame, root=None if root is None else str(root),
                            instancing=instancing,
                            subdivision_level=DEFAULT_LEVEL if subdivision_level is None else subdivision_level,
-                           camera=camera)
+                           camera=camera, shutter=shutter)
     try:
         return scene_data_to_blob(data)
     finally:
@@ -87,6 +89,8 @@ def scene_data_to_blob(data: SceneData) -> bytes:
         "sphere_lights": data.sphere_lights, "distant_lights": data.distant_lights,
         "point_lights": data.point_lights, "instances": data.instances,
         "instance_transforms": data.instance_transforms,
+        "motion_instances": data.motion_instances, "motion_time_steps": data.motion_time_steps,
+        "motion_transforms": data.motion_transforms,
     }
     for key, value in data.material_params.items():
         arrays[f"material_params.{key}"] = value
@@ -137,6 +141,7 @@ def scene_data_to_blob(data: SceneData) -> bytes:
         "dome_light": dome, "meters_per_unit": data.meters_per_unit, "up_axis": data.up_axis,
         "world_offset": list(data.world_offset), "default_lights": data.default_lights,
         "prototypes": len(data.prototypes), "translator_version": TRANSLATOR_VERSION,
+        "time_code": data.time_code, "shutter": None if data.shutter is None else list(data.shutter),
     }
     table, offset = {}, 0
     for name, a in arrays.items():
@@ -224,7 +229,12 @@ def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
         distant_lights=arrays["distant_lights"], point_lights=arrays["point_lights"], dome_light=dome,
         prototypes=prototypes, instances=arrays["instances"], instance_transforms=arrays["instance_transforms"],
         meters_per_unit=meta["meters_per_unit"], up_axis=meta["up_axis"],
-        world_offset=tuple(meta["world_offset"]), default_lights=meta.get("default_lights"))
+        world_offset=tuple(meta["world_offset"]), default_lights=meta.get("default_lights"),
+        motion_instances=arrays.get("motion_instances", np.zeros(0, np.uint32)),
+        motion_time_steps=arrays.get("motion_time_steps", np.zeros(0, np.uint32)),
+        motion_transforms=arrays.get("motion_transforms", np.zeros((0, 4, 4), np.float32)),
+        time_code=meta.get("time_code"),
+        shutter=None if meta.get("shutter") is None else tuple(meta["shutter"]))
     if tmp:
         data._blob_files = _Dir(tmp)
     return data

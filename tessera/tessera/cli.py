@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import sys
 from pathlib import Path
@@ -49,7 +50,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     try:
         scene = load_scene(scene_path, frame=args.frame, root=_local_root(args),
                            default_light=not args.no_default_light,
-                           subdivision_level=args.subdivision_level, camera=args.camera)
+                           subdivision_level=args.subdivision_level, camera=args.camera,
+                           shutter=args.shutter)
     except SceneError as exc:
         hint = ("; if that folder is yours, let assets resolve within it with --root DIR, "
                 "or render without --sandbox"
@@ -86,8 +88,13 @@ def cmd_render(args: argparse.Namespace) -> int:
                if settings.adaptive else f"{settings.spp} spp")
     instanced = (f" ({scene.num_instances} instances, {scene.num_stored_triangles} triangles stored)"
                  if scene.num_instances else "")
+    data = scene.data
+    when = f"; time code {data.time_code:g}" if getattr(data, "time_code", None) is not None else ""
+    if getattr(data, "shutter", None) is not None:
+        when += (f", motion blur over [{data.shutter[0]:g}, {data.shutter[1]:g}] "
+                 f"({len(data.motion_instances)} moving)")
     print(f"{scene_path.name}: {scene.num_triangles} triangles{instanced}, {scene.num_emitters} emitters; "
-          f"{width}x{height}, {samples}, seed {settings.seed}", file=sys.stderr)
+          f"{width}x{height}, {samples}, seed {settings.seed}{when}", file=sys.stderr)
     try:
         image = render_scene(scene, settings, scene_name=scene_path.name, threads=args.threads,
                              progress=not args.quiet, variance=not args.no_variance)
@@ -203,6 +210,26 @@ def _add_camera_option(parser: argparse.ArgumentParser) -> None:
                              "view framing the scene; docs/scene-translation.md)")
 
 
+def _shutter(text: str) -> tuple[float, float]:
+    try:
+        open_, close = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected OPEN,CLOSE (two time codes), not {text!r}") from None
+    if not (math.isfinite(open_) and math.isfinite(close)) or open_ > close:
+        raise argparse.ArgumentTypeError(f"must be finite with OPEN <= CLOSE, not {text!r}")
+    return open_, close
+
+
+def _add_time_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--frame", type=float, default=None, metavar="TIME",
+                        help="the USD time code to render (default: the stage's startTimeCode, else "
+                             "its default time; docs/motion.md)")
+    parser.add_argument("--shutter", type=_shutter, default=None, metavar="OPEN,CLOSE",
+                        help="motion blur over [frame+OPEN, frame+CLOSE] in time codes, replacing the "
+                             "camera's shutter:open/close; 0,0 renders without motion blur "
+                             "(docs/motion.md)")
+
+
 def _add_denoise_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--denoise", action="store_true",
                         help="add an Open Image Denoise layer (denoised.R/G/B) and a denoised PNG "
@@ -246,6 +273,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
                                       default_light="false" if args.no_default_light else None,
                                       denoise=args.denoise or None,
                                       subdivision_level=args.subdivision_level, camera=args.camera,
+                                      frame=args.frame, shutter=args.shutter,
                                       crop=",".join(map(str, args.crop)) if args.crop else None,
                                       **_noise_target(args)).items() if v is not None}
     report = lambda line: print(line, file=sys.stderr)  # noqa: E731
@@ -406,7 +434,6 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     r.add_argument("--max-depth", type=_positive, default=64, help="maximum bounces (default 64)")
     r.add_argument("--tile", type=_positive, default=64, help="tile size in pixels (default 64)")
-    r.add_argument("--frame", type=float, help="time code to render (default: the stage's default time)")
     r.add_argument("--root", help="with the sandbox: the folder every asset path must resolve within "
                                   "(implies --sandbox; default: the scene's folder)")
     r.add_argument("--sandbox", action="store_true",
@@ -421,6 +448,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_denoise_option(r)
     _add_subdivision_option(r)
     _add_camera_option(r)
+    _add_time_options(r)
     r.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
                    help="write only this pixel region (X1, Y1 exclusive) as the EXR's data "
                         "window, the full frame as its display window; the whole frame is "
@@ -463,6 +491,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_denoise_option(m)
     _add_subdivision_option(m)
     _add_camera_option(m)
+    _add_time_options(m)
     m.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
                    help="the EXR holds only this region (X1, Y1 exclusive) as its data window")
     m.set_defaults(func=cmd_submit)

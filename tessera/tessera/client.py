@@ -91,7 +91,8 @@ class Client:
         here is sent alone, so that the farm's pre-flight says why. The keywords are
         tessera.render's; `priority` is 0-9 and any other job setting of POST /jobs
         (max_depth, tile_size, target_error, min_spp, max_spp, time_limit, max_attempts,
-        default_light, denoise, crop) passes through `settings`."""
+        default_light, denoise, crop, camera, subdivision_level, frame, shutter as (open,
+        close)) passes through `settings`."""
         form: dict[str, Any] = dict(spp=spp, integrator=integrator, seed=seed, priority=priority, **settings)
         if res is not None:
             form["width"], form["height"] = res
@@ -100,7 +101,12 @@ class Client:
             form["aovs"] = ",".join(aovs)
         if integrator_params:
             form["integrator_params"] = json.dumps(dict(integrator_params))
-        data = {k: (str(v).lower() if isinstance(v, bool) else str(v)) for k, v in form.items() if v is not None}
+        def text(v: Any) -> str:  # the API's form: booleans in lower case, pairs as A,B (shutter)
+            if isinstance(v, bool):
+                return str(v).lower()
+            return ",".join(map(str, v)) if isinstance(v, (tuple, list)) else str(v)
+
+        data = {k: text(v) for k, v in form.items() if v is not None}
         r = self._post_scene(Path(scene), data, report or (lambda line: None))
         if r.status_code >= 400:
             raise FarmError(f"POST /jobs: {r.status_code}: {_detail(r)}", r.status_code, _detail(r))

@@ -113,6 +113,23 @@ class RenderSettings(BaseModel):
         default=None, min_length=1, max_length=1024, pattern=r"^/\S*$",
         description="the path of the Camera prim to render through (default: the RenderSettings' "
                     "camera, else the first camera, else a three-quarter view framing the scene)")
+    frame: float | None = Field(
+        default=None, allow_inf_nan=False, ge=-1e9, le=1e9,
+        description="the USD time code to render (default: the stage's startTimeCode, else the "
+                    "default time; docs/motion.md)")
+    shutter: tuple[float, float] | None = Field(
+        default=None,
+        description="(open, close) in time codes from the frame, replacing the camera's "
+                    "shutter:open/close; [0, 0] renders without motion blur (docs/motion.md)")
+
+    @field_validator("shutter")
+    @classmethod
+    def _shutter_interval(cls, value):
+        if value is not None:
+            open_, close = value
+            if not (math.isfinite(open_) and math.isfinite(close)) or open_ > close or close - open_ > 1e6:
+                raise ValueError(f"shutter must be two finite time codes with open <= close, not {list(value)}")
+        return value
 
     @field_validator("integrator")
     @classmethod

@@ -127,6 +127,8 @@ def _material(data, row: int) -> dict:
 
 
 def _check_supported(data) -> None:
+    if len(getattr(data, "motion_instances", [])):
+        raise Unmatched("motion blur (moving instances; render with shutter=(0, 0) to compare a still frame)")
     if len(getattr(data, "instances", [])):
         raise Unmatched("instanced geometry (translate with instancing='flatten')")
     if getattr(data, "dome_light", None):

@@ -562,8 +562,13 @@ class Worker:
         variant = "" if level is None else f".subdiv{level}"
         if camera is not None:
             variant += ".cam" + hashlib.sha256(camera.encode()).hexdigest()[:16]
+        # Another time code or shutter: other positions and motion steps.
+        frame, shutter = task.settings.frame, task.settings.shutter
+        if frame is not None or shutter is not None:
+            variant += ".t" + hashlib.sha256(repr((frame, shutter)).encode()).hexdigest()[:16]
         source = {"scene_key": f"{task.scene_hash}{variant}{suffix}", "scene_path": None,
-                  "blob_path": None, "blob_out": None, "subdivision_level": level, "camera": camera}
+                  "blob_path": None, "blob_out": None, "subdivision_level": level, "camera": camera,
+                  "frame": frame, "shutter": None if shutter is None else list(shutter)}
         if blob_version is None:
             source["scene_path"] = self._scene_file(task)
             return source

@@ -248,6 +248,8 @@ def _move_to_camera(tr, camera: CameraDesc) -> None:
         row[:3] = list(np.asarray(row[:3], np.float64) - shift)
     for mats in tr.instance_xforms:
         mats[:, 3, :3] -= shift
+    for _, mats in tr.motion:
+        mats[:, 3, :3] -= shift
 
 
 def _floats(v) -> tuple[float, float, float]:

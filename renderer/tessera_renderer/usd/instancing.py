@@ -58,8 +58,13 @@ class _InstanceReader:
             idx = self.prototype(self.native_key(prim), rng, np.linalg.inv(self.world_matrix(prim)))
         finally:
             self._in_native_prototype = False
-        self.instances.append(np.array([idx], np.uint32))
-        self.instance_xforms.append(self.world_matrix(prim)[None])
+        points = [c.points for c in self.prototypes[idx]["chunks"] if len(c.points)]
+        mats = self.motion_steps(prim, np.concatenate(points)) if points else None
+        if mats is not None:
+            self.add_moving_instance(idx, mats)
+        else:
+            self.instances.append(np.array([idx], np.uint32))
+            self.instance_xforms.append(self.world_matrix(prim)[None])
         self.instanced_triangles += self.prototypes[idx]["triangles"]
 
     def add_point_instancer(self, prim, base_inv, sink, top_level) -> None:

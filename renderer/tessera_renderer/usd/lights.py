@@ -49,6 +49,9 @@ class _LightReader:
         if handler is None:
             self.unsupported[type_name or "untyped light"] += 1
             return
+        if type_name in ("SphereLight", "DistantLight", "DomeLight") and self.moves_during_shutter(prim):
+            self._count_note("moving sphere, point, distant and dome lights are not motion-blurred yet: "
+                             "rendered where they are at the frame")
         handler(prim)
 
     def _emissive(self, prim, local_pts, tris, radiance, two_sided=False) -> None:
@@ -57,7 +60,11 @@ class _LightReader:
                               "emissiveColor": tuple(float(x) for x in radiance)}, "textures": {}}
         row = self.materials.add(surface, two_sided)
         chunk = _Chunk(np.asarray(local_pts, np.float64), np.asarray(tris), np.full(len(tris), row, np.uint32))
-        self.emit(chunk.transformed(m), self.chunks, str(prim.GetPath()))
+        mats = self.motion_steps(prim, chunk.points)  # area lights move as geometry does
+        if mats is not None:
+            self.add_moving_chunk(chunk, mats, str(prim.GetPath()))
+        else:
+            self.emit(chunk.transformed(m), self.chunks, str(prim.GetPath()))
 
     def add_rect_light(self, prim) -> None:
         from pxr import UsdLux

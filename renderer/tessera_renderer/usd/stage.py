@@ -32,6 +32,7 @@ from .instancing import _InstanceReader, _instance_corners
 from .lights import NO_LIGHT_WARNING, _LightReader, _emits, apply_default_lighting, default_lighting
 from .materials import _COLOR_INPUTS, _MaterialReader, _MaterialTable, _SCALAR_INPUTS, _as_tuple
 from .meshes import _Chunk, _MeshReader, _face_normals, _normalized
+from .motion import Shutter, _MotionReader, render_time, shutter_interval
 
 
 DEFAULT_RESOLUTION = (512, 512)
@@ -77,6 +78,16 @@ class SceneData:
     prototypes: list[dict] = field(default_factory=list)
     instances: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint32))
     instance_transforms: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4), np.float32))
+    # Transform motion (usd/motion.py): instance motion_instances[k] moves through
+    # motion_time_steps[k] matrices evenly spaced over the shutter, taken in order from
+    # motion_transforms; its instance_transforms entry is the first.
+    motion_instances: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint32))
+    motion_time_steps: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint32))
+    motion_transforms: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4), np.float32))
+    # The time code rendered (None: the default time) and the shutter interval around it
+    # in absolute time codes (None: no motion blur).
+    time_code: float | None = None
+    shutter: tuple[float, float] | None = None
     meters_per_unit: float = 0.01
     up_axis: str = "Y"
     # The world-space position of this data's origin: a translated stage is moved so that
@@ -89,11 +100,12 @@ class SceneData:
     default_lights: dict | None = None
 
 
-class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader):
+class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _MotionReader):
     def __init__(self, stage, time, warn, bundle, limits, instancing: str,
-                 subdivision_level: int = subdivision.DEFAULT_LEVEL):
+                 subdivision_level: int = subdivision.DEFAULT_LEVEL, shutter: Shutter | None = None):
         from pxr import Sdr, UsdGeom
 
+        self._init_motion(shutter)
         self.stage = stage
         self.subdivision_level = subdivision_level
         self.subdivided_meshes = 0
@@ -174,17 +186,24 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader):
                 m = skinned[1]  # skinned points are in the skeleton's space
             if m is not None and base_inv is not None:
                 m = m @ base_inv
-            if prim.IsA(UsdGeom.Mesh):
-                chunk = self.mesh_chunk(prim)
-                if chunk is not None:
-                    self.emit(chunk.transformed(m), sink, str(prim.GetPath()))
-            elif type_name in _GPRIMS:
-                chunk = self.gprim_chunk(prim, type_name)
-                if chunk is not None:
-                    self.emit(chunk.transformed(m), sink, str(prim.GetPath()))
-            elif prim.IsA(UsdGeom.BasisCurves):
-                chunk = self.curves_chunk(prim)
-                if chunk is not None:
+            if prim.IsA(UsdGeom.Mesh) or type_name in _GPRIMS or prim.IsA(UsdGeom.BasisCurves):
+                if prim.IsA(UsdGeom.Mesh):
+                    chunk = self.mesh_chunk(prim)
+                    if self.deforms_during_shutter(UsdGeom.Mesh(prim).GetPointsAttr()):
+                        self._count_note("deforming meshes (points time-sampled within the shutter) are not "
+                                         "motion-blurred yet: rendered in their shape at the frame")
+                elif type_name in _GPRIMS:
+                    chunk = self.gprim_chunk(prim, type_name)
+                else:
+                    chunk = self.curves_chunk(prim)
+                if chunk is None:
+                    continue
+                # Moving during the shutter: an instance of its own, whatever the
+                # instancing mode (only an instance's matrices can move in Embree).
+                mats = self.motion_steps(prim, chunk.points) if top_level and skinned is None else None
+                if mats is not None:
+                    self.add_moving_chunk(chunk, mats, str(prim.GetPath()))
+                else:
                     self.emit(chunk.transformed(m), sink, str(prim.GetPath()))
             elif prim.HasAPI(UsdLux.LightAPI) or prim.IsA(UsdLux.BoundableLightBase) or \
                     prim.IsA(UsdLux.NonboundableLightBase):
@@ -250,7 +269,8 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader):
 def translate_stage(path: str, frame: float | None = None, *, bundle=None, instancing: str = "flatten",
                     default_light: bool = False, root: str | None = None,
                     camera_relative: bool = True,
-                    subdivision_level: int = subdivision.DEFAULT_LEVEL, camera: str | None = None) -> SceneData:
+                    subdivision_level: int = subdivision.DEFAULT_LEVEL, camera: str | None = None,
+                    shutter: tuple[float, float] | None = None) -> SceneData:
     """Opens a USD file through the bundle sandbox and translates it. `instancing` is
     "flatten" (every instance copied into the flat arrays), "instances" (prototypes +
     instance transforms, prototypes kept out of the flat arrays; the core builds one BVH
@@ -261,7 +281,10 @@ def translate_stage(path: str, frame: float | None = None, *, bundle=None, insta
     (_move_to_camera); without, they are world coordinates. Raises SceneError with a
     readable message. `subdivision_level` is how many times subdivision surfaces are
     refined (0: their control cage). `camera`, a Camera prim's path, is the camera to
-    render through instead of the RenderSettings' (or the first found)."""
+    render through instead of the RenderSettings' (or the first found). `frame` is the time
+    code to render (default: the stage's startTimeCode, else the default time); `shutter`
+    (open, close), offsets from it in time codes, replaces the camera's shutter:open/close
+    (usd/motion.py; (0, 0) renders without motion blur)."""
     from . import bundle as bundle_mod
 
     if bundle is None:
@@ -269,7 +292,7 @@ def translate_stage(path: str, frame: float | None = None, *, bundle=None, insta
     stage = bundle_mod.open_stage(bundle)
     data = translate_opened_stage(stage, frame, bundle=bundle, instancing=instancing,
                                   default_light=default_light, camera_relative=camera_relative,
-                                  subdivision_level=subdivision_level, camera=camera)
+                                  subdivision_level=subdivision_level, camera=camera, shutter=shutter)
     data.warnings[:0] = bundle.warnings
     data._bundle = bundle  # keeps an unpack directory (and the textures in it) alive
     return data
@@ -278,7 +301,7 @@ def translate_stage(path: str, frame: float | None = None, *, bundle=None, insta
 def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, instancing: str = "flatten",
                            default_light: bool = False, limits=None, camera_relative: bool = True,
                            subdivision_level: int = subdivision.DEFAULT_LEVEL,
-                           camera: str | None = None) -> SceneData:
+                           camera: str | None = None, shutter: tuple[float, float] | None = None) -> SceneData:
     from pxr import Usd, UsdGeom
 
     from .bundle import DEFAULT_LIMITS
@@ -291,22 +314,29 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
         # keeps. Such scenes are translated again, flattened.
         data = translate_opened_stage(stage, frame, bundle=bundle, instancing="instances",
                                       default_light=default_light, limits=limits, camera_relative=camera_relative,
-                                      subdivision_level=subdivision_level, camera=camera)
+                                      subdivision_level=subdivision_level, camera=camera, shutter=shutter)
         if not getattr(data, "_native_prototype_lights", 0):
             return data
         flat = translate_opened_stage(stage, frame, bundle=bundle, instancing="flatten",
                                       default_light=default_light, limits=limits, camera_relative=camera_relative,
-                                      subdivision_level=subdivision_level, camera=camera)
+                                      subdivision_level=subdivision_level, camera=camera, shutter=shutter)
         flat.warnings.append("lights inside native instances: the scene was flattened so that they render")
         return flat
     limits = limits or (bundle.limits if bundle is not None else DEFAULT_LIMITS)
     warnings: list[str] = []
     warn = warnings.append
-    time = Usd.TimeCode(frame) if frame is not None else Usd.TimeCode.Default()
+    time = render_time(stage, frame)
     if not isinstance(subdivision_level, int) or not 0 <= subdivision_level <= subdivision.MAX_LEVEL:
         raise SceneError(f"subdivision level must be an integer from 0 to {subdivision.MAX_LEVEL}, "
                          f"not {subdivision_level!r}")
-    tr = _Translator(stage, time, warn, bundle, limits, instancing, subdivision_level)
+    # The shutter is the rendering camera's, known before the walk (it decides which prims
+    # become moving instances): the same choice select_camera makes after it.
+    settings = _find_render_settings(stage, lambda _message: None)
+    shutter_interval_ = None
+    if not time.IsDefault():
+        shutter_camera = select_camera(stage, camera, settings, _visible_cameras(stage, time), lambda _message: None)
+        shutter_interval_ = shutter_interval(shutter_camera, time, shutter)
+    tr = _Translator(stage, time, warn, bundle, limits, instancing, subdivision_level, shutter_interval_)
     tr.skin()
     predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate) if instancing == "flatten" \
         else Usd.PrimDefaultPredicate
@@ -321,6 +351,9 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     # Resolution from the RenderSettings; the camera requested, else the RenderSettings',
     # else the only/first camera, else a default (select_camera).
     settings = _find_render_settings(stage, warn)
+    camera_prim = select_camera(stage, camera, settings, tr.cameras, warn)
+    if camera_prim is not None and tr.moves_during_shutter(camera_prim):
+        warn("camera motion during the shutter is not blurred yet: the camera is fixed at the frame")
     resolution, from_stage = DEFAULT_RESOLUTION, False
     if settings:
         res = settings.GetResolutionAttr().Get(time)
@@ -328,7 +361,6 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
             if res[0] < 1 or res[1] < 1:
                 raise SceneError(f"{settings.GetPath()}: resolution {tuple(res)} must be positive")
             resolution, from_stage = (int(res[0]), int(res[1])), True
-    camera_prim = select_camera(stage, camera, settings, tr.cameras, warn)
     up_axis = UsdGeom.GetStageUpAxis(stage)
     if camera_prim is not None:
         view = _camera_from_prim(camera_prim, tr.xform_cache, time, warn)
@@ -378,6 +410,7 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     instances = np.concatenate(tr.instances) if tr.instances else np.zeros(0, np.uint32)
     instance_xforms = np.concatenate(tr.instance_xforms).astype(np.float32) if tr.instance_xforms \
         else np.zeros((0, 4, 4), np.float32)
+    motion_instances, motion_time_steps, motion_transforms = tr.motion_tables()
 
     distant = np.array(tr.distant_lights, np.float32).reshape(-1, 7)
     if any(len(row) > 6 for row in tr.point_lights):  # shaped lights: every row gets the columns
@@ -407,11 +440,33 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
                      distant_lights=distant, point_lights=point, dome_light=dome,
                      prototypes=prototypes, instances=instances, instance_transforms=instance_xforms,
                      meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)), up_axis=str(up_axis),
-                     world_offset=camera_offset, default_lights=default_lights)
+                     world_offset=camera_offset, default_lights=default_lights,
+                     motion_instances=motion_instances, motion_time_steps=motion_time_steps,
+                     motion_transforms=motion_transforms,
+                     time_code=None if time.IsDefault() else float(time.GetValue()),
+                     shutter=None if tr.shutter is None else (tr.shutter.open, tr.shutter.close))
     if default_light:
         apply_default_lighting(data)
     data._native_prototype_lights = tr.native_prototype_lights
     return data
+
+
+def _visible_cameras(stage, time) -> list:
+    """The Camera prims the walk will meet (visible, top level), in its order."""
+    from pxr import Usd, UsdGeom
+
+    found = []
+    it = iter(Usd.PrimRange.Stage(stage, Usd.PrimDefaultPredicate))
+    for prim in it:
+        imageable = UsdGeom.Imageable(prim)
+        if imageable and (imageable.ComputeVisibility(time) == UsdGeom.Tokens.invisible or
+                          imageable.ComputePurpose() in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy)):
+            it.PruneChildren()
+        elif prim.IsInstance() or prim.IsA(UsdGeom.PointInstancer):
+            it.PruneChildren()
+        elif prim.IsA(UsdGeom.Camera):
+            found.append(prim)
+    return found
 
 
 def _assemble(chunks: list[_Chunk]):

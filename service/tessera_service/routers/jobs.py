@@ -62,6 +62,16 @@ def _integrator_params_form(text: str) -> dict:
     return value
 
 
+def _shutter_form(value: str) -> list[str] | None:
+    """OPEN,CLOSE as two items for RenderSettings to check (it names the field)."""
+    if not value.strip():
+        return None
+    parts = [p.strip() for p in value.split(",")]
+    if len(parts) != 2:
+        raise HTTPException(422, f"shutter must be OPEN,CLOSE (two time codes), not {value!r}")
+    return parts
+
+
 def upload_too_large(limit: int) -> HTTPException:
     return HTTPException(413, f"the upload is larger than the limit of {_size(limit)}")
 
@@ -113,6 +123,12 @@ def create_job(
     camera: Annotated[str | None, Form(description=(
         "the path of the Camera prim to render through, e.g. /World/closeup (default: the "
         "RenderSettings' camera, else the first camera, else a three-quarter view)"))] = None,
+    frame: Annotated[float | None, Form(description=(
+        "the USD time code to render (default: the stage's startTimeCode, else the default "
+        "time)"))] = None,
+    shutter: Annotated[str, Form(description=(
+        "OPEN,CLOSE in time codes from the frame, replacing the camera's shutter:open/close "
+        "(0,0: no motion blur; docs/motion.md); empty: the camera's"))] = "",
     aovs: Annotated[str, Form(description="comma-separated extra EXR layers: albedo, normal, depth, "
                                           "spp, variance, or all (docs/aovs.md)")] = "",
     denoise: Annotated[bool, Form(description="add a denoised layer (denoised.R/G/B) and "
@@ -144,7 +160,8 @@ def create_job(
                   target_error=target_error, min_spp=min_spp, max_spp=max_spp,
                   time_limit=time_limit, aovs=aovs, default_light=default_light, denoise=denoise,
                   integrator_params=_integrator_params_form(integrator_params),
-                  subdivision_level=subdivision_level, camera=camera or None)
+                  subdivision_level=subdivision_level, camera=camera or None, frame=frame,
+                  shutter=_shutter_form(shutter))
     if crop.strip():
         params["crop"] = crop
     if integrator is None:

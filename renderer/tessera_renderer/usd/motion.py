@@ -1,0 +1,213 @@
+"""Transform motion over the camera's shutter (the _MotionReader part of the translator).
+
+UsdGeomCamera's `shutter:open` and `shutter:close` are offsets from the render's time code,
+in time codes (0 and 0, the schema's fallbacks, mean no motion blur). A prim whose world
+transform changes inside [frame + open, frame + close] is translated once in its own space
+and placed by an instance that moves through T matrices evenly spaced over the shutter
+(Embree's motion model: ray time 0 is shutter open, 1 is close; linear in between).
+
+T follows what is authored: enough steps to land on every time sample inside the shutter
+when they are evenly spaced, then doubled segment by segment until the linear
+interpolation between steps stays within MOTION_TOLERANCE of USD's own transform at each
+segment's midpoint (a rotation needs more steps than a slide), at most MAX_TIME_STEPS.
+
+Not blurred yet, each named in one warning: camera motion, deforming points, and sphere,
+point, distant and dome lights that move (rect, disk and cylinder lights are geometry and
+move like any other prim).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import SceneError
+
+MAX_TIME_STEPS = 129          # Embree 3's limit on a geometry's time steps
+MOTION_TOLERANCE = 1e-4       # of the prim's size: the largest chord error between steps
+
+
+@dataclass(frozen=True)
+class Shutter:
+    """The shutter interval in absolute time codes (open < close)."""
+
+    open: float
+    close: float
+
+    def times(self, steps: int) -> np.ndarray:
+        return np.linspace(self.open, self.close, steps)
+
+
+def render_time(stage, frame: float | None):
+    """The time code a render reads: `frame` when given, else the stage's startTimeCode when
+    it authors a time range (usdview opens a stage there), else the default time."""
+    from pxr import Usd
+
+    if frame is not None:
+        if not math.isfinite(frame):
+            raise SceneError(f"frame must be a finite time code, not {frame!r}")
+        return Usd.TimeCode(frame)
+    if stage.HasAuthoredTimeCodeRange():
+        return Usd.TimeCode(stage.GetStartTimeCode())
+    return Usd.TimeCode.Default()
+
+
+def shutter_interval(camera_prim, time, override: tuple[float, float] | None) -> Shutter | None:
+    """The shutter around `time`: `override` (open, close offsets) when given, else the
+    camera's shutter:open/close. None when open == close or the time is the default time
+    (a stage without time samples cannot move)."""
+    from pxr import UsdGeom
+
+    if override is not None:
+        open_, close = (float(v) for v in override)
+        source = "shutter"
+    elif camera_prim is not None:
+        cam = UsdGeom.Camera(camera_prim)
+        open_ = float(cam.GetShutterOpenAttr().Get(time) or 0.0)
+        close = float(cam.GetShutterCloseAttr().Get(time) or 0.0)
+        source = f"{camera_prim.GetPath()}: shutter:open/close"
+    else:
+        return None
+    if not (math.isfinite(open_) and math.isfinite(close)) or open_ > close:
+        raise SceneError(f"{source} ({open_:g}, {close:g}) must be finite with open <= close")
+    if open_ == close or time.IsDefault():
+        return None
+    return Shutter(time.GetValue() + open_, time.GetValue() + close)
+
+
+class _MotionReader:
+    """World matrices of moving prims at evenly spaced instants of the shutter."""
+
+    def _init_motion(self, shutter: Shutter | None) -> None:
+        self.shutter = shutter
+        self._varying: dict[str, bool] = {}
+        self._caches: dict[float, object] = {}
+        # (index of the instance in the concatenated instances, its matrices (T, 4, 4)).
+        self.motion: list[tuple[int, np.ndarray]] = []
+
+    def _cache_at(self, t: float):
+        from pxr import Usd, UsdGeom
+
+        cache = self._caches.get(t)
+        if cache is None:
+            cache = self._caches[t] = UsdGeom.XformCache(Usd.TimeCode(t))
+        return cache
+
+    def _world_at(self, prim, times) -> np.ndarray:
+        return np.array([np.array(self._cache_at(float(t)).GetLocalToWorldTransform(prim), np.float64)
+                         for t in times])
+
+    def transform_varies(self, prim) -> bool:
+        """Whether the prim's or an ancestor's xformOps are time-sampled (memoised)."""
+        from pxr import UsdGeom
+
+        path = str(prim.GetPath())
+        known = self._varying.get(path)
+        if known is not None:
+            return known
+        xf = UsdGeom.Xformable(prim)
+        varies = bool(xf) and xf.TransformMightBeTimeVarying()
+        parent = prim.GetParent()
+        if not varies and parent and not (bool(xf) and xf.GetResetXformStack()):
+            varies = self.transform_varies(parent)
+        self._varying[path] = varies
+        return varies
+
+    def _key_times(self, prim) -> list[float]:
+        """Authored transform samples strictly inside the shutter, of the prim and its
+        ancestors."""
+        from pxr import Gf, UsdGeom
+
+        keys: set[float] = set()
+        interval = Gf.Interval(self.shutter.open, self.shutter.close, False, False)
+        p = prim
+        while p:
+            xf = UsdGeom.Xformable(p)
+            if xf:
+                for op in xf.GetOrderedXformOps():
+                    keys.update(op.GetTimeSamplesInInterval(interval))
+                if xf.GetResetXformStack():
+                    break
+            p = p.GetParent()
+        return sorted(keys)
+
+    def motion_steps(self, prim, local_points: np.ndarray, base_inv: np.ndarray | None = None) -> np.ndarray | None:
+        """World matrices (T, 4, 4) of `prim` (times base_inv) at T evenly spaced instants of
+        the shutter, or None when it does not move during it. local_points bound the
+        geometry the matrices move (the tolerance is relative to its size)."""
+        if self.shutter is None or not self.transform_varies(prim) or len(local_points) == 0:
+            return None
+        lo, hi = local_points.min(axis=0), local_points.max(axis=0)
+        corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        span = self.shutter.close - self.shutter.open
+        keys = self._key_times(prim)
+        steps = 2
+        if keys:
+            gaps = np.diff([self.shutter.open, *keys, self.shutter.close])
+            steps = min(MAX_TIME_STEPS, int(math.ceil(span / max(gaps.min(), span * 1e-6) - 1e-9)) + 1)
+
+        def world(times):
+            m = self._world_at(prim, times)
+            return m @ base_inv if base_inv is not None else m
+
+        while True:
+            times = self.shutter.times(steps)
+            mats = world(times)
+            if steps >= MAX_TIME_STEPS:
+                break
+            exact = world(0.5 * (times[:-1] + times[1:]))
+            chord = 0.5 * (mats[:-1] + mats[1:])
+            err = np.abs(np.einsum("cj,sjk->sck", corners, exact - chord)[..., :3]).max()
+            size = max(np.abs(np.einsum("cj,sjk->sck", corners, mats)[..., :3]).max(), 1e-30)
+            if not err > MOTION_TOLERANCE * size:  # NaN matrices stop here; emit refuses them
+                break
+            steps = min(MAX_TIME_STEPS, 2 * steps - 1)
+        if not np.isfinite(mats).all():
+            raise SceneError(f"{prim.GetPath()}: its transform is not finite during the shutter")
+        if np.array_equal(mats, np.broadcast_to(mats[:1], mats.shape)):
+            return None  # samples outside the shutter only: static while it is open
+        return mats
+
+    def add_moving_chunk(self, chunk, mats: np.ndarray, path: str) -> None:
+        """A prim's triangles (in its own space) as a prototype of its own, placed by one
+        instance moving through `mats`."""
+        chunks: list = []
+        self.emit(chunk, chunks, path)
+        if not chunks:
+            return
+        self.prototypes.append({"chunks": chunks, "triangles": sum(len(c.tris) for c in chunks)})
+        self.add_moving_instance(len(self.prototypes) - 1, mats)
+
+    def add_moving_instance(self, proto: int, mats: np.ndarray) -> None:
+        index = sum(len(a) for a in self.instances)
+        self.instances.append(np.array([proto], np.uint32))
+        self.instance_xforms.append(mats[:1].copy())
+        self.motion.append((index, mats))
+
+    def moves_during_shutter(self, prim) -> bool:
+        """For what is not blurred yet (a warning names it): does the prim move?"""
+        if self.shutter is None or not self.transform_varies(prim):
+            return False
+        mats = self._world_at(prim, self.shutter.times(3))
+        return not np.array_equal(mats, np.broadcast_to(mats[:1], mats.shape))
+
+    def deforms_during_shutter(self, attr) -> bool:
+        """Whether a points-like attribute has time samples that change it in the shutter."""
+        from pxr import Gf
+
+        if self.shutter is None or attr.GetNumTimeSamples() < 2:
+            return False
+        lo, hi = attr.GetBracketingTimeSamples(self.shutter.open)[0], \
+            attr.GetBracketingTimeSamples(self.shutter.close)[1]
+        return len(attr.GetTimeSamplesInInterval(Gf.Interval(lo, hi))) > 1 and \
+            not np.array_equal(np.asarray(attr.Get(self.shutter.open)), np.asarray(attr.Get(self.shutter.close)))
+
+    def motion_tables(self):
+        """(motion_instances uint32 (K,), motion_time_steps uint32 (K,), motion_transforms
+        float32 (sum of steps, 4, 4)) for SceneData."""
+        if not self.motion:
+            return np.zeros(0, np.uint32), np.zeros(0, np.uint32), np.zeros((0, 4, 4), np.float32)
+        return (np.array([i for i, _ in self.motion], np.uint32),
+                np.array([len(m) for _, m in self.motion], np.uint32),
+                np.concatenate([m for _, m in self.motion]).astype(np.float32))

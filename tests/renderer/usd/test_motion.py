@@ -1,0 +1,258 @@
+"""Transform motion blur from USD: the camera's shutter:open/close around the render's time
+code, xformOp time samples turned into moving instances (usd/motion.py).
+
+The expected images do not come from the motion code: a sliding emitter's ramp is a
+closed form, and a rotating or tilting prim must equal the mean of static renders at
+uniformly spaced time codes, each of which pxr evaluates itself (shutter (0, 0))."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pxr import Gf, Usd, UsdGeom, UsdLux
+from scipy import stats
+
+from tessera import render
+from tessera_renderer import SceneError, load_scene
+from tessera_renderer.scene_blob import scene_from_blob, translate_to_blob
+from tessera_renderer.usd import translate_stage
+from tessera_renderer.usd.motion import MAX_TIME_STEPS, MOTION_TOLERANCE
+from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, new_stage
+
+W = H = 16
+LE = 2.0
+X0, DISTANCE = -1.25, 1.5  # the quad's left edge at shutter open, and how far it slides
+
+
+def _ortho_camera(stage, *, width=4.0, shutter=(-0.5, 0.5), translate=(0, 0, 0)):
+    cam = add_camera(stage, "/Cam", translate, haperture=10 * width, vaperture=10 * width)
+    cam.CreateProjectionAttr(UsdGeom.Tokens.orthographic)
+    cam.CreateShutterOpenAttr(shutter[0])
+    cam.CreateShutterCloseAttr(shutter[1])
+    return cam
+
+
+def _timed_stage(path):
+    stage = new_stage(path)
+    stage.SetStartTimeCode(1)
+    stage.SetEndTimeCode(2)
+    return stage
+
+
+def _sliding_quad(path, *, keys=None, shutter=(-0.5, 0.5)):
+    """A unit-wide emitting quad (x in [0, 1], y in [-1, 1], z = -3) under an Xform whose
+    translate is keyed at frames 0.5 and 1.5 (the shutter around frame 1), over a black
+    backdrop, seen by a 4-unit-wide orthographic camera looking down -z."""
+    stage = _timed_stage(path)
+    glow = add_material(stage, "/Looks/Glow", diffuse=(0, 0, 0), emissive=(LE, LE, LE))
+    black = add_material(stage, "/Looks/Black", diffuse=(0, 0, 0))
+    mover = UsdGeom.Xform.Define(stage, "/Mover")
+    op = mover.AddTranslateOp()
+    for t, x in (keys or {0.5: X0, 1.5: X0 + DISTANCE}).items():
+        op.Set(Gf.Vec3d(x, 0, 0), t)
+    add_mesh(stage, "/Mover/Quad", [(0, -1, -3), (1, -1, -3), (1, 1, -3), (0, 1, -3)], [4], [0, 1, 2, 3], glow)
+    add_mesh(stage, "/Back", [(-50, -50, -6), (50, -50, -6), (50, 50, -6), (-50, 50, -6)], [4], [0, 1, 2, 3], black)
+    add_render_settings(stage, _ortho_camera(stage, shutter=shutter), (W, H))
+    stage.GetRootLayer().Save()
+    return path
+
+
+def _ramp(x0: float, distance: float) -> np.ndarray:
+    """Column means of the sliding quad: the fraction of the column-and-shutter box it
+    covers (x0 + D t <= x <= x0 + D t + 1 for t in [0, 1]), times Le."""
+    x = -2.0 + (np.arange(W)[:, None] + (np.arange(4000)[None, :] + 0.5) / 4000) / 4.0
+    if distance == 0:
+        return LE * ((x >= x0) & (x <= x0 + 1)).mean(axis=1)
+    lo = np.clip((x - 1 - x0) / distance, 0, 1)
+    hi = np.clip((x - x0) / distance, 0, 1)
+    return LE * (hi - lo).mean(axis=1)
+
+
+def _columns(scene, integrator, seeds, spp):
+    runs = [render(scene, integrator=integrator, spp=spp, seed=s, variance=False).rgba[4:12, :, 0].mean(axis=0)
+            for s in seeds]
+    return np.mean(runs, axis=0), np.std(runs, axis=0, ddof=1) / np.sqrt(len(runs))
+
+
+@pytest.mark.parametrize("integrator", ["path", "bdpt"])
+def test_a_quad_keyed_to_slide_gives_the_closed_form_ramp(tmp_path, integrator):
+    scene = load_scene(_sliding_quad(tmp_path / "slide.usda"))
+    assert scene.has_motion and scene.data.shutter == (0.5, 1.5) and scene.data.time_code == 1.0
+    ramp = _ramp(X0, DISTANCE)
+    assert 0.1 * LE < ramp[4] < 0.9 * LE  # partly covered columns on both sides
+    K = 24
+    mean, se = _columns(scene, integrator, range(K), 256 if integrator == "path" else 128)
+    critical = stats.t.ppf(1 - 1e-3 / (2 * W), K - 1)
+    # Every column's limit is within 1 % of Le, so a 2 % error is found (controls below).
+    assert (critical * se <= 0.01 * LE).all(), critical * se
+    fails = lambda values, expected: np.abs(values - expected) > np.maximum(critical * se, 1e-6)
+    assert not fails(mean, ramp).any(), (mean, ramp)
+    assert fails(0.98 * mean, ramp).any(), "the 2 % negative control passed"
+    assert fails(mean, _ramp(X0 + 0.5 * DISTANCE, 0)).any(), "the frozen mid-shutter quad passed"
+
+
+def test_shutter_override_and_frame_choose_the_interval(tmp_path):
+    path = _sliding_quad(tmp_path / "slide.usda")
+    still = load_scene(path, shutter=(0, 0))
+    assert not still.has_motion and still.data.shutter is None
+    img = render(still, spp=16, variance=False).rgba[8, :, 0]
+    np.testing.assert_allclose(img, _ramp(X0 + 0.5 * DISTANCE, 0), atol=1e-6)  # the frame-1 quad, sharp
+    # Half the shutter, opening at the frame: the quad slides from mid-way to the end.
+    half = load_scene(path, shutter=(0, 0.5))
+    assert half.data.shutter == (1.0, 1.5)
+    mats = half.data.motion_transforms
+    np.testing.assert_allclose(mats[[0, -1], 3, 0], [X0 + 0.5 * DISTANCE, X0 + DISTANCE], atol=1e-6)
+    # frame= moves the interval: at frame 0 it ends on the first key, where USD holds the
+    # quad still; at frame 0.5 it covers the first half of the slide.
+    early = load_scene(path, frame=0, shutter=(-0.5, 0.5))
+    assert not early.has_motion and early.data.shutter == (-0.5, 0.5)
+    np.testing.assert_allclose(load_scene(path, frame=0.5).data.motion_transforms[[0, -1], 3, 0],
+                               [X0, X0 + 0.5 * DISTANCE], atol=1e-6)
+    with pytest.raises(SceneError, match="open <= close"):
+        load_scene(path, shutter=(0.5, -0.5))
+
+
+def test_time_steps_follow_the_keys_and_the_rotation(tmp_path):
+    # Keys on the shutter's quarter points, with a stop: 5 steps land on every key.
+    keyed = translate_stage(str(_sliding_quad(tmp_path / "keyed.usda",
+                                               keys={0.5: 0.0, 0.75: 1.0, 1.0: 1.0, 1.25: 3.0, 1.5: 3.0})))
+    assert list(keyed.motion_time_steps) == [5]
+    np.testing.assert_allclose(keyed.motion_transforms[:, 3, 0], [0.0, 1.0, 1.0, 3.0, 3.0], atol=1e-6)
+    # A rotation: more steps than its two keys, until the chords follow USD's own arc.
+    path = _rotating_scene(tmp_path / "spin.usda")
+    data = translate_stage(str(path), camera_relative=False)
+    assert len(data.motion_time_steps) == 2  # the bar and the plate
+    steps = int(data.motion_time_steps[0])  # the bar, met first
+    assert 2 < steps <= MAX_TIME_STEPS
+    stage = Usd.Stage.Open(str(path))
+    bar = stage.GetPrimAtPath("/Spin/Bar")
+    mats = data.motion_transforms[:steps].astype(np.float64)
+    corners = np.array([[x, 0.0, z, 1.0] for x in (-1.5, 1.5) for z in (-0.25, 0.25)])
+    # motion_steps' bound: the chord error at most MOTION_TOLERANCE of the largest world
+    # coordinate of the bar's corners.
+    bound = MOTION_TOLERANCE * np.abs(np.einsum("cj,sjk->sck", corners, mats)[..., :3]).max()
+    for u in np.linspace(0, 1, 37):
+        usd = np.array(UsdGeom.XformCache(Usd.TimeCode(0.5 + u)).GetLocalToWorldTransform(bar))
+        k = min(int(u * (steps - 1)), steps - 2)
+        f = u * (steps - 1) - k
+        lerp = (1 - f) * mats[k] + f * mats[k + 1]
+        assert np.abs(corners @ (lerp - usd)).max() <= 1.01 * bound + 1e-6, u
+
+
+def _rotating_scene(path, *, frozen_at=None):
+    """Seen from above (orthographic, looking down -y): an emitting bar spinning 90 degrees
+    about y and a diffuse plate tilting 0 -> 60 degrees about x under a distant light from
+    straight above (its radiance follows cos(tilt): the normals must turn with it), keyed
+    at frames 0.5 and 1.5, the shutter around frame 1."""
+    stage = _timed_stage(path)
+    glow = add_material(stage, "/Looks/Glow", diffuse=(0, 0, 0), emissive=(1.5, 1.5, 1.5))
+    grey = add_material(stage, "/Looks/Grey", diffuse=(0.8, 0.8, 0.8))
+    black = add_material(stage, "/Looks/Black", diffuse=(0, 0, 0))
+    spin = UsdGeom.Xform.Define(stage, "/Spin")
+    spin.AddTranslateOp().Set(Gf.Vec3d(-1.6, 0, 0))
+    rot = spin.AddRotateYOp()
+    rot.Set(0.0, 0.5)
+    rot.Set(90.0, 1.5)
+    add_mesh(stage, "/Spin/Bar", [(-1.5, 0, 0.25), (1.5, 0, 0.25), (1.5, 0, -0.25), (-1.5, 0, -0.25)], [4],
+             [0, 1, 2, 3], glow)
+    tilt = UsdGeom.Xform.Define(stage, "/Tilt")
+    tilt.AddTranslateOp().Set(Gf.Vec3d(1.6, 0.5, 0))
+    op = tilt.AddRotateXOp()
+    op.Set(0.0, 0.5)
+    op.Set(60.0, 1.5)
+    add_mesh(stage, "/Tilt/Plate", [(-1, 0, 1), (1, 0, 1), (1, 0, -1), (-1, 0, -1)], [4], [0, 1, 2, 3], grey)
+    add_mesh(stage, "/Floor", [(-50, -5, 50), (50, -5, 50), (50, -5, -50), (-50, -5, -50)], [4], [0, 1, 2, 3], black)
+    sun = UsdLux.DistantLight.Define(stage, "/Sun")
+    sun.AddRotateXOp().Set(-90.0)  # emits along -y
+    sun.CreateIntensityAttr(3.0)
+    sun.CreateAngleAttr(0.0)
+    cam = add_camera(stage, "/Cam", (0, 10, 0), haperture=70, vaperture=35)
+    UsdGeom.Xformable(cam).AddRotateXOp().Set(-90.0)
+    cam.CreateProjectionAttr(UsdGeom.Tokens.orthographic)
+    cam.CreateShutterOpenAttr(-0.5)
+    cam.CreateShutterCloseAttr(0.5)
+    add_render_settings(stage, cam, (32, 16))
+    stage.GetRootLayer().Save()
+    return path
+
+
+def _blocks(rgba: np.ndarray) -> np.ndarray:
+    """Means of 4 x 4-pixel blocks of the red channel (8 x 4 blocks)."""
+    return rgba[..., 0].reshape(4, 4, 8, 4).mean(axis=(1, 3)).ravel()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("integrator", ["path", "bdpt"])
+def test_rotating_and_tilting_prims_equal_the_mean_of_static_renders(tmp_path, integrator):
+    path = _rotating_scene(tmp_path / "spin.usda")
+    moving = load_scene(path)
+    assert moving.has_motion
+    M, K, spp = 24, 12, 64
+    instants = [load_scene(path, frame=0.5 + (m + 0.5) / M, shutter=(0, 0)) for m in range(M)]
+    assert not any(s.has_motion for s in instants)
+    ref = np.array([np.mean([_blocks(render(s, integrator="path", spp=spp, seed=1000 * k + m, variance=False).rgba)
+                             for m, s in enumerate(instants)], axis=0) for k in range(K)])
+    blur = np.array([_blocks(render(moving, integrator=integrator, spp=M * spp // (1 if integrator == "path" else 2),
+                                    seed=k, variance=False).rgba) for k in range(K)])
+    peak = ref.mean(axis=0).max()
+    assert peak > 0.3
+
+    def failing(values):
+        t, _ = stats.ttest_ind(values, ref, axis=0, equal_var=False)
+        se = np.sqrt(values.var(axis=0, ddof=1) / K + ref.var(axis=0, ddof=1) / K)
+        df = se ** 4 / ((values.var(axis=0, ddof=1) / K) ** 2 / (K - 1) + (ref.var(axis=0, ddof=1) / K) ** 2 / (K - 1)
+                        + 1e-300)
+        critical = stats.t.ppf(1 - 1e-3 / (2 * len(se)), np.maximum(df, 1))
+        return critical * se, np.abs(values.mean(axis=0) - ref.mean(axis=0)) > critical * se
+
+    limit, fail = failing(blur)
+    # The limits are within 1 % of the brightest block, so a 2 % error is found.
+    assert (limit <= 0.01 * peak).all(), np.round(limit / peak, 4)
+    assert not fail.any(), (blur.mean(axis=0) - ref.mean(axis=0))[fail]
+    assert failing(blur + 0.02 * peak)[1].any(), "the 2 % negative control passed"
+    mid = load_scene(path, frame=1.0, shutter=(0, 0))
+    frozen = np.array([_blocks(render(mid, spp=M * spp, seed=k, variance=False).rgba) for k in range(K)])
+    assert failing(frozen)[1].any(), "the frozen mid-shutter frame passed: the test cannot see motion"
+
+
+def test_a_moving_scene_travels_in_its_blob_and_renders_the_same(tmp_path):
+    path = _sliding_quad(tmp_path / "slide.usda")
+    local = render(load_scene(path), spp=32, seed=3, variance=False).rgba
+    blob = translate_to_blob(path)
+    from_blob = scene_from_blob(blob)
+    assert from_blob.has_motion and from_blob.data.shutter == (0.5, 1.5)
+    np.testing.assert_array_equal(render(from_blob, spp=32, seed=3, variance=False).rgba, local)
+    still = scene_from_blob(translate_to_blob(path, shutter=(0, 0)))
+    assert not still.has_motion
+
+
+def test_what_is_not_blurred_yet_is_named_once(tmp_path):
+    path = _sliding_quad(tmp_path / "slide.usda")
+    stage = Usd.Stage.Open(str(path))
+    cam = UsdGeom.Xformable(stage.GetPrimAtPath("/Cam"))
+    cam.GetOrderedXformOps()[0].Set(Gf.Vec3d(0.1, 0, 0), 0.5)
+    cam.GetOrderedXformOps()[0].Set(Gf.Vec3d(0.3, 0, 0), 1.5)
+    ball = UsdLux.SphereLight.Define(stage, "/Ball")
+    ball.AddTranslateOp().Set(Gf.Vec3d(0, 0, -2), 0.5)
+    ball.GetOrderedXformOps()[0].Set(Gf.Vec3d(0, 1, -2), 1.5)
+    ball.CreateRadiusAttr(0.1)
+    blob = UsdGeom.Mesh.Define(stage, "/Blob")
+    blob.CreateFaceVertexCountsAttr([3])
+    blob.CreateFaceVertexIndicesAttr([0, 1, 2])
+    blob.GetPointsAttr().Set([(5, 5, -4), (6, 5, -4), (6, 6, -4)], 0.5)
+    blob.GetPointsAttr().Set([(5, 5, -4), (6, 5, -4), (6, 7, -4)], 1.5)
+    stage.GetRootLayer().Save()
+    warnings = translate_stage(str(path)).warnings
+    for what in ("camera motion", "deforming meshes", "moving sphere, point, distant and dome lights"):
+        assert sum(what in w for w in warnings) == 1, (what, warnings)
+    # Without a shutter nothing moves, so nothing is announced.
+    assert not any("blurred" in w for w in translate_stage(str(path), shutter=(0, 0)).warnings)
+
+
+def test_a_stage_without_a_time_range_renders_its_default_time(tmp_path):
+    stage = new_stage(tmp_path / "plain.usda")
+    glow = add_material(stage, "/Glow", emissive=(1, 1, 1))
+    add_mesh(stage, "/Q", [(0, 0, -2), (1, 0, -2), (1, 1, -2)], [3], [0, 1, 2], glow)
+    add_render_settings(stage, _ortho_camera(stage), (W, H))
+    stage.GetRootLayer().Save()
+    data = translate_stage(str(tmp_path / "plain.usda"))
+    assert data.time_code is None and data.shutter is None and len(data.motion_instances) == 0
