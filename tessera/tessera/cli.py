@@ -36,6 +36,27 @@ def _positive(text: str) -> int:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
+    """One image, or with --frames one numbered image per frame (out.0001.exr, ...)."""
+    if not args.frames:
+        return _render_one(args)
+    from tessera_base.protocol import numbered_path, parse_frames
+
+    try:
+        frames = parse_frames(args.frames)
+    except ValueError as exc:
+        print(f"tessera render: --{exc}", file=sys.stderr)
+        return 2
+    output = args.output or Path(args.scene).stem + ".exr"
+    for k, frame in enumerate(frames):
+        print(f"frame {frame} ({k + 1} of {len(frames)})", file=sys.stderr)
+        code = _render_one(argparse.Namespace(**{**vars(args), "frame": float(frame),
+                                                 "output": numbered_path(output, frame)}))
+        if code:
+            return code
+    return 0
+
+
+def _render_one(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
     from tessera_renderer import NonFiniteSampleError, SceneError, load_scene
@@ -220,10 +241,16 @@ def _shutter(text: str) -> tuple[float, float]:
     return open_, close
 
 
-def _add_time_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--frame", type=float, default=None, metavar="TIME",
-                        help="the USD time code to render (default: the stage's startTimeCode, else "
-                             "its default time; docs/motion.md)")
+def _add_time_options(parser: argparse.ArgumentParser, frames: bool = False) -> None:
+    group = parser.add_mutually_exclusive_group() if frames else parser
+    group.add_argument("--frame", type=float, default=None, metavar="TIME",
+                       help="the USD time code to render (default: the stage's startTimeCode, else "
+                            "its default time; docs/motion.md)")
+    if frames:
+        group.add_argument("--frames", default=None, metavar="LIST",
+                           help="render these frames, one EXR each: 1-24, 1-24x2 (every second), "
+                                "1,5,9 or a mix; the output's run of # is the frame number "
+                                "(default: OUTPUT with .#### before .exr: out.0001.exr)")
     parser.add_argument("--shutter", type=_shutter, default=None, metavar="OPEN,CLOSE",
                         help="motion blur over [frame+OPEN, frame+CLOSE] in time codes, replacing the "
                              "camera's shutter:open/close; 0,0 renders without motion blur "
@@ -448,7 +475,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_denoise_option(r)
     _add_subdivision_option(r)
     _add_camera_option(r)
-    _add_time_options(r)
+    _add_time_options(r, frames=True)
     r.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
                    help="write only this pixel region (X1, Y1 exclusive) as the EXR's data "
                         "window, the full frame as its display window; the whole frame is "

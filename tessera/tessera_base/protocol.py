@@ -59,6 +59,47 @@ JobState = Literal["queued", "running", "paused", "done", "failed", "cancelled"]
 FINAL_STATES = ("done", "failed", "cancelled")
 
 
+MAX_FRAMES = 100_000
+
+
+def parse_frames(spec: str) -> list[int]:
+    """Frame numbers as render farms write them: comma-separated items, each a frame `7`, a
+    range `1-24` (both ends included) or a stepped range `1-24x2` (1, 3, ..., 23); negative
+    frames are written `-5--1`. In the order written, each frame once. ValueError names
+    the item that is not of that form."""
+    import re
+
+    frames: dict[int, None] = {}
+    for item in (part.strip() for part in spec.split(",")):
+        m = re.fullmatch(r"(-?\d+)(?:-(-?\d+)(?:x(\d+))?)?", item)
+        if not m:
+            raise ValueError(f"frames: {item!r} is not a frame (7), a range (1-24) or a stepped range (1-24x2)")
+        first = int(m.group(1))
+        last = int(m.group(2)) if m.group(2) is not None else first
+        step = int(m.group(3)) if m.group(3) is not None else 1
+        if last < first or step < 1:
+            raise ValueError(f"frames: {item!r} must run upwards with a step of at least 1")
+        if (last - first) // step + 1 + len(frames) > MAX_FRAMES:
+            raise ValueError(f"frames: more than {MAX_FRAMES} frames")
+        frames.update(dict.fromkeys(range(first, last + 1, step)))
+    return list(frames)
+
+
+def numbered_path(path: str, frame: int) -> str:
+    """The file of one frame: a run of `#` in the name is the zero-padded frame number
+    (out.####.exr -> out.0007.exr); a name without one gets `.####` before its extension."""
+    import os
+    import re
+
+    head, name = os.path.split(path)
+    if "#" not in name:
+        stem, ext = os.path.splitext(name)
+        name = f"{stem}.####{ext}"
+    run = re.search(r"#+", name)
+    number = f"{frame:0{len(run.group())}d}" if frame >= 0 else f"-{-frame:0{len(run.group())}d}"
+    return os.path.join(head, name[:run.start()] + number + name[run.end():])
+
+
 class RenderSettings(BaseModel):
     """What to render. Resolution is final here (scene defaults already applied).
 

@@ -341,3 +341,25 @@ def test_batch_variance_is_the_spread_of_batch_images():
     var, batches = film.batch_variance(w, h, [result])
     assert batches == k
     np.testing.assert_allclose(var, means.astype(np.float64).var(axis=0, ddof=1) / k, rtol=1e-5)
+
+
+def test_frame_lists_read_as_render_farms_write_them():
+    from tessera_base.protocol import parse_frames
+
+    assert parse_frames("1-5") == [1, 2, 3, 4, 5]
+    assert parse_frames("1-24x5") == [1, 6, 11, 16, 21]
+    assert parse_frames("7") == [7]
+    assert parse_frames("10,1-3, 2, 20-22x2") == [10, 1, 2, 3, 20, 22]  # as written, each once
+    assert parse_frames("-3--1") == [-3, -2, -1]
+    for bad in ("", "1-", "a", "5-1", "1-5x0", "1.5", "1-1000000"):
+        with pytest.raises(ValueError, match="frames"):
+            parse_frames(bad)
+
+
+def test_numbered_paths_put_the_frame_where_the_hashes_are():
+    from tessera_base.protocol import numbered_path
+
+    assert numbered_path("out/shot.####.exr", 7) == "out/shot.0007.exr"
+    assert numbered_path("shot_##.exr", 123) == "shot_123.exr"
+    assert numbered_path("out/shot.exr", 12) == "out/shot.0012.exr"
+    assert numbered_path("dir.v2/shot.exr", -3) == "dir.v2/shot.-0003.exr"

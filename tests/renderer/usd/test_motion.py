@@ -256,3 +256,27 @@ def test_a_stage_without_a_time_range_renders_its_default_time(tmp_path):
     stage.GetRootLayer().Save()
     data = translate_stage(str(tmp_path / "plain.usda"))
     assert data.time_code is None and data.shutter is None and len(data.motion_instances) == 0
+
+
+def test_render_frames_writes_one_numbered_image_per_frame(tmp_path):
+    """`tessera render --frames`: frames 0 and 2 hold the quad still at its first and last
+    key (a sharp edge, the closed form); frame 1 is the blurred ramp."""
+    import subprocess
+    import sys
+
+    from tessera_base.images import read_exr
+
+    path = _sliding_quad(tmp_path / "slide.usda", keys={0.5: X0, 1.5: X0 + DISTANCE})
+    r = subprocess.run([sys.executable, "-m", "tessera", "render", str(path), "-o", str(tmp_path / "shot.##.exr"),
+                        "--frames", "0-2x2,1", "--spp", "256", "-q"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in tmp_path.glob("shot.*.exr")) == ["shot.00.exr", "shot.01.exr", "shot.02.exr"]
+    assert r.stderr.index("frame 0 (1 of 3)") < r.stderr.index("frame 2 (2 of 3)") < r.stderr.index("frame 1 (3 of 3)")
+    row = lambda n: read_exr(tmp_path / f"shot.{n:02d}.exr")[4:12, :, 0].mean(axis=0)
+    np.testing.assert_allclose(row(0), _ramp(X0, 0), atol=1e-6)
+    np.testing.assert_allclose(row(2), _ramp(X0 + DISTANCE, 0), atol=1e-6)
+    assert np.abs(row(1) - _ramp(X0, DISTANCE)).max() < 0.05 * LE  # blurred (256 spp, one run)
+    assert np.abs(row(1) - _ramp(X0 + 0.5 * DISTANCE, 0)).max() > 0.3 * LE
+    bad = subprocess.run([sys.executable, "-m", "tessera", "render", str(path), "--frames", "3-1"],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "--frames: '3-1' must run upwards" in bad.stderr
