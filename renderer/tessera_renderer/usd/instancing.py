@@ -93,6 +93,13 @@ class _InstanceReader:
         world = self.world_matrix(prim)
         if base_inv is not None:
             world = world @ base_inv
+        # Moving instances are Embree instances: only top-level instancers in instances
+        # mode (flattened copies stand at the frame, said once).
+        motion = self.point_instancer_motion(prim, pi, base_inv)
+        if motion is not None and not (self.instancing == "instances" and top_level):
+            self._count_note("moving PointInstancers that are flattened (instancing='flatten', or inside "
+                             "another instance) are not motion-blurred: rendered at the frame")
+            motion = None
         for k, target in enumerate(targets):
             sel = (proto_idx == k) & mask
             if not sel.any():
@@ -111,7 +118,16 @@ class _InstanceReader:
             idx = self.prototype(key, rng, root_inv)
             mats = xforms[sel] @ world
             n = int(sel.sum())
-            if self.instancing == "instances" and top_level:
+            points = [c.points for c in self.prototypes[idx]["chunks"] if len(c.points)]
+            moving = None
+            if motion is not None and points:
+                world_fn, keys = motion
+                moving = self.sample_motion(lambda times: world_fn(times)[:, sel], np.concatenate(points), keys,
+                                            path)
+            if moving is not None:
+                self.add_moving_instances(idx, moving)
+                self.instanced_triangles += n * self.prototypes[idx]["triangles"]
+            elif self.instancing == "instances" and top_level:
                 self.instances.append(np.full(n, idx, np.uint32))
                 self.instance_xforms.append(mats)
                 self.instanced_triangles += n * self.prototypes[idx]["triangles"]

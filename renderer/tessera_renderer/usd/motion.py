@@ -11,9 +11,11 @@ when they are evenly spaced, then doubled segment by segment until the linear
 interpolation between steps stays within MOTION_TOLERANCE of USD's own transform at each
 segment's midpoint (a rotation needs more steps than a slide), at most MAX_TIME_STEPS.
 
-Not blurred yet, each named in one warning: camera motion, deforming points, and sphere,
-point, distant and dome lights that move (rect, disk and cylinder lights are geometry and
-move like any other prim).
+PointInstancers move the same way, per instance (positions, orientations, scales,
+velocities, angular velocities and accelerations, through USD's own
+ComputeInstanceTransformsAtTimes). Not blurred yet, each named in one warning: camera
+motion, deforming points, and sphere, point, distant and dome lights that move (rect,
+disk and cylinder lights are geometry and move like any other prim).
 """
 from __future__ import annotations
 
@@ -138,19 +140,25 @@ class _MotionReader:
         geometry the matrices move (the tolerance is relative to its size)."""
         if self.shutter is None or not self.transform_varies(prim) or len(local_points) == 0:
             return None
+
+        def world(times):
+            m = self._world_at(prim, times)
+            return (m @ base_inv if base_inv is not None else m)[:, None]
+
+        mats = self.sample_motion(world, local_points, self._key_times(prim), str(prim.GetPath()))
+        return None if mats is None else mats[:, 0]
+
+    def sample_motion(self, world, local_points: np.ndarray, keys: list[float], path: str) -> np.ndarray | None:
+        """world(times) -> (T, N, 4, 4) matrices of N placements at those time codes: sampled
+        at T evenly spaced instants of the shutter, T chosen as the module says. None when
+        no placement moves during the shutter."""
         lo, hi = local_points.min(axis=0), local_points.max(axis=0)
         corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
         span = self.shutter.close - self.shutter.open
-        keys = self._key_times(prim)
         steps = 2
         if keys:
             gaps = np.diff([self.shutter.open, *keys, self.shutter.close])
             steps = min(MAX_TIME_STEPS, int(math.ceil(span / max(gaps.min(), span * 1e-6) - 1e-9)) + 1)
-
-        def world(times):
-            m = self._world_at(prim, times)
-            return m @ base_inv if base_inv is not None else m
-
         while True:
             times = self.shutter.times(steps)
             mats = world(times)
@@ -158,13 +166,13 @@ class _MotionReader:
                 break
             exact = world(0.5 * (times[:-1] + times[1:]))
             chord = 0.5 * (mats[:-1] + mats[1:])
-            err = np.abs(np.einsum("cj,sjk->sck", corners, exact - chord)[..., :3]).max()
-            size = max(np.abs(np.einsum("cj,sjk->sck", corners, mats)[..., :3]).max(), 1e-30)
-            if not err > MOTION_TOLERANCE * size:  # NaN matrices stop here; emit refuses them
+            err = np.abs(np.einsum("cj,snjk->snck", corners, exact - chord)[..., :3]).max()
+            size = max(np.abs(np.einsum("cj,snjk->snck", corners, mats)[..., :3]).max(), 1e-30)
+            if not err > MOTION_TOLERANCE * size:  # NaN matrices stop here and are refused below
                 break
             steps = min(MAX_TIME_STEPS, 2 * steps - 1)
         if not np.isfinite(mats).all():
-            raise SceneError(f"{prim.GetPath()}: its transform is not finite during the shutter")
+            raise SceneError(f"{path}: its transform is not finite during the shutter")
         if np.array_equal(mats, np.broadcast_to(mats[:1], mats.shape)):
             return None  # samples outside the shutter only: static while it is open
         return mats
@@ -180,10 +188,50 @@ class _MotionReader:
         self.add_moving_instance(len(self.prototypes) - 1, mats)
 
     def add_moving_instance(self, proto: int, mats: np.ndarray) -> None:
+        self.add_moving_instances(proto, mats[:, None])
+
+    def add_moving_instances(self, proto: int, mats: np.ndarray) -> None:
+        """N instances of a prototype, moving through mats (T, N, 4, 4)."""
         index = sum(len(a) for a in self.instances)
-        self.instances.append(np.array([proto], np.uint32))
-        self.instance_xforms.append(mats[:1].copy())
-        self.motion.append((index, mats))
+        self.instances.append(np.full(mats.shape[1], proto, np.uint32))
+        self.instance_xforms.append(mats[0].copy())
+        self.motion.extend((index + j, mats[:, j]) for j in range(mats.shape[1]))
+
+    def point_instancer_motion(self, prim, pi, world_base: np.ndarray | None) -> "callable | None":
+        """For a PointInstancer that moves during the shutter (its own transform, or
+        time-sampled positions, orientations, scales, velocities or angular velocities):
+        world(times) -> (T, N, 4, 4), every instance's placement at those time codes
+        (USD's ComputeInstanceTransformsAtTimes, velocities applied from the render's
+        time), and the authored keys inside the shutter. None when nothing can move."""
+        from pxr import Gf, Usd, UsdGeom
+
+        if self.shutter is None:
+            return None
+        attrs = [pi.GetPositionsAttr(), pi.GetOrientationsAttr(), pi.GetScalesAttr(), pi.GetVelocitiesAttr(),
+                 pi.GetAngularVelocitiesAttr(), pi.GetAccelerationsAttr()]
+        sampled = [a for a in attrs if a and a.GetNumTimeSamples() > 0]
+        if not sampled and not self.transform_varies(prim):
+            return None
+        count = len(pi.GetProtoIndicesAttr().Get(self.time) or [])
+        interval = Gf.Interval(self.shutter.open, self.shutter.close, False, False)
+        keys = set(self._key_times(prim))
+        for a in sampled:
+            keys.update(a.GetTimeSamplesInInterval(interval))
+
+        def world(times):
+            per_time = pi.ComputeInstanceTransformsAtTimes([Usd.TimeCode(float(t)) for t in times], self.time,
+                                                           UsdGeom.PointInstancer.IncludeProtoXform,
+                                                           UsdGeom.PointInstancer.IgnoreMask)
+            placed = np.asarray(per_time, np.float64).reshape(len(times), -1, 4, 4)
+            if placed.shape[1] != count:
+                raise SceneError(f"{prim.GetPath()}: {placed.shape[1]} instance transforms during the shutter "
+                                 f"for {count} protoIndices (protoIndices must not change inside the shutter)")
+            frames = self._world_at(prim, times)
+            if world_base is not None:
+                frames = frames @ world_base
+            return placed @ frames[:, None]
+
+        return world, sorted(keys)
 
     def moves_during_shutter(self, prim) -> bool:
         """For what is not blurred yet (a warning names it): does the prim move?"""

@@ -280,3 +280,35 @@ def test_render_frames_writes_one_numbered_image_per_frame(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "tessera", "render", str(path), "--frames", "3-1"],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "--frames: '3-1' must run upwards" in bad.stderr
+
+
+def test_point_instancer_velocities_give_the_closed_form_ramp(tmp_path):
+    """Two emitting quads of a PointInstancer: one with a velocity that slides it by
+    DISTANCE over the shutter (velocities are per second: 24 time codes), one still; each
+    row of quads is a closed form."""
+    stage = _timed_stage(tmp_path / "instancer.usda")
+    glow = add_material(stage, "/Looks/Glow", diffuse=(0, 0, 0), emissive=(LE, LE, LE))
+    pi = UsdGeom.PointInstancer.Define(stage, "/Points")
+    quad = add_mesh(stage, "/Points/Protos/Quad", [(0, 0, -3), (1, 0, -3), (1, 0.75, -3), (0, 0.75, -3)], [4],
+                    [0, 1, 2, 3], glow)
+    pi.CreatePrototypesRel().SetTargets([quad.GetPath()])
+    pi.CreateProtoIndicesAttr([0, 0])
+    mid = X0 + 0.5 * DISTANCE
+    pi.CreatePositionsAttr().Set([Gf.Vec3f(mid, 0.25, 0), Gf.Vec3f(mid, -1.0, 0)], 1.0)
+    pi.CreateVelocitiesAttr().Set([Gf.Vec3f(24.0 * DISTANCE, 0, 0), Gf.Vec3f(0, 0, 0)], 1.0)
+    add_render_settings(stage, _ortho_camera(stage), (W, H))
+    stage.GetRootLayer().Save()
+    scene = load_scene(tmp_path / "instancer.usda")
+    # Three steps: one lands on the positions sample at the frame, inside the shutter.
+    assert scene.has_motion and list(scene.data.motion_time_steps) == [3, 3]
+    K = 24
+    runs = [render(scene, spp=1024, seed=s, variance=False).rgba[..., 0] for s in range(K)]
+    top = np.array([r[5:7].mean(axis=0) for r in runs])      # rows 5-6: y in [0.25, 0.75], the moving quad
+    bottom = np.array([r[10:12].mean(axis=0) for r in runs])  # rows 10-11: y in [-1, -0.5], the still one
+    critical = stats.t.ppf(1 - 1e-3 / (4 * W), K - 1)
+    se = top.std(axis=0, ddof=1) / np.sqrt(K)
+    assert (critical * se <= 0.01 * LE).all()
+    fails = lambda values, expected: np.abs(values - expected) > np.maximum(critical * se, 1e-6)
+    assert not fails(top.mean(axis=0), _ramp(X0, DISTANCE)).any(), top.mean(axis=0)
+    assert fails(0.98 * top.mean(axis=0), _ramp(X0, DISTANCE)).any(), "the 2 % negative control passed"
+    np.testing.assert_allclose(bottom.mean(axis=0), _ramp(mid, 0), atol=1e-6)  # the still quad, sharp
