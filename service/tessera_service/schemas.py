@@ -2,10 +2,16 @@
 from __future__ import annotations
 
 from datetime import datetime
+from typing import Literal
 
 from pydantic import BaseModel, Field
 
 from tessera_base.protocol import JobState, RenderSettings
+
+
+class FrameJob(BaseModel):
+    frame: int
+    job: str = Field(description="the frame's own job id (every /jobs/{id} route takes it)")
 
 
 class JobCreated(BaseModel):
@@ -16,6 +22,37 @@ class JobCreated(BaseModel):
     height: int
     priority: int
     warnings: list[str] = Field(description="what the renderer will ignore or approximate")
+    frames: list[FrameJob] | None = Field(
+        default=None, description="for a frame range: each frame's job; `id` is then the "
+                                  "sequence's (GET /jobs/{id}, DELETE /jobs/{id}, "
+                                  "/jobs/{id}/frames/{frame}/image.exr)")
+
+
+class FrameStatus(BaseModel):
+    frame: int
+    job: str
+    state: JobState | Literal["expired"] = Field(description="the frame job's state; expired once "
+                                                             "its retention has removed it")
+    tiles_done: int = 0
+    tiles_total: int = 0
+    error: str | None = None
+
+
+class SequenceStatus(BaseModel):
+    """A frame range: one job per frame, its state the frames' together (running while any
+    runs; done when all are; failed, cancelled or paused when a frame is and none is still
+    to render)."""
+
+    id: str
+    kind: Literal["sequence"] = "sequence"
+    state: JobState
+    scene_name: str
+    frames: list[FrameStatus]
+    tiles_done: int
+    tiles_total: int
+    created_at: datetime
+    warnings: list[str]
+    owner: str | None = None
 
 
 class JobStatus(BaseModel):

@@ -51,6 +51,7 @@ class Settings(BaseSettings):
         default=4, ge=0,
         description="uploads that may wait for an inspection slot; beyond: 429 at once")
     max_tiles: int = Field(default=1 << 16, ge=1, description="most tiles one job may have")
+    max_frames: int = Field(default=10_000, ge=1, description="most frames one frame range may have")
     job_retention: float = Field(
         default=7 * DAY, ge=0,
         description="seconds a finished job (status, tiles, image, events, log) is kept (0: forever)")

@@ -153,6 +153,42 @@ class JobStore:
             pipe.execute()
         return len(tasks)
 
+    def create_sequence(self, sequence_id: str, frames: list[tuple[int, str]], scene_name: str,
+                        warnings: list[str], owner: str | None = None) -> None:
+        """Records a frame range whose frames' jobs exist already (create_job each)."""
+        key = rdb.sequence_key(sequence_id)
+        with self.redis.pipeline(transaction=True) as pipe:
+            pipe.hset(key, mapping={"frames": json.dumps(frames), "scene_name": scene_name,
+                                    "created_at": repr(time.time()), "warnings": json.dumps(warnings),
+                                    **({"owner": owner} if owner is not None else {})})
+            if self.retention > 0:
+                pipe.expire(key, int(self.retention * rdb.SEQUENCE_TTL_FACTOR))
+            pipe.execute()
+
+    def sequence(self, sequence_id: str) -> dict | None:
+        """A frame range (see redis_schema.sequence_key) with its frames' jobs:
+        {frames: [(frame, job id, Job or None once expired)], scene_name, owner, created_at,
+        warnings}; None if there is none (or every frame's job has expired: then it is
+        forgotten too). Reading it keeps it as long again."""
+        key = rdb.sequence_key(sequence_id)
+        fields = self.redis.hgetall(key)
+        if not fields:
+            return None
+        f = {k.decode(): v.decode() for k, v in fields.items()}
+        frames = json.loads(f["frames"])
+        with self.redis.pipeline(transaction=False) as pipe:
+            for _, job_id in frames:
+                pipe.hgetall(rdb.job_key(job_id))
+            rows = pipe.execute()
+        if not any(rows):
+            self.redis.delete(key)
+            return None
+        if self.retention > 0:
+            self.redis.expire(key, int(self.retention * rdb.SEQUENCE_TTL_FACTOR))
+        return {"frames": [(frame, job_id, _job(row) if row else None) for (frame, job_id), row in zip(frames, rows)],
+                "scene_name": f["scene_name"], "owner": f.get("owner"), "created_at": float(f["created_at"]),
+                "warnings": json.loads(f.get("warnings") or "[]")}
+
     def get(self, job_id: str) -> Job | None:
         fields = self.redis.hgetall(rdb.job_key(job_id))
         return _job(fields) if fields else None

@@ -250,7 +250,8 @@ def _add_time_options(parser: argparse.ArgumentParser, frames: bool = False) -> 
         group.add_argument("--frames", default=None, metavar="LIST",
                            help="render these frames, one EXR each: 1-24, 1-24x2 (every second), "
                                 "1,5,9 or a mix; the output's run of # is the frame number "
-                                "(default: OUTPUT with .#### before .exr: out.0001.exr)")
+                                "(default: OUTPUT with .#### before .exr: out.0001.exr); on a farm, "
+                                "one job per frame")
     parser.add_argument("--shutter", type=_shutter, default=None, metavar="OPEN,CLOSE",
                         help="motion blur over [frame+OPEN, frame+CLOSE] in time codes, replacing the "
                              "camera's shutter:open/close; 0,0 renders without motion blur "
@@ -300,7 +301,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
                                       default_light="false" if args.no_default_light else None,
                                       denoise=args.denoise or None,
                                       subdivision_level=args.subdivision_level, camera=args.camera,
-                                      frame=args.frame, shutter=args.shutter,
+                                      frame=args.frame, shutter=args.shutter, frames=args.frames,
                                       crop=",".join(map(str, args.crop)) if args.crop else None,
                                       **_noise_target(args)).items() if v is not None}
     report = lambda line: print(line, file=sys.stderr)  # noqa: E731
@@ -326,26 +327,41 @@ def cmd_submit(args: argparse.Namespace) -> int:
                 return 0
             with tqdm(total=job.tiles_total, unit="tile", desc=job.id[:8], disable=args.quiet,
                       dynamic_ncols=True) as bar:
-                for event in farm.events(job.id):
-                    if event.type == "tile" and event.tiles_done is not None:
-                        bar.n = event.tiles_done
-                        bar.refresh()
+                finished = 0  # tiles of the frames already followed
+                for frame_job in (job.frames or {job.id: job.id}).values():
+                    for event in farm.events(frame_job):
+                        if event.type == "tile" and event.tiles_done is not None:
+                            bar.n = finished + event.tiles_done
+                            bar.refresh()
+                    finished += farm.status(frame_job).tiles_done
                 status = farm.status(job.id)
                 bar.n = status.tiles_done
                 bar.refresh()
             if status.state != "done":
+                failed = [f"frame {f['frame']} {f['state']}" + (f": {f['error']}" if f.get("error") else "")
+                          for f in status.raw.get("frames") or [] if f["state"] != "done"]
                 print(f"tessera submit: job {job.id} {status.state}"
-                      + (f": {status.error}" if status.error else ""), file=sys.stderr)
+                      + (f": {status.error}" if status.error else "")
+                      + (f" ({'; '.join(failed)})" if failed else ""), file=sys.stderr)
                 return 1
             output = Path(args.output) if args.output else Path(scene.stem + ".exr")
             try:
-                farm.download(job.id, output)
+                if job.frames:
+                    from tessera_base.protocol import numbered_path
+
+                    for f in job.frames:
+                        farm.download_frame(job.id, f, numbered_path(str(output), f))
+                    output = Path(numbered_path(str(output), next(iter(job.frames))))
+                else:
+                    farm.download(job.id, output)
             except FarmError as exc:
                 if exc.status_code is None:
                     raise
                 print(f"tessera submit: cannot download the image: {exc.detail}", file=sys.stderr)
                 return 1
-            print(f"wrote {output} ({status.elapsed_seconds:.2f} s on the farm)", file=sys.stderr)
+            many = f" and {len(job.frames) - 1} more frames" if job.frames and len(job.frames) > 1 else ""
+            elapsed = f" ({status.elapsed_seconds:.2f} s on the farm)" if status.elapsed_seconds is not None else ""
+            print(f"wrote {output}{many}{elapsed}", file=sys.stderr)
             return 0
     except FarmError as exc:
         print(f"tessera submit: {exc}", file=sys.stderr)
@@ -518,7 +534,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_denoise_option(m)
     _add_subdivision_option(m)
     _add_camera_option(m)
-    _add_time_options(m)
+    _add_time_options(m, frames=True)
     m.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
                    help="the EXR holds only this region (X1, Y1 exclusive) as its data window")
     m.set_defaults(func=cmd_submit)

@@ -46,6 +46,8 @@ class Job:
     error: str | None = None
     elapsed_seconds: float | None = None
     raw: dict[str, Any] = field(default_factory=dict)
+    # A frame range (submitted with frames=): frame -> that frame's job id, in order.
+    frames: dict[int, str] | None = None
 
     @property
     def finished(self) -> bool:
@@ -55,7 +57,9 @@ class Job:
     def from_json(cls, data: dict[str, Any]) -> "Job":
         return cls(id=data["id"], state=data["state"], tiles_total=data["tiles_total"],
                    tiles_done=data.get("tiles_done", 0), warnings=list(data.get("warnings", [])),
-                   error=data.get("error"), elapsed_seconds=data.get("elapsed_seconds"), raw=data)
+                   error=data.get("error"), elapsed_seconds=data.get("elapsed_seconds"), raw=data,
+                   frames=({int(f["frame"]): f["job"] for f in data["frames"]}
+                           if data.get("frames") is not None else None))
 
 
 class Client:
@@ -92,7 +96,8 @@ class Client:
         tessera.render's; `priority` is 0-9 and any other job setting of POST /jobs
         (max_depth, tile_size, target_error, min_spp, max_spp, time_limit, max_attempts,
         default_light, denoise, crop, camera, subdivision_level, frame, shutter as (open,
-        close)) passes through `settings`."""
+        close), frames as "1-24x2") passes through `settings`; with frames, the Job is the
+        frame range's (Job.frames lists each frame's job)."""
         form: dict[str, Any] = dict(spp=spp, integrator=integrator, seed=seed, priority=priority, **settings)
         if res is not None:
             form["width"], form["height"] = res
@@ -176,9 +181,12 @@ class Client:
                 return
 
     def wait(self, job_id: str) -> Job:
-        """Follows the job's events until it is done, failed or cancelled; its last status."""
-        for _ in self.events(job_id):
-            pass
+        """Follows the job's events until it is done, failed or cancelled; its last status.
+        For a frame range, each frame's job in turn, then the sequence's status."""
+        status = self.status(job_id)
+        for frame_job in (status.frames or {job_id: job_id}).values():
+            for _ in self.events(frame_job):
+                pass
         return self.status(job_id)
 
     def download(self, job_id: str, path: str | Path | None = None) -> Image:
@@ -192,6 +200,14 @@ class Client:
                 target = Path(tmp) / f"{job_id}.exr"
                 target.write_bytes(r.content)
                 return Image.read(target)
+        target = Path(path)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(r.content)
+        return Image.read(target)
+
+    def download_frame(self, job_id: str, frame: int, path: str | Path) -> Image:
+        """One frame of a frame range, written to `path` and read back."""
+        r = self._request("GET", f"/jobs/{job_id}/frames/{frame}/image.exr")
         target = Path(path)
         target.parent.mkdir(parents=True, exist_ok=True)
         target.write_bytes(r.content)

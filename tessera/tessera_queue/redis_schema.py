@@ -187,6 +187,20 @@ def job_image_key(job_id: str, fmt: Literal["exr", "png"]) -> str:
     return f"{_JOB}{job_id}:image.{fmt}"
 
 
+_SEQUENCE = f"{PREFIX}:sequence:"
+
+
+def sequence_key(sequence_id: str) -> str:
+    """Hash: a frame range submitted as one job (POST /jobs with `frames`); each frame is
+    an ordinary job. Fields: frames (JSON [[frame, job id], ...] in the order submitted),
+    scene_name, owner (absent: nobody's), created_at, warnings (JSON). Written once by the
+    service; it expires SEQUENCE_TTL_FACTOR x the job retention after its last read."""
+    return f"{_SEQUENCE}{sequence_id}"
+
+
+SEQUENCE_TTL_FACTOR = 2
+
+
 def job_keys(job_id: str) -> list[str]:
     """Every key of one job (for expiry and deletion)."""
     return [job_key(job_id), job_queue_key(job_id), job_tiles_key(job_id), job_splats_key(job_id),

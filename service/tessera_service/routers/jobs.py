@@ -31,7 +31,8 @@ from ..auth import require_user
 from ..merge import MergeError, denoised_png, encode_image, merge_tiles, read_denoised
 from ..inspection_pool import InspectionPool, PoolFull
 from ..preflight import PreflightBroken, PreflightRejected, SceneInfo, inspect_scene, triangle_limit
-from ..schemas import JobCreated, JobList, JobLog, JobStatus
+from ..schemas import FrameJob, JobCreated, JobList, JobLog, JobStatus, SequenceStatus
+from ..sequences import sequence_status
 from ..settings import Settings
 from ..store import Job, JobStore
 from ..users import User
@@ -126,6 +127,10 @@ def create_job(
     frame: Annotated[float | None, Form(description=(
         "the USD time code to render (default: the stage's startTimeCode, else the default "
         "time)"))] = None,
+    frames: Annotated[str, Form(description=(
+        "a frame range instead of one frame: 1-24, 1-24x2 (every second), 1,5,9 or a mix; one "
+        "job per frame, and the returned id is the sequence's (GET /jobs/{id}, "
+        "/jobs/{id}/frames/{frame}/image.exr; docs/farm.md)"))] = "",
     shutter: Annotated[str, Form(description=(
         "OPEN,CLOSE in time codes from the frame, replacing the camera's shutter:open/close "
         "(0,0: no motion blur; docs/motion.md); empty: the camera's"))] = "",
@@ -153,6 +158,17 @@ def create_job(
         raise RequestValidationError([{
             "type": "missing", "loc": ("body", "file" if file is None else "manifest"), "input": None,
             "msg": "send the scene as `file`, or a packed scene as `manifest` (not both)"}])
+    frame_list = None
+    if frames.strip():
+        if frame is not None:
+            raise HTTPException(422, "send frame or frames, not both")
+        try:
+            frame_list = protocol.parse_frames(frames)
+        except ValueError as exc:
+            raise HTTPException(422, str(exc)) from None
+        if len(frame_list) > settings.max_frames:
+            raise HTTPException(422, f"{len(frame_list)} frames, more than the limit of {settings.max_frames} "
+                                     f"(TESSERA_MAX_FRAMES)")
     packed = _read_manifest(manifest, settings.max_upload_bytes) if manifest is not None else None
     if packed is not None:
         name = packed.scene_name   # the entry's name, packed: .zip, as the worker stores it
@@ -201,11 +217,14 @@ def create_job(
         if not store.touch_scene(scene_hash):
             store.put_scene(scene_hash, name, path.read_bytes())
 
-    spec = JobSpec(job_id=uuid.uuid4().hex, scene_hash=scene_hash, scene_name=name,
-                   settings=render, priority=priority, max_attempts=max_attempts)
     warnings = info.warnings if render.default_light or info.unlit_warnings is None else info.unlit_warnings
     if render.camera is not None:  # the inspection's choice of camera is not the job's
         warnings = [w for w in warnings if w != info.camera_note]
+    if frame_list is not None:
+        return _create_sequence(response, store, user, frame_list, scene_hash, name, render, priority,
+                                max_attempts, warnings)
+    spec = JobSpec(job_id=uuid.uuid4().hex, scene_hash=scene_hash, scene_name=name,
+                   settings=render, priority=priority, max_attempts=max_attempts)
     tiles_total = store.create_job(spec, warnings, owner=user.name)
     response.headers["Location"] = f"/jobs/{spec.job_id}"
     return JobCreated(id=spec.job_id, state="queued", tiles_total=tiles_total,
@@ -224,15 +243,28 @@ def list_jobs(request: Request, user: CurrentUser,
     return JobList(jobs=[_status(j.spec.job_id, j) for j in store.list(state, limit, offset, owner)])
 
 
-@router.get("/{job_id}", response_model=JobStatus, responses={404: {"description": "no such job"}})
-def get_job(job_id: str, request: Request, user: CurrentUser) -> JobStatus:
+@router.get("/{job_id}", response_model=JobStatus | SequenceStatus,
+            responses={404: {"description": "no such job"}})
+def get_job(job_id: str, request: Request, user: CurrentUser) -> JobStatus | SequenceStatus:
+    """A job's status; for the id of a frame range, the sequence's (every frame's job with
+    its state)."""
+    if (record := _sequence(request, job_id, user)) is not None:
+        return sequence_status(job_id, record)
     return _status(job_id, _job(request, job_id, user))
 
 
-@router.delete("/{job_id}", response_model=JobStatus, responses={404: {"description": "no such job"}})
-def cancel_job(job_id: str, request: Request, user: CurrentUser) -> JobStatus:
+@router.delete("/{job_id}", response_model=JobStatus | SequenceStatus,
+               responses={404: {"description": "no such job"}})
+def cancel_job(job_id: str, request: Request, user: CurrentUser) -> JobStatus | SequenceStatus:
     """Cancels a queued, running or paused job: its open tiles are dropped at once and a
-    tile being rendered is abandoned. A finished job is left as it is."""
+    tile being rendered is abandoned. A finished job is left as it is. For a frame range,
+    every frame's job."""
+    if (record := _sequence(request, job_id, user)) is not None:
+        store: JobStore = request.app.state.store
+        for _, frame_job, job in record["frames"]:
+            if job is not None:
+                store.cancel(frame_job)
+        return sequence_status(job_id, _sequence(request, job_id, user) or record)
     _check_owner(request, job_id, user)
     store: JobStore = request.app.state.store
     if not store.cancel(job_id):
@@ -376,7 +408,71 @@ def get_denoised_preview(job_id: str, request: Request, user: CurrentUser) -> Re
                     headers={"Content-Disposition": f'inline; filename="{job_id}.denoised.png"'})
 
 
+@router.get("/{job_id}/frames/{frame}/image.exr", response_class=Response,
+            responses={200: {"content": {"image/x-exr": {}}}, 404: {}, 409: {"description": "not done"}})
+def get_frame_image(job_id: str, frame: int, request: Request, user: CurrentUser) -> Response:
+    """One frame of a frame range: its float linear RGBA OpenEXR."""
+    frame_job = _frame_job(request, job_id, frame, user)
+    return Response(_image(request, frame_job, "exr", user), media_type="image/x-exr",
+                    headers={"Content-Disposition": f'attachment; filename="{job_id}.{frame:04d}.exr"'})
+
+
+@router.get("/{job_id}/frames/{frame}/preview.png", response_class=Response,
+            responses={200: {"content": {"image/png": {}}}, 404: {}, 409: {"description": "not done"}})
+def get_frame_preview(job_id: str, frame: int, request: Request, user: CurrentUser) -> Response:
+    """One frame of a frame range: its tonemapped sRGB PNG (of what is rendered so far
+    while it runs, as /jobs/{id}/preview.png)."""
+    return get_preview(_frame_job(request, job_id, frame, user), request, user)
+
+
 # ---------------------------------------------------------------------------- helpers
+def _create_sequence(response: Response, store: JobStore, user: User, frame_list: list[int], scene_hash: str,
+                     name: str, render: RenderSettings, priority: int, max_attempts: int,
+                     warnings: list[str]) -> JobCreated:
+    """One job per frame (its settings' frame set), then the record that lists them; a
+    failure half-way cancels the frames already queued."""
+    sequence_id = uuid.uuid4().hex
+    created: list[tuple[int, str]] = []
+    tiles_total = 0
+    try:
+        for f in frame_list:
+            spec = JobSpec(job_id=uuid.uuid4().hex, scene_hash=scene_hash, scene_name=name,
+                           settings=render.model_copy(update={"frame": float(f)}), priority=priority,
+                           max_attempts=max_attempts)
+            tiles_total += store.create_job(spec, warnings, owner=user.name)
+            created.append((f, spec.job_id))
+        store.create_sequence(sequence_id, created, name, warnings, owner=user.name)
+    except BaseException:
+        for _, job_id in created:
+            store.cancel(job_id)
+        raise
+    response.headers["Location"] = f"/jobs/{sequence_id}"
+    return JobCreated(id=sequence_id, state="queued", tiles_total=tiles_total, width=render.width,
+                      height=render.height, priority=priority, warnings=warnings,
+                      frames=[FrameJob(frame=f, job=j) for f, j in created])
+
+
+def _sequence(request: Request, sequence_id: str, user: User) -> dict | None:
+    """The frame range with this id that `user` may see, else None."""
+    _check_id(sequence_id)
+    record = request.app.state.store.sequence(sequence_id)
+    if record is None or not user.may_see(record["owner"]):
+        return None
+    return record
+
+
+def _frame_job(request: Request, sequence_id: str, frame: int, user: User) -> str:
+    record = _sequence(request, sequence_id, user)
+    if record is None:
+        raise HTTPException(404, f"no frame range with id {sequence_id!r}")
+    for f, job_id, _ in record["frames"]:
+        if f == frame:
+            return job_id
+    raise HTTPException(404, f"frame {frame} is not one of the frames of {sequence_id} "
+                             f"({', '.join(str(f) for f, _, _ in record['frames'][:20])}"
+                             f"{', ...' if len(record['frames']) > 20 else ''})")
+
+
 def _inspect(request: Request, path: Path, scene_hash: str) -> SceneInfo:
     """The scene's pre-flight: remembered (passed or refused) for this exact file, else
     inspected in a slot of the bounded pool (429 when it is full)."""
