@@ -9,6 +9,7 @@
 #include <atomic>
 #include <limits>
 #include <mutex>
+#include <optional>
 #include <stdexcept>
 
 #include "bsdf.h"
@@ -105,7 +106,7 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
     SplatFilm film(splats, camera.width, camera.height, scene.splat_exponent());
     // Integrators whose tiles reuse a scene pass's product (photon maps, vcm, radiosity)
     // cannot match one camera sample's instant to the product's: they see mid-shutter.
-    const bool sample_time = scene.has_motion() && !info.scene_passes;
+    const bool sample_time = (scene.has_motion() || camera.Moves()) && !info.scene_passes;
     std::atomic<uint64_t> nonfinite{0}, rejected_splats{0}, closest_rays{0}, shadow_rays{0};
     const bool want_aovs = aovs.any();
     std::mutex first_mutex;
@@ -131,18 +132,24 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                 Vec2 jitter = sampler.Get2D();
                 // The lens dimensions are drawn only for a lens, so pinhole images keep
                 // their sample streams.
-                Ray ray = camera.GenerateRay(float(x) + jitter.x, float(y) + jitter.y,
-                                             camera.HasLens() ? sampler.Get2D() : Vec2{0.5f, 0.5f});
+                const Vec2 u_lens = camera.HasLens() ? sampler.Get2D() : Vec2{0.5f, 0.5f};
                 // The sample's instant in the shutter (a box shutter): its own dimension,
                 // drawn only when something moves, so static images keep their streams.
-                const ShutterTimeScope instant(sample_time ? sampler.Get1D() : 0.5f);
+                const float time = sample_time ? sampler.Get1D() : 0.5f;
+                const ShutterTimeScope instant(time);
+                // A moving camera, where it is at that instant (for the ray, the AOVs and
+                // every connection the integrator makes to the camera).
+                std::optional<Camera> moved;
+                if (camera.Moves()) moved = camera.At(time);
+                const Camera& cam = moved ? *moved : camera;
+                Ray ray = cam.GenerateRay(float(x) + jitter.x, float(y) + jitter.y, u_lens);
                 float t_min, t_max;
-                camera.ClipRange(ray.d, &t_min, &t_max);
+                cam.ClipRange(ray.d, &t_min, &t_max);
                 if (want_aovs) {
                     // Its own sample stream, so the image is the same with or without AOVs.
                     const RayCounters before = tls_ray_counters;
                     PixelSampler aov_sampler(options.seed, pixel_index, s, /*stream=*/2, options.sampler);
-                    const AOVSample a = SampleAOVs(scene, camera, ray, t_min, t_max, options.max_depth, aov_sampler);
+                    const AOVSample a = SampleAOVs(scene, cam, ray, t_min, t_max, options.max_depth, aov_sampler);
                     aov_rays.closest += tls_ray_counters.closest - before.closest;
                     aov_rays.shadow += tls_ray_counters.shadow - before.shadow;
                     for (int c = 0; c < 3; ++c) {
@@ -155,7 +162,7 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                     }
                 }
                 const CameraSample cs{ray, t_min, t_max, options.seed, pixel_index, s, options.sampler};
-                const PathSample ps = integrator->Sample(scene, camera, cs, sampler, film, &counters);
+                const PathSample ps = integrator->Sample(scene, cam, cs, sampler, film, &counters);
                 if (!IsFinite(ps.radiance)) {
                     if (nonfinite.fetch_add(1) == 0) {
                         std::lock_guard<std::mutex> lock(first_mutex);

@@ -38,6 +38,7 @@ using CornerNormals = nb::ndarray<const float, nb::shape<-1, 3, 3>, nb::c_contig
 using CornerUVs = nb::ndarray<const float, nb::shape<-1, 3, 2>, nb::c_contig, nb::device::cpu>;
 using AnyImage = nb::ndarray<const float, nb::ndim<3>, nb::c_contig, nb::device::cpu>;
 using Matrices = nb::ndarray<const float, nb::shape<-1, 4, 4>, nb::c_contig, nb::device::cpu>;
+using CameraPoses = nb::ndarray<const float, nb::shape<-1, 12>, nb::c_contig, nb::device::cpu>;
 // Point lights: (x, y, z, r, g, b) rows, or those followed by UsdLux shaping columns
 // (shaped?, axis xyz, cone cutoff and smooth start in radians, focus, focus tint rgb, has
 // IES?, kIesSamples IES factors).
@@ -356,7 +357,7 @@ NB_MODULE(_core, m) {
             [](Camera* self, std::array<float, 3> origin, std::array<float, 3> right, std::array<float, 3> up,
                std::array<float, 3> forward, float tan_half_width, float tan_half_height, uint32_t width,
                uint32_t height, float lens_radius, float focal_distance, float near, float far, float shift_x,
-               float shift_y, bool orthographic) {
+               float shift_y, bool orthographic, std::optional<CameraPoses> motion) {
                 if (width == 0 || height == 0) throw std::invalid_argument("image size must be positive");
                 if (!(lens_radius >= 0.f) || !std::isfinite(lens_radius) || !(focal_distance > 0.f) ||
                     !std::isfinite(focal_distance))
@@ -374,15 +375,34 @@ NB_MODULE(_core, m) {
                                   Normalize(ToVec3(forward)), tan_half_width, tan_half_height, width, height,
                                   lens_radius, focal_distance, near, far, shift_x, shift_y,
                                   orthographic ? Projection::kOrthographic : Projection::kPerspective};
+                if (motion) {
+                    const size_t steps = motion->shape(0);
+                    if (steps < 2 || steps > 129)
+                        throw std::invalid_argument("camera motion needs 2 to 129 poses, not " + std::to_string(steps));
+                    auto poses = std::make_shared<std::vector<CameraPose>>(steps);
+                    for (size_t k = 0; k < steps; ++k) {
+                        float v[12];
+                        for (int j = 0; j < 12; ++j) {
+                            v[j] = (*motion)(k, j);
+                            if (!std::isfinite(v[j])) throw std::invalid_argument("camera motion poses must be finite");
+                        }
+                        const Vec3 forward = Normalize(Vec3(v[9], v[10], v[11])), right = Normalize(Vec3(v[3], v[4], v[5]));
+                        (*poses)[k] = {Vec3(v[0], v[1], v[2]), right, Cross(right, forward), forward};
+                    }
+                    self->motion = std::move(poses);
+                }
             },
             "origin"_a, "right"_a, "up"_a, "forward"_a, "tan_half_width"_a, "tan_half_height"_a, "width"_a,
             "height"_a, "lens_radius"_a = 0.f, "focal_distance"_a = 1.f, "near"_a = 0.f,
             "far"_a = std::numeric_limits<float>::infinity(), "shift_x"_a = 0.f, "shift_y"_a = 0.f,
-            "orthographic"_a = false,
+            "orthographic"_a = false, "motion"_a = nb::none(),
             "A pinhole, or a thin lens of radius lens_radius focused at focal_distance; primary rays see "
             "depths in [near, far]. The image window spans +-tan_half_width/height around (shift_x, "
             "shift_y): at distance 1 for perspective, in scene units on the film plane for orthographic "
-            "(parallel rays along forward; renderer/core/scene/camera.h).")
+            "(parallel rays along forward; renderer/core/scene/camera.h). motion: float32 (T, 12), "
+            "2 <= T <= 129 poses (origin, right, up, forward) evenly spaced over the shutter (a moving "
+            "camera; each camera sample sees it at its own instant).")
+        .def_prop_ro("moves", &Camera::Moves)
         .def_ro("width", &Camera::width)
         .def_ro("height", &Camera::height);
 

@@ -160,7 +160,9 @@ class Scene:
         return _core.Camera(c.origin, c.right, c.up, c.forward, half_w, half_h, width, height,
                             lens_radius=c.lens_radius, focal_distance=c.focus_distance, near=c.clip_near,
                             far=c.clip_far, shift_x=shift_x, shift_y=shift_y,
-                            orthographic=getattr(c, "orthographic", False))
+                            orthographic=getattr(c, "orthographic", False),
+                            motion=None if getattr(c, "motion", None) is None
+                            else np.asarray(c.motion, np.float32).reshape(-1, 12))
 
     def scene_pass(self, integrator: str, iteration: int, *, seed: int = 0, max_depth: int = 64,
                    threads: int = 0, integrator_params: dict[str, float] | None = None) -> bytes:

@@ -219,7 +219,8 @@ def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
         positions=arrays["positions"], indices=arrays["indices"], triangle_material=arrays["triangle_material"],
         albedo=arrays["albedo"], emission=arrays["emission"], two_sided_emission=arrays["two_sided_emission"],
         sphere_lights=arrays["sphere_lights"],
-        camera=CameraDesc(**{k: tuple(v) if isinstance(v, list) else (math.inf if v is None else v)
+        # JSON has no infinity: a None float (clip_far) was one; motion None is no motion.
+        camera=CameraDesc(**{k: tuple(v) if isinstance(v, list) else (math.inf if v is None and k != "motion" else v)
                              for k, v in cam.items()}),
         resolution=tuple(meta["resolution"]), resolution_from_stage=meta["resolution_from_stage"],
         warnings=list(meta["warnings"]),

@@ -127,7 +127,7 @@ def _material(data, row: int) -> dict:
 
 
 def _check_supported(data) -> None:
-    if len(getattr(data, "motion_instances", [])):
+    if len(getattr(data, "motion_instances", [])) or getattr(data.camera, "motion", None) is not None:
         raise Unmatched("motion blur (moving instances; render with shutter=(0, 0) to compare a still frame)")
     if len(getattr(data, "instances", [])):
         raise Unmatched("instanced geometry (translate with instancing='flatten')")

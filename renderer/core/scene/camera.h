@@ -23,8 +23,11 @@
 // Clipping: primary visibility only sees depths (distance along forward) in [near, far].
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <limits>
+#include <memory>
+#include <vector>
 
 #include "math.h"
 #include "sampling.h"
@@ -32,6 +35,11 @@
 namespace tessera {
 
 enum class Projection : uint8_t { kPerspective, kOrthographic };
+
+// Where a moving camera is at one instant: its position and orthonormal frame.
+struct CameraPose {
+    Vec3 origin, right, up, forward;
+};
 
 struct Camera {
     Vec3 origin;
@@ -46,6 +54,33 @@ struct Camera {
     float near = 0.f, far = std::numeric_limits<float>::infinity();
     float shift_x = 0.f, shift_y = 0.f;  // the window's centre, in the window's units
     Projection projection = Projection::kPerspective;
+    // Camera motion: the pose at T >= 2 instants evenly spaced over the shutter (step j at
+    // shutter time j / (T - 1)); none for a camera that stands still. Every ray of one
+    // camera sample, and every connection to the camera made for it, uses At(its instant).
+    std::shared_ptr<const std::vector<CameraPose>> motion;
+
+    bool Moves() const { return motion && motion->size() >= 2; }
+
+    // The camera at shutter time t in [0, 1], standing still: the poses interpolated
+    // linearly between steps, the frame made orthonormal again from the interpolated
+    // forward (Gram-Schmidt), so a turn between two close steps stays a rotation.
+    Camera At(float t) const {
+        Camera c = *this;
+        c.motion.reset();
+        if (!Moves()) return c;
+        const std::vector<CameraPose>& poses = *motion;
+        const float s = std::clamp(t, 0.f, 1.f) * float(poses.size() - 1);
+        const size_t k = std::min(size_t(s), poses.size() - 2);
+        const float f = s - float(k);
+        const CameraPose& a = poses[k];
+        const CameraPose& b = poses[k + 1];
+        c.origin = a.origin * (1.f - f) + b.origin * f;
+        c.forward = Normalize(a.forward * (1.f - f) + b.forward * f);
+        const Vec3 r = a.right * (1.f - f) + b.right * f;
+        c.right = Normalize(r - c.forward * Dot(r, c.forward));
+        c.up = Cross(c.right, c.forward);
+        return c;
+    }
 
     bool HasLens() const { return lens_radius > 0.f && !IsOrthographic(); }
     bool IsOrthographic() const { return projection == Projection::kOrthographic; }

@@ -163,6 +163,38 @@ TEST(Motion, SlidingEmitterGivesTheClosedFormRampForEveryIntegratorThatSeesEmitt
     }
 }
 
+TEST(Motion, ACameraSlidingPastAStillQuadSeesTheSameRampAsTheQuadSlidingPastIt) {
+    // The quad stands at x in [0, 1]; the orthographic camera slides from x = 1.25 to
+    // x = -0.25 over the shutter, so in the camera's frame the quad slides from -1.25 to
+    // 0.25: the closed-form ramp of the sliding-emitter test. Light tracing and bdpt
+    // connect to the camera where it is at their sample's instant.
+    const float le = 2.f, x0 = -1.25f, distance = 1.5f;
+    Scene still(SlidingEmitter(le, 0.f, 0.f));
+    ASSERT_FALSE(still.has_motion());
+    Camera cam = OrthoView();
+    auto poses = std::make_shared<std::vector<CameraPose>>();
+    for (float x : {-x0, -x0 - distance}) poses->push_back({Vec3(x, 0, 0), cam.right, cam.up, cam.forward});
+    cam.motion = poses;
+    ASSERT_TRUE(cam.Moves());
+    std::vector<double> ramp;
+    for (uint32_t c = 0; c < kW; ++c) ramp.push_back(RampColumn(c, le, x0, distance));
+    const int K = 24;
+    const std::vector<const char*> integrators{"path", "light", "bdpt"};
+    const double critical = StudentTCritical(1e-3 / double(kW * integrators.size()), K - 1);
+    for (const char* integrator : integrators) {
+        const Profile p = ColumnProfile(
+            [&](uint32_t seed) { return RenderWith(still, cam, {512, 0, 8, 2}, integrator, seed); }, 11, K, 4, 12);
+        EXPECT_EQ(FailingColumns(p, 1.0, 0.0, ramp, K, critical, 0.01 * le, integrator, true), 0) << integrator;
+        EXPECT_GT(FailingColumns(p, 0.98, 0.0, ramp, K, critical, 0.01 * le, integrator, false), 0)
+            << integrator << ": the 2 % negative control passed";
+    }
+    // At(t) interpolates the poses: mid-shutter is half-way, and the ends are the poses.
+    EXPECT_NEAR(cam.At(0.5f).origin.x, -x0 - 0.5f * distance, 1e-6f);
+    EXPECT_NEAR(cam.At(0.f).origin.x, -x0, 1e-6f);
+    EXPECT_NEAR(cam.At(1.f).origin.x, -x0 - distance, 1e-6f);
+    EXPECT_FALSE(cam.At(0.3f).Moves());
+}
+
 TEST(Motion, IntegratorsWithAScenePassRenderTheMidShutterInstant) {
     // Documented behaviour: a photon map or radiosity solution is built once for all camera
     // samples, so these integrators see the scene frozen at mid-shutter.

@@ -2,6 +2,7 @@
 camera-less stage; the camera-relative shift of the translated scene."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -31,6 +32,9 @@ class CameraDesc:
     projection: str = "perspective"
     horizontal_aperture_offset: float = 0.0
     vertical_aperture_offset: float = 0.0
+    # A camera moving during the shutter: T poses evenly spaced over it, 12 floats each
+    # (origin, right, up, forward), flat; None when it stands still (usd/motion.py).
+    motion: tuple[float, ...] | None = None
 
     @property
     def orthographic(self) -> bool:
@@ -229,7 +233,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def _move_to_camera(tr, camera: CameraDesc) -> None:
+def _move_to_camera(tr, camera: CameraDesc) -> CameraDesc:
     """Translates everything the walk put in world space so that the camera sits at the
     origin, in float64 before anything is rounded to float32. float32 holds a coordinate
     to 2^-24 of its magnitude: 1e5 units from the origin that is 0.006, more than a pixel's
@@ -239,7 +243,7 @@ def _move_to_camera(tr, camera: CameraDesc) -> None:
     bounds), so only gaps thinner than that, at that distance, can leak light."""
     shift = np.array(camera.origin, np.float64)
     if not shift.any():
-        return
+        return camera
     for c in tr.chunks:
         c.points = c.points - shift
     for row in tr.sphere_lights:
@@ -250,6 +254,11 @@ def _move_to_camera(tr, camera: CameraDesc) -> None:
         mats[:, 3, :3] -= shift
     for _, mats in tr.motion:
         mats[:, 3, :3] -= shift
+    if camera.motion is not None:
+        poses = np.array(camera.motion, np.float64).reshape(-1, 12)
+        poses[:, :3] -= shift
+        return dataclasses.replace(camera, motion=tuple(float(v) for v in poses.ravel()))
+    return camera
 
 
 def _floats(v) -> tuple[float, float, float]:

@@ -13,9 +13,10 @@ segment's midpoint (a rotation needs more steps than a slide), at most MAX_TIME_
 
 PointInstancers move the same way, per instance (positions, orientations, scales,
 velocities, angular velocities and accelerations, through USD's own
-ComputeInstanceTransformsAtTimes). Not blurred yet, each named in one warning: camera
-motion, deforming points, and sphere, point, distant and dome lights that move (rect,
-disk and cylinder lights are geometry and move like any other prim).
+ComputeInstanceTransformsAtTimes), and so does the camera (CameraDesc.motion: its poses
+at the steps). Not blurred yet, each named in one warning: deforming points, and sphere,
+point, distant and dome lights that move (rect, disk and cylinder lights are geometry and
+move like any other prim).
 """
 from __future__ import annotations
 
@@ -232,6 +233,27 @@ class _MotionReader:
             return placed @ frames[:, None]
 
         return world, sorted(keys)
+
+    def camera_poses(self, camera_prim) -> tuple[float, ...] | None:
+        """A moving camera's poses (origin, right, up, forward per step, flat) at evenly
+        spaced instants of the shutter, or None when it stands still. The steps are chosen
+        on a unit box around the camera, relative to where it is at the frame, so the
+        tolerance holds for its turn as for its travel however far it is from the origin."""
+        here = np.eye(4)
+        here[3, :3] = -np.array(self.world_matrix(camera_prim))[3, :3]
+        box = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
+        mats = self.motion_steps(camera_prim, box, base_inv=here)
+        if mats is None:
+            return None
+        poses = []
+        for m in mats @ np.linalg.inv(here):
+            forward = -m[2, :3] / np.linalg.norm(m[2, :3])
+            right = m[0, :3] - np.dot(m[0, :3], forward) * forward
+            right /= np.linalg.norm(right)
+            poses += [*m[3, :3], *right, *np.cross(right, forward), *forward]
+        if not np.isfinite(poses).all():
+            raise SceneError(f"{camera_prim.GetPath()}: the camera's transform is degenerate during the shutter")
+        return tuple(float(v) for v in poses)
 
     def moves_during_shutter(self, prim) -> bool:
         """For what is not blurred yet (a warning names it): does the prim move?"""

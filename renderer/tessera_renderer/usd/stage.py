@@ -352,8 +352,6 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     # else the only/first camera, else a default (select_camera).
     settings = _find_render_settings(stage, warn)
     camera_prim = select_camera(stage, camera, settings, tr.cameras, warn)
-    if camera_prim is not None and tr.moves_during_shutter(camera_prim):
-        warn("camera motion during the shutter is not blurred yet: the camera is fixed at the frame")
     resolution, from_stage = DEFAULT_RESOLUTION, False
     if settings:
         res = settings.GetResolutionAttr().Get(time)
@@ -364,6 +362,8 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     up_axis = UsdGeom.GetStageUpAxis(stage)
     if camera_prim is not None:
         view = _camera_from_prim(camera_prim, tr.xform_cache, time, warn)
+        if tr.shutter is not None and (poses := tr.camera_poses(camera_prim)) is not None:
+            view = dataclasses.replace(view, motion=poses)
     else:
         # Every point (not the chunks' boxes): the fit is to what is seen.
         corners = [c.points for c in tr.chunks if len(c.points)]
@@ -380,7 +380,7 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
         warn("the scene has no camera: using a default camera, a three-quarter view framing the scene")
     camera_offset = (0.0, 0.0, 0.0)
     if camera_relative:
-        _move_to_camera(tr, view)
+        view = _move_to_camera(tr, view)  # moving camera poses are moved too
         camera_offset = view.origin
         view = dataclasses.replace(view, origin=(0.0, 0.0, 0.0))
 
