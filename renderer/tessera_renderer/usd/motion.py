@@ -88,6 +88,7 @@ class _MotionReader:
         self._caches: dict[float, object] = {}
         # (index of the instance in the concatenated instances, its matrices (T, 4, 4)).
         self.motion: list[tuple[int, np.ndarray]] = []
+        self._counted = (0, 0)  # (arrays of self.instances counted, instances in them)
 
     def _cache_at(self, t: float):
         from pxr import Usd, UsdGeom
@@ -193,7 +194,11 @@ class _MotionReader:
 
     def add_moving_instances(self, proto: int, mats: np.ndarray) -> None:
         """N instances of a prototype, moving through mats (T, N, 4, 4)."""
-        index = sum(len(a) for a in self.instances)
+        # The instances before these, counted incrementally: many moving prims stay linear.
+        arrays, index = self._counted
+        for a in self.instances[arrays:]:
+            index += len(a)
+        self._counted = (len(self.instances) + 1, index + mats.shape[1])
         self.instances.append(np.full(mats.shape[1], proto, np.uint32))
         self.instance_xforms.append(mats[0].copy())
         self.motion.extend((index + j, mats[:, j]) for j in range(mats.shape[1]))
