@@ -133,8 +133,9 @@ void AddExtras(SceneDesc* d, const Extras& x) {
     if (x.prototypes) {
         for (size_t k = 0; k < x.prototypes->size(); ++k) {
             nb::tuple item = nb::cast<nb::tuple>((*x.prototypes)[k]);
-            if (item.size() != 5)
-                throw std::invalid_argument("a prototype is (positions, indices, triangle_material, normals, uvs)");
+            if (item.size() != 5 && item.size() != 6)
+                throw std::invalid_argument(
+                    "a prototype is (positions, indices, triangle_material, normals, uvs[, motion_positions])");
             MeshDesc mesh;
             auto pos = nb::cast<InArray<float, 3>>(item[0]);
             auto idx = nb::cast<InArray<uint32_t, 3>>(item[1]);
@@ -149,6 +150,13 @@ void AddExtras(SceneDesc* d, const Extras& x) {
             if (!item[4].is_none()) {
                 auto uv = nb::cast<CornerUVs>(item[4]);
                 mesh.uvs.assign(uv.data(), uv.data() + uv.size());
+            }
+            if (item.size() == 6 && !item[5].is_none()) {
+                // (T - 1, V, 3): the vertices at time steps 1 .. T-1 (MeshDesc::motion_positions).
+                auto steps = nb::cast<nb::ndarray<const float, nb::ndim<3>, nb::c_contig, nb::device::cpu>>(item[5]);
+                if (steps.shape(2) != 3 || steps.shape(1) != pos.shape(0))
+                    throw std::invalid_argument("motion_positions must be (time steps - 1, vertices, 3)");
+                mesh.motion_positions.assign(steps.data(), steps.data() + steps.size());
             }
             d->prototypes.push_back(std::move(mesh));
         }
@@ -334,7 +342,8 @@ NB_MODULE(_core, m) {
             "1 g, 2 b, 3 a, 4 rgb), UsdTransform2d scale[2], rotation (degrees), translation[2]. "
             "material_textures: int32 (materials, 10) texture per input (diffuseColor, emissiveColor, "
             "specularColor, metallic, roughness, clearcoat, clearcoatRoughness, opacity, ior, normal), -1 none. "
-            "prototypes: list of (positions, indices, triangle_material, normals or None, uvs or None) in "
+            "prototypes: list of (positions, indices, triangle_material, normals or None, uvs or None[, "
+            "motion_positions (T-1, V, 3) or None: a deforming prototype's further time steps]) in "
             "prototype space; instance_prototype uint32 (N,) and instance_transforms float32 (N, 4, 4) (USD "
             "row-vector convention) place them without copying triangles. Transform motion: instance "
             "motion_instances[k] moves through motion_time_steps[k] (2-129) matrices evenly spaced over the "

@@ -375,11 +375,15 @@ def _instance_tables(data, with_uvs: bool) -> dict:
     for p in data.prototypes:
         normals = p.get("shading_normals")
         uvs = p.get("uvs") if with_uvs else None
-        protos.append((np.ascontiguousarray(p["positions"], np.float32).reshape(-1, 3),
+        positions = np.ascontiguousarray(p["positions"], np.float32).reshape(-1, 3)
+        steps = p.get("motion_positions")  # a deforming prototype's further time steps
+        protos.append((positions,
                        np.ascontiguousarray(p["indices"], np.uint32).reshape(-1, 3),
                        np.ascontiguousarray(p["triangle_material"], np.uint32).reshape(-1),
                        None if normals is None else np.ascontiguousarray(normals, np.float32).reshape(-1, 3, 3),
-                       None if uvs is None else np.ascontiguousarray(uvs, np.float32).reshape(-1, 3, 2)))
+                       None if uvs is None else np.ascontiguousarray(uvs, np.float32).reshape(-1, 3, 2),
+                       None if steps is None or len(steps) == 0 else
+                       np.ascontiguousarray(steps, np.float32).reshape(-1, len(positions), 3)))
     tables = {"prototypes": protos,
               "instance_prototype": np.ascontiguousarray(instances, np.uint32).reshape(-1),
               "instance_transforms": np.ascontiguousarray(data.instance_transforms, np.float32).reshape(-1, 4, 4)}

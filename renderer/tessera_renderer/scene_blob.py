@@ -48,10 +48,11 @@ BLOB_VERSION = 1
 # cones, focus, IES) with 6 + 192 columns; BasisCurves as triangle tubes; 7: orthographic
 # cameras and aperture offsets (CameraDesc.projection, *_aperture_offset); 8: transform
 # motion over the camera's shutter (moving instances, motion_* arrays), and the stage's
-# startTimeCode as the render time when no frame is given.
-TRANSLATOR_VERSION = 8
+# startTimeCode as the render time when no frame is given; 9: deforming meshes (a
+# prototype's motion_positions), and still-time values that are not numbers refused.
+TRANSLATOR_VERSION = 9
 _ALIGN = 64
-_PROTO_FIELDS = ("positions", "indices", "triangle_material", "shading_normals", "uvs")
+_PROTO_FIELDS = ("positions", "indices", "triangle_material", "shading_normals", "uvs", "motion_positions")
 
 
 def format_tag() -> str:

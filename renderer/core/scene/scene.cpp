@@ -125,7 +125,7 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
     if (desc.indices.size() % 3 != 0) throw std::invalid_argument("indices must hold 3 per triangle");
     meshes_.resize(1 + desc.prototypes.size());
     BuildMesh(&meshes_[0], desc.positions.data(), desc.positions.size() / 3, desc.indices.data(),
-              desc.indices.size() / 3, desc.triangle_material, desc.shading_normals, desc.uvs, scene_,
+              desc.indices.size() / 3, desc.triangle_material, desc.shading_normals, desc.uvs, {}, scene_,
               kTriangleGeometry, "");
     if (!spheres_.empty()) {
         RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_SPHERE_POINT);
@@ -152,7 +152,8 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
         rtcSetSceneFlags(mesh.scene, RTC_SCENE_FLAG_ROBUST);
         rtcSetSceneBuildQuality(mesh.scene, RTC_BUILD_QUALITY_HIGH);
         BuildMesh(&mesh, pd.positions.data(), pd.positions.size() / 3, pd.indices.data(), pd.indices.size() / 3,
-                  pd.triangle_material, pd.shading_normals, pd.uvs, mesh.scene, 0, what);
+                  pd.triangle_material, pd.shading_normals, pd.uvs, pd.motion_positions, mesh.scene, 0, what);
+        has_deformation_ = has_deformation_ || mesh.time_steps > 1;
         rtcCommitScene(mesh.scene);
         CheckDevice(device, "building a prototype BVH");
     }
@@ -345,7 +346,8 @@ size_t Scene::num_stored_triangles() const {
 
 void Scene::BuildMesh(Mesh* mesh, const float* positions, size_t num_vertices, const uint32_t* indices,
                       size_t num_triangles, const std::vector<uint32_t>& material, const std::vector<float>& normals,
-                      const std::vector<float>& uvs, RTCScene target, uint32_t geom_id, const std::string& what) {
+                      const std::vector<float>& uvs, const std::vector<float>& motion_positions, RTCScene target,
+                      uint32_t geom_id, const std::string& what) {
     if (material.size() != num_triangles)
         throw std::invalid_argument(what + "triangle_material must have one entry per triangle");
     if (num_vertices > 0xFFFFFFFFull) throw std::invalid_argument(what + "too many vertices");
@@ -353,9 +355,20 @@ void Scene::BuildMesh(Mesh* mesh, const float* positions, size_t num_vertices, c
         throw std::invalid_argument(what + "shading_normals must hold 3 normals per triangle");
     if (!uvs.empty() && uvs.size() != 6 * num_triangles)
         throw std::invalid_argument(what + "uvs must hold 3 st pairs per triangle");
-    for (size_t i = 0; i < 3 * num_vertices; ++i)
-        if (!std::isfinite(positions[i]))
-            throw std::invalid_argument(what + "vertex " + std::to_string(i / 3) + " has a non-finite coordinate");
+    const size_t step_floats = 3 * num_vertices;
+    if (!motion_positions.empty() &&
+        (step_floats == 0 || motion_positions.size() % step_floats != 0 ||
+         motion_positions.size() / step_floats + 1 > kMaxTimeSteps))
+        throw std::invalid_argument(what + "motion_positions must hold 1 to " + std::to_string(kMaxTimeSteps - 1) +
+                                    " further time steps of all " + std::to_string(num_vertices) + " vertices");
+    const uint32_t time_steps = uint32_t(1 + (step_floats ? motion_positions.size() / step_floats : 0));
+    for (uint32_t k = 0; k < time_steps; ++k) {
+        const float* step = k == 0 ? positions : motion_positions.data() + (k - 1) * step_floats;
+        for (size_t i = 0; i < step_floats; ++i)
+            if (!std::isfinite(step[i]))
+                throw std::invalid_argument(what + "vertex " + std::to_string(i / 3) + " has a non-finite coordinate" +
+                                            (k ? " at time step " + std::to_string(k) : std::string()));
+    }
     for (size_t i = 0; i < 3 * num_triangles; ++i)
         if (indices[i] >= num_vertices)
             throw std::invalid_argument(what + "triangle " + std::to_string(i / 3) + " indexes vertex " +
@@ -375,16 +388,25 @@ void Scene::BuildMesh(Mesh* mesh, const float* positions, size_t num_vertices, c
     mesh->num_triangles = num_triangles;
     RTCDevice device = EmbreeDevice();
     RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
-    // Embree may read 16 bytes from the last vertex, hence one vertex of padding.
-    auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                                           3 * sizeof(float), num_vertices + 1));
+    // A deforming mesh has one vertex buffer per time step (Embree's vertex slots).
+    if (time_steps > 1) rtcSetGeometryTimeStepCount(geom, time_steps);
+    mesh->time_steps = time_steps;
+    mesh->step_positions.clear();
+    for (uint32_t k = 0; k < time_steps; ++k) {
+        // Embree may read 16 bytes from the last vertex, hence one vertex of padding.
+        auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, k, RTC_FORMAT_FLOAT3,
+                                                               3 * sizeof(float), num_vertices + 1));
+        CheckDevice(device, "allocating vertex buffers");
+        const float* step = k == 0 ? positions : motion_positions.data() + (k - 1) * step_floats;
+        std::copy(step, step + step_floats, vb);
+        vb[step_floats] = vb[step_floats + 1] = vb[step_floats + 2] = 0.f;
+        mesh->step_positions.push_back(vb);
+    }
     auto* ib = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
                                                               3 * sizeof(uint32_t), num_triangles));
     CheckDevice(device, "allocating triangle buffers");
-    std::copy(positions, positions + 3 * num_vertices, vb);
-    vb[3 * num_vertices] = vb[3 * num_vertices + 1] = vb[3 * num_vertices + 2] = 0.f;
     std::copy(indices, indices + 3 * num_triangles, ib);
-    mesh->positions = vb;
+    mesh->positions = mesh->step_positions[0];
     mesh->indices = ib;
     rtcCommitGeometry(geom);
     rtcAttachGeometryByID(target, geom, geom_id);

@@ -64,6 +64,10 @@ struct MeshDesc {
     std::vector<uint32_t> triangle_material; // one material index per triangle
     std::vector<float> shading_normals;      // optional: 9 floats per triangle (3 corner normals)
     std::vector<float> uvs;                  // optional: 6 floats per triangle (3 corner st)
+    // Deformation (prototypes only): the vertices at time steps 1 .. T-1 after `positions`
+    // (step 0), each step 3 floats per vertex in the same order; steps are evenly spaced
+    // over the shutter and interpolated linearly between, as Embree does. Empty: rigid.
+    std::vector<float> motion_positions;
 };
 
 // Input to Scene. Plain arrays, as the USD translation produces them.
@@ -246,8 +250,8 @@ public:
     RTCScene embree_scene() const { return scene_; }  // for raw-Embree benchmarks
     size_t num_emitters() const { return emitters_.size(); }
     size_t num_instances() const { return instances_.size(); }
-    // Some geometry moves during the shutter: camera samples then draw a time.
-    bool has_motion() const { return !motion_m_.empty(); }
+    // Some geometry moves or deforms during the shutter: camera samples then draw a time.
+    bool has_motion() const { return !motion_m_.empty() || has_deformation_; }
     // Triangles stored (world mesh + one copy of each prototype), not counting instancing.
     size_t num_stored_triangles() const;
 
@@ -275,6 +279,9 @@ private:
         // the prototype's emissive triangles (an instance adds its emitter base).
         std::vector<int32_t> emitter;
         uint32_t num_emissive = 0;
+        // Deforming: the vertices of each time step (step_positions[0] == positions).
+        uint32_t time_steps = 1;
+        std::vector<const float*> step_positions;
     };
     struct Instance {
         uint32_t mesh = 0;
@@ -291,7 +298,9 @@ private:
     // matrix transforming its normals (n, or computed into `normals_scratch`).
     const float* InstanceMatrix(const Instance& in, float* scratch) const;
     const float* InstanceNormalMatrix(const Instance& in, const float* m, float* normals_scratch) const;
-    // A triangle emitter's area now (moving instances may scale it).
+    // Corner c of triangle prim of a mesh at this thread's shutter time, in the mesh's space.
+    Vec3 MeshVertex(const Mesh& mesh, uint32_t prim, int corner) const;
+    // A triangle emitter's area now (moving instances may scale it, deforming meshes reshape it).
     float EmitterArea(const Emitter& e) const;
     static constexpr uint32_t kFirstInstanceGeometry = 2;
     static constexpr uint32_t kMaxTimeSteps = 129;  // Embree's own limit
@@ -301,7 +310,8 @@ private:
     TriangleLight TriangleLightOf(const Emitter& e) const;
     void BuildMesh(Mesh* mesh, const float* positions, size_t num_vertices, const uint32_t* indices,
                    size_t num_triangles, const std::vector<uint32_t>& material, const std::vector<float>& normals,
-                   const std::vector<float>& uvs, RTCScene target, uint32_t geom_id, const std::string& what);
+                   const std::vector<float>& uvs, const std::vector<float>& motion_positions, RTCScene target,
+                   uint32_t geom_id, const std::string& what);
     // World-space corners of triangle `prim` of `mesh` (through `instance` if any).
     // Returns the sign that makes orientation * Cross(p1 - p0, p2 - p0) the facing normal.
     float TriangleVertices(uint32_t mesh, uint32_t prim, uint32_t instance, Vec3 p[3]) const;
@@ -324,6 +334,7 @@ private:
     std::vector<Mesh> meshes_;
     std::vector<Instance> instances_;
     std::vector<float> motion_m_;  // time steps of moving instances, 12 floats each
+    bool has_deformation_ = false;
     TextureSet textures_;
     std::vector<uint8_t> material_is_cutout_;
     std::vector<uint8_t> material_has_textures_;  // some slot other than -1: evaluate per hit

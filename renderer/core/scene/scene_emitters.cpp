@@ -143,9 +143,11 @@ float Scene::EmitterPdf(uint32_t emitter, Vec3 ref, const SurfaceHit& hit) const
 }
 
 float Scene::EmitterArea(const Emitter& e) const {
-    if (e.kind != LightKind::kTriangle || e.instance == kNoInstance || instances_[e.instance].time_steps <= 1)
-        return e.area;
-    // A moving instance may scale its triangles: the area at this instant.
+    const bool reshaped = e.kind == LightKind::kTriangle &&
+                          (meshes_[e.mesh].time_steps > 1 ||
+                           (e.instance != kNoInstance && instances_[e.instance].time_steps > 1));
+    if (!reshaped) return e.area;
+    // A moving instance may scale its triangles, a deforming mesh reshape them: the area now.
     Vec3 p[3];
     TriangleVertices(e.mesh, e.index, e.instance, p);
     return std::max(1e-30f, 0.5f * Length(Cross(p[1] - p[0], p[2] - p[0])));

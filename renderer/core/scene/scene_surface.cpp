@@ -61,14 +61,32 @@ inline Vec3 TransformNormal(const float* n, Vec3 v) {  // n: row-major 3x3
             n[6] * v.x + n[7] * v.y + n[8] * v.z};
 }
 
+// Embree's time model: time_steps (>= 2) steps evenly spaced over the shutter [0, 1],
+// linear in between. The segment k holding this thread's shutter time, and the fraction f
+// of the way through it.
+inline void ShutterSegment(uint32_t time_steps, uint32_t* k, float* f) {
+    const float t = std::clamp(tls_shutter_time, 0.f, 1.f) * float(time_steps - 1);
+    *k = std::min(uint32_t(t), time_steps - 2);
+    *f = t - float(*k);
+}
+
 }  // namespace
+
+Vec3 Scene::MeshVertex(const Mesh& mesh, uint32_t prim, int corner) const {
+    if (mesh.time_steps <= 1) return LocalVertex(mesh.positions, mesh.indices, prim, corner);
+    uint32_t k;
+    float f;
+    ShutterSegment(mesh.time_steps, &k, &f);
+    const Vec3 a = LocalVertex(mesh.step_positions[k], mesh.indices, prim, corner),
+               b = LocalVertex(mesh.step_positions[k + 1], mesh.indices, prim, corner);
+    return a * (1.f - f) + b * f;
+}
 
 const float* Scene::InstanceMatrix(const Instance& in, float* scratch) const {
     if (in.time_steps <= 1) return in.m;
-    // Embree's interpolation: steps evenly spaced over [0, 1], linear in between.
-    const float t = std::clamp(tls_shutter_time, 0.f, 1.f) * float(in.time_steps - 1);
-    const uint32_t k = std::min(uint32_t(t), in.time_steps - 2);
-    const float f = t - float(k);
+    uint32_t k;
+    float f;
+    ShutterSegment(in.time_steps, &k, &f);
     const float* a = &motion_m_[12 * size_t(in.first_step + k)];
     const float* b = a + 12;
     for (int j = 0; j < 12; ++j) scratch[j] = (1.f - f) * a[j] + f * b[j];
@@ -88,7 +106,7 @@ float Scene::TriangleVertices(uint32_t mesh, uint32_t prim, uint32_t instance, V
     float scratch[12];
     const float* xf = instance != kNoInstance ? InstanceMatrix(instances_[instance], scratch) : nullptr;
     for (int c = 0; c < 3; ++c) {
-        p[c] = LocalVertex(m.positions, m.indices, prim, c);
+        p[c] = MeshVertex(m, prim, c);
         if (xf) p[c] = TransformPoint(xf, p[c]);
     }
     // A mirroring instance transform reverses the winding of the transformed corners; the
@@ -142,7 +160,7 @@ void Scene::ApplyNormalMap(SurfaceHit* hit) const {
     // not depend on the corner order, so flattened and instanced copies agree).
     const uint32_t prim = hit->prim_id;
     Vec3 p[3];
-    for (int c = 0; c < 3; ++c) p[c] = LocalVertex(mesh.positions, mesh.indices, prim, c);
+    for (int c = 0; c < 3; ++c) p[c] = MeshVertex(mesh, prim, c);
     const float* uv = &mesh.uvs[6 * size_t(prim)];
     const Vec3 e1 = p[1] - p[0], e2 = p[2] - p[0];
     const float du1 = uv[2] - uv[0], dv1 = uv[3] - uv[1], du2 = uv[4] - uv[0], dv2 = uv[5] - uv[1];
@@ -248,12 +266,14 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceH
     const Mesh& mesh = meshes_[hit->mesh];
     const uint32_t prim = rh.hit.primID;
     // Recompute the hit point from barycentrics: smaller error than o + t d far away.
-    const Vec3 p0 = LocalVertex(mesh.positions, mesh.indices, prim, 0),
-               p1 = LocalVertex(mesh.positions, mesh.indices, prim, 1),
-               p2 = LocalVertex(mesh.positions, mesh.indices, prim, 2);
+    const Vec3 p0 = MeshVertex(mesh, prim, 0), p1 = MeshVertex(mesh, prim, 1), p2 = MeshVertex(mesh, prim, 2);
     const float u = rh.hit.u, v = rh.hit.v;
     float p_error;
     Vec3 p = TrianglePoint(p0, p1, p2, u, v, &p_error);
+    // A deforming mesh's corners are interpolated between steps (2 products and a sum per
+    // coordinate, here and in Embree): Embree's triangle may differ from ours by that much.
+    if (mesh.time_steps > 1)
+        p_error += Gamma(3) * std::max({MaxAbsComponent(p0), MaxAbsComponent(p1), MaxAbsComponent(p2)});
     Vec3 ng = Cross(p1 - p0, p2 - p0);
     Vec3 ns(0.f);
     if (!mesh.normals.empty()) {

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import SceneError
+from .errors import SceneError, local_to_world, read_float
 
 
 @dataclass
@@ -80,8 +80,7 @@ def _camera_from_prim(prim, xform_cache, time, warn) -> CameraDesc:
 
     cam = UsdGeom.Camera(prim)
     def authored(attr, fallback):  # an authored 0 is an error below, not the fallback
-        value = attr.Get(time)
-        return float(fallback if value is None else value)
+        return read_float(attr, time, fallback)
     focal = authored(cam.GetFocalLengthAttr(), 50.0)
     hap = authored(cam.GetHorizontalApertureAttr(), 20.955)
     vap = authored(cam.GetVerticalApertureAttr(), 15.2908)
@@ -101,7 +100,7 @@ def _camera_from_prim(prim, xform_cache, time, warn) -> CameraDesc:
     if not all(1e-30 < ap * scale / 2.0 < 1e30 for ap in (hap, vap)):
         raise SceneError(f"{path}: the field of view is degenerate (apertures {hap}, {vap}"
                          + ("" if orthographic else f" over focalLength {focal}") + ")")
-    m = np.array(xform_cache.GetLocalToWorldTransform(prim), dtype=np.float64)
+    m = local_to_world(xform_cache, prim)
     origin = m[3, :3]
     forward = _unit(-m[2, :3])
     right = _unit(m[0, :3] - np.dot(m[0, :3], forward) * forward)
@@ -109,14 +108,17 @@ def _camera_from_prim(prim, xform_cache, time, warn) -> CameraDesc:
     if not np.isfinite(np.concatenate([origin, forward, right, up])).all():
         raise SceneError(f"{path}: camera transform is degenerate")
     # Depth of field: focalLength is in tenths of a scene unit, fStop 0 means a pinhole.
-    f_stop = float(cam.GetFStopAttr().Get(time) or 0.0)
-    focus = float(cam.GetFocusDistanceAttr().Get(time) or 0.0)
+    f_stop = read_float(cam.GetFStopAttr(), time)
+    focus = read_float(cam.GetFocusDistanceAttr(), time)
     lens_radius = 0.0
     if f_stop > 0.0 and math.isfinite(f_stop) and orthographic:
         warn(f"{path}: fStop {f_stop:g} on an orthographic camera; rendered without depth of field")
     elif f_stop > 0.0 and math.isfinite(f_stop):
         if focus > 0.0 and math.isfinite(focus):
             lens_radius = 0.1 * focal / (2.0 * f_stop)
+            if not lens_radius < 1e30:  # the core holds it as a float32
+                raise SceneError(f"{path}: fStop {f_stop:g} makes the lens infinitely wide "
+                                 f"(its radius is focalLength / (2 fStop))")
         else:
             warn(f"{path}: fStop {f_stop:g} without a positive focusDistance; rendered without depth of field")
     # Only an authored clipping range clips: the schema's fallback (1, 1e6) would cut away

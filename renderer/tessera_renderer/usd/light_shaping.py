@@ -15,6 +15,8 @@ import os
 
 import numpy as np
 
+from .errors import read_float
+
 IES_SAMPLES = 181  # lights/light_shaping.h kIesSamples: 0..180 degrees, 1 degree apart
 COLUMNS = 11 + IES_SAMPLES  # after the six of a point light
 
@@ -113,7 +115,7 @@ def shaping_columns(translator, prim) -> list[float] | None:
             except (IesError, OSError) as err:
                 translator.warn(f"{where}: IES profile {asset.path!r} cannot be read ({err}); "
                                 f"the light is not shaped by it")
-        if float(api.GetShapingIesAngleScaleAttr().Get(t) or 0.0) != 0.0:
+        if read_float(api.GetShapingIesAngleScaleAttr(), t) != 0.0:
             translator._count_note("shaping:ies:angleScale is ignored (profiles keep their angles)")
     if cutoff >= math.pi and focus == 0.0 and ies is None:
         return None

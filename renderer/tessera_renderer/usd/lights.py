@@ -9,7 +9,7 @@ import numpy as np
 
 from . import gprims, light_shaping
 from .camera import CameraDesc, _unit
-from .errors import SceneError
+from .errors import SceneError, read_float, read_floats
 from .materials import _authoring_layer
 from .meshes import _Chunk
 
@@ -26,12 +26,13 @@ class _LightReader:
 
         light = UsdLux.LightAPI(prim)
         t = self.time
-        color = np.array(light.GetColorAttr().Get(t) or (1.0, 1.0, 1.0), dtype=np.float64)
-        intensity = light.GetIntensityAttr().Get(t)
-        exposure = light.GetExposureAttr().Get(t)
-        radiance = color * (1.0 if intensity is None else intensity) * 2.0 ** (exposure or 0.0)
+        color = read_floats(light.GetColorAttr(), t, (1.0, 1.0, 1.0))
+        intensity = read_float(light.GetIntensityAttr(), t, 1.0)
+        exposure = read_float(light.GetExposureAttr(), t, 0.0)
+        with np.errstate(over="ignore", invalid="ignore"):  # refused below when not finite
+            radiance = color * intensity * np.exp2(exposure)
         if light.GetEnableColorTemperatureAttr().Get(t):
-            kelvin = light.GetColorTemperatureAttr().Get(t) or 6500.0
+            kelvin = read_float(light.GetColorTemperatureAttr(), t, 6500.0) or 6500.0
             radiance = radiance * gprims.blackbody_rgb(kelvin)
         if area is not None and light.GetNormalizeAttr().Get(t):
             radiance = radiance / area
@@ -70,8 +71,8 @@ class _LightReader:
         from pxr import UsdLux
 
         rect = UsdLux.RectLight(prim)
-        w = float(rect.GetWidthAttr().Get(self.time) or 0.0)
-        h = float(rect.GetHeightAttr().Get(self.time) or 0.0)
+        w = read_float(rect.GetWidthAttr(), self.time)
+        h = read_float(rect.GetHeightAttr(), self.time)
         if rect.GetTextureFileAttr().Get(self.time):
             self.warn(f"{prim.GetPath()}: RectLight texture is not supported yet; using its colour")
         # Wound so the geometric normal is local -Z, the emitting side.
@@ -87,7 +88,7 @@ class _LightReader:
     def add_disk_light(self, prim) -> None:
         from pxr import UsdLux
 
-        r = float(UsdLux.DiskLight(prim).GetRadiusAttr().Get(self.time) or 0.0)
+        r = read_float(UsdLux.DiskLight(prim).GetRadiusAttr(), self.time)
         m = self.world_matrix(prim)
         # True disk area (not the polygon's): a non-uniform scale stretches it to an ellipse.
         area = math.pi * r * r * float(np.linalg.norm(np.cross(m[0, :3], m[1, :3])))
@@ -101,8 +102,8 @@ class _LightReader:
         from pxr import UsdLux
 
         cyl = UsdLux.CylinderLight(prim)
-        r = float(cyl.GetRadiusAttr().Get(self.time) or 0.0)
-        length = float(cyl.GetLengthAttr().Get(self.time) or 0.0)
+        r = read_float(cyl.GetRadiusAttr(), self.time)
+        length = read_float(cyl.GetLengthAttr(), self.time)
         if cyl.GetTreatAsLineAttr().Get(self.time):
             self.warn(f"{prim.GetPath()}: CylinderLight treatAsLine is ignored; rendered as a cylinder")
         m = self.world_matrix(prim)
@@ -120,7 +121,7 @@ class _LightReader:
         from pxr import UsdLux
 
         sphere = UsdLux.SphereLight(prim)
-        radius = float(sphere.GetRadiusAttr().Get(self.time) or 0.0)
+        radius = read_float(sphere.GetRadiusAttr(), self.time)
         m = self.world_matrix(prim)
         scales = np.linalg.norm(m[:3, :3], axis=1)
         if not np.allclose(scales, scales[0], rtol=1e-4):
@@ -161,7 +162,7 @@ class _LightReader:
         m = self.world_matrix(prim)
         direction = -m[2, :3]
         direction = direction / np.linalg.norm(direction)
-        angle = float(UsdLux.DistantLight(prim).GetAngleAttr().Get(self.time) or 0.0)
+        angle = read_float(UsdLux.DistantLight(prim).GetAngleAttr(), self.time)
         half = math.radians(min(max(angle, 0.0), 180.0)) / 2.0
         # normalize: intensity is the illuminance on a surface facing the light, so
         # radiance = E / (pi sin^2 half). For a delta light (angle 0) the row holds that

@@ -6,6 +6,8 @@ import json
 import math
 from typing import Any
 
+import numpy as np
+
 from .errors import SceneError
 
 
@@ -60,8 +62,14 @@ class _MaterialReader:
         material, _ = UsdShade.MaterialBindingAPI(bind_prim).ComputeBoundMaterial()
         display = None
         color = UsdGeom.Gprim(geom_prim).GetDisplayColorAttr().Get(self.time) if UsdGeom.Gprim(geom_prim) else None
-        if color is not None and len(color) > 0:
-            display = tuple(float(x) for x in color[0])
+        if color is not None:
+            try:
+                rows = np.asarray(color, np.float64).reshape(-1, 3)
+            except (TypeError, ValueError):  # composes from `color3f[] primvars:displayColor = </P>`
+                rows = None
+                self._count_note("primvars:displayColor values that are not colours are ignored")
+            if rows is not None and len(rows) > 0:
+                display = tuple(float(x) for x in rows[0])
         if not material:
             surface = self._plain_surface(display, str(geom_prim.GetPath()))
         else:

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import curves, gprims, subdivision
-from .errors import SceneError
+from .errors import SceneError, read_float
 
 
 # UV sets read when no UsdPrimvarReader_float2 names one: the common names of DCC exporters
@@ -19,13 +19,16 @@ DEFAULT_UV_SETS = ("st", "st0", "UVMap", "uv", "map1")
 @dataclass
 class _Chunk:
     """Triangles of one prim in some space: points (V,3) f64, tris (T,3) int, per-triangle
-    material rows, optional per-corner normals (T,3,3) and st (T,3,2)."""
+    material rows, optional per-corner normals (T,3,3) and st (T,3,2). A deforming prim's
+    chunk also holds its points at the shutter's time steps, motion_points (S,V,3); it is
+    only ever a prototype's, in the prim's own space."""
 
     points: np.ndarray
     tris: np.ndarray
     material: np.ndarray
     normals: np.ndarray | None = None
     uvs: np.ndarray | None = None
+    motion_points: np.ndarray | None = None
 
     def transformed(self, m: np.ndarray) -> "_Chunk":
         """The chunk in another space. Normals are left unnormalised (emit normalises)."""
@@ -341,17 +344,17 @@ class _MeshReader:
         g = getattr(UsdGeom, type_name)(prim)
         axis = g.GetAxisAttr().Get(t) if hasattr(g, "GetAxisAttr") else "Z"
         if type_name == "Sphere":
-            pts, tris, nrm = gprims.sphere(float(g.GetRadiusAttr().Get(t)))
+            pts, tris, nrm = gprims.sphere(read_float(g.GetRadiusAttr(), t))
         elif type_name == "Cube":
-            pts, tris, nrm = gprims.cube(float(g.GetSizeAttr().Get(t)))
+            pts, tris, nrm = gprims.cube(read_float(g.GetSizeAttr(), t))
         elif type_name == "Cylinder":
-            pts, tris, nrm = gprims.cylinder(float(g.GetRadiusAttr().Get(t)), float(g.GetHeightAttr().Get(t)), axis)
+            pts, tris, nrm = gprims.cylinder(read_float(g.GetRadiusAttr(), t), read_float(g.GetHeightAttr(), t), axis)
         elif type_name == "Cone":
-            pts, tris, nrm = gprims.cone(float(g.GetRadiusAttr().Get(t)), float(g.GetHeightAttr().Get(t)), axis)
+            pts, tris, nrm = gprims.cone(read_float(g.GetRadiusAttr(), t), read_float(g.GetHeightAttr(), t), axis)
         elif type_name == "Capsule":
-            pts, tris, nrm = gprims.capsule(float(g.GetRadiusAttr().Get(t)), float(g.GetHeightAttr().Get(t)), axis)
+            pts, tris, nrm = gprims.capsule(read_float(g.GetRadiusAttr(), t), read_float(g.GetHeightAttr(), t), axis)
         else:
-            pts, tris, nrm = gprims.plane(float(g.GetWidthAttr().Get(t)), float(g.GetLengthAttr().Get(t)), axis)
+            pts, tris, nrm = gprims.plane(read_float(g.GetWidthAttr(), t), read_float(g.GetLengthAttr(), t), axis)
         if not np.isfinite(pts).all():
             self.warn(f"{prim.GetPath()}: non-finite {type_name} size; skipped")
             return None

@@ -14,9 +14,12 @@ segment's midpoint (a rotation needs more steps than a slide), at most MAX_TIME_
 PointInstancers move the same way, per instance (positions, orientations, scales,
 velocities, angular velocities and accelerations, through USD's own
 ComputeInstanceTransformsAtTimes), and so does the camera (CameraDesc.motion: its poses
-at the steps). Not blurred yet, each named in one warning: deforming points, and sphere,
-point, distant and dome lights that move (rect, disk and cylinder lights are geometry and
-move like any other prim).
+at the steps). A mesh whose `points` are time-sampled inside the shutter deforms: its
+points at T steps (chosen the same way, on the points) make a deforming prototype (Embree
+vertex time steps), placed by a still or moving instance. Not blurred yet, each named in
+one warning: deforming subdivision surfaces, skinned meshes and meshes inside instance
+prototypes, and sphere, point, distant and dome lights that move (rect, disk and cylinder
+lights are geometry and move like any other prim).
 """
 from __future__ import annotations
 
@@ -25,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import SceneError
+from .errors import SceneError, local_to_world, read_float
 
 MAX_TIME_STEPS = 129          # Embree 3's limit on a geometry's time steps
 MOTION_TOLERANCE = 1e-4       # of the prim's size: the largest chord error between steps
@@ -67,8 +70,8 @@ def shutter_interval(camera_prim, time, override: tuple[float, float] | None) ->
         source = "shutter"
     elif camera_prim is not None:
         cam = UsdGeom.Camera(camera_prim)
-        open_ = float(cam.GetShutterOpenAttr().Get(time) or 0.0)
-        close = float(cam.GetShutterCloseAttr().Get(time) or 0.0)
+        open_ = read_float(cam.GetShutterOpenAttr(), time)
+        close = read_float(cam.GetShutterCloseAttr(), time)
         source = f"{camera_prim.GetPath()}: shutter:open/close"
     else:
         return None
@@ -77,6 +80,10 @@ def shutter_interval(camera_prim, time, override: tuple[float, float] | None) ->
     if open_ == close or time.IsDefault():
         return None
     return Shutter(time.GetValue() + open_, time.GetValue() + close)
+
+
+class _TopologyChanges(Exception):
+    """A deforming mesh's point count differs between two instants of the shutter."""
 
 
 class _MotionReader:
@@ -99,8 +106,7 @@ class _MotionReader:
         return cache
 
     def _world_at(self, prim, times) -> np.ndarray:
-        return np.array([np.array(self._cache_at(float(t)).GetLocalToWorldTransform(prim), np.float64)
-                         for t in times])
+        return np.array([local_to_world(self._cache_at(float(t)), prim) for t in times])
 
     def transform_varies(self, prim) -> bool:
         """Whether the prim's or an ancestor's xformOps are time-sampled (memoised)."""
@@ -156,6 +162,20 @@ class _MotionReader:
         no placement moves during the shutter."""
         lo, hi = local_points.min(axis=0), local_points.max(axis=0)
         corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        mats = self._over_shutter(
+            world, keys,
+            lambda off: np.abs(np.einsum("cj,snjk->snck", corners, off)[..., :3]).max(),
+            lambda mats: max(np.abs(np.einsum("cj,snjk->snck", corners, mats)[..., :3]).max(), 1e-30))
+        if not np.isfinite(mats).all():
+            raise SceneError(f"{path}: its transform is not finite during the shutter")
+        if np.array_equal(mats, np.broadcast_to(mats[:1], mats.shape)):
+            return None  # samples outside the shutter only: static while it is open
+        return mats
+
+    def _over_shutter(self, sample, keys: list[float], error, size) -> np.ndarray:
+        """sample(times) at T evenly spaced instants of the shutter: enough to land on the
+        keys when they are evenly spaced, then doubled until error(exact - chord) at every
+        segment's midpoint is at most MOTION_TOLERANCE * size(samples), at most MAX_TIME_STEPS."""
         span = self.shutter.close - self.shutter.open
         steps = 2
         if keys:
@@ -163,25 +183,52 @@ class _MotionReader:
             steps = min(MAX_TIME_STEPS, int(math.ceil(span / max(gaps.min(), span * 1e-6) - 1e-9)) + 1)
         while True:
             times = self.shutter.times(steps)
-            mats = world(times)
+            values = sample(times)
             if steps >= MAX_TIME_STEPS:
-                break
-            exact = world(0.5 * (times[:-1] + times[1:]))
-            chord = 0.5 * (mats[:-1] + mats[1:])
-            err = np.abs(np.einsum("cj,snjk->snck", corners, exact - chord)[..., :3]).max()
-            size = max(np.abs(np.einsum("cj,snjk->snck", corners, mats)[..., :3]).max(), 1e-30)
-            if not err > MOTION_TOLERANCE * size:  # NaN matrices stop here and are refused below
-                break
+                return values
+            exact = sample(0.5 * (times[:-1] + times[1:]))
+            chord = 0.5 * (values[:-1] + values[1:])
+            if not error(exact - chord) > MOTION_TOLERANCE * size(values):  # NaN stops here
+                return values
             steps = min(MAX_TIME_STEPS, 2 * steps - 1)
-        if not np.isfinite(mats).all():
-            raise SceneError(f"{path}: its transform is not finite during the shutter")
-        if np.array_equal(mats, np.broadcast_to(mats[:1], mats.shape)):
-            return None  # samples outside the shutter only: static while it is open
-        return mats
+
+    def deforming_points(self, prim, n_points: int) -> np.ndarray | None:
+        """A mesh's points (T, V, 3) at T evenly spaced instants of the shutter when its
+        `points` change during it (USD interpolates them linearly between samples), else
+        None. Meshes whose point count changes inside the shutter, or whose points are not
+        finite there, are left at the frame with a note."""
+        from pxr import Gf, UsdGeom
+
+        from .meshes import _float_rows
+
+        attr = UsdGeom.PointBased(prim).GetPointsAttr()
+        if not self.deforms_during_shutter(attr):
+            return None
+        interval = Gf.Interval(self.shutter.open, self.shutter.close, False, False)
+
+        def sample(times):
+            rows = [_float_rows(attr.Get(float(t)), 3) for t in times]
+            if any(r is None or len(r) != n_points for r in rows):
+                raise _TopologyChanges
+            return np.stack(rows)
+
+        try:
+            steps = self._over_shutter(sample, list(attr.GetTimeSamplesInInterval(interval)),
+                                       lambda off: np.abs(off).max(),
+                                       lambda pts: max(np.abs(pts).max(), 1e-30))
+        except _TopologyChanges:
+            self._count_note("meshes whose point count changes during the shutter are not motion-blurred: "
+                             "rendered in their shape at the frame")
+            return None
+        if not np.isfinite(steps).all():
+            self.warn(f"{prim.GetPath()}: points are not finite during the shutter; not motion-blurred")
+            return None
+        return steps
 
     def add_moving_chunk(self, chunk, mats: np.ndarray, path: str) -> None:
-        """A prim's triangles (in its own space) as a prototype of its own, placed by one
-        instance moving through `mats`."""
+        """A prim's triangles (in its own space, deforming when chunk.motion_points is set)
+        as a prototype of its own, placed by one instance moving through `mats` (T, 4, 4),
+        or standing still when T is 1."""
         chunks: list = []
         self.emit(chunk, chunks, path)
         if not chunks:
@@ -201,7 +248,8 @@ class _MotionReader:
         self._counted = (len(self.instances) + 1, index + mats.shape[1])
         self.instances.append(np.full(mats.shape[1], proto, np.uint32))
         self.instance_xforms.append(mats[0].copy())
-        self.motion.extend((index + j, mats[:, j]) for j in range(mats.shape[1]))
+        if len(mats) > 1:  # a single step places a still instance (of a deforming prototype)
+            self.motion.extend((index + j, mats[:, j]) for j in range(mats.shape[1]))
 
     def point_instancer_motion(self, prim, pi, world_base: np.ndarray | None) -> "callable | None":
         """For a PointInstancer that moves during the shutter (its own transform, or
@@ -275,8 +323,10 @@ class _MotionReader:
             return False
         lo, hi = attr.GetBracketingTimeSamples(self.shutter.open)[0], \
             attr.GetBracketingTimeSamples(self.shutter.close)[1]
-        return len(attr.GetTimeSamplesInInterval(Gf.Interval(lo, hi))) > 1 and \
-            not np.array_equal(np.asarray(attr.Get(self.shutter.open)), np.asarray(attr.Get(self.shutter.close)))
+        if len(attr.GetTimeSamplesInInterval(Gf.Interval(lo, hi))) < 2:
+            return False
+        first, *rest = (np.asarray(attr.Get(float(t))) for t in self.shutter.times(3))
+        return not all(np.array_equal(first, other) for other in rest)
 
     def motion_tables(self):
         """(motion_instances uint32 (K,), motion_time_steps uint32 (K,), motion_transforms

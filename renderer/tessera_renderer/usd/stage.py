@@ -27,7 +27,7 @@ import numpy as np
 from . import light_shaping, subdivision
 from .camera import (CameraDesc, _camera_from_prim, _default_camera, _find_render_settings, _move_to_camera,
                      select_camera)
-from .errors import SceneError
+from .errors import SceneError, local_to_world
 from .instancing import _InstanceReader, _instance_corners
 from .lights import NO_LIGHT_WARNING, _LightReader, _emits, apply_default_lighting, default_lighting
 from .materials import _COLOR_INPUTS, _MaterialReader, _MaterialTable, _SCALAR_INPUTS, _as_tuple
@@ -153,7 +153,7 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
     # -- traversal ------------------------------------------------------------------
     def world_matrix(self, prim) -> np.ndarray:
         """4x4 float64, USD's row-vector convention: p_world = [p, 1] @ M."""
-        return np.array(self.xform_cache.GetLocalToWorldTransform(prim), dtype=np.float64)
+        return local_to_world(self.xform_cache, prim)
 
     def walk(self, root_range, base_inv: np.ndarray | None, sink: list, top_level: bool) -> None:
         """Translates every renderable prim of a prim range into `sink` as chunks in the
@@ -189,9 +189,8 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
             if prim.IsA(UsdGeom.Mesh) or type_name in _GPRIMS or prim.IsA(UsdGeom.BasisCurves):
                 if prim.IsA(UsdGeom.Mesh):
                     chunk = self.mesh_chunk(prim)
-                    if self.deforms_during_shutter(UsdGeom.Mesh(prim).GetPointsAttr()):
-                        self._count_note("deforming meshes (points time-sampled within the shutter) are not "
-                                         "motion-blurred yet: rendered in their shape at the frame")
+                    if chunk is not None:
+                        chunk = self._deformed(prim, chunk, top_level and skinned is None)
                 elif type_name in _GPRIMS:
                     chunk = self.gprim_chunk(prim, type_name)
                 else:
@@ -201,6 +200,8 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
                 # Moving during the shutter: an instance of its own, whatever the
                 # instancing mode (only an instance's matrices can move in Embree).
                 mats = self.motion_steps(prim, chunk.points) if top_level and skinned is None else None
+                if mats is None and chunk.motion_points is not None:
+                    mats = m[None]  # deforming in place: a still instance of a deforming prototype
                 if mats is not None:
                     self.add_moving_chunk(chunk, mats, str(prim.GetPath()))
                 else:
@@ -223,26 +224,47 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
                 else:
                     self.unsupported[type_name] += 1
 
+    def _deformed(self, prim, chunk: _Chunk, blurrable: bool) -> _Chunk:
+        """The mesh's chunk with its points at the shutter's time steps when it deforms
+        during the shutter and can be blurred (usd/motion.py); otherwise as it is, with a
+        note when it deforms all the same."""
+        from pxr import UsdGeom
+
+        if self.shutter is None or not self.deforms_during_shutter(UsdGeom.Mesh(prim).GetPointsAttr()):
+            return chunk
+        refined = UsdGeom.Mesh(prim).GetSubdivisionSchemeAttr().Get(self.time) not in (None, UsdGeom.Tokens.none) \
+            and self.subdivision_level > 0
+        if not blurrable or refined:
+            what = "subdivision surfaces" if refined else \
+                "skinned meshes and meshes inside instances" if not blurrable else ""
+            self._count_note(f"deforming {what} (points time-sampled within the shutter) are not "
+                             f"motion-blurred yet: rendered in their shape at the frame")
+            return chunk
+        steps = self.deforming_points(prim, len(chunk.points))
+        return chunk if steps is None else dataclasses.replace(chunk, motion_points=steps)
+
     def emit(self, chunk: _Chunk, sink: list, path: str) -> None:
         bad_vertex = ~np.isfinite(chunk.points).all(axis=1)
         if bad_vertex.any():
             keep = ~bad_vertex[chunk.tris].any(axis=1)
             self.warn(f"{path}: {int((~keep).sum())} triangles with NaN/Inf vertices skipped")
+            moving = chunk.motion_points
             chunk = _Chunk(np.where(bad_vertex[:, None], 0.0, chunk.points), chunk.tris[keep],
                            chunk.material[keep],
                            chunk.normals[keep] if chunk.normals is not None else None,
-                           chunk.uvs[keep] if chunk.uvs is not None else None)
+                           chunk.uvs[keep] if chunk.uvs is not None else None,
+                           None if moving is None else np.where(bad_vertex[None, :, None], 0.0, moving))
         if chunk.uvs is not None and not np.isfinite(chunk.uvs).all():
             bad = ~np.isfinite(chunk.uvs).all(axis=(1, 2))
             self.warn(f"{path}: {int(bad.sum())} triangles with NaN/Inf texture coordinates; their st set to 0")
             uvs = np.where(np.isfinite(chunk.uvs), chunk.uvs, 0.0).astype(chunk.uvs.dtype)
-            chunk = _Chunk(chunk.points, chunk.tris, chunk.material, chunk.normals, uvs)
+            chunk = dataclasses.replace(chunk, uvs=uvs)
         if chunk.normals is not None:
             n = _normalized(chunk.normals)
             bad = ~np.isfinite(n).all(axis=(1, 2))
             if bad.any():  # zero or non-finite authored normals: faceted there
                 n[bad] = _face_normals(chunk.points, chunk.tris[bad])[:, None, :]
-            chunk = _Chunk(chunk.points, chunk.tris, chunk.material, n, chunk.uvs)
+            chunk = dataclasses.replace(chunk, normals=n)
         if len(chunk.tris) == 0:
             return
         self.triangles += len(chunk.tris)
@@ -407,6 +429,10 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
         p, i, tm, n, u = _assemble(proto["chunks"])
         prototypes.append({"positions": p, "indices": i, "triangle_material": tm,
                            "shading_normals": n, "uvs": u})
+        steps = [c.motion_points for c in proto["chunks"]]
+        if any(s is not None for s in steps):  # a deforming prim's prototype: its one chunk
+            steps = np.asarray(steps[0], np.float32)
+            prototypes[-1].update(positions=steps[0], motion_positions=steps[1:])
     instances = np.concatenate(tr.instances) if tr.instances else np.zeros(0, np.uint32)
     instance_xforms = np.concatenate(tr.instance_xforms).astype(np.float32) if tr.instance_xforms \
         else np.zeros((0, 4, 4), np.float32)

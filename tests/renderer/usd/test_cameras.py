@@ -202,3 +202,4 @@ def test_cli_camera_option_renders_through_that_camera_and_names_a_missing_one(t
     assert boxes["/Cams/A"][0] - boxes["/Cams/B"][0] == pytest.approx(2.5, abs=0.05)  # as above
     assert main(["render", str(tmp_path / "two.usda"), "-q", "--camera", "/Cams/Z"]) == 2
     assert "camera /Cams/Z does not exist (the stage's cameras: /Cams/A, /Cams/B)" in capsys.readouterr().err
+

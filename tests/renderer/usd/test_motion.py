@@ -1,8 +1,9 @@
 """Transform motion blur from USD: the camera's shutter:open/close around the render's time
-code, xformOp time samples turned into moving instances (usd/motion.py).
+code, xformOp time samples turned into moving instances and points time samples into
+deforming prototypes (usd/motion.py).
 
-The expected images do not come from the motion code: a sliding emitter's ramp is a
-closed form, and a rotating or tilting prim must equal the mean of static renders at
+The expected images do not come from the motion code: a sliding or stretching emitter's
+ramp is a closed form, and a rotating or tilting prim must equal the mean of static renders at
 uniformly spaced time codes, each of which pxr evaluates itself (shutter (0, 0))."""
 from __future__ import annotations
 
@@ -235,14 +236,9 @@ def test_what_is_not_blurred_yet_is_named_once(tmp_path):
     ball.AddTranslateOp().Set(Gf.Vec3d(0, 0, -2), 0.5)
     ball.GetOrderedXformOps()[0].Set(Gf.Vec3d(0, 1, -2), 1.5)
     ball.CreateRadiusAttr(0.1)
-    blob = UsdGeom.Mesh.Define(stage, "/Blob")
-    blob.CreateFaceVertexCountsAttr([3])
-    blob.CreateFaceVertexIndicesAttr([0, 1, 2])
-    blob.GetPointsAttr().Set([(5, 5, -4), (6, 5, -4), (6, 6, -4)], 0.5)
-    blob.GetPointsAttr().Set([(5, 5, -4), (6, 5, -4), (6, 7, -4)], 1.5)
     stage.GetRootLayer().Save()
     warnings = translate_stage(str(path)).warnings
-    for what in ("deforming meshes", "moving sphere, point, distant and dome lights"):
+    for what in ("moving sphere, point, distant and dome lights",):
         assert sum(what in w for w in warnings) == 1, (what, warnings)
     # Without a shutter nothing moves, so nothing is announced.
     assert not any("blurred" in w for w in translate_stage(str(path), shutter=(0, 0)).warnings)
@@ -344,3 +340,97 @@ def test_a_camera_keyed_to_slide_past_a_still_quad_gives_the_same_ramp(tmp_path)
     # Still, at the frame, the camera is where USD puts it: the quad's edges are sharp.
     still = render(load_scene(path, shutter=(0, 0)), spp=16, variance=False).rgba[8, :, 0]
     np.testing.assert_allclose(still, _ramp(X0 + 0.5 * DISTANCE, 0), atol=1e-6)
+
+
+def _edges_ramp(l0: float, l1: float, r0: float, r1: float) -> np.ndarray:
+    """Column means of an emitter whose left edge runs from l0 to l1 and right edge from r0
+    to r1 over the shutter: Le times the fraction of the column-and-shutter box with
+    left(t) <= x <= right(t) (midpoint rule, 1000 x 1000 points per column)."""
+    n = 1000
+    x = -2.0 + (np.arange(W)[:, None, None] + (np.arange(n)[None, :, None] + 0.5) / n) / 4.0
+    t = (np.arange(n)[None, None, :] + 0.5) / n
+    return LE * ((x >= l0 + (l1 - l0) * t) & (x <= r0 + (r1 - r0) * t)).mean(axis=(1, 2))
+
+
+def _stretching_quad(path, *, slide: float = 0.0, mid_key=None):
+    """An emitting quad (y in [-1, 1], z = -3) whose points are keyed at frames 0.5 and 1.5
+    (the shutter around frame 1): its left edge stays at x = -1, its right edge runs from
+    -0.5 to 1, so it stretches from 0.5 to 2 units wide. Under an Xform keyed to slide it
+    by `slide`; `mid_key` adds a points key at frame 1 with the right edge there."""
+    stage = _timed_stage(path)
+    glow = add_material(stage, "/Looks/Glow", diffuse=(0, 0, 0), emissive=(LE, LE, LE))
+    black = add_material(stage, "/Looks/Black", diffuse=(0, 0, 0))
+    mover = UsdGeom.Xform.Define(stage, "/Mover")
+    op = mover.AddTranslateOp()
+    op.Set(Gf.Vec3d(0, 0, 0), 0.5)
+    op.Set(Gf.Vec3d(slide, 0, 0), 1.5)
+    quad = add_mesh(stage, "/Mover/Quad", [(-1, -1, -3), (-0.5, -1, -3), (-0.5, 1, -3), (-1, 1, -3)], [4],
+                    [0, 1, 2, 3], glow)
+    keys = {0.5: -0.5, 1.5: 1.0, **({1.0: mid_key} if mid_key is not None else {})}
+    for t, r in keys.items():
+        quad.GetPointsAttr().Set([(-1, -1, -3), (r, -1, -3), (r, 1, -3), (-1, 1, -3)], t)
+    add_mesh(stage, "/Back", [(-50, -50, -6), (50, -50, -6), (50, 50, -6), (-50, 50, -6)], [4], [0, 1, 2, 3], black)
+    add_render_settings(stage, _ortho_camera(stage), (W, H))
+    stage.GetRootLayer().Save()
+    return path
+
+
+@pytest.mark.parametrize("integrator, slide", [("path", 0.0), ("bdpt", 0.0), ("path", 0.5)])
+def test_a_mesh_keyed_to_stretch_gives_the_closed_form_coverage(tmp_path, integrator, slide):
+    """A deforming mesh (points time-sampled), standing still or carried by a moving Xform:
+    each column is Le times the fraction of the shutter its quad covers it."""
+    scene = load_scene(_stretching_quad(tmp_path / "stretch.usda", slide=slide))
+    assert scene.has_motion
+    assert len(scene.data.motion_instances) == (1 if slide else 0)  # deforming in place: a still instance
+    expected = _edges_ramp(-1.0, -1.0 + slide, -0.5, 1.0 + slide)
+    frozen = _edges_ramp(-1.0 + slide / 2, -1.0 + slide / 2, 0.25 + slide / 2, 0.25 + slide / 2)
+    K = 24
+    mean, se = _columns(scene, integrator, range(K), 256 if integrator == "path" else 128)
+    critical = stats.t.ppf(1 - 1e-3 / (2 * W), K - 1)
+    # Every column's limit is within 1 % of Le, so a 2 % error is found (controls below).
+    assert (critical * se <= 0.01 * LE).all(), critical * se
+    fails = lambda values, wanted: np.abs(values - wanted) > np.maximum(critical * se, 1e-6)
+    assert not fails(mean, expected).any(), (mean, expected)
+    assert fails(0.98 * mean, expected).any(), "the 2 % negative control passed"
+    assert fails(mean, frozen).any(), "the frozen mid-shutter quad passed"
+
+
+def test_deformation_steps_land_on_the_points_keys_and_travel_in_the_blob(tmp_path):
+    # A key at the frame, off the straight line between the other two: 3 steps hold all three.
+    path = _stretching_quad(tmp_path / "keyed.usda", mid_key=0.75)
+    data = translate_stage(str(path), camera_relative=False)
+    (proto,) = [p for p in data.prototypes if p.get("motion_positions") is not None]
+    steps = np.concatenate([proto["positions"][None], proto["motion_positions"]])
+    assert steps.shape == (3, 4, 3)
+    np.testing.assert_allclose(steps[:, 1, 0], [-0.5, 0.75, 1.0], atol=1e-6)
+    np.testing.assert_allclose(steps[:, 0, 0], [-1.0, -1.0, -1.0], atol=1e-6)
+    # Without a shutter the mesh is the frame's shape, flattened like any still prim.
+    still = translate_stage(str(path), shutter=(0, 0), camera_relative=False)
+    assert not any(p.get("motion_positions") is not None for p in still.prototypes)
+    assert np.isclose(still.positions[:4, 0].max(), 0.75)  # the quad, then the backdrop
+    # The blob carries the steps: the farm renders what a local render does.
+    local = render(load_scene(path), spp=32, seed=3, variance=False).rgba
+    from_blob = scene_from_blob(translate_to_blob(path))
+    assert from_blob.has_motion
+    np.testing.assert_array_equal(render(from_blob, spp=32, seed=3, variance=False).rgba, local)
+
+
+def test_deforming_meshes_that_cannot_be_blurred_are_named_once(tmp_path):
+    path = _stretching_quad(tmp_path / "stretch.usda")
+    stage = Usd.Stage.Open(str(path))
+    quad = UsdGeom.Mesh(stage.GetPrimAtPath("/Mover/Quad"))
+    quad.GetSubdivisionSchemeAttr().Set(UsdGeom.Tokens.catmullClark)
+    grow = UsdGeom.Mesh.Define(stage, "/Grow")
+    grow.CreateFaceVertexCountsAttr([3])
+    grow.CreateFaceVertexIndicesAttr([0, 1, 2])
+    grow.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    grow.GetPointsAttr().Set([(5, 5, -4), (6, 5, -4), (6, 6, -4)], 0.5)
+    grow.GetPointsAttr().Set([(5, 5, -4), (6, 5, -4), (6, 7, -4), (9, 9, -4)], 1.5)  # a point more
+    stage.GetRootLayer().Save()
+    data = translate_stage(str(path))
+    for what in ("deforming subdivision surfaces", "point count changes during the shutter"):
+        assert sum(what in w for w in data.warnings) == 1, (what, data.warnings)
+    assert not any(p.get("motion_positions") is not None for p in data.prototypes)
+    # At subdivision level 0 the cage is rendered, and it deforms.
+    cage = translate_stage(str(path), subdivision_level=0)
+    assert sum(p.get("motion_positions") is not None for p in cage.prototypes) == 1
