@@ -16,11 +16,12 @@
 # each under ASan). They run the BSDF, sampling and integrator code that the other tests
 # (reciprocity, robustness at extremes, per-lobe chi-square, the small furnaces and
 # agreement scenes) run under the sanitizers too, only with many more samples; the plain
-# ctest run still runs them. Likewise the four motion-blur renders (the sliding
-# emitter's, the sliding camera's and the deforming emitters' ramps and the blurred
-# shadow, 3-27 s plain): Motion.IntegratorsWithAScenePass... runs the moving-instance code
-# and Motion.ADeformingEmitterIsSampledByItsAreaAtTheInstant the deforming-mesh code under
-# the sanitizers.
+# ctest run still runs them. Likewise the five motion-blur renders (the sliding
+# emitter's, the sliding camera's and the deforming emitters' ramps, the moving lights'
+# irradiance and the blurred shadow, 3-27 s plain): Motion.IntegratorsWithAScenePass...
+# runs the moving-instance code, Motion.ADeformingEmitterIsSampledByItsAreaAtTheInstant the
+# deforming-mesh code and Motion.MovingLightsAreSeenAndSampledWhereTheyAreAtTheInstant the
+# moving-light code under the sanitizers.
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 BUILD=$ROOT/build/sanitize
@@ -31,6 +32,7 @@ SLOW_TESTS+=":Materials.PreviewSurfaceFurnaceIsLeOverOneMinusAlbedo"
 SLOW_TESTS+=":Integrators.PathLightAndBidirectionalAgreeForEveryLightKind:Camera.LensPathLightAndBidirectionalAgree"
 SLOW_TESTS+=":Motion.SlidingEmitterGivesTheClosedFormRampForEveryIntegratorThatSeesEmitters:Motion.BlurredShadowEqualsTheTimeAverageOfStaticShadows:Motion.ACameraSlidingPastAStillQuadSeesTheSameRampAsTheQuadSlidingPastIt"
 SLOW_TESTS+=":Motion.DeformingEmittersGiveTheClosedFormCoverageForEveryIntegratorThatSeesEmitters"
+SLOW_TESTS+=":Motion.MovingPointSphereAndDistantLightsGiveTheClosedFormIrradiance"
 
 start=$(date +%s)
 echo "[sanitize] building the C++ tests with -fsanitize=$SANITIZERS ($BUILD)"

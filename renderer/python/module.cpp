@@ -62,6 +62,10 @@ struct Extras {
     std::optional<InVector<uint32_t>> motion_instances;
     std::optional<InVector<uint32_t>> motion_time_steps;
     std::optional<Matrices> motion_transforms;
+    std::optional<InVector<uint8_t>> light_motion_kinds;
+    std::optional<InVector<uint32_t>> light_motion_indices;
+    std::optional<InVector<uint32_t>> light_motion_time_steps;
+    std::optional<Matrices> light_motion_transforms;
 };
 
 WrapMode ToWrap(float v) {
@@ -183,6 +187,28 @@ void AddExtras(SceneDesc* d, const Extras& x) {
         for (size_t i = 0; i < n; ++i)
             for (int r = 0; r < 3; ++r)
                 for (int c = 0; c < 4; ++c) d->motion_transforms[12 * i + 4 * r + c] = (*x.motion_transforms)(i, c, r);
+    }
+    if (x.light_motion_kinds) {
+        if (!x.light_motion_indices || !x.light_motion_time_steps || !x.light_motion_transforms)
+            throw std::invalid_argument(
+                "light_motion_kinds needs light_motion_indices, light_motion_time_steps and light_motion_transforms");
+        for (size_t k = 0; k < x.light_motion_kinds->shape(0); ++k) {
+            const uint8_t kind = (*x.light_motion_kinds)(k);
+            if (kind < uint8_t(LightKind::kSphere) || kind > uint8_t(LightKind::kDome))
+                throw std::invalid_argument("light_motion_kinds: 1 sphere, 2 point, 3 distant or 4 dome, not " +
+                                            std::to_string(kind));
+            d->light_motion_kinds.push_back(LightKind(kind));
+        }
+        d->light_motion_indices.assign(x.light_motion_indices->data(),
+                                       x.light_motion_indices->data() + x.light_motion_indices->shape(0));
+        d->light_motion_time_steps.assign(x.light_motion_time_steps->data(),
+                                          x.light_motion_time_steps->data() + x.light_motion_time_steps->shape(0));
+        const size_t n = x.light_motion_transforms->shape(0);
+        d->light_motion_transforms.resize(12 * n);
+        for (size_t i = 0; i < n; ++i)
+            for (int r = 0; r < 3; ++r)
+                for (int c = 0; c < 4; ++c)
+                    d->light_motion_transforms[12 * i + 4 * r + c] = (*x.light_motion_transforms)(i, c, r);
     }
 }
 using DomeImage = nb::ndarray<const float, nb::shape<-1, -1, 3>, nb::c_contig, nb::device::cpu>;
@@ -308,13 +334,18 @@ NB_MODULE(_core, m) {
                std::optional<InArray<int32_t, kNumTextureSlots>> material_textures,
                std::optional<nb::list> prototypes, std::optional<InVector<uint32_t>> instance_prototype,
                std::optional<Matrices> instance_transforms, std::optional<InVector<uint32_t>> motion_instances,
-               std::optional<InVector<uint32_t>> motion_time_steps, std::optional<Matrices> motion_transforms) {
+               std::optional<InVector<uint32_t>> motion_time_steps, std::optional<Matrices> motion_transforms,
+               std::optional<InVector<uint8_t>> light_motion_kinds,
+               std::optional<InVector<uint32_t>> light_motion_indices,
+               std::optional<InVector<uint32_t>> light_motion_time_steps,
+               std::optional<Matrices> light_motion_transforms) {
                 SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
                                           sphere_lights, point_lights, distant_lights, dome_radiance, preview_params,
                                           preview_mask, dome_texture, dome_world_to_light, shading_normals);
                 AddExtras(&desc, Extras{uvs, images, image_srgb, texture_table, texture_tiles, material_textures,
                                         prototypes, instance_prototype, instance_transforms, motion_instances,
-                                        motion_time_steps, motion_transforms});
+                                        motion_time_steps, motion_transforms, light_motion_kinds,
+                                        light_motion_indices, light_motion_time_steps, light_motion_transforms});
                 nb::gil_scoped_release release;
                 new (self) Scene(desc);
             },
@@ -326,6 +357,8 @@ NB_MODULE(_core, m) {
             "texture_tiles"_a = nb::none(), "material_textures"_a = nb::none(), "prototypes"_a = nb::none(),
             "instance_prototype"_a = nb::none(), "instance_transforms"_a = nb::none(),
             "motion_instances"_a = nb::none(), "motion_time_steps"_a = nb::none(), "motion_transforms"_a = nb::none(),
+            "light_motion_kinds"_a = nb::none(), "light_motion_indices"_a = nb::none(),
+            "light_motion_time_steps"_a = nb::none(), "light_motion_transforms"_a = nb::none(),
             "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
             "(x, y, z, r, g, b intensity W/sr, then optionally the shaping columns of light_shaping.h: "
             "shaped, axis xyz, cutoff, smooth start, focus, focus tint rgb, has IES, 181 IES factors); distant_lights (dx, dy, dz travel direction, half angle in "
@@ -348,7 +381,11 @@ NB_MODULE(_core, m) {
             "row-vector convention) place them without copying triangles. Transform motion: instance "
             "motion_instances[k] moves through motion_time_steps[k] (2-129) matrices evenly spaced over the "
             "shutter, taken in order from motion_transforms float32 (total steps, 4, 4), interpolated "
-            "linearly between them (renderer/core/scene/scene.h).")
+            "linearly between them (renderer/core/scene/scene.h). Moving lights: light "
+            "light_motion_indices[k] of kind light_motion_kinds[k] (uint8: 1 sphere, 2 point, 3 distant, 4 "
+            "dome with index 0) moves rigidly through light_motion_time_steps[k] world-space transforms "
+            "(light_motion_transforms float32 (total steps, 4, 4), row-vector convention) applied to it as "
+            "described above.")
         .def_prop_ro("has_motion", &Scene::has_motion)
         .def_prop_ro("num_triangles", &Scene::num_triangles)
         .def_prop_ro("num_emitters", &Scene::num_emitters)

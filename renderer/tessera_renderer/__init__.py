@@ -55,7 +55,7 @@ class Scene:
             distant = getattr(data, "distant_lights", None)
             dome = getattr(data, "dome_light", None)
             textures = _texture_tables(data)
-            extras = {**textures, **_instance_tables(data, with_uvs=bool(textures))}
+            extras = {**textures, **_instance_tables(data, with_uvs=bool(textures)), **_light_motion_tables(data)}
             uvs = getattr(data, "uvs", None)
             if uvs is not None and len(uvs) and extras.get("texture_table") is not None:
                 extras["uvs"] = np.ascontiguousarray(uvs, dtype=np.float32).reshape(-1, 3, 2)
@@ -393,6 +393,18 @@ def _instance_tables(data, with_uvs: bool) -> dict:
                       motion_time_steps=np.ascontiguousarray(data.motion_time_steps, np.uint32).reshape(-1),
                       motion_transforms=np.ascontiguousarray(data.motion_transforms, np.float32).reshape(-1, 4, 4))
     return tables
+
+
+def _light_motion_tables(data) -> dict:
+    """The core's moving-light arguments (SceneData.light_motion_*); empty when none move."""
+    kinds = getattr(data, "light_motion_kinds", None)
+    if kinds is None or len(kinds) == 0:
+        return {}
+    return {"light_motion_kinds": np.ascontiguousarray(kinds, np.uint8).reshape(-1),
+            "light_motion_indices": np.ascontiguousarray(data.light_motion_indices, np.uint32).reshape(-1),
+            "light_motion_time_steps": np.ascontiguousarray(data.light_motion_time_steps, np.uint32).reshape(-1),
+            "light_motion_transforms": np.ascontiguousarray(data.light_motion_transforms,
+                                                            np.float32).reshape(-1, 4, 4)}
 
 
 def _corner_normals(normals) -> np.ndarray | None:

@@ -49,9 +49,12 @@ BLOB_VERSION = 1
 # cameras and aperture offsets (CameraDesc.projection, *_aperture_offset); 8: transform
 # motion over the camera's shutter (moving instances, motion_* arrays), and the stage's
 # startTimeCode as the render time when no frame is given; 9: deforming meshes (a
-# prototype's motion_positions), and still-time values that are not numbers refused.
+# prototype's motion_positions), moving sphere, point, distant and dome lights
+# (light_motion_*), and still-time values that are not numbers refused.
 TRANSLATOR_VERSION = 9
 _ALIGN = 64
+_LIGHT_MOTION_FIELDS = ("light_motion_kinds", "light_motion_indices", "light_motion_time_steps",
+                        "light_motion_transforms")
 _PROTO_FIELDS = ("positions", "indices", "triangle_material", "shading_normals", "uvs", "motion_positions")
 
 
@@ -92,6 +95,7 @@ def scene_data_to_blob(data: SceneData) -> bytes:
         "instance_transforms": data.instance_transforms,
         "motion_instances": data.motion_instances, "motion_time_steps": data.motion_time_steps,
         "motion_transforms": data.motion_transforms,
+        **{k: getattr(data, k) for k in _LIGHT_MOTION_FIELDS},
     }
     for key, value in data.material_params.items():
         arrays[f"material_params.{key}"] = value
@@ -235,6 +239,7 @@ def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
         motion_instances=arrays.get("motion_instances", np.zeros(0, np.uint32)),
         motion_time_steps=arrays.get("motion_time_steps", np.zeros(0, np.uint32)),
         motion_transforms=arrays.get("motion_transforms", np.zeros((0, 4, 4), np.float32)),
+        **{k: arrays[k] for k in _LIGHT_MOTION_FIELDS if k in arrays},
         time_code=meta.get("time_code"),
         shutter=None if meta.get("shutter") is None else tuple(meta["shutter"]))
     if tmp:

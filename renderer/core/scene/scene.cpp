@@ -127,16 +127,28 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
     BuildMesh(&meshes_[0], desc.positions.data(), desc.positions.size() / 3, desc.indices.data(),
               desc.indices.size() / 3, desc.triangle_material, desc.shading_normals, desc.uvs, {}, scene_,
               kTriangleGeometry, "");
+    BuildLightMotion(desc);
     if (!spheres_.empty()) {
         RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_SPHERE_POINT);
-        auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4,
-                                                               4 * sizeof(float), spheres_.size()));
-        CheckDevice(device, "allocating sphere buffers");
-        for (size_t s = 0; s < spheres_.size(); ++s) {
-            vb[4 * s + 0] = spheres_[s].center.x;
-            vb[4 * s + 1] = spheres_[s].center.y;
-            vb[4 * s + 2] = spheres_[s].center.z;
-            vb[4 * s + 3] = spheres_[s].radius;
+        // Moving spheres all have the same step count (BuildLightMotion): one vertex buffer
+        // per step, each sphere where its motion puts it then.
+        uint32_t steps = 1;
+        for (const LightMotion& m : sphere_motion_) steps = std::max(steps, m.time_steps);
+        if (steps > 1) rtcSetGeometryTimeStepCount(geom, steps);
+        for (uint32_t k = 0; k < steps; ++k) {
+            auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, k, RTC_FORMAT_FLOAT4,
+                                                                   4 * sizeof(float), spheres_.size()));
+            CheckDevice(device, "allocating sphere buffers");
+            for (size_t s = 0; s < spheres_.size(); ++s) {
+                const LightMotion& m = sphere_motion_[s];
+                const Vec3 c = m.time_steps > 1
+                                   ? TransformPoint(&light_motion_m_[12 * size_t(m.first_step + k)], spheres_[s].center)
+                                   : spheres_[s].center;
+                vb[4 * s + 0] = c.x;
+                vb[4 * s + 1] = c.y;
+                vb[4 * s + 2] = c.z;
+                vb[4 * s + 3] = spheres_[s].radius;
+            }
         }
         rtcCommitGeometry(geom);
         rtcAttachGeometryByID(scene_, geom, kSphereGeometry);
@@ -325,6 +337,87 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
     const double typical = total / (kPi * kPi * double(scene_radius_) * double(scene_radius_));
     if (typical > 0.0 && std::isfinite(typical))
         splat_exponent_ = std::clamp(int(std::lround(std::log2(typical))), -120, 120);
+}
+
+void Scene::BuildLightMotion(const SceneDesc& desc) {
+    const size_t n = desc.light_motion_kinds.size();
+    if (desc.light_motion_indices.size() != n || desc.light_motion_time_steps.size() != n)
+        throw std::invalid_argument("light_motion_kinds, _indices and _time_steps need one entry each per moving light");
+    sphere_motion_.assign(spheres_.size(), {});
+    point_motion_.assign(points_.size(), {});
+    distant_motion_.assign(distants_.size(), {});
+    dome_motion_ = {};
+    // Moving spheres share the sphere geometry's steps: the largest count among them.
+    uint32_t sphere_steps = 0;
+    for (size_t k = 0; k < n; ++k)
+        if (desc.light_motion_kinds[k] == LightKind::kSphere)
+            sphere_steps = std::max(sphere_steps, desc.light_motion_time_steps[k]);
+    size_t offset = 0;
+    for (size_t k = 0; k < n; ++k) {
+        const LightKind kind = desc.light_motion_kinds[k];
+        const uint32_t index = desc.light_motion_indices[k], steps = desc.light_motion_time_steps[k];
+        const std::string what = "moving light " + std::to_string(k) + ": ";
+        LightMotion* slot = kind == LightKind::kSphere && index < sphere_motion_.size()     ? &sphere_motion_[index]
+                            : kind == LightKind::kPoint && index < point_motion_.size()     ? &point_motion_[index]
+                            : kind == LightKind::kDistant && index < distant_motion_.size() ? &distant_motion_[index]
+                            : kind == LightKind::kDome && index == 0                        ? &dome_motion_
+                                                                                            : nullptr;
+        if (!slot) throw std::invalid_argument(what + "no such sphere, point, distant or dome light");
+        if (slot->time_steps > 1) throw std::invalid_argument(what + "the light is listed twice");
+        if (steps < 2 || steps > kMaxTimeSteps)
+            throw std::invalid_argument(what + "needs 2 to " + std::to_string(kMaxTimeSteps) + " time steps");
+        if (desc.light_motion_transforms.size() < 12 * (offset + steps))
+            throw std::invalid_argument("light_motion_transforms must hold one 3x4 matrix per step of every moving light");
+        const float* m = desc.light_motion_transforms.data() + 12 * offset;
+        for (size_t j = 0; j < 12 * size_t(steps); ++j)
+            if (!std::isfinite(m[j])) throw std::invalid_argument(what + "a transform is not finite");
+        for (uint32_t j = 0; j < steps; ++j) {
+            float normals[9];
+            const double det = NormalMatrixOf(m + 12 * j, normals);
+            if (!(std::abs(det) > 1e-12)) throw std::invalid_argument(what + "a transform is singular");
+        }
+        const uint32_t stored = kind == LightKind::kSphere ? sphere_steps : steps;
+        *slot = {stored, uint32_t(light_motion_m_.size() / 12)};
+        for (uint32_t j = 0; j < stored; ++j) {
+            // Resampling at the shared count: this light's own matrix at that step's instant.
+            float scratch[12];
+            const ShutterTimeScope at(stored > 1 ? float(j) / float(stored - 1) : 0.f);
+            const float* mj = MatrixAtShutterTime(m, steps, scratch);
+            light_motion_m_.insert(light_motion_m_.end(), mj, mj + 12);
+        }
+        offset += steps;
+    }
+    if (desc.light_motion_transforms.size() != 12 * offset)
+        throw std::invalid_argument("light_motion_transforms must hold one 3x4 matrix per step of every moving light");
+}
+
+const float* Scene::LightMotionAt(const LightMotion& motion, float* scratch, float* n_scratch) const {
+    if (motion.time_steps <= 1) return nullptr;
+    const float* m = MatrixAtShutterTime(&light_motion_m_[12 * size_t(motion.first_step)], motion.time_steps, scratch);
+    // The steps were checked, and a blend of nearby rotations stays near one; a singular
+    // blend (a half turn between two steps) keeps the identity for the inverse.
+    for (int j = 0; j < 9; ++j) n_scratch[j] = j % 4 == 0 ? 1.f : 0.f;
+    NormalMatrixOf(m, n_scratch);
+    return m;
+}
+
+const Scene::LightMotion& Scene::MotionOf(const Emitter& e) const {
+    static const LightMotion still;
+    switch (e.kind) {
+        case LightKind::kSphere: return sphere_motion_[e.index];
+        case LightKind::kPoint: return point_motion_[e.index];
+        case LightKind::kDistant: return distant_motion_[e.index];
+        case LightKind::kDome: return dome_motion_;
+        case LightKind::kTriangle: break;
+    }
+    return still;
+}
+
+SphereLight Scene::SphereAt(uint32_t s) const {
+    float m[12], n[9];
+    SphereLight light = spheres_[s];
+    if (const float* xf = LightMotionAt(sphere_motion_[s], m, n)) light.center = TransformPoint(xf, light.center);
+    return light;
 }
 
 Scene::~Scene() { ReleaseEmbree(); }

@@ -94,6 +94,18 @@ struct SceneDesc {
     std::vector<uint32_t> motion_instances;
     std::vector<uint32_t> motion_time_steps;
     std::vector<float> motion_transforms;
+    // Moving lights: light light_motion_indices[k] of kind light_motion_kinds[k] (a sphere,
+    // point or distant light, or the dome with index 0) moves rigidly through
+    // light_motion_time_steps[k] (>= 2) world-space transforms taken in order from
+    // light_motion_transforms (row-major 3x4, 12 floats each), evenly spaced over the
+    // shutter and interpolated linearly: at step j the light is the one described here
+    // moved by matrix j (its centre, position, shaping axis, direction or dome rotation;
+    // a sphere keeps its radius). Moving spheres share the sphere geometry's time steps:
+    // each is resampled at the largest step count among them.
+    std::vector<LightKind> light_motion_kinds;
+    std::vector<uint32_t> light_motion_indices;
+    std::vector<uint32_t> light_motion_time_steps;
+    std::vector<float> light_motion_transforms;
     std::vector<Material> materials;
     std::vector<SphereLight> sphere_lights;
     std::vector<PointLight> point_lights;
@@ -134,6 +146,46 @@ inline double NormalMatrixOf(const float* m, float* n) {
 // passes, and integrators whose tiles reuse a scene pass's product) it stays 0.5: the
 // scene frozen at mid-shutter. A static scene ignores it.
 inline thread_local float tls_shutter_time = 0.5f;
+
+// Embree's time model: time_steps (>= 2) steps evenly spaced over the shutter [0, 1],
+// linear in between. The segment k holding this thread's shutter time, and the fraction f
+// of the way through it.
+inline void ShutterSegment(uint32_t time_steps, uint32_t* k, float* f) {
+    const float t = std::clamp(tls_shutter_time, 0.f, 1.f) * float(time_steps - 1);
+    *k = std::min(uint32_t(t), time_steps - 2);
+    *f = t - float(*k);
+}
+
+// The row-major 3x4 matrix at this thread's shutter time of `time_steps` (>= 2) matrices
+// (12 floats each, from `steps`), written to scratch.
+inline const float* MatrixAtShutterTime(const float* steps, uint32_t time_steps, float* scratch) {
+    uint32_t k;
+    float f;
+    ShutterSegment(time_steps, &k, &f);
+    const float* a = steps + 12 * size_t(k);
+    const float* b = a + 12;
+    for (int j = 0; j < 12; ++j) scratch[j] = (1.f - f) * a[j] + f * b[j];
+    return scratch;
+}
+
+// Row-major 3x4 m applied to a point and to a vector; row-major 3x3 n to a vector.
+inline Vec3 TransformPoint(const float* m, Vec3 p) {
+    return {m[0] * p.x + m[1] * p.y + m[2] * p.z + m[3], m[4] * p.x + m[5] * p.y + m[6] * p.z + m[7],
+            m[8] * p.x + m[9] * p.y + m[10] * p.z + m[11]};
+}
+inline Vec3 TransformVector(const float* m, Vec3 v) {
+    return {m[0] * v.x + m[1] * v.y + m[2] * v.z, m[4] * v.x + m[5] * v.y + m[6] * v.z,
+            m[8] * v.x + m[9] * v.y + m[10] * v.z};
+}
+inline Vec3 TransformNormal(const float* n, Vec3 v) {
+    return {n[0] * v.x + n[1] * v.y + n[2] * v.z, n[3] * v.x + n[4] * v.y + n[5] * v.z,
+            n[6] * v.x + n[7] * v.y + n[8] * v.z};
+}
+// n^T v: with n = NormalMatrixOf(m), the inverse of m's 3x3 part applied to v.
+inline Vec3 TransformByInverse(const float* n, Vec3 v) {
+    return {n[0] * v.x + n[3] * v.y + n[6] * v.z, n[1] * v.x + n[4] * v.y + n[7] * v.z,
+            n[2] * v.x + n[5] * v.y + n[8] * v.z};
+}
 
 class ShutterTimeScope {
 public:
@@ -251,7 +303,7 @@ public:
     size_t num_emitters() const { return emitters_.size(); }
     size_t num_instances() const { return instances_.size(); }
     // Some geometry moves or deforms during the shutter: camera samples then draw a time.
-    bool has_motion() const { return !motion_m_.empty() || has_deformation_; }
+    bool has_motion() const { return !motion_m_.empty() || has_deformation_ || !light_motion_m_.empty(); }
     // Triangles stored (world mesh + one copy of each prototype), not counting instancing.
     size_t num_stored_triangles() const;
 
@@ -305,6 +357,18 @@ private:
     static constexpr uint32_t kFirstInstanceGeometry = 2;
     static constexpr uint32_t kMaxTimeSteps = 129;  // Embree's own limit
 
+    // A moving light's steps (time_steps 1: it stands still).
+    struct LightMotion {
+        uint32_t time_steps = 1;
+        uint32_t first_step = 0;  // into light_motion_m_, 12 floats per step
+    };
+    void BuildLightMotion(const SceneDesc& desc);
+    // The light's transform at this thread's shutter time, in scratch (12 floats) and its
+    // normal matrix in n_scratch (9); nullptr when it stands still.
+    const float* LightMotionAt(const LightMotion& motion, float* scratch, float* n_scratch) const;
+    SphereLight SphereAt(uint32_t s) const;  // the sphere at this thread's shutter time
+    const LightMotion& MotionOf(const Emitter& e) const;  // a still one for triangles
+
     Color EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const;
     // Emitter e (a triangle) as its light kind sees it, in world space.
     TriangleLight TriangleLightOf(const Emitter& e) const;
@@ -344,6 +408,9 @@ private:
     std::vector<PointLight> points_;
     std::vector<DistantLight> distants_;
     DomeLight dome_;
+    std::vector<LightMotion> sphere_motion_, point_motion_, distant_motion_;  // one per light
+    LightMotion dome_motion_;
+    std::vector<float> light_motion_m_;
     Vec3 scene_center_;
     float scene_radius_ = 1.f;
     int splat_exponent_ = 0;  // bounding sphere: the power of lights at infinity

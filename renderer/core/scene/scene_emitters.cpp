@@ -13,6 +13,21 @@
 
 namespace tessera {
 
+namespace {
+
+// A light at this thread's shutter time: maps between the world and the light as the
+// scene describes it (identity for a light that stands still).
+struct LightFrame {
+    const float* m = nullptr;
+    float m_scratch[12], n[9];
+    Vec3 ToWorldDir(Vec3 d) const { return m ? Normalize(TransformVector(m, d)) : d; }
+    Vec3 ToWorldPoint(Vec3 p) const { return m ? TransformPoint(m, p) : p; }
+    Vec3 ToLightDir(Vec3 d) const { return m ? Normalize(TransformByInverse(n, d)) : d; }
+    Vec3 ToLightPoint(Vec3 p) const { return m ? TransformByInverse(n, p - Vec3(m[3], m[7], m[11])) : p; }
+};
+
+}  // namespace
+
 int32_t Scene::EmitterAt(const SurfaceHit& hit) const {
     if (hit.geom_id != kTriangleGeometry) return sphere_emitter_[hit.prim_id];
     const int32_t local = meshes_[hit.mesh].emitter[hit.prim_id];
@@ -45,11 +60,25 @@ TriangleLight Scene::TriangleLightOf(const Emitter& e) const {
 bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) const {
     const Emitter& e = emitters_[emitter];
     out->is_delta = false;
+    LightFrame f;
+    f.m = LightMotionAt(MotionOf(e), f.m_scratch, f.n);
     switch (e.kind) {
-        case LightKind::kPoint: return points_[e.index].Sample(ref, out);
-        case LightKind::kDistant: return distants_[e.index].Sample(u, e.one_minus_cos, out);
-        case LightKind::kDome: return dome_.SampleLight(u, out);
-        case LightKind::kSphere: return spheres_[e.index].Sample(ref, u, out);
+        case LightKind::kPoint:
+            if (!points_[e.index].Sample(f.ToLightPoint(ref), out)) return false;
+            if (f.m) {  // sampled as the light stands in its description: back to where it is now
+                out->p = f.ToWorldPoint(out->p);
+                out->wi = f.ToWorldDir(out->wi);
+            }
+            return true;
+        case LightKind::kDistant:
+            if (!distants_[e.index].Sample(u, e.one_minus_cos, out)) return false;
+            out->wi = f.ToWorldDir(out->wi);
+            return true;
+        case LightKind::kDome:
+            if (!dome_.SampleLight(u, out)) return false;
+            out->wi = f.ToWorldDir(out->wi);
+            return true;
+        case LightKind::kSphere: return SphereAt(e.index).Sample(ref, u, out);
         case LightKind::kTriangle:
             return TriangleLightOf(e).Sample(
                 ref, u, [&](float b1, float b2) { return TriangleEmission(e.mesh, e.index, b1, b2); }, out);
@@ -65,8 +94,16 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
             return TriangleLightOf(e).SampleEmission(
                 u_pos, u_dir, u_side, [&](float b1, float b2) { return TriangleEmission(e.mesh, e.index, b1, b2); },
                 out);
-        case LightKind::kSphere: return spheres_[e.index].SampleEmission(u_pos, u_dir, e.area, out);
-        case LightKind::kPoint: return points_[e.index].SampleEmission(u_dir, out);
+        case LightKind::kSphere: return SphereAt(e.index).SampleEmission(u_pos, u_dir, e.area, out);
+        case LightKind::kPoint: {
+            if (!points_[e.index].SampleEmission(u_dir, out)) return false;
+            LightFrame f;
+            if ((f.m = LightMotionAt(point_motion_[e.index], f.m_scratch, f.n))) {
+                out->p = f.ToWorldPoint(out->p);
+                out->wo = f.ToWorldDir(out->wo);
+            }
+            return true;
+        }
         case LightKind::kDistant:
         case LightKind::kDome: {
             float pdf_dir = 1.f;
@@ -78,6 +115,9 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
             } else {
                 distants_[e.index].SampleEmissionDirection(u_dir, e.one_minus_cos, &wo, &pdf_dir, &L);
             }
+            LightFrame f;
+            f.m = LightMotionAt(MotionOf(e), f.m_scratch, f.n);
+            wo = f.ToWorldDir(wo);
             SampleInfiniteEmission(wo, pdf_dir, L, u_pos, scene_center_, scene_radius_, out);
             out->delta_light = e.kind == LightKind::kDistant && e.one_minus_cos == 0.f;
             return true;
@@ -94,7 +134,11 @@ float Scene::EmissionPdfDirection(uint32_t emitter, Vec3 n, Vec3 w) const {
         case LightKind::kTriangle:
             return TriangleLightPdfDirection(MaterialOf(e.mesh, e.index).two_sided_emission, n, w);
         case LightKind::kDistant: return DistantLight::PdfDirection(e.one_minus_cos);
-        case LightKind::kDome: return dome_.PdfDirection(w);
+        case LightKind::kDome: {
+            LightFrame f;
+            f.m = LightMotionAt(dome_motion_, f.m_scratch, f.n);
+            return dome_.PdfDirection(f.ToLightDir(w));
+        }
     }
     return 0.f;
 }
@@ -132,13 +176,15 @@ bool Scene::IsDeltaLight(uint32_t emitter) const {
 }
 
 Color Scene::EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const {
-    if (e.kind == LightKind::kDome) return dome_.Radiance(dir, pdf);
-    return distants_[e.index].Radiance(dir, e.one_minus_cos, pdf);
+    LightFrame f;
+    f.m = LightMotionAt(MotionOf(e), f.m_scratch, f.n);
+    if (e.kind == LightKind::kDome) return dome_.Radiance(f.ToLightDir(dir), pdf);
+    return distants_[e.index].Radiance(f.ToLightDir(dir), e.one_minus_cos, pdf);
 }
 
 float Scene::EmitterPdf(uint32_t emitter, Vec3 ref, const SurfaceHit& hit) const {
     const Emitter& e = emitters_[emitter];
-    if (e.kind == LightKind::kSphere) return spheres_[e.index].Pdf(ref);
+    if (e.kind == LightKind::kSphere) return SphereAt(e.index).Pdf(ref);
     return TriangleLightPdf(ref, hit.p, hit.ng, EmitterArea(e));
 }
 

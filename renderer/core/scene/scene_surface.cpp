@@ -35,10 +35,6 @@ inline Vec3 LocalVertex(const float* positions, const uint32_t* indices, uint32_
     const float* p = positions + 3 * size_t(indices[3 * size_t(tri) + corner]);
     return {p[0], p[1], p[2]};
 }
-inline Vec3 TransformPoint(const float* m, Vec3 p) {
-    return {m[0] * p.x + m[1] * p.y + m[2] * p.z + m[3], m[4] * p.x + m[5] * p.y + m[6] * p.z + m[7],
-            m[8] * p.x + m[9] * p.y + m[10] * p.z + m[11]};
-}
 // The error bound of TransformPoint(m, p) for p known within p_error per axis: the
 // propagated error plus the rounding of the 3 products and 3 sums per row (pbrt-v4 6.8.6).
 inline float TransformedPointError(const float* m, Vec3 p, float p_error) {
@@ -51,23 +47,6 @@ inline float TransformedPointError(const float* m, Vec3 p, float p_error) {
         bound = std::max(bound, (1.f + Gamma(3)) * abs_row * p_error + Gamma(3) * magnitude);
     }
     return bound;
-}
-inline Vec3 TransformVector(const float* m, Vec3 v) {  // m: row-major 3x4
-    return {m[0] * v.x + m[1] * v.y + m[2] * v.z, m[4] * v.x + m[5] * v.y + m[6] * v.z,
-            m[8] * v.x + m[9] * v.y + m[10] * v.z};
-}
-inline Vec3 TransformNormal(const float* n, Vec3 v) {  // n: row-major 3x3
-    return {n[0] * v.x + n[1] * v.y + n[2] * v.z, n[3] * v.x + n[4] * v.y + n[5] * v.z,
-            n[6] * v.x + n[7] * v.y + n[8] * v.z};
-}
-
-// Embree's time model: time_steps (>= 2) steps evenly spaced over the shutter [0, 1],
-// linear in between. The segment k holding this thread's shutter time, and the fraction f
-// of the way through it.
-inline void ShutterSegment(uint32_t time_steps, uint32_t* k, float* f) {
-    const float t = std::clamp(tls_shutter_time, 0.f, 1.f) * float(time_steps - 1);
-    *k = std::min(uint32_t(t), time_steps - 2);
-    *f = t - float(*k);
 }
 
 }  // namespace
@@ -84,13 +63,7 @@ Vec3 Scene::MeshVertex(const Mesh& mesh, uint32_t prim, int corner) const {
 
 const float* Scene::InstanceMatrix(const Instance& in, float* scratch) const {
     if (in.time_steps <= 1) return in.m;
-    uint32_t k;
-    float f;
-    ShutterSegment(in.time_steps, &k, &f);
-    const float* a = &motion_m_[12 * size_t(in.first_step + k)];
-    const float* b = a + 12;
-    for (int j = 0; j < 12; ++j) scratch[j] = (1.f - f) * a[j] + f * b[j];
-    return scratch;
+    return MatrixAtShutterTime(&motion_m_[12 * size_t(in.first_step)], in.time_steps, scratch);
 }
 
 const float* Scene::InstanceNormalMatrix(const Instance& in, const float* m, float* normals_scratch) const {
@@ -248,7 +221,7 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceH
     hit->b2 = rh.hit.v;
     const uint32_t inst = rh.hit.instID[0];
     if (inst == RTC_INVALID_GEOMETRY_ID && rh.hit.geomID == kSphereGeometry) {
-        const SphereLight& s = spheres_[rh.hit.primID];
+        const SphereLight s = SphereAt(rh.hit.primID);
         Vec3 p = ray.o + ray.d * rh.ray.tfar;
         hit->geom_id = kSphereGeometry;
         hit->mesh = 0;

@@ -256,6 +256,8 @@ def _move_to_camera(tr, camera: CameraDesc) -> CameraDesc:
         mats[:, 3, :3] -= shift
     for _, mats in tr.motion:
         mats[:, 3, :3] -= shift
+    for _, _, deltas in tr.light_motion:  # p(t) = p(frame) @ delta, in world coordinates
+        deltas[:, 3, :3] += shift @ deltas[:, :3, :3] - shift
     if camera.motion is not None:
         poses = np.array(camera.motion, np.float64).reshape(-1, 12)
         poses[:, :3] -= shift

@@ -50,10 +50,43 @@ class _LightReader:
         if handler is None:
             self.unsupported[type_name or "untyped light"] += 1
             return
-        if type_name in ("SphereLight", "DistantLight", "DomeLight") and self.moves_during_shutter(prim):
-            self._count_note("moving sphere, point, distant and dome lights are not motion-blurred yet: "
-                             "rendered where they are at the frame")
+        before = (len(self.sphere_lights), len(self.point_lights), len(self.distant_lights), self.dome_light)
         handler(prim)
+        if type_name in ("SphereLight", "DistantLight", "DomeLight"):
+            self._add_light_motion(prim, type_name, before)
+
+    def _add_light_motion(self, prim, type_name: str, before) -> None:
+        """A sphere, point, distant or dome light that moves during the shutter: its rigid
+        motion relative to where it stands at the frame (what the handler just added), at
+        steps chosen as for any moving prim (usd/motion.py) on a box of the light's size."""
+        spheres, points, distants, dome = before
+        if len(self.sphere_lights) > spheres:
+            kind, index, size = LIGHT_MOTION_KINDS["sphere"], spheres, self.sphere_lights[-1][3]
+        elif len(self.point_lights) > points:
+            kind, index, size = LIGHT_MOTION_KINDS["point"], points, 1.0
+        elif len(self.distant_lights) > distants:
+            kind, index, size = LIGHT_MOTION_KINDS["distant"], distants, 1.0
+        elif self.dome_light is not None and dome is None:
+            kind, index, size = LIGHT_MOTION_KINDS["dome"], 0, 1.0
+        else:
+            return  # skipped
+        # The tolerance is relative to the light's size around where it stands at the frame.
+        here = np.eye(4)
+        here[3, :3] = -self.world_matrix(prim)[3, :3]
+        box = np.array([[x, y, z] for x in (-size, size) for y in (-size, size) for z in (-size, size)])
+        mats = self.motion_steps(prim, box, base_inv=here)
+        if mats is None:
+            return
+        frame = self.world_matrix(prim)
+        deltas = np.linalg.inv(frame) @ (mats @ np.linalg.inv(here))  # row vectors: p(t) = p(frame) @ delta
+        # Rigid: the nearest rotation to each step's linear part (a light's scale is the frame's).
+        u, _, vt = np.linalg.svd(deltas[:, :3, :3])
+        deltas[:, :3, :3] = u @ vt
+        if (np.linalg.det(deltas[:, :3, :3]) < 0).any():
+            self.warn(f"{prim.GetPath()}: a light mirrored during the shutter is not motion-blurred")
+            return
+        self.light_motion.append((kind, index, deltas))
+
 
     def _emissive(self, prim, local_pts, tris, radiance, two_sided=False) -> None:
         m = self.world_matrix(prim)
@@ -203,6 +236,9 @@ class _LightReader:
         self.dome_light = {"radiance": [float(x) for x in radiance], "texture": texture,
                            "world_to_light": np.linalg.inv(l2w).tolist(), "path": str(prim.GetPath())}
 
+
+# The core's LightKind numbers for moving lights (SceneData.light_motion_kinds).
+LIGHT_MOTION_KINDS = {"sphere": 1, "point": 2, "distant": 3, "dome": 4}
 
 # The one line a light-less stage gets; Scene rewrites it when default lighting is off.
 NO_LIGHT_WARNING = ("the scene has no lights: lit by the default lighting (a white dome of radiance "

@@ -16,10 +16,11 @@ velocities, angular velocities and accelerations, through USD's own
 ComputeInstanceTransformsAtTimes), and so does the camera (CameraDesc.motion: its poses
 at the steps). A mesh whose `points` are time-sampled inside the shutter deforms: its
 points at T steps (chosen the same way, on the points) make a deforming prototype (Embree
-vertex time steps), placed by a still or moving instance. Not blurred yet, each named in
-one warning: deforming subdivision surfaces, skinned meshes and meshes inside instance
-prototypes, and sphere, point, distant and dome lights that move (rect, disk and cylinder
-lights are geometry and move like any other prim).
+vertex time steps), placed by a still or moving instance. Sphere, point, distant and dome
+lights move rigidly (light_motion: their motion relative to the frame, without scale);
+rect, disk and cylinder lights are geometry and move like any other prim. Not blurred
+yet, each named in one warning: deforming subdivision surfaces, skinned meshes and meshes
+inside instance prototypes.
 """
 from __future__ import annotations
 
@@ -95,6 +96,8 @@ class _MotionReader:
         self._caches: dict[float, object] = {}
         # (index of the instance in the concatenated instances, its matrices (T, 4, 4)).
         self.motion: list[tuple[int, np.ndarray]] = []
+        # Moving lights: (LightKind number, index among its kind, rigid deltas (T, 4, 4)).
+        self.light_motion: list[tuple[int, int, np.ndarray]] = []
         self._counted = (0, 0)  # (arrays of self.instances counted, instances in them)
 
     def _cache_at(self, t: float):
@@ -327,6 +330,17 @@ class _MotionReader:
             return False
         first, *rest = (np.asarray(attr.Get(float(t))) for t in self.shutter.times(3))
         return not all(np.array_equal(first, other) for other in rest)
+
+    def light_motion_tables(self):
+        """(light_motion_kinds uint8 (K,), light_motion_indices uint32 (K,),
+        light_motion_time_steps uint32 (K,), light_motion_transforms float32 (steps, 4, 4))."""
+        if not self.light_motion:
+            return (np.zeros(0, np.uint8), np.zeros(0, np.uint32), np.zeros(0, np.uint32),
+                    np.zeros((0, 4, 4), np.float32))
+        return (np.array([k for k, _, _ in self.light_motion], np.uint8),
+                np.array([i for _, i, _ in self.light_motion], np.uint32),
+                np.array([len(m) for _, _, m in self.light_motion], np.uint32),
+                np.concatenate([m for _, _, m in self.light_motion]).astype(np.float32))
 
     def motion_tables(self):
         """(motion_instances uint32 (K,), motion_time_steps uint32 (K,), motion_transforms

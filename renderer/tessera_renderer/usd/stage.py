@@ -84,6 +84,14 @@ class SceneData:
     motion_instances: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint32))
     motion_time_steps: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint32))
     motion_transforms: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4), np.float32))
+    # Moving lights (usd/lights.py): light light_motion_indices[k] of kind
+    # light_motion_kinds[k] (1 sphere, 2 point, 3 distant, 4 dome) moves rigidly through
+    # light_motion_time_steps[k] transforms (row vectors: p(t) = p @ M) taken in order from
+    # light_motion_transforms, relative to where its row puts it.
+    light_motion_kinds: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint8))
+    light_motion_indices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint32))
+    light_motion_time_steps: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint32))
+    light_motion_transforms: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4), np.float32))
     # The time code rendered (None: the default time) and the shutter interval around it
     # in absolute time codes (None: no motion blur).
     time_code: float | None = None
@@ -437,6 +445,8 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     instance_xforms = np.concatenate(tr.instance_xforms).astype(np.float32) if tr.instance_xforms \
         else np.zeros((0, 4, 4), np.float32)
     motion_instances, motion_time_steps, motion_transforms = tr.motion_tables()
+    light_motion = dict(zip(("light_motion_kinds", "light_motion_indices", "light_motion_time_steps",
+                             "light_motion_transforms"), tr.light_motion_tables()))
 
     distant = np.array(tr.distant_lights, np.float32).reshape(-1, 7)
     if any(len(row) > 6 for row in tr.point_lights):  # shaped lights: every row gets the columns
@@ -467,7 +477,7 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
                      prototypes=prototypes, instances=instances, instance_transforms=instance_xforms,
                      meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)), up_axis=str(up_axis),
                      world_offset=camera_offset, default_lights=default_lights,
-                     motion_instances=motion_instances, motion_time_steps=motion_time_steps,
+                     motion_instances=motion_instances, motion_time_steps=motion_time_steps, **light_motion,
                      motion_transforms=motion_transforms,
                      time_code=None if time.IsDefault() else float(time.GetValue()),
                      shutter=None if tr.shutter is None else (tr.shutter.open, tr.shutter.close))
