@@ -4,6 +4,7 @@ sequence reports every frame's state (a cancelled frame is named), cancels as a 
 and `tessera submit --frames --wait` writes numbered EXRs."""
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
@@ -92,3 +93,42 @@ def test_a_frame_range_renders_each_frame_as_a_local_render_does(redis_server, t
         status = farm.delete(f"/jobs/{seq}").json()
         assert status["state"] == "cancelled" and {f["state"] for f in status["frames"]} == {"cancelled"}, status
         assert farm.get("/jobs/" + "0" * 32).status_code == 404
+
+
+def test_a_frame_range_is_paused_resumed_reprioritised_logged_and_followed_as_one(redis_server, tmp_path):
+    """The sequence id stands for all its frames: pause, resume and priority reach every
+    frame's job, the log holds every frame's lines naming the frame, and the events stream
+    merges every frame's events (each naming its frame) and ends when the last is final."""
+    scene = tmp_path / "moving_ball.usda"
+    scene.write_text(SCENE)
+    (tmp_path / "logs").mkdir()
+    with api_client(redis_server, tmp_path / "logs") as farm:
+        seq = submit(farm, scene, **FORM, frames="1-3").json()["id"]
+        status = farm.post(f"/jobs/{seq}/pause").json()
+        assert status["kind"] == "sequence" and {f["state"] for f in status["frames"]} == {"paused"}, status
+        assert status["state"] == "paused"
+        status = farm.post(f"/jobs/{seq}/priority", json={"priority": 7}).json()
+        assert status["kind"] == "sequence"
+        assert {farm.get(f"/jobs/{f['job']}").json()["priority"] for f in status["frames"]} == {7}
+        status = farm.post(f"/jobs/{seq}/resume").json()
+        assert {f["state"] for f in status["frames"]} == {"queued"}, status
+        worker = start_worker(farm.redis_url, "frames-1", farm.log_dir)
+        try:
+            events = []
+            with farm.stream("GET", f"/jobs/{seq}/events") as response:
+                assert response.status_code == 200
+                for line in response.iter_lines():
+                    if line.startswith("data: "):
+                        events.append(json.loads(line[6:]))
+        finally:
+            worker.stop()
+        finals = sorted(e["frame"] for e in events if e["type"] == "state" and e["state"] == "done")
+        assert finals == [1, 2, 3], events
+        tiles = [e for e in events if e["type"] == "tile"]
+        assert sorted((e["frame"], e["tile"]) for e in tiles) == [(f, t) for f in (1, 2, 3) for t in range(4)]
+        assert farm.get(f"/jobs/{seq}").json()["state"] == "done"
+        lines = farm.get(f"/jobs/{seq}/log").json()["lines"]
+        for f in (1, 2, 3):
+            assert any(f" frame {f}: " in line and "paused" in line for line in lines), lines
+        stamps = [float(line.split(" ", 1)[0]) for line in lines]
+        assert stamps == sorted(stamps)

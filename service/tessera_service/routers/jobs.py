@@ -2,6 +2,7 @@
 image, cancel, pause, resume."""
 from __future__ import annotations
 
+import asyncio
 import os
 import hashlib
 import json
@@ -272,21 +273,26 @@ def cancel_job(job_id: str, request: Request, user: CurrentUser) -> JobStatus | 
     return _status(job_id, _job(request, job_id, user))
 
 
-@router.post("/{job_id}/pause", response_model=JobStatus,
+@router.post("/{job_id}/pause", response_model=JobStatus | SequenceStatus,
              responses={404: {"description": "no such job"}})
-def pause_job(job_id: str, request: Request, user: CurrentUser) -> JobStatus:
+def pause_job(job_id: str, request: Request, user: CurrentUser) -> JobStatus | SequenceStatus:
     """Stops handing out the job's tiles (tiles being rendered are still stored). A job
-    that is not queued or running is left as it is."""
+    that is not queued or running is left as it is. For a frame range, every frame's job."""
+    if (record := _sequence(request, job_id, user)) is not None:
+        return for_each_frame(request, job_id, user, record, request.app.state.store.pause)
     _check_owner(request, job_id, user)
     if not request.app.state.store.pause(job_id):
         raise _not_found(job_id)
     return _status(job_id, _job(request, job_id, user))
 
 
-@router.post("/{job_id}/resume", response_model=JobStatus,
+@router.post("/{job_id}/resume", response_model=JobStatus | SequenceStatus,
              responses={404: {"description": "no such job"}})
-def resume_job(job_id: str, request: Request, user: CurrentUser) -> JobStatus:
-    """Resumes a paused job; any other job is left as it is."""
+def resume_job(job_id: str, request: Request, user: CurrentUser) -> JobStatus | SequenceStatus:
+    """Resumes a paused job; any other job is left as it is. For a frame range, every
+    paused frame."""
+    if (record := _sequence(request, job_id, user)) is not None:
+        return for_each_frame(request, job_id, user, record, request.app.state.store.resume)
     _check_owner(request, job_id, user)
     if not request.app.state.store.resume(job_id):
         raise _not_found(job_id)
@@ -295,9 +301,27 @@ def resume_job(job_id: str, request: Request, user: CurrentUser) -> JobStatus:
 
 @router.get("/{job_id}/log", response_model=JobLog, responses={404: {"description": "no such job"}})
 def get_log(job_id: str, request: Request, user: CurrentUser) -> JobLog:
-    """The job's log: state changes, warnings, failed attempts, blocklisted workers."""
+    """The job's log: state changes, warnings, failed attempts, blocklisted workers. For a
+    frame range, every frame's log in time order, each line naming its frame."""
+    if (record := _sequence(request, job_id, user)) is not None:
+        store: JobStore = request.app.state.store
+        lines = [(line, f"frame {frame}") for frame, frame_job, job in record["frames"] if job is not None
+                 for line in store.log(frame_job)]
+        # '<unix time> <message>': sorted by the time, stable within a frame.
+        lines.sort(key=lambda item: float(item[0].split(" ", 1)[0]))
+        return JobLog(id=job_id, lines=[f"{stamp} {where}: {rest}" for line, where in lines
+                                        for stamp, _, rest in [line.partition(" ")]])
     _job(request, job_id, user)
     return JobLog(id=job_id, lines=request.app.state.store.log(job_id))
+
+
+def for_each_frame(request: Request, sequence_id: str, user: User, record: dict, change) -> SequenceStatus:
+    """Applies a state change (store.pause, resume, ...) to every frame's job that still
+    exists; frames it does not apply to (finished, say) are left as they are."""
+    for _, frame_job, job in record["frames"]:
+        if job is not None:
+            change(frame_job)
+    return sequence_status(sequence_id, _sequence(request, sequence_id, user) or record)
 
 
 @router.get("/{job_id}/events", response_class=StreamingResponse,
@@ -316,6 +340,8 @@ async def job_events(job_id: str, request: Request, user: CurrentUser,
     # neither a worker thread nor a pooled connection of the synchronous routes.
     _check_id(job_id)
     aredis = request.app.state.aredis
+    if (record := await asyncio.to_thread(_sequence, request, job_id, user)) is not None:
+        return _sequence_events(request, record)
     job_key, events_key = rdb.job_key(job_id), rdb.job_events_key(job_id)
     state, owner = await aredis.hmget(job_key, ["state", "owner"])
     if state is None or not user.may_see(owner.decode() if owner is not None else None):
@@ -345,6 +371,49 @@ async def job_events(job_id: str, request: Request, user: CurrentUser,
                 state = await aredis.hget(job_key, "state")
                 if state is None or (state.decode() in FINAL_STATES and idle > 1):
                     return  # expired, or final with its last event already sent
+                if idle % 15 == 0:
+                    yield ": keep-alive\n\n"
+
+    return StreamingResponse(stream(), media_type="text/event-stream",
+                             headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+
+
+def _sequence_events(request: Request, record: dict) -> StreamingResponse:
+    """A frame range's events: every frame's, merged as they come, each event's data
+    naming its `frame`; the stream ends once every frame is final. (Resuming after an event
+    id is for single jobs: a merged stream has one cursor per frame.)"""
+    aredis = request.app.state.aredis
+    frames = {rdb.job_events_key(frame_job): (frame, rdb.job_key(frame_job))
+              for frame, frame_job, job in record["frames"] if job is not None}
+
+    async def stream():
+        cursors = {key: "0" for key in frames}
+        finished: set[str] = set()
+        idle = 0
+        while cursors and not await request.is_disconnected():
+            reply = await aredis.xread(cursors, count=100, block=1000)
+            for key, events in reply or []:
+                key = key.decode() if isinstance(key, bytes) else key
+                frame, _ = frames[key]
+                for event_id, raw in events:
+                    cursors[key] = event_id.decode()
+                    try:
+                        event = rdb.JobEvent.from_fields(raw)
+                    except ValidationError:
+                        continue
+                    data = {**event.model_dump(exclude_none=True), "frame": frame}
+                    yield f"event: {event.type}\ndata: {json.dumps(data)}\n\n"
+                    if event.type == "state" and event.state in FINAL_STATES:
+                        finished.add(key)
+            for key in finished:
+                cursors.pop(key, None)
+            finished.clear()
+            if not reply:
+                idle += 1
+                for key in list(cursors):  # expired, or final with its last event already sent
+                    state = await aredis.hget(frames[key][1], "state")
+                    if state is None or (state.decode() in FINAL_STATES and idle > 1):
+                        cursors.pop(key)
                 if idle % 15 == 0:
                     yield ": keep-alive\n\n"
 
