@@ -391,8 +391,7 @@ void Scene::BuildLightMotion(const SceneDesc& desc) {
         throw std::invalid_argument("light_motion_transforms must hold one 3x4 matrix per step of every moving light");
 }
 
-const float* Scene::LightMotionAt(const LightMotion& motion, float* scratch, float* n_scratch) const {
-    if (motion.time_steps <= 1) return nullptr;
+const float* Scene::MovingLightAt(const LightMotion& motion, float* scratch, float* n_scratch) const {
     const float* m = MatrixAtShutterTime(&light_motion_m_[12 * size_t(motion.first_step)], motion.time_steps, scratch);
     // The steps were checked, and a blend of nearby rotations stays near one; a singular
     // blend (a half turn between two steps) keeps the identity for the inverse.

@@ -350,8 +350,14 @@ private:
     // matrix transforming its normals (n, or computed into `normals_scratch`).
     const float* InstanceMatrix(const Instance& in, float* scratch) const;
     const float* InstanceNormalMatrix(const Instance& in, const float* m, float* normals_scratch) const;
-    // Corner c of triangle prim of a mesh at this thread's shutter time, in the mesh's space.
-    Vec3 MeshVertex(const Mesh& mesh, uint32_t prim, int corner) const;
+    // Corner c of triangle prim of a mesh at this thread's shutter time, in the mesh's space
+    // (inline: every hit reads three; a still mesh pays one predictable branch).
+    Vec3 MeshVertex(const Mesh& mesh, uint32_t prim, int corner) const {
+        if (mesh.time_steps > 1) return DeformedVertex(mesh, prim, corner);
+        const float* p = mesh.positions + 3 * size_t(mesh.indices[3 * size_t(prim) + corner]);
+        return {p[0], p[1], p[2]};
+    }
+    Vec3 DeformedVertex(const Mesh& mesh, uint32_t prim, int corner) const;
     // A triangle emitter's area now (moving instances may scale it, deforming meshes reshape it).
     float EmitterArea(const Emitter& e) const;
     static constexpr uint32_t kFirstInstanceGeometry = 2;
@@ -365,7 +371,15 @@ private:
     void BuildLightMotion(const SceneDesc& desc);
     // The light's transform at this thread's shutter time, in scratch (12 floats) and its
     // normal matrix in n_scratch (9); nullptr when it stands still.
-    const float* LightMotionAt(const LightMotion& motion, float* scratch, float* n_scratch) const;
+    const float* LightMotionAt(const LightMotion& motion, float* scratch, float* n_scratch) const {
+        return motion.time_steps > 1 ? MovingLightAt(motion, scratch, n_scratch) : nullptr;
+    }
+    const float* MovingLightAt(const LightMotion& motion, float* scratch, float* n_scratch) const;
+    // The light's transform now for emitter e (nullptr when nothing in the scene's lights
+    // moves: static scenes skip the lookup).
+    const float* EmitterMotionAt(const Emitter& e, float* scratch, float* n_scratch) const {
+        return light_motion_m_.empty() ? nullptr : LightMotionAt(MotionOf(e), scratch, n_scratch);
+    }
     SphereLight SphereAt(uint32_t s) const;  // the sphere at this thread's shutter time
     const LightMotion& MotionOf(const Emitter& e) const;  // a still one for triangles
 

@@ -61,7 +61,7 @@ bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) 
     const Emitter& e = emitters_[emitter];
     out->is_delta = false;
     LightFrame f;
-    f.m = LightMotionAt(MotionOf(e), f.m_scratch, f.n);
+    f.m = EmitterMotionAt(e, f.m_scratch, f.n);
     switch (e.kind) {
         case LightKind::kPoint:
             if (!points_[e.index].Sample(f.ToLightPoint(ref), out)) return false;
@@ -98,7 +98,7 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
         case LightKind::kPoint: {
             if (!points_[e.index].SampleEmission(u_dir, out)) return false;
             LightFrame f;
-            if ((f.m = LightMotionAt(point_motion_[e.index], f.m_scratch, f.n))) {
+            if ((f.m = EmitterMotionAt(e, f.m_scratch, f.n))) {
                 out->p = f.ToWorldPoint(out->p);
                 out->wo = f.ToWorldDir(out->wo);
             }
@@ -116,7 +116,7 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
                 distants_[e.index].SampleEmissionDirection(u_dir, e.one_minus_cos, &wo, &pdf_dir, &L);
             }
             LightFrame f;
-            f.m = LightMotionAt(MotionOf(e), f.m_scratch, f.n);
+            f.m = EmitterMotionAt(e, f.m_scratch, f.n);
             wo = f.ToWorldDir(wo);
             SampleInfiniteEmission(wo, pdf_dir, L, u_pos, scene_center_, scene_radius_, out);
             out->delta_light = e.kind == LightKind::kDistant && e.one_minus_cos == 0.f;
@@ -136,7 +136,7 @@ float Scene::EmissionPdfDirection(uint32_t emitter, Vec3 n, Vec3 w) const {
         case LightKind::kDistant: return DistantLight::PdfDirection(e.one_minus_cos);
         case LightKind::kDome: {
             LightFrame f;
-            f.m = LightMotionAt(dome_motion_, f.m_scratch, f.n);
+            f.m = EmitterMotionAt(e, f.m_scratch, f.n);
             return dome_.PdfDirection(f.ToLightDir(w));
         }
     }
@@ -177,7 +177,7 @@ bool Scene::IsDeltaLight(uint32_t emitter) const {
 
 Color Scene::EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const {
     LightFrame f;
-    f.m = LightMotionAt(MotionOf(e), f.m_scratch, f.n);
+    f.m = EmitterMotionAt(e, f.m_scratch, f.n);
     if (e.kind == LightKind::kDome) return dome_.Radiance(f.ToLightDir(dir), pdf);
     return distants_[e.index].Radiance(f.ToLightDir(dir), e.one_minus_cos, pdf);
 }

@@ -51,8 +51,7 @@ inline float TransformedPointError(const float* m, Vec3 p, float p_error) {
 
 }  // namespace
 
-Vec3 Scene::MeshVertex(const Mesh& mesh, uint32_t prim, int corner) const {
-    if (mesh.time_steps <= 1) return LocalVertex(mesh.positions, mesh.indices, prim, corner);
+Vec3 Scene::DeformedVertex(const Mesh& mesh, uint32_t prim, int corner) const {
     uint32_t k;
     float f;
     ShutterSegment(mesh.time_steps, &k, &f);
