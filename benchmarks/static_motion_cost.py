@@ -73,14 +73,16 @@ def instanced():
     cam = _core.Camera((10.5, 6.0, 8.0), (1, 0, 0), (0, 0.8, -0.6), (0, -0.6, -0.8), 0.8, 0.55, 96, 64)
     def run(spp):
         t = time.perf_counter()
-        _core.render_tile(scene, cam, 0, 0, 96, 64, spp, 0, 8, 2, 0, False, "path", None, "sobol", [], {}, None)
-        return time.perf_counter() - t
+        rgba, _ = _core.render_tile(scene, cam, 0, 0, 96, 64, spp, 0, 8, 2, 0, False, "path", None, "sobol", [],
+                                    {}, None)
+        return time.perf_counter() - t, rgba
     return run
 
 if case == "instanced":
     run = instanced()
     run(2)
-    print(json.dumps({"seconds": run(512)}))
+    seconds, rgba = run(512)
+    print(json.dumps({"seconds": seconds, "checksum": float(np.asarray(rgba, np.float64).sum())}))
 else:
     integrator, spp = case.split(":")
     scene = load_scene(sys.argv[3])
@@ -88,9 +90,11 @@ else:
     scene.render_tile(0, 0, 128, 128, width=128, height=128, spp=2, threads=2, integrator=integrator,
                       splats=splats())
     t = time.perf_counter()
-    scene.render_tile(0, 0, 128, 128, width=128, height=128, spp=int(spp), threads=2, integrator=integrator,
-                      splats=splats())
-    print(json.dumps({"seconds": time.perf_counter() - t}))
+    out = scene.render_tile(0, 0, 128, 128, width=128, height=128, spp=int(spp), threads=2, integrator=integrator,
+                            splats=splats())
+    seconds = time.perf_counter() - t
+    rgba = out[0] if isinstance(out, tuple) else out
+    print(json.dumps({"seconds": seconds, "checksum": float(np.asarray(rgba, np.float64).sum())}))
 """
 
 CASES = {"cornell path 64 spp": "path:64", "cornell bdpt 16 spp": "bdpt:16", "instanced path 512 spp": "instanced"}
@@ -125,13 +129,14 @@ def baseline_source(commit: str) -> Path:
     return src
 
 
-def measure(pkg: Path, case: str) -> float:
+def measure(pkg: Path, case: str) -> tuple[float, float]:
     # One BLAS thread: numpy's idle OpenBLAS workers otherwise spin beside the renderer.
     r = subprocess.run([sys.executable, "-c", _CHILD, str(pkg), case, str(CORNELL)],
                        capture_output=True, text=True, cwd=WORK, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
     if r.returncode != 0:
         sys.exit(f"{pkg.parent.name} {case} failed:\n{r.stderr[-3000:]}")
-    return json.loads(r.stdout.strip().splitlines()[-1])["seconds"]
+    got = json.loads(r.stdout.strip().splitlines()[-1])
+    return got["seconds"], got["checksum"]
 
 
 def main() -> None:
@@ -142,7 +147,7 @@ def main() -> None:
     WORK.mkdir(parents=True, exist_ok=True)
     base_commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", args.baseline], check=True,
                                  capture_output=True, text=True).stdout.strip()
-    head = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], check=True,
+    head = subprocess.run(["git", "-C", str(REPO), "describe", "--always", "--dirty"], check=True,
                           capture_output=True, text=True).stdout.strip()
     print(f"building the baseline {base_commit} and the candidate {head} (Release, _core only)", flush=True)
     sides = {"baseline": prepare_side("baseline", baseline_source(args.baseline), WORK / "baseline-build"),
@@ -153,7 +158,11 @@ def main() -> None:
     for r in range(args.repeats):
         order = list(sides) if r % 2 == 0 else list(sides)[::-1]
         for label, case in CASES.items():
-            got = {s: measure(sides[s], case) for s in order}
+            measured = {s: measure(sides[s], case) for s in order}
+            # The same scene, samples and sample streams: the same image, to the bit.
+            if measured["baseline"][1] != measured["candidate"][1]:
+                sys.exit(f"{label}: the two renderers' images differ ({measured})")
+            got = {s: m[0] for s, m in measured.items()}
             for s, v in got.items():
                 times[label][s].append(v)
             ratios[label].append(got["candidate"] / got["baseline"])
@@ -171,7 +180,8 @@ def main() -> None:
              f"{load_before:.1f} before, {load_after:.1f} after): the renderer at {head} (motion blur compiled "
              f"in) against {base_commit} (before the core had ray times, time steps or a per-sample instant), "
              f"both built Release with the same flags, on scenes that do not move. Each measurement a fresh "
-             f"process (scene load and a warm-up tile not timed); sides alternate within each of "
+             f"process (scene load and a warm-up tile not timed), the two images checked equal (pixel "
+             f"sums identical); sides alternate within each of "
              f"{args.repeats} repeats; ratio = candidate / baseline per repeat, median ± half-range.", "",
              "| scene | baseline | candidate | candidate / baseline |", "|---|---|---|---|"]
     for c in CASES:
