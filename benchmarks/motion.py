@@ -8,7 +8,10 @@
    the shutter). Per configuration: Scene build time (BVH builds), Embree's own memory,
    and the render time of one tile (path, 96 x 64, 32 spp, 2 threads). Configurations
    are interleaved within each repeat, and each moving figure is reported as the median
-   of its per-repeat ratios to the static one (± half-range).
+   of its per-repeat ratios to the static one (± half-range). The same instances standing
+   still over a deforming prototype (its vertices at T = 2, 9, 33 steps) give the cost of
+   deformation: build, Embree memory (one vertex buffer per step, a motion-blur BVH) and
+   render.
 2. Translation: a USD stage of 400 Xforms with time-sampled rotation, each holding a
    20 x 20 grid mesh, translated at frame 1 with the camera's shutter (moving instances
    with the steps usd/motion.py chooses) against the same frame with shutter (0, 0) (a
@@ -30,18 +33,20 @@ import time
 from common import OUT, summary
 
 STEPS = (2, 3, 9, 33, 129)
+DEFORM_STEPS = (2, 9, 33)
 
 _CHILD = r"""
 import json, sys, time
 import numpy as np
 from tessera_renderer import _core
 
-steps, n = int(sys.argv[1]), int(sys.argv[2])
+steps, n, mode = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
 
-def grid(q=224):
+def grid(q=224, u=0.0):
+    # u in [0, 1]: the wave travels a quarter of its period (a deforming surface).
     xs = np.linspace(-1, 1, q + 1, dtype=np.float32)
     x, z = np.meshgrid(xs, xs)
-    y = 0.1 * np.sin(6 * x) * np.cos(5 * z)
+    y = 0.1 * np.sin(6 * x + 0.5 * np.pi * u) * np.cos(5 * z)
     pts = np.stack([x, y, z], -1).reshape(-1, 3).astype(np.float32)
     i = np.arange(q)[None, :] + (q + 1) * np.arange(q)[:, None]
     a, b, c, d = i, i + 1, i + q + 2, i + q + 1
@@ -60,10 +65,14 @@ def placement(k, side, u):
 
 pts, tris = grid()
 side = int(np.ceil(np.sqrt(n)))
-extra = {"prototypes": [(pts, tris, np.zeros(len(tris), np.uint32), None, None)],
+deform = None
+if mode == "deform" and steps > 1:  # still instances of one prototype whose vertices move
+    pts = grid(u=0.0)[0]
+    deform = np.stack([grid(u=j / (steps - 1))[0] for j in range(1, steps)])
+extra = {"prototypes": [(pts, tris, np.zeros(len(tris), np.uint32), None, None, deform)],
          "instance_prototype": np.zeros(n, np.uint32),
          "instance_transforms": np.stack([placement(k, side, 0.5) for k in range(n)])}
-if steps > 1:
+if steps > 1 and mode == "rigid":
     extra.update(motion_instances=np.arange(n, dtype=np.uint32), motion_time_steps=np.full(n, steps, np.uint32),
                  motion_transforms=np.stack([placement(k, side, j / (steps - 1)) for k in range(n)
                                              for j in range(steps)]))
@@ -83,13 +92,13 @@ cam = _core.Camera(tuple(np.array([cx, 6.0, cz + 9.0])), tuple(right), tuple(up)
 _core.render_tile(scene, cam, 0, 0, 96, 64, 1, 0, 8, 2)  # warm-up
 t = time.perf_counter()
 _core.render_tile(scene, cam, 0, 0, 96, 64, 32, 0, 8, 2)
-print(json.dumps({"steps": steps, "build_s": build, "embree_bytes": _core.embree_memory_bytes() - emb0,
+print(json.dumps({"steps": steps, "mode": mode, "build_s": build, "embree_bytes": _core.embree_memory_bytes() - emb0,
                   "render_s": time.perf_counter() - t}))
 """
 
 
-def child(steps: int, n: int) -> dict:
-    r = subprocess.run([sys.executable, "-c", _CHILD, str(steps), str(n)], capture_output=True, text=True,
+def child(steps: int, n: int, mode: str = "rigid") -> dict:
+    r = subprocess.run([sys.executable, "-c", _CHILD, str(steps), str(n), mode], capture_output=True, text=True,
                        check=True)
     return json.loads(r.stdout.strip().splitlines()[-1])
 
@@ -147,9 +156,12 @@ def main() -> int:
     n = 8 if args.quick else 64
     load_before = os.getloadavg()[0]
     runs: dict[int, list[dict]] = {}
+    deforming: dict[int, list[dict]] = {}
     for _ in range(args.repeats):
         for steps in (1, *STEPS):
             runs.setdefault(steps, []).append(child(steps, n))
+        for steps in DEFORM_STEPS:
+            deforming.setdefault(steps, []).append(child(steps, n, "deform"))
     result: dict = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                                 "load_average_before": load_before}, "instances": n, "core": {}}
     for steps in (1, *STEPS):
@@ -159,6 +171,12 @@ def main() -> int:
             for f in ("build_s", "render_s"):
                 row[f + "_ratio"] = summary([r[f] / s[f] for r, s in zip(rs, runs[1])])
         result["core"][steps] = row
+    result["deforming"] = {}
+    for steps, rs in deforming.items():
+        row = {f: summary([r[f] for r in rs]) for f in ("build_s", "embree_bytes", "render_s")}
+        for f in ("build_s", "render_s", "embree_bytes"):
+            row[f + "_ratio"] = summary([r[f] / s[f] for r, s in zip(rs, runs[1])])
+        result["deforming"][steps] = row
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "spinning.usda")
         animated_stage(path, 40 if args.quick else 400)
@@ -190,6 +208,16 @@ def render_md(r: dict) -> str:
                      f"| {ratio('build_s_ratio')} | {row['embree_bytes']['median'] / 1e6:.1f} MB "
                      f"| {row['render_s']['median']:.3f} s ± {row['render_s']['half_range']:.3f} "
                      f"| {ratio('render_s_ratio')} |")
+    lines += ["", "## Deforming meshes", "",
+              "The same 64 still instances of one prototype whose vertices move (a wave travelling a quarter "
+              "period over the shutter: one Embree vertex buffer per time step), against the static row "
+              "above, per repeat.", "",
+              "| time steps | build / static | Embree memory | memory / static | render / static |",
+              "|---|---|---|---|---|"]
+    for steps, row in r.get("deforming", {}).items():
+        ratio = lambda f: f"{row[f]['median']:.2f} ± {row[f]['half_range']:.2f}"
+        lines.append(f"| {steps} | {ratio('build_s_ratio')} | {row['embree_bytes']['median'] / 1e6:.1f} MB "
+                     f"| {ratio('embree_bytes_ratio')} | {ratio('render_s_ratio')} |")
     t = r["translation"]
     lines += ["", "## Translation per frame", "",
               f"A stage of {t['moving_instances']} spinning Xforms (each a 20 x 20 grid, rotateY keyed every "

@@ -364,11 +364,13 @@ def test_render_frames_writes_one_numbered_image_per_frame(tmp_path):
     assert bad.returncode == 2 and "--frames: '3-1' must run upwards" in bad.stderr
 
 
-def test_point_instancer_velocities_give_the_closed_form_ramp(tmp_path):
+@pytest.mark.parametrize("codes_per_second", [24.0, 48.0])
+def test_point_instancer_velocities_give_the_closed_form_ramp(tmp_path, codes_per_second):
     """Two emitting quads of a PointInstancer: one with a velocity that slides it by
-    DISTANCE over the shutter (velocities are per second: 24 time codes), one still; each
-    row of quads is a closed form."""
+    DISTANCE over the shutter (velocities are per second: the stage's timeCodesPerSecond
+    time codes, 24 unless authored), one still; each row of quads is a closed form."""
     stage = _timed_stage(tmp_path / "instancer.usda")
+    stage.SetTimeCodesPerSecond(codes_per_second)
     glow = add_material(stage, "/Looks/Glow", diffuse=(0, 0, 0), emissive=(LE, LE, LE))
     pi = UsdGeom.PointInstancer.Define(stage, "/Points")
     quad = add_mesh(stage, "/Points/Protos/Quad", [(0, 0, -3), (1, 0, -3), (1, 0.75, -3), (0, 0.75, -3)], [4],
@@ -377,7 +379,7 @@ def test_point_instancer_velocities_give_the_closed_form_ramp(tmp_path):
     pi.CreateProtoIndicesAttr([0, 0])
     mid = X0 + 0.5 * DISTANCE
     pi.CreatePositionsAttr().Set([Gf.Vec3f(mid, 0.25, 0), Gf.Vec3f(mid, -1.0, 0)], 1.0)
-    pi.CreateVelocitiesAttr().Set([Gf.Vec3f(24.0 * DISTANCE, 0, 0), Gf.Vec3f(0, 0, 0)], 1.0)
+    pi.CreateVelocitiesAttr().Set([Gf.Vec3f(codes_per_second * DISTANCE, 0, 0), Gf.Vec3f(0, 0, 0)], 1.0)
     add_render_settings(stage, _ortho_camera(stage), (W, H))
     stage.GetRootLayer().Save()
     scene = load_scene(tmp_path / "instancer.usda")
