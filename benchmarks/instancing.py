@@ -28,6 +28,7 @@ import subprocess
 import sys
 
 from common import OUT, summary
+from shapes import child_env
 
 _CHILD = r"""
 import json, resource, sys, time
@@ -41,15 +42,7 @@ def vmrss():
         if line.startswith("VmRSS:"):
             return int(line.split()[1]) * 1024
 
-def grid(q=224):
-    xs = np.linspace(-1, 1, q + 1, dtype=np.float32)
-    x, z = np.meshgrid(xs, xs)
-    y = 0.1 * np.sin(6 * x) * np.cos(5 * z)
-    pts = np.stack([x, y, z], -1).reshape(-1, 3).astype(np.float32)
-    i = np.arange(q)[None, :] + (q + 1) * np.arange(q)[:, None]
-    a, b, c, d = i, i + 1, i + q + 2, i + q + 1
-    tris = np.concatenate([np.stack([a, d, c], -1), np.stack([a, c, b], -1)], 0).reshape(-1, 3).astype(np.uint32)
-    return pts, tris
+from shapes import wavy_grid as grid
 
 def transforms(n, seed=1):
     rng = np.random.default_rng(seed)
@@ -106,7 +99,7 @@ print(json.dumps(out))
 
 def child(mode: str, n: int, render: bool = False) -> dict:
     r = subprocess.run([sys.executable, "-c", _CHILD, mode, str(n), "1" if render else "0"],
-                       capture_output=True, text=True, check=True)
+                       capture_output=True, text=True, check=True, env=child_env())
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 

@@ -31,6 +31,7 @@ import tempfile
 import time
 
 from common import OUT, summary
+from shapes import child_env
 
 STEPS = (2, 3, 9, 33, 129)
 DEFORM_STEPS = (2, 9, 33)
@@ -42,16 +43,11 @@ from tessera_renderer import _core
 
 steps, n, mode = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
 
-def grid(q=224, u=0.0):
+from shapes import wavy_grid
+
+def grid(u=0.0):
     # u in [0, 1]: the wave travels a quarter of its period (a deforming surface).
-    xs = np.linspace(-1, 1, q + 1, dtype=np.float32)
-    x, z = np.meshgrid(xs, xs)
-    y = 0.1 * np.sin(6 * x + 0.5 * np.pi * u) * np.cos(5 * z)
-    pts = np.stack([x, y, z], -1).reshape(-1, 3).astype(np.float32)
-    i = np.arange(q)[None, :] + (q + 1) * np.arange(q)[:, None]
-    a, b, c, d = i, i + 1, i + q + 2, i + q + 1
-    tris = np.concatenate([np.stack([a, d, c], -1), np.stack([a, c, b], -1)], 0).reshape(-1, 3).astype(np.uint32)
-    return pts, tris
+    return wavy_grid(phase=0.5 * np.pi * u)
 
 def placement(k, side, u):
     # Row-vector matrices (USD's convention): a turn about y by 30 u degrees, a slide by 0.3 u.
@@ -99,7 +95,7 @@ print(json.dumps({"steps": steps, "mode": mode, "build_s": build, "embree_bytes"
 
 def child(steps: int, n: int, mode: str = "rigid") -> dict:
     r = subprocess.run([sys.executable, "-c", _CHILD, str(steps), str(n), mode], capture_output=True, text=True,
-                       check=True)
+                       check=True, env=child_env())
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 

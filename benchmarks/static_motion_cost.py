@@ -30,6 +30,7 @@ import sys
 from pathlib import Path
 
 from common import CORNELL, OUT, REPO, summary
+from shapes import child_env
 
 WORK = REPO / "build" / "bench-static"
 
@@ -44,18 +45,12 @@ import numpy as np
 import tessera_renderer
 assert tessera_renderer.__file__.startswith(sys.argv[1]), tessera_renderer.__file__
 from tessera_renderer import _core, load_scene
+from shapes import wavy_grid
 
 case = sys.argv[2]
 
 def instanced():
-    q = 224
-    xs = np.linspace(-1, 1, q + 1, dtype=np.float32)
-    x, z = np.meshgrid(xs, xs)
-    y = 0.1 * np.sin(6 * x) * np.cos(5 * z)
-    pts = np.stack([x, y, z], -1).reshape(-1, 3).astype(np.float32)
-    i = np.arange(q)[None, :] + (q + 1) * np.arange(q)[:, None]
-    a, b, c, d = i, i + 1, i + q + 2, i + q + 1
-    tris = np.concatenate([np.stack([a, d, c], -1), np.stack([a, c, b], -1)], 0).reshape(-1, 3).astype(np.uint32)
+    pts, tris = wavy_grid()
     mats = []
     for k in range(64):
         ang = np.radians(20.0 * k)
@@ -130,9 +125,8 @@ def baseline_source(commit: str) -> Path:
 
 
 def measure(pkg: Path, case: str) -> tuple[float, float]:
-    # One BLAS thread: numpy's idle OpenBLAS workers otherwise spin beside the renderer.
     r = subprocess.run([sys.executable, "-c", _CHILD, str(pkg), case, str(CORNELL)],
-                       capture_output=True, text=True, cwd=WORK, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+                       capture_output=True, text=True, cwd=WORK, env=child_env())
     if r.returncode != 0:
         sys.exit(f"{pkg.parent.name} {case} failed:\n{r.stderr[-3000:]}")
     got = json.loads(r.stdout.strip().splitlines()[-1])

@@ -68,6 +68,19 @@ def _ramp(x0: float, distance: float) -> np.ndarray:
     return LE * (hi - lo).mean(axis=1)
 
 
+def _assert_columns(mean, se, K, expected, frozen, scale):
+    """Each column's mean within its one-sample t limit (K - 1 degrees of freedom,
+    Bonferroni over the columns at 1e-3) of the closed form `expected`; every limit within
+    1 % of `scale`, so the negative controls -- the image scaled by 0.98, and the closed
+    form of the scene frozen at mid-shutter -- must fail."""
+    critical = stats.t.ppf(1 - 1e-3 / (2 * W), K - 1)
+    assert (critical * se <= 0.01 * scale).all(), critical * se / scale
+    fails = lambda values, wanted: np.abs(values - wanted) > np.maximum(critical * se, 1e-6)
+    assert not fails(mean, expected).any(), (mean, expected)
+    assert fails(0.98 * mean, expected).any(), "the 2 % negative control passed"
+    assert fails(mean, frozen).any(), "the scene frozen at mid-shutter passed"
+
+
 def _columns(scene, integrator, seeds, spp):
     runs = [render(scene, integrator=integrator, spp=spp, seed=s, variance=False).rgba[4:12, :, 0].mean(axis=0)
             for s in seeds]
@@ -82,13 +95,7 @@ def test_a_quad_keyed_to_slide_gives_the_closed_form_ramp(tmp_path, integrator):
     assert 0.1 * LE < ramp[4] < 0.9 * LE  # partly covered columns on both sides
     K = 24
     mean, se = _columns(scene, integrator, range(K), 256 if integrator == "path" else 128)
-    critical = stats.t.ppf(1 - 1e-3 / (2 * W), K - 1)
-    # Every column's limit is within 1 % of Le, so a 2 % error is found (controls below).
-    assert (critical * se <= 0.01 * LE).all(), critical * se
-    fails = lambda values, expected: np.abs(values - expected) > np.maximum(critical * se, 1e-6)
-    assert not fails(mean, ramp).any(), (mean, ramp)
-    assert fails(0.98 * mean, ramp).any(), "the 2 % negative control passed"
-    assert fails(mean, _ramp(X0 + 0.5 * DISTANCE, 0)).any(), "the frozen mid-shutter quad passed"
+    _assert_columns(mean, se, K, ramp, _ramp(X0 + 0.5 * DISTANCE, 0), LE)
 
 
 def test_shutter_override_and_frame_choose_the_interval(tmp_path):
@@ -320,14 +327,7 @@ def test_moving_lights_give_the_closed_form_irradiance(tmp_path, light):
     expected, frozen = _lit_columns(light, False), _lit_columns(light, True)
     K = 16
     mean, se = _columns(scene, "path", range(K), 256)
-    critical = stats.t.ppf(1 - 1e-3 / (2 * W), K - 1)
-    peak = expected.max()
-    # Every column's limit is within 1 % of the brightest column, so a 2 % error is found.
-    assert (critical * se <= 0.01 * peak).all(), critical * se / peak
-    fails = lambda values, wanted: np.abs(values - wanted) > np.maximum(critical * se, 1e-6)
-    assert not fails(mean, expected).any(), (mean, expected)
-    assert fails(0.98 * mean, expected).any(), "the 2 % negative control passed"
-    assert fails(mean, frozen).any(), "the light frozen at mid-shutter passed"
+    _assert_columns(mean, se, K, expected, frozen, expected.max())
 
 
 def test_a_stage_without_a_time_range_renders_its_default_time(tmp_path):
@@ -474,13 +474,7 @@ def test_a_mesh_keyed_to_stretch_gives_the_closed_form_coverage(tmp_path, integr
     frozen = _edges_ramp(-1.0 + slide / 2, -1.0 + slide / 2, 0.25 + slide / 2, 0.25 + slide / 2)
     K = 24
     mean, se = _columns(scene, integrator, range(K), 256 if integrator == "path" else 128)
-    critical = stats.t.ppf(1 - 1e-3 / (2 * W), K - 1)
-    # Every column's limit is within 1 % of Le, so a 2 % error is found (controls below).
-    assert (critical * se <= 0.01 * LE).all(), critical * se
-    fails = lambda values, wanted: np.abs(values - wanted) > np.maximum(critical * se, 1e-6)
-    assert not fails(mean, expected).any(), (mean, expected)
-    assert fails(0.98 * mean, expected).any(), "the 2 % negative control passed"
-    assert fails(mean, frozen).any(), "the frozen mid-shutter quad passed"
+    _assert_columns(mean, se, K, expected, frozen, LE)
 
 
 def test_deformation_steps_land_on_the_points_keys_and_travel_in_the_blob(tmp_path):
