@@ -41,6 +41,49 @@ def test_rect_light_seen_head_on_has_the_usdlux_radiance(tmp_path, kwargs, expec
     np.testing.assert_allclose(img[..., :3].reshape(-1, 3), np.tile(expected, (64, 1)), rtol=1e-6)
 
 
+# Four colours in the quadrants of an 8 x 8 image (rows top to bottom): top-left,
+# top-right, bottom-left, bottom-right.
+QUADRANTS = {"tl": (1.0, 0.5, 0.25), "tr": (0.2, 0.4, 0.8), "bl": (0.6, 0.6, 0.1), "br": (0.05, 0.9, 0.3)}
+
+
+def test_rect_light_texture_shows_upright_from_the_emitting_side_times_the_radiance(tmp_path):
+    """inputs:texture:file: the schema puts the image's top-left at the light's (+X, +Y)
+    and bottom-right at (-X, -Y), so the camera facing the light sees it upright and
+    unmirrored; each texel is multiplied by the light's radiance (intensity 2). A linear
+    EXR texture, and the light filling an orthographic view: each quadrant's inner pixels
+    see one texel colour exactly (a mirrored or flipped image puts another colour there)."""
+    from pxr import Sdf, Usd, UsdGeom, UsdRender
+
+    from tessera_base import images
+
+    tex = np.zeros((8, 8, 4), np.float32)
+    tex[:4, :4, :3], tex[:4, 4:, :3] = QUADRANTS["tl"], QUADRANTS["tr"]
+    tex[4:, :4, :3], tex[4:, 4:, :3] = QUADRANTS["bl"], QUADRANTS["br"]
+    tex[..., 3] = 1.0
+    images.write_exr(tmp_path / "glow.exr", tex)
+    path = write_rect_light_facing_camera(tmp_path / "rect.usda", width=2.0, height=2.0, intensity=2.0)
+    stage = Usd.Stage.Open(str(path))
+    UsdLux.RectLight(stage.GetPrimAtPath("/World/LightXf/Light")).CreateTextureFileAttr(Sdf.AssetPath("glow.exr"))
+    cam = UsdGeom.Camera(stage.GetPrimAtPath("/World/Camera"))
+    cam.CreateProjectionAttr(UsdGeom.Tokens.orthographic)
+    cam.GetHorizontalApertureAttr().Set(20.0)  # 2 units: exactly the light
+    cam.GetVerticalApertureAttr().Set(20.0)
+    UsdRender.Settings(stage.GetPrimAtPath("/Render/Settings")).GetResolutionAttr().Set(Gf.Vec2i(16, 16))
+    stage.Save()
+    scene = load_scene(path)
+    assert not any("texture" in w for w in scene.data.warnings), scene.data.warnings
+    img = scene.render_tile(0, 0, 16, 16, width=16, height=16, spp=16)
+    centre = {"tl": img[3:5, 3:5, :3], "tr": img[3:5, 11:13, :3], "bl": img[11:13, 3:5, :3], "br": img[11:13, 11:13, :3]}
+    for name, pixels in centre.items():
+        np.testing.assert_allclose(pixels.reshape(-1, 3), np.tile(2.0 * np.array(QUADRANTS[name]), (4, 1)),
+                                   rtol=1e-5, err_msg=name)
+    # A missing texture leaves the light its colour, with a warning naming the file.
+    (tmp_path / "glow.exr").unlink()
+    scene = load_scene(path)
+    assert any("glow.exr" in w and "missing" in w for w in scene.data.warnings), scene.data.warnings
+    np.testing.assert_allclose(scene.render_tile(0, 0, 16, 16, width=16, height=16, spp=4)[..., :3], 2.0, rtol=1e-6)
+
+
 def test_rect_light_does_not_emit_backwards(tmp_path):
     path = write_rect_light_facing_camera(tmp_path / "rect.usda")
     from pxr import Usd, UsdGeom

@@ -68,8 +68,9 @@ Scene::Scene(const SceneDesc& desc)
             if (t < -1 || t >= int64_t(textures_.size()))
                 throw std::invalid_argument("material " + std::to_string(m) + " refers to texture " +
                                             std::to_string(t) + " of " + std::to_string(textures_.size()));
-            // Textures drive UsdPreviewSurface inputs; a plain Lambertian has none to drive.
-            if (t >= 0 && !materials_[m].preview) materials_[m].textures[slot] = -1;
+            // Textures drive UsdPreviewSurface inputs; a plain Lambertian has none to drive
+            // but its emission (a RectLight's texture).
+            if (t >= 0 && !materials_[m].preview && slot != kSlotEmissiveColor) materials_[m].textures[slot] = -1;
         }
         material_has_textures_.push_back(materials_[m].textures != NoTextures());
         // Cutout by the material's own opacity, or possibly by its opacity texture (then

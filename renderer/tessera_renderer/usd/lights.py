@@ -88,12 +88,19 @@ class _LightReader:
         self.light_motion.append((kind, index, deltas))
 
 
-    def _emissive(self, prim, local_pts, tris, radiance, two_sided=False) -> None:
+    def _emissive(self, prim, local_pts, tris, radiance, two_sided=False, texture=None, uvs=None) -> None:
+        """Emitting triangles of an area light (in its own space), of `radiance`, or of
+        radiance x the texture's texel at the corners' st `uvs` (T, 3, 2)."""
         m = self.world_matrix(prim)
         surface = {"values": {**self.defaults, "diffuseColor": (0.0, 0.0, 0.0),
                               "emissiveColor": tuple(float(x) for x in radiance)}, "textures": {}}
+        if texture is not None:
+            # The core reads a texture in place of the constant: scaled by the radiance.
+            texture = {**texture, "scale": [*(float(x) for x in radiance), 1.0]}
+            surface["textures"] = {"emissiveColor": self.materials.add_texture(texture)}
         row = self.materials.add(surface, two_sided)
-        chunk = _Chunk(np.asarray(local_pts, np.float64), np.asarray(tris), np.full(len(tris), row, np.uint32))
+        chunk = _Chunk(np.asarray(local_pts, np.float64), np.asarray(tris), np.full(len(tris), row, np.uint32),
+                       uvs=None if texture is None else np.asarray(uvs, np.float32))
         mats = self.motion_steps(prim, chunk.points)  # area lights move as geometry does
         if mats is not None:
             self.add_moving_chunk(chunk, mats, str(prim.GetPath()))
@@ -106,17 +113,38 @@ class _LightReader:
         rect = UsdLux.RectLight(prim)
         w = read_float(rect.GetWidthAttr(), self.time)
         h = read_float(rect.GetHeightAttr(), self.time)
-        if rect.GetTextureFileAttr().Get(self.time):
-            self.warn(f"{prim.GetPath()}: RectLight texture is not supported yet; using its colour")
         # Wound so the geometric normal is local -Z, the emitting side.
         local = np.array([[-w / 2, -h / 2, 0], [-w / 2, h / 2, 0], [w / 2, h / 2, 0], [w / 2, -h / 2, 0]])
+        texture = self._rect_texture(prim, rect)
+        # The image seen from the emitting side, upright: its top-left corner at (+X, +Y)
+        # and bottom-right at (-X, -Y) (the schema's orientation); st's t runs up the image.
+        st = np.array([[1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [0.0, 0.0]])
         m = self.world_matrix(prim)
         world = local @ m[:3, :3] + m[3, :3]
         area = float(np.linalg.norm(np.cross(world[1] - world[0], world[3] - world[0])))
         if not (area > 0.0) or not np.isfinite(world).all():
             self.warn(f"{prim.GetPath()}: RectLight has no area; skipped")
             return
-        self._emissive(prim, local, [[0, 1, 2], [0, 2, 3]], self.light_radiance(prim, area))
+        tris = np.array([[0, 1, 2], [0, 2, 3]])
+        self._emissive(prim, local, tris, self.light_radiance(prim, area), texture=texture, uvs=st[tris])
+
+    def _rect_texture(self, prim, rect) -> dict | None:
+        """inputs:texture:file as an emissive texture (None without one, or when it is
+        missing: then the light keeps its colour, with the sandbox's warning)."""
+        import os
+
+        from pxr import Sdf
+
+        attr = rect.GetTextureFileAttr()
+        asset = attr.Get(self.time)
+        if not isinstance(asset, Sdf.AssetPath) or not asset.path:
+            return None
+        layer = _authoring_layer(attr)
+        return self._texture_from(
+            asset=asset, anchor=os.path.dirname(layer.realPath) if layer else None, where=str(prim.GetPath()),
+            input_name="emissiveColor", channel="rgb", fallback=[1.0, 1.0, 1.0, 1.0], wrap_s="clamp",
+            wrap_t="clamp", scale=[1.0, 1.0, 1.0, 1.0], bias=[0.0, 0.0, 0.0, 0.0], color_space="auto",
+            st_primvar=None, transform2d=None)
 
     def add_disk_light(self, prim) -> None:
         from pxr import UsdLux
