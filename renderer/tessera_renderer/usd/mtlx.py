@@ -13,14 +13,20 @@ in one of two ways, both read here with the same mapping:
 Surfaces mapped: standard_surface, open_pbr_surface and UsdPreviewSurface (the MaterialX
 node). Inputs may be constants or image / tiledimage / UsdUVTexture nodes (through node
 graphs, with a normalmap node for normals, and texcoord / geompropvalue /
-UsdPrimvarReader naming the UV set); anything else falls back to its default, noted.
+UsdPrimvarReader naming the UV set), and affine math on at most one image -- constant,
+multiply, divide (by a constant), add, subtract, mix (by a constant weight), convert,
+dot -- folded into that texture's scale and bias; anything else (two images combined,
+noise, ramps, ...) falls back to its default, noted.
 Defaults come from the MaterialX standard library's node definitions.
 """
 from __future__ import annotations
 
 import functools
 import os
+from dataclasses import dataclass
 from typing import Any, Callable
+
+import numpy as np
 
 # The UsdPreviewSurface input each shading model's inputs fill: (preview input, MaterialX
 # input, the constant weight multiplying it or None).
@@ -248,13 +254,105 @@ def _input(node, name, preview, width, make_texture, note):
             return None, None
         inner, output = nested
         scale, bias = [2.0, 2.0, 2.0, 1.0], [-1.0, -1.0, -1.0, 0.0]
+    affine = None
+    if inner.category in _AFFINE_CATEGORIES:
+        # Math on one image and constants folds into the texture's scale and bias.
+        affine = _affine(inner, note)
+        if affine is None:
+            return None, None
+        if affine.image is None:
+            return _fit(tuple(affine.bias[:max(width, 1)]), width), None
+        inner, scale, bias = affine.image, list(affine.scale), list(affine.bias)
     if inner.category not in _IMAGE_CATEGORIES:
-        note(f"MaterialX nodes other than image / tiledimage / normalmap are not evaluated; their "
-             f"inputs use the default ({inner.ident})")
+        note(f"MaterialX nodes other than image, tiledimage, normalmap, constant and affine math "
+             f"(multiply, divide, add, subtract, mix, convert, dot) are not evaluated; their inputs use "
+             f"the default ({inner.ident})")
         return None, None
     tex = _image(inner, preview, width, scale, bias, make_texture, note)
+    if tex is not None and affine is not None:
+        # A missing image gives its fallback through the same arithmetic.
+        tex["fallback"] = [f * a + b for f, a, b in zip(tex["fallback"], affine.scale, affine.bias)]
     fallback = tuple(tex["fallback"][:width]) if tex else None
     return (_fit(fallback, width) if fallback else None), tex
+
+
+@dataclass
+class _Affine:
+    """texel x scale + bias per channel (r, g, b, a) of one image node, or the constant
+    `bias` when `image` is None."""
+
+    image: Any
+    scale: np.ndarray
+    bias: np.ndarray
+
+
+_AFFINE_CATEGORIES = ("constant", "multiply", "divide", "add", "subtract", "mix", "convert", "dot")
+
+
+def _affine(node, note, depth: int = 0) -> _Affine | None:
+    """A node graph of constants, affine math and at most one image as an _Affine; None
+    (with a note) for anything else: two images, a textured divisor or mix weight, other
+    nodes (noise, ramps, ...) or a graph deeper than 64 nodes."""
+    cat = node.category
+    if cat in _IMAGE_CATEGORIES:
+        return _Affine(node, np.ones(4), np.zeros(4))
+    if cat not in _AFFINE_CATEGORIES or depth > 64:
+        note(f"MaterialX nodes other than image, tiledimage, normalmap, constant and affine math "
+             f"(multiply, divide, add, subtract, mix, convert, dot) are not evaluated; their inputs use "
+             f"the default ({node.ident})")
+        return None
+
+    def operand(name) -> _Affine | None:
+        src = node.source(name)
+        if src is not None:
+            return _affine(src[0], note, depth + 1)
+        value = node.value(name)
+        value = _as_tuple(value) if value is not None else _default(cat, node.type, name)
+        if not value:
+            return None
+        v = np.array(value[:4] if len(value) > 1 else value * 4, np.float64)
+        return _Affine(None, np.zeros(4), np.concatenate([v, np.zeros(4 - len(v))]))
+
+    def one_image(a: _Affine, b: _Affine):
+        if a.image is not None and b.image is not None:
+            note(f"MaterialX math combining two images is not evaluated; the input uses the default "
+                 f"({node.ident})")
+            return False, None
+        return True, a.image if a.image is not None else b.image
+
+    if cat in ("constant", "convert", "dot"):
+        return operand("value" if cat == "constant" else "in")
+    if cat == "mix":
+        fg, bg, m = operand("fg"), operand("bg"), operand("mix")
+        if fg is None or bg is None or m is None:
+            return None
+        if m.image is not None:
+            note(f"MaterialX mix weights from images are not evaluated; the input uses the default ({node.ident})")
+            return None
+        ok, image = one_image(fg, bg)
+        w = m.bias[0]
+        return _Affine(image, fg.scale * w + bg.scale * (1 - w), fg.bias * w + bg.bias * (1 - w)) if ok else None
+    a, b = operand("in1"), operand("in2")
+    if a is None or b is None:
+        return None
+    ok, image = one_image(a, b)
+    if not ok:
+        return None
+    if cat == "add":
+        return _Affine(image, a.scale + b.scale, a.bias + b.bias)
+    if cat == "subtract":
+        return _Affine(image, a.scale - b.scale, a.bias - b.bias)
+    if cat == "multiply":
+        if a.image is None:
+            a, b = b, a  # the image (if any) first; b is a constant
+        return _Affine(image, a.scale * b.bias, a.bias * b.bias)
+    # divide: by a constant with no zero channel among r, g, b.
+    if b.image is not None or not np.all(b.bias[:3] != 0):
+        note(f"MaterialX divisions by an image or by zero are not evaluated; the input uses the default "
+             f"({node.ident})")
+        return None
+    d = np.where(b.bias != 0, b.bias, 1.0)
+    return _Affine(image, a.scale / d, a.bias / d)
 
 
 def _image(node, preview, width, scale, bias, make_texture, note):

@@ -696,3 +696,58 @@ def test_render_child_honours_the_job_setting(tmp_path):
     unlit = _load({"scene_path": path, "default_light": False}, api)
     assert lit.render_tile(0, 0, 8, 8, width=8, height=8, spp=2)[4, 4, 0] > 0.2
     assert unlit.render_tile(0, 0, 8, 8, width=8, height=8, spp=2)[..., :3].max() == 0.0
+
+
+def test_materialx_math_on_an_image_folds_into_the_texture(tmp_path):
+    """Affine math a look builder writes around an image -- image x colour + colour, and a
+    mix of the image with a constant by a constant weight -- renders as that arithmetic on
+    the texel (emission seen head-on, the green texel (0, 1, 0)); two images multiplied are
+    not evaluated and say so."""
+    _four_texel_png(tmp_path / "four.png")
+    colour = Sdf.ValueTypeNames.Color3f
+
+    def scene_with(name: str, build) -> str:
+        stage = new_stage(tmp_path / f"{name}.usda")
+        mat = UsdShade.Material.Define(stage, "/Looks/M")
+        img = _mtlx_node(stage, "/Looks/M/img", "ND_image_color3")
+        img.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("./four.png")
+        img.GetInput("file").GetAttr().SetColorSpace("lin_rec709")
+        out = build(stage, img)
+        surf = _mtlx_node(stage, "/Looks/M/Surface", "ND_standard_surface_surfaceshader",
+                          base=(Sdf.ValueTypeNames.Float, 0.0), emission=(Sdf.ValueTypeNames.Float, 1.0),
+                          specular=(Sdf.ValueTypeNames.Float, 0.0))
+        surf.CreateInput("emission_color", colour).ConnectToSource(out.ConnectableAPI(), "out")
+        surf.CreateOutput("surface", Sdf.ValueTypeNames.Token)
+        mat.CreateSurfaceOutput("mtlx").ConnectToSource(surf.ConnectableAPI(), "surface")
+        mesh = _quad(stage, material=mat)
+        UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                UsdGeom.Tokens.vertex).Set([Gf.Vec2f(0.75, 0.75)] * 4)
+        return _save(stage)
+
+    def scaled_and_offset(stage, img):
+        mul = _mtlx_node(stage, "/Looks/M/mul", "ND_multiply_color3", in2=(colour, Gf.Vec3f(0.5, 0.25, 0.5)))
+        mul.CreateInput("in1", colour).ConnectToSource(img.ConnectableAPI(), "out")
+        add = _mtlx_node(stage, "/Looks/M/add", "ND_add_color3", in2=(colour, Gf.Vec3f(0.1, 0.2, 0.0)))
+        add.CreateInput("in1", colour).ConnectToSource(mul.ConnectableAPI(), "out")
+        return add
+
+    def mixed(stage, img):
+        mix = _mtlx_node(stage, "/Looks/M/mix", "ND_mix_color3", bg=(colour, Gf.Vec3f(1.0, 0.0, 0.0)),
+                         mix=(Sdf.ValueTypeNames.Float, 0.25))
+        mix.CreateInput("fg", colour).ConnectToSource(img.ConnectableAPI(), "out")
+        return mix
+
+    def squared(stage, img):
+        mul = _mtlx_node(stage, "/Looks/M/sq", "ND_multiply_color3")
+        for inp in ("in1", "in2"):
+            mul.CreateInput(inp, colour).ConnectToSource(img.ConnectableAPI(), "out")
+        return mul
+
+    # green x (0.5, 0.25, 0.5) + (0.1, 0.2, 0); 0.25 x green + 0.75 x red.
+    for name, build, want in (("affine", scaled_and_offset, (0.1, 0.45, 0.0)), ("mix", mixed, (0.75, 0.25, 0.0))):
+        scene = load_scene(scene_with(name, build))
+        assert not any("not evaluated" in w for w in scene.warnings), scene.warnings
+        img = scene.render_tile(0, 0, 16, 16, width=16, height=16, spp=2)
+        np.testing.assert_allclose(img[8, 8, :3], want, atol=0.01, err_msg=name)
+    warnings = translate_stage(scene_with("square", squared)).warnings
+    assert any("two images is not evaluated" in w for w in warnings), warnings
