@@ -442,7 +442,7 @@ def _rows(table, columns: int) -> np.ndarray:
 def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path | None = None,
                instancing: str = "auto", default_light: bool = True,
                subdivision_level: int | None = None, camera: str | None = None,
-               shutter: tuple[float, float] | None = None) -> Scene:
+               shutter: tuple[float, float] | None = None, variants=()) -> Scene:
     """Reads a bundle (.usda/.usdc/.usd, .usdz or .zip) through the sandbox and builds it.
     For a loose layer, `root` (default: its directory) is the bundle every asset must stay
     in; `root="/"` trusts the local filesystem (what `tessera render` does by default). `instancing`: "auto" (default: Embree instances, one BVH per prototype, unless
@@ -455,7 +455,8 @@ def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path
     camera, else the first camera, else a default view). `frame`: the time code to render
     (default: the stage's startTimeCode, else the default time); `shutter`: (open, close)
     offsets from it in time codes, in place of the camera's shutter:open/close ((0, 0): no
-    motion blur; docs/motion.md). Raises SceneError for bad input."""
+    motion blur; docs/motion.md). `variants`: (prim path, variant set, variant) selections in
+    place of the stage's own. Raises SceneError for bad input."""
     from .usd.subdivision import DEFAULT_LEVEL
 
     path = Path(path)
@@ -464,7 +465,7 @@ def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path
     data = translate_stage(str(path), frame, root=None if root is None else str(root),
                            instancing=instancing,
                            subdivision_level=DEFAULT_LEVEL if subdivision_level is None else subdivision_level,
-                           camera=camera, shutter=shutter)
+                           camera=camera, shutter=shutter, variants=tuple(variants))
     scene = Scene(data, default_light=default_light)
     for w in scene.warnings:
         log.warning("%s: %s", path.name, w)

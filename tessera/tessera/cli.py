@@ -69,10 +69,12 @@ def _render_one(args: argparse.Namespace) -> int:
     scene_path = Path(args.scene)
     output = Path(args.output) if args.output else Path(scene_path.stem + ".exr")
     try:
+        from tessera_base.protocol import parse_variant
+
         scene = load_scene(scene_path, frame=args.frame, root=_local_root(args),
                            default_light=not args.no_default_light,
                            subdivision_level=args.subdivision_level, camera=args.camera,
-                           shutter=args.shutter)
+                           shutter=args.shutter, variants=[parse_variant(v) for v in args.variants or ()])
     except SceneError as exc:
         hint = ("; if that folder is yours, let assets resolve within it with --root DIR, "
                 "or render without --sandbox"
@@ -231,6 +233,23 @@ def _add_camera_option(parser: argparse.ArgumentParser) -> None:
                              "view framing the scene; docs/scene-translation.md)")
 
 
+def _variant(text: str) -> str:
+    from tessera_base.protocol import parse_variant
+
+    try:
+        parse_variant(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def _add_variant_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--variant", dest="variants", action="append", type=_variant, default=None,
+                        metavar="PRIM:SET=VALUE",
+                        help="render with this variant selected, e.g. /Car:color=red (repeatable; in place "
+                             "of the stage's own selection; docs/scene-translation.md, \"Variants\")")
+
+
 def _shutter(text: str) -> tuple[float, float]:
     try:
         open_, close = (float(v) for v in text.split(","))
@@ -302,6 +321,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
                                       denoise=args.denoise or None,
                                       subdivision_level=args.subdivision_level, camera=args.camera,
                                       frame=args.frame, shutter=args.shutter, frames=args.frames,
+                                      variants=",".join(args.variants) if args.variants else None,
                                       crop=",".join(map(str, args.crop)) if args.crop else None,
                                       **_noise_target(args)).items() if v is not None}
     report = lambda line: print(line, file=sys.stderr)  # noqa: E731
@@ -491,6 +511,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_denoise_option(r)
     _add_subdivision_option(r)
     _add_camera_option(r)
+    _add_variant_option(r)
     _add_time_options(r, frames=True)
     r.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
                    help="write only this pixel region (X1, Y1 exclusive) as the EXR's data "
@@ -534,6 +555,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_denoise_option(m)
     _add_subdivision_option(m)
     _add_camera_option(m)
+    _add_variant_option(m)
     _add_time_options(m, frames=True)
     m.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
                    help="the EXR holds only this region (X1, Y1 exclusive) as its data window")

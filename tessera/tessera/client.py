@@ -96,7 +96,8 @@ class Client:
         tessera.render's; `priority` is 0-9 and any other job setting of POST /jobs
         (max_depth, tile_size, target_error, min_spp, max_spp, time_limit, max_attempts,
         default_light, denoise, crop, camera, subdivision_level, frame, shutter as (open,
-        close), frames as "1-24x2") passes through `settings`; with frames, the Job is the
+        close), frames as "1-24x2", variants as ["/Car:wheels=sedan", ...]) passes through
+        `settings`; with frames, the Job is the
         frame range's (Job.frames lists each frame's job)."""
         form: dict[str, Any] = dict(spp=spp, integrator=integrator, seed=seed, priority=priority, **settings)
         if res is not None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterable, Mapping
+from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
 
 if TYPE_CHECKING:  # numpy loads with the renderer, not on `import tessera`
     import numpy as np
@@ -83,12 +83,14 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
            variance: bool = True, threads: int = 0, progress: bool = False,
            frame: float | None = None, root: str | Path | None = None,
            default_light: bool = True, subdivision_level: int | None = None,
-           camera: str | None = None, shutter: tuple[float, float] | None = None) -> Image:
+           camera: str | None = None, shutter: tuple[float, float] | None = None,
+           variants: Sequence[str] = ()) -> Image:
     """Renders `scene` locally and returns the image.
 
     `scene` is a USD file or .zip/.usdz bundle path, or a scene already loaded with
     tessera_renderer.load_scene (then frame, root, default_light, subdivision_level, camera
-    and shutter are the loader's business). `frame` is the time code to render (default:
+    shutter and variants are the loader's business). `variants` select variants in place of
+    the stage's own, each `/Prim/Path:set=value`. `frame` is the time code to render (default:
     the stage's startTimeCode); `shutter` (open, close) replaces the camera's
     shutter:open/close, in time codes from the frame ((0, 0): no motion blur). `camera` is the path of the Camera prim to render
     through (default: the RenderSettings' camera, else the first camera, else a default
@@ -105,7 +107,7 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
     from tessera_base.protocol import RenderSettings
 
     loaded = _load(scene, frame=frame, root=root, default_light=default_light,
-                   subdivision_level=subdivision_level, camera=camera, shutter=shutter)
+                   subdivision_level=subdivision_level, camera=camera, shutter=shutter, variants=variants)
     width, height = res or (loaded.width, loaded.height)
     optional = dict(integrator=integrator, max_depth=max_depth, tile_size=tile_size,
                     target_error=target_error, min_spp=min_spp, max_spp=max_spp, time_limit=time_limit)
@@ -156,10 +158,15 @@ def render_scene(scene, settings, *, scene_name: str, threads: int = 0, progress
     return Image(result.rgba, layers, metadata)
 
 
-def _load(scene, *, frame, root, default_light, subdivision_level, camera, shutter=None):
+def _load(scene, *, frame, root, default_light, subdivision_level, camera, shutter=None, variants=()):
     if not isinstance(scene, (str, Path)):
         return scene
-    from tessera_renderer import load_scene
+    from tessera_base.protocol import parse_variant
+    from tessera_renderer import SceneError, load_scene
 
+    try:
+        selections = [parse_variant(v) for v in variants]
+    except ValueError as exc:
+        raise SceneError(str(exc)) from None
     return load_scene(scene, frame=frame, root=root, default_light=default_light,
-                      subdivision_level=subdivision_level, camera=camera, shutter=shutter)
+                      subdivision_level=subdivision_level, camera=camera, shutter=shutter, variants=selections)

@@ -100,6 +100,17 @@ def numbered_path(path: str, frame: int) -> str:
     return os.path.join(head, name[:run.start()] + number + name[run.end():])
 
 
+def parse_variant(text: str) -> tuple[str, str, str]:
+    """A variant selection as the CLI and the job setting write it, `/Prim/Path:set=value`,
+    as (prim path, variant set, variant). ValueError names what is wrong."""
+    import re
+
+    m = re.fullmatch(r"(/[^\s:=]*):([^\s:=/]+)=([^\s:=/]*)", text.strip())
+    if not m or m.group(1) != "/" and m.group(1).endswith("/"):
+        raise ValueError(f"variant {text!r} must be /Prim/Path:set=value (e.g. /Car:color=red)")
+    return m.group(1), m.group(2), m.group(3)
+
+
 class RenderSettings(BaseModel):
     """What to render. Resolution is final here (scene defaults already applied).
 
@@ -162,6 +173,19 @@ class RenderSettings(BaseModel):
         default=None,
         description="(open, close) in time codes from the frame, replacing the camera's "
                     "shutter:open/close; [0, 0] renders without motion blur (docs/motion.md)")
+
+    variants: list[str] | None = Field(
+        default=None, max_length=256,
+        description="variant selections to render with, each /Prim/Path:set=value, in place of the "
+                    "stage's own (docs/scene-translation.md, \"Variants\")")
+
+    @field_validator("variants")
+    @classmethod
+    def _variant_selections(cls, value):
+        if value is not None:
+            for text in value:
+                parse_variant(text)
+        return value or None
 
     @field_validator("shutter")
     @classmethod

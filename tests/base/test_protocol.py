@@ -363,3 +363,17 @@ def test_numbered_paths_put_the_frame_where_the_hashes_are():
     assert numbered_path("shot_##.exr", 123) == "shot_123.exr"
     assert numbered_path("out/shot.exr", 12) == "out/shot.0012.exr"
     assert numbered_path("dir.v2/shot.exr", -3) == "dir.v2/shot.-0003.exr"
+
+
+def test_variant_selections_are_prim_set_and_variant():
+    from tessera_base.protocol import parse_variant
+
+    assert parse_variant("/Car:wheels=sedan") == ("/Car", "wheels", "sedan")
+    assert parse_variant(" /World/Car_1:look=") == ("/World/Car_1", "look", "")  # "" clears the selection
+    for bad in ("Car:wheels=sedan", "/Car:wheels", "/Car/:wheels=sedan", "/Car:a=b=c", "/Car:a/b=c", "/Car wheels"):
+        with pytest.raises(ValueError, match="must be /Prim/Path:set=value"):
+            parse_variant(bad)
+    assert RenderSettings(width=8, height=8, variants=["/Car:wheels=sedan"]).variants == ["/Car:wheels=sedan"]
+    assert RenderSettings(width=8, height=8, variants=[]).variants is None
+    with pytest.raises(ValueError, match="must be /Prim/Path:set=value"):
+        RenderSettings(width=8, height=8, variants=["wheels=sedan"])

@@ -566,9 +566,14 @@ class Worker:
         frame, shutter = task.settings.frame, task.settings.shutter
         if frame is not None or shutter is not None:
             variant += ".t" + hashlib.sha256(repr((frame, shutter)).encode()).hexdigest()[:16]
+        # Other variant selections: another composed stage.
+        selections = [list(protocol.parse_variant(v)) for v in task.settings.variants or ()]
+        if selections:
+            variant += ".v" + hashlib.sha256(repr(selections).encode()).hexdigest()[:16]
         source = {"scene_key": f"{task.scene_hash}{variant}{suffix}", "scene_path": None,
                   "blob_path": None, "blob_out": None, "subdivision_level": level, "camera": camera,
-                  "frame": frame, "shutter": None if shutter is None else list(shutter)}
+                  "frame": frame, "shutter": None if shutter is None else list(shutter),
+                  "variants": selections}
         if blob_version is None:
             source["scene_path"] = self._scene_file(task)
             return source

@@ -17,6 +17,8 @@ Every rejection is a SceneError whose message names the offending path.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import os
 import re
 import shutil
@@ -487,18 +489,35 @@ def _check_dependency(bundle: Bundle, layer, authored: str, where: str) -> str |
     return str(bundle.check_asset(authored, os.path.dirname(real), what=where))
 
 
-def open_stage(bundle: Bundle):
+def open_stage(bundle: Bundle, variants: Sequence[tuple[str, str, str]] = ()):
     """Opens the pre-flighted root layer with search paths cleared, then checks that every
-    layer the composed stage used lies inside the bundle."""
-    from pxr import Ar, Tf, Usd
+    layer the composed stage used lies inside the bundle. `variants`, (prim path, variant
+    set, variant) each, select variants in a session layer, so the stage composes -- and
+    the checks see -- what they select."""
+    from pxr import Ar, Sdf, Tf, Usd
 
     _clear_search_paths()
+    session = Sdf.Layer.CreateAnonymous("variants.usda")
+    selections = []
+    for path, set_name, value in variants:
+        text = f"{path}:{set_name}={value}"
+        if not Sdf.Path.IsValidPathString(path) or not Sdf.Path(path).IsPrimPath():
+            raise SceneError(f"variant {text!r}: {path!r} is not a prim path")
+        Sdf.CreatePrimInLayer(session, path).variantSelections[set_name] = value
+        selections.append((text, path, set_name, value))
     try:
-        stage = Usd.Stage.Open(str(bundle.root_layer), Ar.DefaultResolverContext([]), Usd.Stage.LoadAll)
+        if selections:
+            root_layer = Sdf.Layer.FindOrOpen(str(bundle.root_layer))
+            stage = root_layer and Usd.Stage.Open(root_layer, session, Ar.DefaultResolverContext([]),
+                                                  Usd.Stage.LoadAll)
+        else:
+            stage = Usd.Stage.Open(str(bundle.root_layer), Ar.DefaultResolverContext([]), Usd.Stage.LoadAll)
     except Tf.ErrorException as exc:
         raise SceneError(f"cannot read USD file {bundle.root_layer.name}: {_error_text(exc, bundle.root)}") from None
     if stage is None:
         raise SceneError(f"cannot read USD file {bundle.root_layer.name}")
+    for text, path, set_name, value in selections:
+        _check_variant(stage, text, path, set_name, value)
     root = os.path.realpath(str(bundle.root))
     for layer in stage.GetUsedLayers():
         if layer.anonymous:
@@ -532,6 +551,23 @@ def open_stage(bundle: Bundle):
             continue  # usd-core has no .mtlx format; the translator reads such looks itself
         bundle.warnings.append(f"composition: {_first_line(user_terms(text, bundle.root))}")
     return stage
+
+
+def _check_variant(stage, text: str, path: str, set_name: str, value: str) -> None:
+    """A selection must name a prim of the composed stage, one of its variant sets and one
+    of that set's variants (or "" for none): else the render would silently be another."""
+    prim = stage.GetPrimAtPath(path)
+    if not prim or not prim.IsDefined():  # the selection's own "over" is no prim of the scene
+        raise SceneError(f"variant {text!r}: the stage has no prim {path}")
+    sets = prim.GetVariantSets()
+    if not sets.HasVariantSet(set_name):
+        names = sets.GetNames()
+        raise SceneError(f"variant {text!r}: {path} has no variant set {set_name!r} "
+                         f"({'its sets: ' + ', '.join(names) if names else 'it has none'})")
+    choices = sets.GetVariantSet(set_name).GetVariantNames()
+    if value and value not in choices:
+        raise SceneError(f"variant {text!r}: {path}'s set {set_name!r} has no variant {value!r} "
+                         f"(choices: {', '.join(choices)})")
 
 
 _search_cleared = False

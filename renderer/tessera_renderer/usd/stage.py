@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections import Counter
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -300,7 +301,8 @@ def translate_stage(path: str, frame: float | None = None, *, bundle=None, insta
                     default_light: bool = False, root: str | None = None,
                     camera_relative: bool = True,
                     subdivision_level: int = subdivision.DEFAULT_LEVEL, camera: str | None = None,
-                    shutter: tuple[float, float] | None = None) -> SceneData:
+                    shutter: tuple[float, float] | None = None,
+                    variants: Sequence[tuple[str, str, str]] = ()) -> SceneData:
     """Opens a USD file through the bundle sandbox and translates it. `instancing` is
     "flatten" (every instance copied into the flat arrays), "instances" (prototypes +
     instance transforms, prototypes kept out of the flat arrays; the core builds one BVH
@@ -314,12 +316,13 @@ def translate_stage(path: str, frame: float | None = None, *, bundle=None, insta
     render through instead of the RenderSettings' (or the first found). `frame` is the time
     code to render (default: the stage's startTimeCode, else the default time); `shutter`
     (open, close), offsets from it in time codes, replaces the camera's shutter:open/close
-    (usd/motion.py; (0, 0) renders without motion blur)."""
+    (usd/motion.py; (0, 0) renders without motion blur). `variants`, (prim path, variant
+    set, variant) each, are selected in place of the stage's own selections (bundle.open_stage)."""
     from . import bundle as bundle_mod
 
     if bundle is None:
         bundle = bundle_mod.open_bundle(path, root=root)
-    stage = bundle_mod.open_stage(bundle)
+    stage = bundle_mod.open_stage(bundle, variants)
     data = translate_opened_stage(stage, frame, bundle=bundle, instancing=instancing,
                                   default_light=default_light, camera_relative=camera_relative,
                                   subdivision_level=subdivision_level, camera=camera, shutter=shutter)

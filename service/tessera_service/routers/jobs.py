@@ -135,6 +135,10 @@ def create_job(
     shutter: Annotated[str, Form(description=(
         "OPEN,CLOSE in time codes from the frame, replacing the camera's shutter:open/close "
         "(0,0: no motion blur; docs/motion.md); empty: the camera's"))] = "",
+    variants: Annotated[str, Form(description=(
+        "comma-separated variant selections, each /Prim/Path:set=value, in place of the stage's "
+        "own (checked when a worker composes the stage: an unknown prim, set or variant fails "
+        "the job naming the choices)"))] = "",
     aovs: Annotated[str, Form(description="comma-separated extra EXR layers: albedo, normal, depth, "
                                           "spp, variance, or all (docs/aovs.md)")] = "",
     denoise: Annotated[bool, Form(description="add a denoised layer (denoised.R/G/B) and "
@@ -178,7 +182,8 @@ def create_job(
                   time_limit=time_limit, aovs=aovs, default_light=default_light, denoise=denoise,
                   integrator_params=_integrator_params_form(integrator_params),
                   subdivision_level=subdivision_level, camera=camera or None, frame=frame,
-                  shutter=_shutter_form(shutter))
+                  shutter=_shutter_form(shutter),
+                  variants=[v.strip() for v in variants.split(",") if v.strip()] or None)
     if crop.strip():
         params["crop"] = crop
     if integrator is None:

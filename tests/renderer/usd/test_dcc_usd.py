@@ -5,6 +5,8 @@ Files are either real ones from ../shared/scenes or small stages written here th
 what the named exporter writes; every image check is one a black or grey image fails."""
 from __future__ import annotations
 
+import re
+
 import math
 import zipfile
 from pathlib import Path
@@ -356,6 +358,53 @@ def test_missing_layer_of_the_selected_variant_or_a_sublayer_is_fatal(car_kit, t
     (tmp_path / "sub.usda").write_text('#usda 1.0\n(subLayers = [@./gone.usda@])\n')
     with pytest.raises(SceneError, match="gone.usda' is not in the bundle"):
         load_scene(tmp_path / "sub.usda")
+
+
+def test_a_render_selects_variants_and_says_what_it_cannot_select(car_kit, tmp_path):
+    """The kit's own file selects the tractor; a render may select another vehicle
+    (load_scene variants=, tessera render --variant) and then draws that one; a missing
+    layer becomes fatal when the render selects its variant; an unknown prim, set or
+    variant is refused naming the choices."""
+    import subprocess
+    import sys
+
+    from tessera_renderer import SceneError
+
+    vehicles = car_kit / "USD_Mini_Car_Kit" / "assets" / "vehicles"
+    scene_file = vehicles / "vehicleVariants.usda"
+    tractor = load_scene(scene_file, root=car_kit)
+    sedan = load_scene(scene_file, root=car_kit, variants=[("/vehicleVariant", "wheels", "sedan")])
+    assert tractor.num_triangles == 1988 and sedan.num_triangles not in (0, 1988)
+    # The sedan as a stronger layer selects it: the same triangles (the real kit's own data).
+    shot = tmp_path / "shot.usda"
+    shot.write_text(f'#usda 1.0\n(defaultPrim = "Car")\ndef "Car" (references = @{scene_file}@\n'
+                    '           variants = {string wheels = "sedan"})\n{}\n')
+    assert load_scene(shot, root="/").num_triangles == sedan.num_triangles
+    for variants, words in (([("/vehicleVariant", "wheels", "boat")], "has no variant 'boat' (choices: 4wd, amb"),
+                            ([("/vehicleVariant", "paint", "red")], "has no variant set 'paint' (its sets: wheels)"),
+                            ([("/Nowhere", "wheels", "sedan")], "the stage has no prim /Nowhere")):
+        with pytest.raises(SceneError, match=re.escape(words)):
+            load_scene(scene_file, root=car_kit, variants=variants)
+    import shutil
+    shutil.rmtree(vehicles / "ambulance")
+    assert load_scene(scene_file, root=car_kit).num_triangles == 1988  # unselected: information only
+    with pytest.raises(SceneError, match="ambulanceFullAsset.usda' is not in the bundle"):
+        load_scene(scene_file, root=car_kit, variants=[("/vehicleVariant", "wheels", "ambulance")])
+    # The CLI: --variant selects; a malformed one is refused before anything is read.
+    out = tmp_path / "sedan.exr"
+    r = subprocess.run([sys.executable, "-m", "tessera", "render", str(scene_file), "--root", str(car_kit),
+                        "--variant", "/vehicleVariant:wheels=sedan", "--spp", "1", "--res", "16x12", "-q",
+                        "-o", str(out)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    from tessera import render
+    from tessera_base import images
+    expected = render(str(scene_file), root=car_kit, variants=["/vehicleVariant:wheels=sedan"], res=(16, 12),
+                      spp=1).rgba  # tessera.render selects it the same way, bit for bit
+    np.testing.assert_array_equal(images.read_exr(out), expected)
+    assert not np.array_equal(expected, render(str(scene_file), root=car_kit, res=(16, 12), spp=1).rgba)
+    r = subprocess.run([sys.executable, "-m", "tessera", "render", str(scene_file), "--variant", "wheels=sedan"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "must be /Prim/Path:set=value" in r.stderr, r.stderr
 
 
 # -- 8. default camera: a tight three-quarter view ----------------------------------------
