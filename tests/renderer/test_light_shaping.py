@@ -55,6 +55,8 @@ def _render(tmp_path, theta_deg, name, **shaping):
                 api.CreateShapingFocusAttr(value)
             elif key == "tint":
                 api.CreateShapingFocusTintAttr(Gf.Vec3f(*value))
+            elif key == "angle_scale":
+                api.CreateShapingIesAngleScaleAttr(value)
     cam = add_camera(stage, "/Cam", (x, 0.5, 0), focal=1000.0, haperture=1.0, vaperture=1.0)
     UsdGeom.Xformable(cam.GetPrim()).AddRotateXOp().Set(-90.0)  # look straight down
     add_render_settings(stage, cam, (4, 4))
@@ -133,6 +135,21 @@ def test_ies_profile_shapes_by_its_candela(tmp_path, theta):
     assert _close(f, expected), (theta, f, expected)
     assert not any("IES" in w for w in warnings), warnings
     assert not _close(f, expected * 1.02)
+
+
+@pytest.mark.parametrize("theta", [0.0, 30.0])
+def test_ies_angle_scale_rescales_the_profile_about_180_degrees(tmp_path, theta):
+    """UsdLux's shaping:ies:angleScale (RenderMan's profile scale): the light's angle theta
+    reads the profile at (theta - 180) / (1 + angleScale) + 180 degrees. With 0.5 and the
+    cos downlight: theta 0 reads 60 degrees (0.5), theta 30 reads 80 (0.174)."""
+    _write_ies(tmp_path / "down.ies", lambda a: 1500.0 * math.cos(math.radians(a)))
+    expected = math.cos(math.radians((theta - 180.0) / 1.5 + 180.0))
+    f, warnings = _factor(tmp_path, theta, ies="./down.ies", angle_scale=0.5)
+    assert _close(f, expected), (theta, f, expected)
+    assert not any("angleScale" in w for w in warnings), warnings
+    assert not _close(f, expected * 1.02)
+    _, warnings = _factor(tmp_path, theta, ies="./down.ies", angle_scale=-1.0)
+    assert any("angleScale at or below -1" in w for w in warnings), warnings
 
 
 def test_ies_files_are_sandboxed_and_bad_ones_warn(tmp_path):

@@ -55,22 +55,32 @@ def parse_ies(text: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return v, h, cd
 
 
-def ies_profile(text: str, normalize: bool, note) -> np.ndarray:
-    """IES_SAMPLES factors over the angle off the axis (0 outside the file's angles)."""
+def ies_profile(text: str, normalize: bool, note, angle_scale: float = 0.0) -> np.ndarray:
+    """IES_SAMPLES factors over the angle off the axis (0 outside the file's angles).
+    `angle_scale` (shaping:ies:angleScale) rescales the profile's vertical angles about
+    180 degrees, as UsdLux specifies it (RenderMan's profile scale): the light's angle
+    theta reads the profile at (theta - 180) / (1 + angleScale) + 180 degrees; above 0 the
+    profile widens, below it narrows. Without normalizing the factors are the candela over
+    the file's peak; normalizing divides the rescaled profile by its mean over the sphere."""
     v, _, cd = parse_ies(text)
     mean = cd.mean(axis=0)
     if cd.shape[0] > 1 and np.abs(cd - mean).max() > 0.01 * max(mean.max(), 1e-30):
         note("IES profiles that vary with the horizontal angle are averaged over it (rotationally symmetric)")
     theta = np.arange(IES_SAMPLES, dtype=np.float64)
-    prof = np.interp(theta, v, mean, left=0.0, right=0.0) if len(v) > 1 else np.full(IES_SAMPLES, mean[0])
-    prof[(theta < v[0]) | (theta > v[-1])] = 0.0
+    if not (math.isfinite(angle_scale) and angle_scale > -1.0):
+        note("shaping:ies:angleScale at or below -1 (or not finite) is ignored")
+        angle_scale = 0.0
+    read_at = (theta - 180.0) / (1.0 + angle_scale) + 180.0
+    prof = np.interp(read_at, v, mean, left=0.0, right=0.0) if len(v) > 1 else np.full(IES_SAMPLES, mean[0])
+    prof[(read_at < v[0]) | (read_at > v[-1])] = 0.0
     if not prof.max() > 0:
         raise IesError("the profile emits nothing")
     if normalize:
         # Mean over the sphere: integral of f(theta) sin(theta) dtheta / 2.
         rad = np.radians(theta)
         return prof / (0.5 * np.trapz(prof * np.sin(rad), rad))
-    return prof / prof.max()
+    # Over the file's own peak: rescaling the angles moves the peak, it does not raise it.
+    return prof / max(float(mean.max()), float(prof.max()))
 
 
 def shaping_columns(translator, prim) -> list[float] | None:
@@ -111,12 +121,11 @@ def shaping_columns(translator, prim) -> list[float] | None:
         else:
             try:
                 ies = ies_profile(path.read_text(errors="replace"),
-                                  bool(api.GetShapingIesNormalizeAttr().Get(t)), translator._count_note)
+                                  bool(api.GetShapingIesNormalizeAttr().Get(t)), translator._count_note,
+                                  read_float(api.GetShapingIesAngleScaleAttr(), t))
             except (IesError, OSError) as err:
                 translator.warn(f"{where}: IES profile {asset.path!r} cannot be read ({err}); "
                                 f"the light is not shaped by it")
-        if read_float(api.GetShapingIesAngleScaleAttr(), t) != 0.0:
-            translator._count_note("shaping:ies:angleScale is ignored (profiles keep their angles)")
     if cutoff >= math.pi and focus == 0.0 and ies is None:
         return None
     m = translator.world_matrix(prim)
