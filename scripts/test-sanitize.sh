@@ -16,7 +16,8 @@
 # each under ASan). They run the BSDF, sampling and integrator code that the other tests
 # (reciprocity, robustness at extremes, per-lobe chi-square, the small furnaces and
 # agreement scenes) run under the sanitizers too, only with many more samples; the plain
-# ctest run still runs them. Likewise the five motion-blur renders (the sliding
+# ctest run still runs them (so does the shaped area light's path/light/bdpt agreement,
+# whose API-level sibling runs here). Likewise the five motion-blur renders (the sliding
 # emitter's, the sliding camera's and the deforming emitters' ramps, the moving lights'
 # irradiance and the blurred shadow, 3-27 s plain): Motion.IntegratorsWithAScenePass...
 # runs the moving-instance code, Motion.ADeformingEmitterIsSampledByItsAreaAtTheInstant the
@@ -33,6 +34,7 @@ SLOW_TESTS+=":Integrators.PathLightAndBidirectionalAgreeForEveryLightKind:Camera
 SLOW_TESTS+=":Motion.SlidingEmitterGivesTheClosedFormRampForEveryIntegratorThatSeesEmitters:Motion.BlurredShadowEqualsTheTimeAverageOfStaticShadows:Motion.ACameraSlidingPastAStillQuadSeesTheSameRampAsTheQuadSlidingPastIt"
 SLOW_TESTS+=":Motion.DeformingEmittersGiveTheClosedFormCoverageForEveryIntegratorThatSeesEmitters"
 SLOW_TESTS+=":Motion.MovingPointSphereAndDistantLightsGiveTheClosedFormIrradiance"
+SLOW_TESTS+=":AreaLightShaping.PathLightAndBidirectionalAgreeOnTheShapedPool"
 
 start=$(date +%s)
 echo "[sanitize] building the C++ tests with -fsanitize=$SANITIZERS ($BUILD)"

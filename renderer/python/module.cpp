@@ -45,6 +45,25 @@ using CameraPoses = nb::ndarray<const float, nb::shape<-1, 12>, nb::c_contig, nb
 using PointLightRows = nb::ndarray<const float, nb::shape<-1, -1>, nb::c_contig, nb::device::cpu>;
 constexpr size_t kShapedPointLightColumns = 17 + kIesSamples;
 
+// The shaping columns of light_shaping.h from column `first` of a row: shaped?, axis xyz,
+// cone cutoff and smooth start in radians, focus, focus tint rgb, has IES?, kIesSamples
+// IES factors (kShapingColumns in all).
+constexpr size_t kShapingColumns = 11 + kIesSamples;
+template <typename Column>
+LightShaping ShapingFromColumns(Column col, size_t first) {
+    LightShaping s;
+    if (col(first) == 0.f) return s;
+    s.enabled = true;
+    s.axis = Normalize(Vec3(col(first + 1), col(first + 2), col(first + 3)));
+    s.cutoff = col(first + 4);
+    s.smooth_start = col(first + 5);
+    s.focus = col(first + 6);
+    s.focus_tint = Vec3(col(first + 7), col(first + 8), col(first + 9));
+    if (col(first + 10) != 0.f)
+        for (int k = 0; k < kIesSamples; ++k) s.ies.push_back(col(first + 11 + k));
+    return s;
+}
+
 // Columns of the texture table (one row per texture), see the Scene docstring.
 constexpr size_t kTextureColumns = 22;
 
@@ -66,6 +85,7 @@ struct Extras {
     std::optional<InVector<uint32_t>> light_motion_indices;
     std::optional<InVector<uint32_t>> light_motion_time_steps;
     std::optional<Matrices> light_motion_transforms;
+    std::optional<PointLightRows> material_shaping;
 };
 
 WrapMode ToWrap(float v) {
@@ -188,6 +208,18 @@ void AddExtras(SceneDesc* d, const Extras& x) {
             for (int r = 0; r < 3; ++r)
                 for (int c = 0; c < 4; ++c) d->motion_transforms[12 * i + 4 * r + c] = (*x.motion_transforms)(i, c, r);
     }
+    if (x.material_shaping) {
+        // One row per material: the shaping of a shaped area light's emission (shaped? 0: none).
+        if (x.material_shaping->shape(0) != d->materials.size() || x.material_shaping->shape(1) != kShapingColumns)
+            throw std::invalid_argument("material_shaping needs one row of " + std::to_string(kShapingColumns) +
+                                        " shaping columns per material");
+        for (size_t m = 0; m < d->materials.size(); ++m) {
+            LightShaping s = ShapingFromColumns([&](size_t c) { return (*x.material_shaping)(m, c); }, 0);
+            if (!s.enabled) continue;
+            d->materials[m].emission_shaping = int32_t(d->emission_shapings.size());
+            d->emission_shapings.push_back(std::move(s));
+        }
+    }
     if (x.light_motion_kinds) {
         if (!x.light_motion_indices || !x.light_motion_time_steps || !x.light_motion_transforms)
             throw std::invalid_argument(
@@ -256,17 +288,7 @@ SceneDesc MakeDesc(InArray<float, 3> positions, InArray<uint32_t, 3> indices, In
     for (size_t i = 0; i < point_lights.shape(0); ++i) {
         auto col = [&](size_t c) { return point_lights(i, c); };
         PointLight light{Vec3(col(0), col(1), col(2)), Vec3(col(3), col(4), col(5))};
-        if (point_lights.shape(1) == kShapedPointLightColumns && col(6) != 0.f) {
-            LightShaping& s = light.shaping;
-            s.enabled = true;
-            s.axis = Normalize(Vec3(col(7), col(8), col(9)));
-            s.cutoff = col(10);
-            s.smooth_start = col(11);
-            s.focus = col(12);
-            s.focus_tint = Vec3(col(13), col(14), col(15));
-            if (col(16) != 0.f)
-                for (int k = 0; k < kIesSamples; ++k) s.ies.push_back(col(17 + k));
-        }
+        if (point_lights.shape(1) == kShapedPointLightColumns) light.shaping = ShapingFromColumns(col, 6);
         d.point_lights.push_back(light);
     }
     for (size_t i = 0; i < distant_lights.shape(0); ++i)
@@ -338,14 +360,15 @@ NB_MODULE(_core, m) {
                std::optional<InVector<uint8_t>> light_motion_kinds,
                std::optional<InVector<uint32_t>> light_motion_indices,
                std::optional<InVector<uint32_t>> light_motion_time_steps,
-               std::optional<Matrices> light_motion_transforms) {
+               std::optional<Matrices> light_motion_transforms, std::optional<PointLightRows> material_shaping) {
                 SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
                                           sphere_lights, point_lights, distant_lights, dome_radiance, preview_params,
                                           preview_mask, dome_texture, dome_world_to_light, shading_normals);
                 AddExtras(&desc, Extras{uvs, images, image_srgb, texture_table, texture_tiles, material_textures,
                                         prototypes, instance_prototype, instance_transforms, motion_instances,
                                         motion_time_steps, motion_transforms, light_motion_kinds,
-                                        light_motion_indices, light_motion_time_steps, light_motion_transforms});
+                                        light_motion_indices, light_motion_time_steps, light_motion_transforms,
+                                        material_shaping});
                 nb::gil_scoped_release release;
                 new (self) Scene(desc);
             },
@@ -359,6 +382,7 @@ NB_MODULE(_core, m) {
             "motion_instances"_a = nb::none(), "motion_time_steps"_a = nb::none(), "motion_transforms"_a = nb::none(),
             "light_motion_kinds"_a = nb::none(), "light_motion_indices"_a = nb::none(),
             "light_motion_time_steps"_a = nb::none(), "light_motion_transforms"_a = nb::none(),
+            "material_shaping"_a = nb::none(),
             "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
             "(x, y, z, r, g, b intensity W/sr, then optionally the shaping columns of light_shaping.h: "
             "shaped, axis xyz, cutoff, smooth start, focus, focus tint rgb, has IES, 181 IES factors); distant_lights (dx, dy, dz travel direction, half angle in "
@@ -385,7 +409,8 @@ NB_MODULE(_core, m) {
             "light_motion_indices[k] of kind light_motion_kinds[k] (uint8: 1 sphere, 2 point, 3 distant, 4 "
             "dome with index 0) moves rigidly through light_motion_time_steps[k] world-space transforms "
             "(light_motion_transforms float32 (total steps, 4, 4), row-vector convention) applied to it as "
-            "described above.")
+            "described above. material_shaping float32 (materials, 192): per material the shaping columns "
+            "of a point light (axis unused): a shaped area light's emission about its emitting normal.")
         .def_prop_ro("has_motion", &Scene::has_motion)
         .def_prop_ro("num_triangles", &Scene::num_triangles)
         .def_prop_ro("num_emitters", &Scene::num_emitters)

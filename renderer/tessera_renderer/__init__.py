@@ -56,6 +56,9 @@ class Scene:
             dome = getattr(data, "dome_light", None)
             textures = _texture_tables(data)
             extras = {**textures, **_instance_tables(data, with_uvs=bool(textures)), **_light_motion_tables(data)}
+            shaping = getattr(data, "material_shaping", None)
+            if shaping is not None:
+                extras["material_shaping"] = np.ascontiguousarray(shaping, np.float32)
             uvs = getattr(data, "uvs", None)
             if uvs is not None and len(uvs) and extras.get("texture_table") is not None:
                 extras["uvs"] = np.ascontiguousarray(uvs, dtype=np.float32).reshape(-1, 3, 2)

@@ -50,7 +50,8 @@ BLOB_VERSION = 1
 # motion over the camera's shutter (moving instances, motion_* arrays), and the stage's
 # startTimeCode as the render time when no frame is given; 9: deforming meshes (a
 # prototype's motion_positions), moving sphere, point, distant and dome lights
-# (light_motion_*), and still-time values that are not numbers refused.
+# (light_motion_*), still-time values that are not numbers refused, RectLight textures,
+# shaped Rect and Disk lights (material_shaping).
 TRANSLATOR_VERSION = 9
 _ALIGN = 64
 _LIGHT_MOTION_FIELDS = ("light_motion_kinds", "light_motion_indices", "light_motion_time_steps",
@@ -98,6 +99,8 @@ def scene_data_to_blob(data: SceneData) -> bytes:
         "motion_transforms": data.motion_transforms,
         **{k: getattr(data, k) for k in _LIGHT_MOTION_FIELDS},
     }
+    if getattr(data, "material_shaping", None) is not None:
+        arrays["material_shaping"] = data.material_shaping
     for key, value in data.material_params.items():
         arrays[f"material_params.{key}"] = value
     if data.shading_normals is not None:
@@ -241,6 +244,7 @@ def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
         motion_time_steps=arrays.get("motion_time_steps", np.zeros(0, np.uint32)),
         motion_transforms=arrays.get("motion_transforms", np.zeros((0, 4, 4), np.float32)),
         **{k: arrays[k] for k in _LIGHT_MOTION_FIELDS if k in arrays},
+        material_shaping=arrays.get("material_shaping"),
         time_code=meta.get("time_code"),
         shutter=None if meta.get("shutter") is None else tuple(meta["shutter"]))
     if tmp:

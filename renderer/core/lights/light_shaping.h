@@ -1,4 +1,5 @@
-// UsdLux ShapingAPI for point lights: a cone with a soft edge, focus, and an IES profile.
+// UsdLux ShapingAPI for point lights and one-sided area lights (about their emitting
+// normal): a cone with a soft edge, focus, and an IES profile.
 // A factor on the light's intensity per emission direction; the light is still sampled
 // uniformly (the factor changes what a direction carries, never which directions exist).
 #pragma once
@@ -23,9 +24,12 @@ struct LightShaping {
     Color focus_tint{0.f};      // what the focus falloff fades to
     std::vector<float> ies;     // kIesSamples factors over the angle off the axis, or empty
 
-    Color Factor(Vec3 w) const {
+    Color Factor(Vec3 w) const { return FactorAbout(axis, w); }
+
+    // The same about another unit axis: an area light's emitting normal where it emits.
+    Color FactorAbout(Vec3 about, Vec3 w) const {
         if (!enabled) return Color(1.f);
-        const float c = std::clamp(Dot(axis, w), -1.f, 1.f);
+        const float c = std::clamp(Dot(about, w), -1.f, 1.f);
         const float theta = std::acos(c);
         if (theta > cutoff) return Color(0.f);
         float f = 1.f;

@@ -54,6 +54,7 @@ int64_t EmbreeMemoryBytes() {
 
 Scene::Scene(const SceneDesc& desc)
     : materials_(desc.materials),
+      emission_shapings_(desc.emission_shapings),
       spheres_(desc.sphere_lights),
       points_(desc.point_lights),
       distants_(desc.distant_lights) {
@@ -73,6 +74,11 @@ Scene::Scene(const SceneDesc& desc)
             if (t >= 0 && !materials_[m].preview && slot != kSlotEmissiveColor) materials_[m].textures[slot] = -1;
         }
         material_has_textures_.push_back(materials_[m].textures != NoTextures());
+        if (materials_[m].emission_shaping < -1 ||
+            materials_[m].emission_shaping >= int64_t(emission_shapings_.size()))
+            throw std::invalid_argument("material " + std::to_string(m) + " refers to emission shaping " +
+                                        std::to_string(materials_[m].emission_shaping) + " of " +
+                                        std::to_string(emission_shapings_.size()));
         // Cutout by the material's own opacity, or possibly by its opacity texture (then
         // decided per hit in IsCutoutHit).
         const auto& pv = materials_[m].preview;

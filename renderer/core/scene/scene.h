@@ -55,6 +55,9 @@ struct Material {
     std::optional<MaterialParams> preview;
     // Texture index per TextureSlot (-1: the constant above). Only preview materials use them.
     std::array<int32_t, kNumTextureSlots> textures = NoTextures();
+    // A shaped area light (UsdLux ShapingAPI on a Rect or Disk light): its emission times
+    // SceneDesc::emission_shapings[emission_shaping] about the emitting normal; -1: none.
+    int32_t emission_shaping = -1;
 };
 
 // A triangle mesh as flat arrays: the world's, or an instancing prototype's (in its own space).
@@ -107,6 +110,7 @@ struct SceneDesc {
     std::vector<uint32_t> light_motion_time_steps;
     std::vector<float> light_motion_transforms;
     std::vector<Material> materials;
+    std::vector<LightShaping> emission_shapings;  // Material::emission_shaping (axes unused)
     std::vector<SphereLight> sphere_lights;
     std::vector<PointLight> point_lights;
     std::vector<DistantLight> distant_lights;
@@ -418,6 +422,11 @@ private:
     std::vector<uint8_t> material_has_textures_;  // some slot other than -1: evaluate per hit
     bool has_cutouts_ = false;
     std::vector<Material> materials_;
+    std::vector<LightShaping> emission_shapings_;
+    // The shaping of a triangle emitter's material about its emitting normal n, toward w.
+    Color EmissionShaping(const Material& m, Vec3 n, Vec3 w) const {
+        return m.emission_shaping < 0 ? Color(1.f) : emission_shapings_[m.emission_shaping].FactorAbout(n, w);
+    }
     std::vector<SphereLight> spheres_;
     std::vector<PointLight> points_;
     std::vector<DistantLight> distants_;

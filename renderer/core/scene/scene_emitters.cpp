@@ -41,7 +41,8 @@ Color Scene::Emitted(int32_t emitter, const SurfaceHit& hit, Vec3 wo) const {
     if (e.kind == LightKind::kSphere) return spheres_[e.index].radiance;
     const Material& m = MaterialOf(e.mesh, e.index);
     if (!m.two_sided_emission && !(Dot(hit.ng, wo) > 0.f)) return Color(0.f);
-    return TriangleEmission(e.mesh, e.index, hit.b1, hit.b2);
+    const Color Le = TriangleEmission(e.mesh, e.index, hit.b1, hit.b2);
+    return m.emission_shaping < 0 ? Le : Le * EmissionShaping(m, Dot(hit.ng, wo) >= 0.f ? hit.ng : -hit.ng, wo);
 }
 
 TriangleLight Scene::TriangleLightOf(const Emitter& e) const {
@@ -79,9 +80,16 @@ bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) 
             out->wi = f.ToWorldDir(out->wi);
             return true;
         case LightKind::kSphere: return SphereAt(e.index).Sample(ref, u, out);
-        case LightKind::kTriangle:
-            return TriangleLightOf(e).Sample(
-                ref, u, [&](float b1, float b2) { return TriangleEmission(e.mesh, e.index, b1, b2); }, out);
+        case LightKind::kTriangle: {
+            if (!TriangleLightOf(e).Sample(
+                    ref, u, [&](float b1, float b2) { return TriangleEmission(e.mesh, e.index, b1, b2); }, out))
+                return false;
+            const Material& m = MaterialOf(e.mesh, e.index);
+            if (m.emission_shaping >= 0)  // toward ref, about the side it faces
+                out->radiance = out->radiance * EmissionShaping(m, Dot(out->n, out->wi) <= 0.f ? out->n : -out->n,
+                                                                -out->wi);
+            return true;
+        }
     }
     return false;
 }
@@ -90,10 +98,19 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
     const Emitter& e = emitters_[emitter];
     out->on_surface = false;
     switch (e.kind) {
-        case LightKind::kTriangle:
-            return TriangleLightOf(e).SampleEmission(
-                u_pos, u_dir, u_side, [&](float b1, float b2) { return TriangleEmission(e.mesh, e.index, b1, b2); },
-                out);
+        case LightKind::kTriangle: {
+            if (!TriangleLightOf(e).SampleEmission(
+                    u_pos, u_dir, u_side,
+                    [&](float b1, float b2) { return TriangleEmission(e.mesh, e.index, b1, b2); }, out))
+                return false;
+            const Material& m = MaterialOf(e.mesh, e.index);
+            if (m.emission_shaping >= 0) {  // out->n is the side it leaves from
+                const Color f = EmissionShaping(m, out->n, out->wo);
+                out->beta = out->beta * f;
+                out->Le = out->Le * f;
+            }
+            return true;
+        }
         case LightKind::kSphere: return SphereAt(e.index).SampleEmission(u_pos, u_dir, e.area, out);
         case LightKind::kPoint: {
             if (!points_[e.index].SampleEmission(u_dir, out)) return false;

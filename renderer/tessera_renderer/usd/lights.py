@@ -38,9 +38,9 @@ class _LightReader:
             radiance = radiance / area
         if not np.isfinite(radiance).all() or (radiance < 0).any():
             raise SceneError(f"{prim.GetPath()}: light radiance {radiance.tolist()} must be finite and >= 0")
-        if prim.HasAPI(UsdLux.ShapingAPI) and prim.GetTypeName() not in ("SphereLight",):
-            self._count_note("UsdLux ShapingAPI (cone, focus, IES) on Rect, Disk, Cylinder and Distant "
-                             "lights is ignored: they emit unshaped")
+        if prim.HasAPI(UsdLux.ShapingAPI) and prim.GetTypeName() not in ("SphereLight", "RectLight", "DiskLight"):
+            self._count_note("UsdLux ShapingAPI (cone, focus, IES) on Cylinder and Distant lights is ignored: "
+                             "they emit unshaped")
         return radiance
 
     def add_light(self, prim, type_name: str) -> None:
@@ -88,12 +88,17 @@ class _LightReader:
         self.light_motion.append((kind, index, deltas))
 
 
-    def _emissive(self, prim, local_pts, tris, radiance, two_sided=False, texture=None, uvs=None) -> None:
+    def _emissive(self, prim, local_pts, tris, radiance, two_sided=False, texture=None, uvs=None,
+                  shaped=False) -> None:
         """Emitting triangles of an area light (in its own space), of `radiance`, or of
-        radiance x the texture's texel at the corners' st `uvs` (T, 3, 2)."""
+        radiance x the texture's texel at the corners' st `uvs` (T, 3, 2). `shaped`: its
+        ShapingAPI (light_shaping) shapes the emission about the emitting normal."""
         m = self.world_matrix(prim)
         surface = {"values": {**self.defaults, "diffuseColor": (0.0, 0.0, 0.0),
                               "emissiveColor": tuple(float(x) for x in radiance)}, "textures": {}}
+        columns = light_shaping.shaping_columns(self, prim) if shaped else None
+        if columns is not None:
+            surface["shaping"] = tuple(float(c) for c in columns)
         if texture is not None:
             # The core reads a texture in place of the constant: scaled by the radiance.
             texture = {**texture, "scale": [*(float(x) for x in radiance), 1.0]}
@@ -126,7 +131,8 @@ class _LightReader:
             self.warn(f"{prim.GetPath()}: RectLight has no area; skipped")
             return
         tris = np.array([[0, 1, 2], [0, 2, 3]])
-        self._emissive(prim, local, tris, self.light_radiance(prim, area), texture=texture, uvs=st[tris])
+        self._emissive(prim, local, tris, self.light_radiance(prim, area), texture=texture, uvs=st[tris],
+                       shaped=True)
 
     def _rect_texture(self, prim, rect) -> dict | None:
         """inputs:texture:file as an emissive texture (None without one, or when it is
@@ -157,7 +163,7 @@ class _LightReader:
             self.warn(f"{prim.GetPath()}: DiskLight has no area; skipped")
             return
         pts, tris = gprims.disk_light(r)
-        self._emissive(prim, pts, tris, self.light_radiance(prim, area))
+        self._emissive(prim, pts, tris, self.light_radiance(prim, area), shaped=True)
 
     def add_cylinder_light(self, prim) -> None:
         from pxr import UsdLux

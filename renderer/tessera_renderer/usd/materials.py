@@ -43,12 +43,13 @@ class _MaterialTable:
 
     def add(self, surface: dict, two_sided: bool) -> int:
         preview = bool(surface.get("preview", False))
+        shaping = surface.get("shaping")  # a shaped area light's columns (light_shaping)
         key = (tuple(sorted((k, v) for k, v in surface["values"].items())),
-               tuple(sorted(surface["textures"].items())), bool(two_sided), preview)
+               tuple(sorted(surface["textures"].items())), bool(two_sided), preview, shaping)
         if key not in self._index:
             self._index[key] = len(self.rows)
             self.rows.append({"values": surface["values"], "textures": surface["textures"],
-                              "two_sided": bool(two_sided), "preview": preview})
+                              "two_sided": bool(two_sided), "preview": preview, "shaping": shaping})
         return self._index[key]
 
 

@@ -93,6 +93,9 @@ class SceneData:
     light_motion_indices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint32))
     light_motion_time_steps: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint32))
     light_motion_transforms: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4), np.float32))
+    # Shaped area lights (UsdLux ShapingAPI on Rect and Disk lights): per material row the
+    # shaping columns of usd/light_shaping.py (axis unused: the emitting normal is), or None.
+    material_shaping: np.ndarray | None = None
     # The time code rendered (None: the default time) and the shutter interval around it
     # in absolute time codes (None: no motion blur).
     time_code: float | None = None
@@ -425,6 +428,10 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     albedo = np.array([r["values"]["diffuseColor"] for r in rows], dtype=np.float32).reshape(-1, 3)
     emission = np.array([r["values"]["emissiveColor"] for r in rows], dtype=np.float32).reshape(-1, 3)
     two_sided = np.array([r["two_sided"] for r in rows], dtype=bool)
+    material_shaping = None
+    if any(r.get("shaping") for r in rows):  # shaped area lights: a shaping row per material
+        material_shaping = np.array([r.get("shaping") or light_shaping.unshaped_columns() for r in rows],
+                                    np.float32)
     params = {"specular_color": np.array([r["values"]["specularColor"] for r in rows], np.float32).reshape(-1, 3)}
     for usd_name, key in _SCALAR_INPUTS.items():
         params[key] = np.array([r["values"][usd_name][0] for r in rows], np.float32)
@@ -481,6 +488,7 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
                      meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)), up_axis=str(up_axis),
                      world_offset=camera_offset, default_lights=default_lights,
                      motion_instances=motion_instances, motion_time_steps=motion_time_steps, **light_motion,
+                     material_shaping=material_shaping,
                      motion_transforms=motion_transforms,
                      time_code=None if time.IsDefault() else float(time.GetValue()),
                      shutter=None if tr.shutter is None else (tr.shutter.open, tr.shutter.close))

@@ -243,7 +243,8 @@ def test_arnold_disk_light_radiance_follows_its_animated_attributes(frame):
 def test_tessera_render_widens_the_sandbox_only_with_root(tmp_path, capsys):
     """rect.usda's lights name ../ies/... (outside its data/ folder): `tessera render
     --sandbox` refuses it, naming the path and the --root option, and renders it with --root
-    set to the scene's project folder (the IES profile itself is ignored with a warning).
+    set to the scene's project folder (its lights' cones shape them; the IES profile, missing
+    upstream, is named in a warning).
     (Without --sandbox a local render trusts the files: tests/renderer/usd/test_packing.py.)"""
     from tessera_base import images
     from tessera.cli import main
@@ -255,6 +256,8 @@ def test_tessera_render_widens_the_sandbox_only_with_root(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "../ies/bega_omni002_4777lm.ies" in err and "--root" in err and not out.exists()
     assert main(args + ["--root", str(project)]) == 0
-    assert "ShapingAPI" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "missing from the bundle, rendered without them: ../ies/bega_omni002_4777lm.ies" in err, err
+    assert "ShapingAPI" not in err, err  # Rect lights are shaped now: nothing ignored
     image = images.read_exr(out)
     assert image.shape == (12, 16, 4) and np.isfinite(image).all() and image[..., :3].max() > 0
