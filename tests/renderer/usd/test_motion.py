@@ -168,6 +168,12 @@ def _rotating_scene(path, *, frozen_at=None):
     op.Set(0.0, 0.5)
     op.Set(60.0, 1.5)
     add_mesh(stage, "/Tilt/Plate", [(-1, 0, 1), (1, 0, 1), (1, 0, -1), (-1, 0, -1)], [4], [0, 1, 2, 3], grey)
+    return _sunlit_from_above(stage, black, path)
+
+
+def _sunlit_from_above(stage, black, path):
+    """A black floor below, a sun from straight above (illuminance 3), and an orthographic
+    camera looking down -y over 7 x 3.5 units (32 x 16) with the shutter around frame 1."""
     add_mesh(stage, "/Floor", [(-50, -5, 50), (50, -5, 50), (50, -5, -50), (-50, -5, -50)], [4], [0, 1, 2, 3], black)
     sun = UsdLux.DistantLight.Define(stage, "/Sun")
     sun.AddRotateXOp().Set(-90.0)  # emits along -y
@@ -245,19 +251,7 @@ def _tent_scene(path):
     tent = add_mesh(stage, "/Tent", corners + [(0, 0, 0)], [3] * 4, tris, grey)
     for t, h in ((0.5, 0.0), (1.5, 1.5)):
         tent.GetPointsAttr().Set([Gf.Vec3f(*c) for c in corners] + [Gf.Vec3f(0, h, 0)], t)
-    add_mesh(stage, "/Floor", [(-50, -5, 50), (50, -5, 50), (50, -5, -50), (-50, -5, -50)], [4], [0, 1, 2, 3], black)
-    sun = UsdLux.DistantLight.Define(stage, "/Sun")
-    sun.AddRotateXOp().Set(-90.0)  # emits along -y
-    sun.CreateIntensityAttr(3.0)
-    sun.CreateAngleAttr(0.0)
-    cam = add_camera(stage, "/Cam", (0, 10, 0), haperture=70, vaperture=35)
-    UsdGeom.Xformable(cam).AddRotateXOp().Set(-90.0)
-    cam.CreateProjectionAttr(UsdGeom.Tokens.orthographic)
-    cam.CreateShutterOpenAttr(-0.5)
-    cam.CreateShutterCloseAttr(0.5)
-    add_render_settings(stage, cam, (32, 16))
-    stage.GetRootLayer().Save()
-    return path
+    return _sunlit_from_above(stage, black, path)
 
 
 @pytest.mark.slow
