@@ -179,7 +179,7 @@ def test_submit_uses_scene_resolution_and_creates_tiles(api, redis_client):
                                   "integrator": "path", "integrator_params": {}, "aovs": [],
                                   "default_light": True, "denoise": False, "crop": None,
                                   "subdivision_level": None, "camera": None,
-                                  "frame": None, "shutter": None}
+                                  "frame": None, "shutter": None, "variants": None}
     assert status["priority"] == protocol.DEFAULT_PRIORITY
     # One queue entry per tile, and the job is ready to be served.
     assert redis_client.xlen(rdb.job_queue_key(job["id"])) == 36
