@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -74,6 +75,24 @@ class Process:
     def stop(self, timeout: float = 10.0) -> None:
         stop_processes([self.popen], timeout)
         self._log.close()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Debian's chromium, headless, driven by selenium (a real browser for web pages)."""
+    webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is in the test extras")
+    chromium, chromedriver = "/usr/bin/chromium", "/usr/bin/chromedriver"
+    assert shutil.which(chromium) and shutil.which(chromedriver), (
+        "the browser tests need Debian's chromium and chromium-driver (scripts/setup.sh)")
+    options = webdriver.ChromeOptions()
+    options.binary_location = chromium
+    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu",
+                "--window-size=1280,1400", "--force-color-profile=srgb", "--no-first-run"):
+        options.add_argument(arg)
+    driver = webdriver.Chrome(options=options,
+                              service=webdriver.ChromeService(executable_path=chromedriver))
+    yield driver
+    driver.quit()
 
 
 @pytest.fixture(scope="module")

@@ -617,7 +617,7 @@ def build_parser() -> argparse.ArgumentParser:
     pv.add_argument("scene", help=".usda/.usdc/.usdz file")
     pv.add_argument("--res", type=_resolution, default=(256, 256), help="WxH of the frames (default 256x256)")
     pv.add_argument("--threads", type=_positive, default=2, help="render threads (default 2)")
-    pv.add_argument("--port", type=int, default=8765, help="localhost port of the view (default 8765)")
+    pv.add_argument("--port", type=int, default=8765, help="localhost port of the view (default 8765; 0 takes a free one)")
     pv.add_argument("--frames", type=_positive, default=None,
                     help="no server: render N frames along an orbit and print the frame rate")
     pv.add_argument("--integrator-param", dest="integrator_params", action="append", default=None,

@@ -92,10 +92,11 @@ const c = document.getElementById('c'), g = c.getContext('2d');
 let yaw = 0, pitch = 0, zoom = 1, busy = false, dirty = true, last = null;
 async function draw() {
   if (busy || !dirty) return; busy = true; dirty = false;
-  const t = performance.now();
-  const r = await fetch(`/frame?yaw=${yaw}&pitch=${pitch}&zoom=${zoom}`);
+  const t = performance.now(), view = `yaw=${yaw}&pitch=${pitch}&zoom=${zoom}`;
+  const r = await fetch(`/frame?${view}`);
   const px = new Uint8ClampedArray(await r.arrayBuffer());
   g.putImageData(new ImageData(px, %(w)d, %(h)d), 0, 0);
+  c.dataset.view = view;  // the view the canvas shows (read by tests and scripts)
   document.getElementById('fps').textContent = (1000 / (performance.now() - t)).toFixed(1) + ' frames/s';
   busy = false; draw();
 }
@@ -110,7 +111,8 @@ draw();
 
 
 def serve(preview: RadiosityPreview, host: str = "127.0.0.1", port: int = 8765) -> None:
-    """Serves the page and its frames (raw sRGB RGBA8 bytes) until interrupted."""
+    """Serves the page and its frames (raw sRGB RGBA8 bytes) until interrupted; port 0 takes
+    a free port, and the line printed once the server listens names the one taken."""
 
     class Handler(http.server.BaseHTTPRequestHandler):
         def do_GET(self):
@@ -147,7 +149,8 @@ def serve(preview: RadiosityPreview, host: str = "127.0.0.1", port: int = 8765) 
             pass
 
     with http.server.ThreadingHTTPServer((host, port), Handler) as httpd:
-        print(f"preview at http://{host}:{port}/ (solved in {preview.solve_seconds:.2f} s); Ctrl-C stops")
+        port = httpd.server_address[1]
+        print(f"preview at http://{host}:{port}/ (solved in {preview.solve_seconds:.2f} s); Ctrl-C stops", flush=True)
         try:
             httpd.serve_forever()
         except KeyboardInterrupt:

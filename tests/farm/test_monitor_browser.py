@@ -9,7 +9,6 @@ from __future__ import annotations
 import base64
 import io
 import os
-import shutil
 from pathlib import Path
 
 import httpx
@@ -31,7 +30,6 @@ from selenium.webdriver.support.ui import Select, WebDriverWait  # noqa: E402
 TOKEN = "monitor-test-token-8c1f"
 WORKER = "monitor-worker-1"
 WAIT = 120  # seconds any page condition may take on a loaded 2-core machine
-CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
 # A pixel's displayed value may differ from the PNG's by rounding at most; a real
 # difference (another image, a flipped one) moves many pixels by tens of levels.
 MAX_LEVEL_DIFFERENCE = 2
@@ -45,21 +43,6 @@ def farm(redis_server, tmp_path_factory):
     yield base, [api, worker]
     worker.stop()
     api.stop()
-
-
-@pytest.fixture(scope="module")
-def browser():
-    assert shutil.which(CHROMIUM) and shutil.which(CHROMEDRIVER), (
-        "the monitor tests need Debian's chromium and chromium-driver (scripts/setup.sh)")
-    options = webdriver.ChromeOptions()
-    options.binary_location = CHROMIUM
-    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu",
-                "--window-size=1280,1400", "--force-color-profile=srgb", "--no-first-run"):
-        options.add_argument(arg)
-    driver = webdriver.Chrome(options=options,
-                              service=webdriver.ChromeService(executable_path=CHROMEDRIVER))
-    yield driver
-    driver.quit()
 
 
 @pytest.fixture(scope="module")
