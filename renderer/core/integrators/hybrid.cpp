@@ -27,7 +27,7 @@ class HybridIntegrator final : public Integrator {
 public:
     HybridIntegrator(const IntegratorSettings& s, const Scene& scene)
         : max_depth_(s.max_depth), settings_(RadiositySettingsFrom(s, scene, "hybrid")) {
-        const bool interpolate = RadiosityInterpolates(s, "hybrid");
+        const bool interpolate = RadiosityInterpolates(s, "hybrid", false);
         if (!s.scene_product.empty())
             lookup_ = std::make_unique<RadiosityLookup>(scene, settings_.element_size, s.scene_product, interpolate,
                                                         "hybrid");

@@ -20,7 +20,7 @@ class RadiosityIntegrator final : public Integrator {
 public:
     RadiosityIntegrator(const IntegratorSettings& s, const Scene& scene)
         : settings_(RadiositySettingsFrom(s, scene, "radiosity")) {
-        const bool interpolate = RadiosityInterpolates(s, "radiosity");
+        const bool interpolate = RadiosityInterpolates(s, "radiosity", true);
         if (!s.scene_product.empty())
             lookup_ = std::make_unique<RadiosityLookup>(scene, settings_.element_size, s.scene_product, interpolate,
                                                         "radiosity");

@@ -6,11 +6,10 @@
 
 namespace tessera {
 
-float PointToPolygonFormFactor(Vec3 x, Vec3 n, const std::vector<Vec3>& poly) {
+float PointToPolygonFormFactor(Vec3 x, Vec3 n, const Vec3* poly, size_t k) {
     // Clip to the half-space above x's tangent plane (Sutherland-Hodgman, one plane): the
     // contour formula holds for the part the receiver can see.
-    // Clipping adds at most one vertex; triangles (the solver's case) stay on the stack.
-    const size_t k = poly.size();
+    // Clipping adds at most one vertex; triangles (the solvers' case) stay on the stack.
     double stack[8][3];
     std::vector<std::array<double, 3>> heap;
     if (k + 1 > 8) heap.resize(k + 1);
@@ -50,9 +49,11 @@ float PointToPolygonFormFactor(Vec3 x, Vec3 n, const std::vector<Vec3>& poly) {
     return static_cast<float>(f);
 }
 
-float PointToTriangleFormFactor(Vec3 x, Vec3 n, const Vec3 tri[3]) {
-    return PointToPolygonFormFactor(x, n, {tri[0], tri[1], tri[2]});
+float PointToPolygonFormFactor(Vec3 x, Vec3 n, const std::vector<Vec3>& poly) {
+    return PointToPolygonFormFactor(x, n, poly.data(), poly.size());
 }
+
+float PointToTriangleFormFactor(Vec3 x, Vec3 n, const Vec3 tri[3]) { return PointToPolygonFormFactor(x, n, tri, 3); }
 
 float PolygonToPolygonFormFactor(const std::vector<Vec3>& a, const std::vector<Vec3>& b, int cells_per_edge) {
     const Vec3 na = Normalize(Cross(a[1] - a[0], a[2] - a[0]));
@@ -76,17 +77,37 @@ float PolygonToPolygonFormFactor(const std::vector<Vec3>& a, const std::vector<V
     return area > 0.0 ? float(sum / area) : 0.f;
 }
 
-float TriangleVisibility(const Scene& scene, Vec3 x, Vec3 nx, const Vec3 src[3], Vec3 nsrc, float eps) {
-    // Centroids of the four sub-triangles cut at the edge midpoints.
-    static constexpr float kBary[4][3] = {
-        {2.f / 3.f, 1.f / 6.f, 1.f / 6.f}, {1.f / 6.f, 2.f / 3.f, 1.f / 6.f},
-        {1.f / 6.f, 1.f / 6.f, 2.f / 3.f}, {1.f / 3.f, 1.f / 3.f, 1.f / 3.f}};
-    int visible = 0;
-    for (const auto& w : kBary) {
-        const Vec3 q = src[0] * w[0] + src[1] * w[1] + src[2] * w[2];
-        if (scene.Unoccluded(x, eps, nx, q, eps, nsrc)) ++visible;
+// Centroids of the four sub-triangles cut at the edge midpoints (equal areas).
+static constexpr float kQuarterCentroids[4][3] = {{2.f / 3.f, 1.f / 6.f, 1.f / 6.f},
+                                                  {1.f / 6.f, 2.f / 3.f, 1.f / 6.f},
+                                                  {1.f / 6.f, 1.f / 6.f, 2.f / 3.f},
+                                                  {1.f / 3.f, 1.f / 3.f, 1.f / 3.f}};
+
+static Vec3 At(const Vec3 t[3], const float w[3]) { return t[0] * w[0] + t[1] * w[1] + t[2] * w[2]; }
+
+float ReceiverMeanFormFactor(const Vec3 rec[3], Vec3 nr, const Vec3 src[3], float Fk[4]) {
+    float F = 0.f;
+    for (int k = 0; k < 4; ++k) {
+        Fk[k] = PointToTriangleFormFactor(At(rec, kQuarterCentroids[k]), nr, src);
+        F += 0.25f * Fk[k];
     }
-    return float(visible) / 4.f;
+    return F;
+}
+
+float VisibleReceiverMeanFormFactor(const Scene& scene, const Vec3 rec[3], Vec3 nr, const Vec3 src[3], Vec3 ns,
+                                    float eps, const float Fk[4], int* visible) {
+    float FV = 0.f;
+    int clear = 0;
+    for (int k = 0; k < 4; ++k) {
+        if (!(Fk[k] > 0.f)) continue;
+        const float* w = kQuarterCentroids[k];
+        if (scene.Unoccluded(At(rec, w), eps, nr, At(src, w), eps, ns)) {
+            FV += 0.25f * Fk[k];
+            ++clear;
+        }
+    }
+    if (visible) *visible = clear;
+    return FV;
 }
 
 }  // namespace tessera

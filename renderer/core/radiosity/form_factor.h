@@ -1,8 +1,10 @@
 // Form factors (Cohen & Wallace 1993, ch. 4). The point-to-polygon factor is exact:
 // Lambert's contour integral over the polygon clipped to the receiver's hemisphere, so
 // adjacent elements (a box's corner) get their factor without the 1/r^2 blow-up of disk
-// approximations. Visibility is estimated separately by shadow rays through Embree
-// toward fixed points on the source (Wallace et al. 1989: receiver point to source area).
+// approximations. An element's factor from a source averages it over 4 points of the
+// receiver, each weighted by the visibility of one shadow ray through Embree to its
+// counterpart on the source. Both solvers use this one estimator, so where the
+// hierarchical solver's links reach the elements the two compute the same exchange.
 #pragma once
 
 #include <vector>
@@ -13,6 +15,7 @@ namespace tessera {
 
 // F from a differential area at x with unit normal n to the polygon `poly` (any winding),
 // ignoring occlusion: (1/pi) of the polygon's projected solid angle above x's plane.
+float PointToPolygonFormFactor(Vec3 x, Vec3 n, const Vec3* poly, size_t count);
 float PointToPolygonFormFactor(Vec3 x, Vec3 n, const std::vector<Vec3>& poly);
 float PointToTriangleFormFactor(Vec3 x, Vec3 n, const Vec3 tri[3]);
 
@@ -21,9 +24,15 @@ float PointToTriangleFormFactor(Vec3 x, Vec3 n, const Vec3 tri[3]);
 // similar sub-triangles (the inner integrand is exact).
 float PolygonToPolygonFormFactor(const std::vector<Vec3>& a, const std::vector<Vec3>& b, int cells_per_edge);
 
-// Fraction of the fixed points on triangle `src` (the centroids of its 4 half-edge
-// sub-triangles) visible from x, by shadow rays; each end is offset by `eps` off its
-// surface (normals nx, nsrc).
-float TriangleVisibility(const Scene& scene, Vec3 x, Vec3 nx, const Vec3 src[3], Vec3 nsrc, float eps);
+// Unoccluded factor of receiver triangle `rec` (its side facing nr) from triangle `src`:
+// the mean of the point factor at the centroids of rec's 4 half-edge sub-triangles (equal
+// areas: the midpoint rule for (1/|rec|) Int_rec F_{dA->src} dA). Fk gets the 4 point factors.
+float ReceiverMeanFormFactor(const Vec3 rec[3], Vec3 nr, const Vec3 src[3], float Fk[4]);
+
+// The same mean with visibility: point k's factor Fk[k] counts when the shadow ray from it
+// to the point of src with the same barycentrics is clear (ends offset by eps along nr and
+// ns, the side src emits from). `visible` (optional) gets the number of clear rays.
+float VisibleReceiverMeanFormFactor(const Scene& scene, const Vec3 rec[3], Vec3 nr, const Vec3 src[3], Vec3 ns,
+                                    float eps, const float Fk[4], int* visible);
 
 }  // namespace tessera

@@ -5,6 +5,7 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 
 #include "form_factor.h"
@@ -83,47 +84,71 @@ public:
         return Luminance(nodes_[q].E[side] + nodes_[q].B[side]);
     }
 
+    // Where triangle t lies against the plane through c with normal n: kFront, kBack,
+    // kInPlane (within eps), or kStraddles (vertices beyond eps on both sides).
+    enum PlaneSide { kFront, kBack, kInPlane, kStraddles };
+    PlaneSide SideOf(const Vec3 t[3], Vec3 c, Vec3 n) const {
+        float lo = 0.f, hi = 0.f;
+        for (int k = 0; k < 3; ++k) {
+            const float h = Dot(t[k] - c, n);
+            lo = std::min(lo, h);
+            hi = std::max(hi, h);
+        }
+        if (hi > eps_ && lo < -eps_) return kStraddles;
+        if (hi > eps_) return kFront;
+        if (lo < -eps_) return kBack;
+        return kInPlane;
+    }
+
     // Links p <- q, refined until the BF oracle is met or both are elements.
     void Refine(uint32_t p, uint32_t q, float threshold) {
         const Node& np = nodes_[p];
         const Node& nq = nodes_[q];
+        if (IsBlack(np.rho)) return;
+        const bool can_p = np.depth < np.max_depth, can_q = nq.depth < nq.max_depth;
+        // Each end must lie on one side of the other's plane, or one side of it would
+        // exchange light with the wrong side of the other (a wall beside a block's face:
+        // the part in front of the face sees it, the part behind sees its inside). A
+        // straddling node is split; only elements that still straddle fall back to the
+        // side of the centres.
+        const PlaneSide q_vs_p = SideOf(nq.p, np.c, np.n), p_vs_q = SideOf(np.p, nq.c, nq.n);
+        if (q_vs_p == kInPlane || p_vs_q == kInPlane) return;
+        if (q_vs_p == kStraddles && can_q) {
+            Subdivide(q);
+            const int32_t c = nodes_[q].child;
+            for (int k = 0; k < 4; ++k) Refine(p, uint32_t(c + k), threshold);
+            return;
+        }
+        if (p_vs_q == kStraddles && can_p) {
+            Subdivide(p);
+            const int32_t c = nodes_[p].child;
+            for (int k = 0; k < 4; ++k) Refine(uint32_t(c + k), q, threshold);
+            return;
+        }
         const Vec3 d = nq.c - np.c;
-        const float hp = Dot(d, np.n), hq = -Dot(d, nq.n);
-        if (hp == 0.f || hq == 0.f || IsBlack(np.rho)) return;
+        const float hp = q_vs_p == kStraddles ? Dot(d, np.n) : (q_vs_p == kFront ? 1.f : -1.f);
+        const float hq = p_vs_q == kStraddles ? -Dot(d, nq.n) : (p_vs_q == kFront ? 1.f : -1.f);
+        if (hp == 0.f || hq == 0.f) return;
         const uint8_t sp = hp > 0.f ? 0 : 1, sq = hq > 0.f ? 0 : 1;
         const Vec3 normal_p = sp ? -np.n : np.n, normal_q = sq ? -nq.n : nq.n;
-        // F and visibility averaged over 4 points of the receiver (its half-edge
-        // sub-triangles' centroids), each with a shadow ray to its counterpart on the
-        // source: a coarse link neither takes its centre's factor for the whole node nor
-        // its centre's shadow.
-        static constexpr float kBary[4][3] = {{2.f / 3.f, 1.f / 6.f, 1.f / 6.f},
-                                              {1.f / 6.f, 2.f / 3.f, 1.f / 6.f},
-                                              {1.f / 6.f, 1.f / 6.f, 2.f / 3.f},
-                                              {1.f / 3.f, 1.f / 3.f, 1.f / 3.f}};
-        float Fk[4], F = 0.f;
-        for (int k = 0; k < 4; ++k) {
-            const Vec3 x = np.p[0] * kBary[k][0] + np.p[1] * kBary[k][1] + np.p[2] * kBary[k][2];
-            Fk[k] = PointToTriangleFormFactor(x, normal_p, nq.p);
-            F += 0.25f * Fk[k];
-        }
+        // F and visibility averaged over 4 points of the receiver, each with a shadow ray to
+        // its counterpart on the source (the progressive solver's element estimator): a
+        // coarse link neither takes its centre's factor for the whole node nor its centre's
+        // shadow.
+        float Fk[4];
+        const float F = ReceiverMeanFormFactor(np.p, normal_p, nq.p, Fk);
         if (!(F > 0.f)) return;
-        const bool can_p = np.depth < np.max_depth, can_q = nq.depth < nq.max_depth;
         const float oracle = Luminance(np.rho) * F * SourceEstimate(q, sq);
         bool refine = oracle > threshold && (can_p || can_q);
         float FV = 0.f;
         if (!refine) {
             int visible = 0;
-            for (int k = 0; k < 4; ++k) {
-                const Vec3 x = np.p[0] * kBary[k][0] + np.p[1] * kBary[k][1] + np.p[2] * kBary[k][2];
-                const Vec3 y = nq.p[0] * kBary[k][0] + nq.p[1] * kBary[k][1] + nq.p[2] * kBary[k][2];
-                if (Fk[k] > 0.f && scene_.Unoccluded(x, eps_, normal_p, y, eps_, normal_q)) {
-                    FV += 0.25f * Fk[k];
-                    ++visible;
-                }
-            }
-            // A shadow boundary crosses the link: refine it while it carries a tenth of
-            // what the oracle allows.
-            refine = visible > 0 && visible < 4 && (can_p || can_q) && oracle > 0.1f * threshold;
+            FV = VisibleReceiverMeanFormFactor(scene_, np.p, normal_p, nq.p, normal_q, eps_, Fk, &visible);
+            // A shadow boundary may cross the link (some rays blocked), or a blocker may
+            // hide the 4 rays' ends but not all of the two nodes (all blocked): refine it
+            // while it carries a tenth of what the oracle allows. Dropping a fully blocked
+            // coarse link outright loses the light that passes beside the blocker.
+            refine = visible < 4 && (can_p || can_q) && oracle > 0.1f * threshold;
         }
         if (refine) {
             // Split the larger (the one whose size limits the estimate's accuracy most).
@@ -299,16 +324,34 @@ RadiositySolution SolveHierarchical(const Scene& scene, const RadiosityMesh& mes
     sol.nodes = h.nodes_.size();
     sol.shots = uint32_t(std::min<size_t>(sol.links, 0xFFFFFFFFu));
 
-    // Sample the hierarchy at the uniform elements.
+    // Each uniform element takes the hierarchy's mean over its area: the leaves are 2^d per
+    // source edge, the elements n (not a power of two), so one element overlaps several
+    // leaves; the mean is taken at the centroids of its m^2 similar sub-triangles (equal
+    // areas), m = 4. Taking only the leaf under the element's centre aliases the leaves'
+    // pattern onto the elements.
+    constexpr int m = 4;
+    std::vector<std::array<float, 2>> sub;  // barycentrics (of p[1], p[2]) of the sub-centroids
+    for (int i = 0; i < m; ++i)
+        for (int j = 0; i + j < m; ++j) {
+            sub.push_back({(i + 1.f / 3.f) / m, (j + 1.f / 3.f) / m});
+            if (i + j < m - 1) sub.push_back({(i + 2.f / 3.f) / m, (j + 2.f / 3.f) / m});
+        }
     const auto& sources = mesh.sources();
     for (size_t s = 0; s < sources.size(); ++s) {
         const uint32_t root = h.roots_[s];
         for (uint32_t k = 0; k < sources[s].n * sources[s].n; ++k) {
             const size_t e = sources[s].first + k;
-            const Node& leaf = h.nodes_[h.Leaf(root, el[e].center)];
+            const RadiosityElement& x = el[e];
+            Color B[2] = {Color(0.f), Color(0.f)}, D[2] = {Color(0.f), Color(0.f)};
+            for (const auto& b : sub) {
+                const Vec3 at = x.p[0] * (1.f - b[0] - b[1]) + x.p[1] * b[0] + x.p[2] * b[1];
+                const Node& leaf = h.nodes_[h.Leaf(root, at)];
+                for (int side = 0; side < 2; ++side) B[side] += leaf.B[side], D[side] += leaf.direct[side];
+            }
+            const float w = 1.f / float(sub.size());
             for (int side = 0; side < 2; ++side) {
-                sol.radiosity[2 * e + side] = el[e].emission[side] + leaf.B[side];
-                sol.direct[2 * e + side] = leaf.direct[side];
+                sol.radiosity[2 * e + side] = x.emission[side] + B[side] * w;
+                sol.direct[2 * e + side] = D[side] * w;
             }
         }
     }

@@ -42,10 +42,12 @@ TEST(HierarchicalRadiosity, ClosedBoxGivesEOverOneMinusRho) {
 
 // A room lit by a small area light, with a blocker: per wall, the area-weighted mean
 // radiosity of the hierarchical solution against the progressive one, at two oracle
-// tolerances. Measured (808 elements, 652864 element pairs): at 1e-4, 52620 links and
-// -2.6 % to -0.2 % per wall; at 1e-5, 336239 links and -0.7 % to +2.1 % (the ceiling,
-// beside the light, is the +2.1 %). The 1 % agreement the issue asks for is not reached
-// at a link count far below the pairs: coarse links take the factor at 4 points.
+// tolerances. Both solvers take an element's factor with the same estimator, so what
+// separates them is the hierarchy: links above the elements, and leaves (8 per wall edge)
+// finer than the progressive solver's elements (5). Measured (808 elements, 652864 element
+// pairs): at 1e-4, 59591 links and -0.7 % to +0.3 % per wall; at 1e-5, 338369 links and
+// -1.5 % to +0.1 % (the floor, lit only in the blocker's penumbra, which the finer leaves
+// resolve better: its direct part is 12 % below the progressive solver's there).
 RadiositySolution SolveRoom(bool hierarchical, float tolerance, RadiosityMesh** mesh_out) {
     static SceneDesc desc = [] {
         SceneDesc d;
@@ -91,18 +93,14 @@ TEST(HierarchicalRadiosity, AgreesWithProgressiveWithFewerLinksThanPairs) {
     const RadiositySolution fine = SolveRoom(true, 1e-5f, &mesh);
     const size_t pairs = mesh->elements().size() * mesh->elements().size();
     const std::vector<double> ec = WallErrors(*mesh, p, coarse), ef = WallErrors(*mesh, p, fine);
-    double mc = 0, mf = 0;
     for (int w = 0; w < 6; ++w) {
         std::printf("wall %d: %+.4f (1e-4, %zu links), %+.4f (1e-5, %zu links); %zu pairs\n", w, ec[w], coarse.links,
                     ef[w], fine.links, pairs);
-        EXPECT_LT(std::abs(ec[w]), 0.035) << w;
-        EXPECT_LT(std::abs(ef[w]), 0.03) << w;
-        mc += std::abs(ec[w]) / 6;
-        mf += std::abs(ef[w]) / 6;
+        EXPECT_LT(std::abs(ec[w]), 0.01) << w;
+        EXPECT_LT(std::abs(ef[w]), 0.02) << w;
     }
     EXPECT_LT(coarse.links * 8, pairs);
     EXPECT_LT(fine.links * 1.5, pairs);
-    EXPECT_LT(mf, mc);  // a finer oracle brings it closer
 }
 
 }  // namespace

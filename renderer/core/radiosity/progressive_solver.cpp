@@ -114,8 +114,9 @@ RadiositySolution SolveProgressive(const Scene& scene, const RadiosityMesh& mesh
                     const float h = Dot(d, rec.n);
                     if (h == 0.f) continue;
                     const Vec3 nr = h > 0.f ? rec.n : -rec.n;
-                    float f = PointToTriangleFormFactor(rec.center, nr, src.p);
-                    if (f > 0.f) f *= TriangleVisibility(scene, rec.center, nr, src.p, ns, eps);
+                    float Fk[4];
+                    float f = ReceiverMeanFormFactor(rec.p, nr, src.p, Fk);
+                    if (f > 0.f) f = VisibleReceiverMeanFormFactor(scene, rec.p, nr, src.p, ns, eps, Fk, nullptr);
                     out[j] = h > 0.f ? f : -f;
                 }
             });

@@ -18,7 +18,11 @@ namespace tessera {
 // (IntegratorSettings -> RadiositySettings; throws std::invalid_argument on bad values).
 const std::vector<IntegratorParam>& RadiosityParams();
 RadiositySettings RadiositySettingsFrom(const IntegratorSettings& s, const Scene& scene, const char* who);
-bool RadiosityInterpolates(const IntegratorSettings& s, const char* who);
+// `interpolate`: the display reads smooth vertex interpolation by default; a final gather
+// reads each element's own mean, which integrates to the solution (on the Lambertian Cornell
+// box at element size 100 the hybrid's ceiling is 2.1 % dark when gathering the
+// interpolated values, 0.9 % with the constant ones).
+bool RadiosityInterpolates(const IntegratorSettings& s, const char* who, bool by_default);
 
 // Solves and encodes: what RunScenePass of both integrators returns.
 std::string SolveRadiosityProduct(const Scene& scene, const RadiositySettings& settings);
