@@ -40,17 +40,18 @@ using AnyImage = nb::ndarray<const float, nb::ndim<3>, nb::c_contig, nb::device:
 using Matrices = nb::ndarray<const float, nb::shape<-1, 4, 4>, nb::c_contig, nb::device::cpu>;
 using CameraPoses = nb::ndarray<const float, nb::shape<-1, 12>, nb::c_contig, nb::device::cpu>;
 // Point lights: (x, y, z, r, g, b) rows, or those followed by UsdLux shaping columns
-// (shaped?, axis xyz, cone cutoff and smooth start in radians, focus, focus tint rgb, has
-// IES?, kIesSamples IES factors).
+// (kShapingColumns, below).
 using PointLightRows = nb::ndarray<const float, nb::shape<-1, -1>, nb::c_contig, nb::device::cpu>;
-constexpr size_t kShapedPointLightColumns = 17 + kIesSamples;
+// IES tables (light_shaping.h): (tables, kIesSamples, kIesAzimuths).
+using IesTables = nb::ndarray<const float, nb::shape<-1, kIesSamples, kIesAzimuths>, nb::c_contig, nb::device::cpu>;
 
 // The shaping columns of light_shaping.h from column `first` of a row: shaped?, axis xyz,
-// cone cutoff and smooth start in radians, focus, focus tint rgb, has IES?, kIesSamples
-// IES factors (kShapingColumns in all).
-constexpr size_t kShapingColumns = 11 + kIesSamples;
+// cone cutoff and smooth start in radians, focus, focus tint rgb, IES table index + 1 (0:
+// none), horizontal angle 0's axis xyz (the light's +X).
+constexpr size_t kShapingColumns = 14;
+constexpr size_t kShapedPointLightColumns = 6 + kShapingColumns;
 template <typename Column>
-LightShaping ShapingFromColumns(Column col, size_t first) {
+LightShaping ShapingFromColumns(Column col, size_t first, const std::optional<IesTables>& tables) {
     LightShaping s;
     if (col(first) == 0.f) return s;
     s.enabled = true;
@@ -59,8 +60,16 @@ LightShaping ShapingFromColumns(Column col, size_t first) {
     s.smooth_start = col(first + 5);
     s.focus = col(first + 6);
     s.focus_tint = Vec3(col(first + 7), col(first + 8), col(first + 9));
-    if (col(first + 10) != 0.f)
-        for (int k = 0; k < kIesSamples; ++k) s.ies.push_back(col(first + 11 + k));
+    const Vec3 zero(col(first + 11), col(first + 12), col(first + 13));
+    if (Length(zero) > 0.f) s.azimuth_zero = Normalize(zero);
+    if (const float table = col(first + 10); table != 0.f) {
+        const size_t n = tables ? tables->shape(0) : 0;
+        if (!(table >= 1.f && table <= float(n) && table == std::floor(table)))
+            throw std::invalid_argument("shaping names IES table " + std::to_string(table - 1.f) + " of " +
+                                        std::to_string(n));
+        const float* t = tables->data() + (size_t(table) - 1) * kIesSamples * kIesAzimuths;
+        s.ies.assign(t, t + kIesSamples * kIesAzimuths);
+    }
     return s;
 }
 
@@ -86,6 +95,7 @@ struct Extras {
     std::optional<InVector<uint32_t>> light_motion_time_steps;
     std::optional<Matrices> light_motion_transforms;
     std::optional<PointLightRows> material_shaping;
+    std::optional<IesTables> ies_tables;
 };
 
 WrapMode ToWrap(float v) {
@@ -214,7 +224,8 @@ void AddExtras(SceneDesc* d, const Extras& x) {
             throw std::invalid_argument("material_shaping needs one row of " + std::to_string(kShapingColumns) +
                                         " shaping columns per material");
         for (size_t m = 0; m < d->materials.size(); ++m) {
-            LightShaping s = ShapingFromColumns([&](size_t c) { return (*x.material_shaping)(m, c); }, 0);
+            LightShaping s =
+                ShapingFromColumns([&](size_t c) { return (*x.material_shaping)(m, c); }, 0, x.ies_tables);
             if (!s.enabled) continue;
             d->materials[m].emission_shaping = int32_t(d->emission_shapings.size());
             d->emission_shapings.push_back(std::move(s));
@@ -267,7 +278,7 @@ SceneDesc MakeDesc(InArray<float, 3> positions, InArray<uint32_t, 3> indices, In
                    std::array<float, 3> dome_radiance, std::optional<InArray<float, 14>> preview_params,
                    std::optional<InVector<bool>> preview_mask, std::optional<DomeImage> dome_texture,
                    std::optional<InArray<float, 3>> dome_world_to_light,
-                   std::optional<CornerNormals> shading_normals) {
+                   std::optional<CornerNormals> shading_normals, const std::optional<IesTables>& ies_tables) {
     SceneDesc d;
     d.positions.assign(positions.data(), positions.data() + positions.size());
     d.indices.assign(indices.data(), indices.data() + indices.size());
@@ -288,7 +299,7 @@ SceneDesc MakeDesc(InArray<float, 3> positions, InArray<uint32_t, 3> indices, In
     for (size_t i = 0; i < point_lights.shape(0); ++i) {
         auto col = [&](size_t c) { return point_lights(i, c); };
         PointLight light{Vec3(col(0), col(1), col(2)), Vec3(col(3), col(4), col(5))};
-        if (point_lights.shape(1) == kShapedPointLightColumns) light.shaping = ShapingFromColumns(col, 6);
+        if (point_lights.shape(1) == kShapedPointLightColumns) light.shaping = ShapingFromColumns(col, 6, ies_tables);
         d.point_lights.push_back(light);
     }
     for (size_t i = 0; i < distant_lights.shape(0); ++i)
@@ -360,15 +371,17 @@ NB_MODULE(_core, m) {
                std::optional<InVector<uint8_t>> light_motion_kinds,
                std::optional<InVector<uint32_t>> light_motion_indices,
                std::optional<InVector<uint32_t>> light_motion_time_steps,
-               std::optional<Matrices> light_motion_transforms, std::optional<PointLightRows> material_shaping) {
+               std::optional<Matrices> light_motion_transforms, std::optional<PointLightRows> material_shaping,
+               std::optional<IesTables> ies_tables) {
                 SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
                                           sphere_lights, point_lights, distant_lights, dome_radiance, preview_params,
-                                          preview_mask, dome_texture, dome_world_to_light, shading_normals);
+                                          preview_mask, dome_texture, dome_world_to_light, shading_normals,
+                                          ies_tables);
                 AddExtras(&desc, Extras{uvs, images, image_srgb, texture_table, texture_tiles, material_textures,
                                         prototypes, instance_prototype, instance_transforms, motion_instances,
                                         motion_time_steps, motion_transforms, light_motion_kinds,
                                         light_motion_indices, light_motion_time_steps, light_motion_transforms,
-                                        material_shaping});
+                                        material_shaping, ies_tables});
                 nb::gil_scoped_release release;
                 new (self) Scene(desc);
             },
@@ -382,10 +395,11 @@ NB_MODULE(_core, m) {
             "motion_instances"_a = nb::none(), "motion_time_steps"_a = nb::none(), "motion_transforms"_a = nb::none(),
             "light_motion_kinds"_a = nb::none(), "light_motion_indices"_a = nb::none(),
             "light_motion_time_steps"_a = nb::none(), "light_motion_transforms"_a = nb::none(),
-            "material_shaping"_a = nb::none(),
+            "material_shaping"_a = nb::none(), "ies_tables"_a = nb::none(),
             "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
             "(x, y, z, r, g, b intensity W/sr, then optionally the shaping columns of light_shaping.h: "
-            "shaped, axis xyz, cutoff, smooth start, focus, focus tint rgb, has IES, 181 IES factors); distant_lights (dx, dy, dz travel direction, half angle in "
+            "shaped, axis xyz, cutoff, smooth start, focus, focus tint rgb, IES table + 1 (0 none), horizontal "
+            "angle 0 axis xyz); distant_lights (dx, dy, dz travel direction, half angle in "
             "radians, r, g, b radiance, or irradiance when the half angle is 0); dome_radiance (r, g, b); "
             "preview_params (specular rgb, metallic, roughness, ior, clearcoat, clearcoat_roughness, opacity, "
             "opacity_threshold, use_specular_workflow, 3 unused) for the materials where preview_mask is set: "
@@ -409,8 +423,10 @@ NB_MODULE(_core, m) {
             "light_motion_indices[k] of kind light_motion_kinds[k] (uint8: 1 sphere, 2 point, 3 distant, 4 "
             "dome with index 0) moves rigidly through light_motion_time_steps[k] world-space transforms "
             "(light_motion_transforms float32 (total steps, 4, 4), row-vector convention) applied to it as "
-            "described above. material_shaping float32 (materials, 192): per material the shaping columns "
-            "of a point light (axis unused): a shaped area light's emission about its emitting normal.")
+            "described above. material_shaping float32 (materials, 14): per material the shaping columns "
+            "of a point light (axis unused): a shaped area light's emission about its emitting normal. "
+            "ies_tables float32 (tables, 181, 73): IES factors by vertical angle 0..180 (1 degree apart) and "
+            "horizontal angle 0..360 (5 degrees apart), named by the shaping columns.")
         .def_prop_ro("has_motion", &Scene::has_motion)
         .def_prop_ro("num_triangles", &Scene::num_triangles)
         .def_prop_ro("num_emitters", &Scene::num_emitters)

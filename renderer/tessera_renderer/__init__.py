@@ -59,6 +59,9 @@ class Scene:
             shaping = getattr(data, "material_shaping", None)
             if shaping is not None:
                 extras["material_shaping"] = np.ascontiguousarray(shaping, np.float32)
+            ies = getattr(data, "ies_tables", None)
+            if ies is not None:
+                extras["ies_tables"] = np.ascontiguousarray(ies, np.float32)
             uvs = getattr(data, "uvs", None)
             if uvs is not None and len(uvs) and extras.get("texture_table") is not None:
                 extras["uvs"] = np.ascontiguousarray(uvs, dtype=np.float32).reshape(-1, 3, 2)

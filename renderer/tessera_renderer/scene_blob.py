@@ -51,8 +51,9 @@ BLOB_VERSION = 1
 # startTimeCode as the render time when no frame is given; 9: deforming meshes (a
 # prototype's motion_positions), moving sphere, point, distant and dome lights
 # (light_motion_*), still-time values that are not numbers refused, RectLight textures,
-# shaped Rect and Disk lights (material_shaping).
-TRANSLATOR_VERSION = 9
+# shaped Rect and Disk lights (material_shaping); 10: IES tables by vertical and horizontal
+# angle (SceneData.ies_tables; shaping columns 14: the table index and the +X axis).
+TRANSLATOR_VERSION = 10
 _ALIGN = 64
 _LIGHT_MOTION_FIELDS = ("light_motion_kinds", "light_motion_indices", "light_motion_time_steps",
                         "light_motion_transforms")
@@ -101,6 +102,8 @@ def scene_data_to_blob(data: SceneData) -> bytes:
     }
     if getattr(data, "material_shaping", None) is not None:
         arrays["material_shaping"] = data.material_shaping
+    if getattr(data, "ies_tables", None) is not None:
+        arrays["ies_tables"] = data.ies_tables
     for key, value in data.material_params.items():
         arrays[f"material_params.{key}"] = value
     if data.shading_normals is not None:
@@ -245,6 +248,7 @@ def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
         motion_transforms=arrays.get("motion_transforms", np.zeros((0, 4, 4), np.float32)),
         **{k: arrays[k] for k in _LIGHT_MOTION_FIELDS if k in arrays},
         material_shaping=arrays.get("material_shaping"),
+        ies_tables=arrays.get("ies_tables"),
         time_code=meta.get("time_code"),
         shutter=None if meta.get("shutter") is None else tuple(meta["shutter"]))
     if tmp:

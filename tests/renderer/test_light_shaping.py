@@ -27,8 +27,11 @@ H, RADIUS, L, ALBEDO = 2.0, 0.05, 800.0, 0.5
 TOL = 0.005
 
 
-def _render(tmp_path, theta_deg, name, kind="point", **shaping):
-    x = H * math.tan(math.radians(theta_deg))
+def _render(tmp_path, theta_deg, name, kind="point", azimuth_deg=0.0, **shaping):
+    """`azimuth_deg`: the floor point's horizontal angle about the light's axis, from its
+    +X (world +X) toward its +Y (world -Z: the light is turned -90 degrees about X)."""
+    r = H * math.tan(math.radians(theta_deg))
+    x, z = r * math.cos(math.radians(azimuth_deg)), -r * math.sin(math.radians(azimuth_deg))
     stage = new_stage(tmp_path / f"{name}.usda")
     ground = UsdGeom.Mesh.Define(stage, "/Ground")
     ground.CreatePointsAttr([Gf.Vec3f(-50, 0, -50), Gf.Vec3f(-50, 0, 50), Gf.Vec3f(50, 0, 50), Gf.Vec3f(50, 0, -50)])
@@ -64,7 +67,9 @@ def _render(tmp_path, theta_deg, name, kind="point", **shaping):
                 api.CreateShapingFocusTintAttr(Gf.Vec3f(*value))
             elif key == "angle_scale":
                 api.CreateShapingIesAngleScaleAttr(value)
-    cam = add_camera(stage, "/Cam", (x, 0.5, 0), focal=1000.0, haperture=1.0, vaperture=1.0)
+            elif key == "normalize":
+                api.CreateShapingIesNormalizeAttr(value)
+    cam = add_camera(stage, "/Cam", (x, 0.5, z), focal=1000.0, haperture=1.0, vaperture=1.0)
     UsdGeom.Xformable(cam.GetPrim()).AddRotateXOp().Set(-90.0)  # look straight down
     add_render_settings(stage, cam, (4, 4))
     stage.GetRootLayer().Save()
@@ -73,9 +78,9 @@ def _render(tmp_path, theta_deg, name, kind="point", **shaping):
     return float(img[..., :3].astype(np.float64).mean()), scene.warnings
 
 
-def _factor(tmp_path, theta, kind="point", **shaping):
-    shaped, warnings = _render(tmp_path, theta, "shaped", kind, **shaping)
-    plain, _ = _render(tmp_path, theta, "plain", kind)
+def _factor(tmp_path, theta, kind="point", azimuth=0.0, **shaping):
+    shaped, warnings = _render(tmp_path, theta, "shaped", kind, azimuth, **shaping)
+    plain, _ = _render(tmp_path, theta, "plain", kind, azimuth)
     return shaped / plain, warnings
 
 
@@ -124,13 +129,15 @@ def test_focus_is_a_cosine_power_towards_the_tint(tmp_path):
     assert not _close(f, expected * 1.02)
 
 
-def _write_ies(path, candela_of):
-    """A minimal LM-63-2002 file: one lamp, 10 vertical angles 0..90, one horizontal."""
+def _write_ies(path, candela_of, horizontal=(0,)):
+    """A minimal LM-63-2002 file: one lamp, 10 vertical angles 0..90, the given horizontal
+    angles; candela_of(vertical) or candela_of(vertical, horizontal) in degrees."""
     v = list(range(0, 91, 10))
-    cd = [candela_of(a) for a in v]
+    rows = [[candela_of(a) if len(horizontal) == 1 else candela_of(a, h) for a in v] for h in horizontal]
     path.write_text("IESNA:LM-63-2002\n[TEST] written for tessera's test\n[MANUFAC] none\nTILT=NONE\n"
-                    f"1 -1 1 {len(v)} 1 1 2 0 0 0\n1 1 100\n"
-                    + " ".join(f"{a:g}" for a in v) + "\n0\n" + " ".join(f"{c:.6f}" for c in cd) + "\n")
+                    f"1 -1 1 {len(v)} {len(horizontal)} 1 2 0 0 0\n1 1 100\n"
+                    + " ".join(f"{a:g}" for a in v) + "\n" + " ".join(f"{h:g}" for h in horizontal) + "\n"
+                    + "\n".join(" ".join(f"{c:.6f}" for c in row) for row in rows) + "\n")
 
 
 @pytest.mark.parametrize("theta", [0.0, 30.0, 60.0])
@@ -157,6 +164,93 @@ def test_ies_angle_scale_rescales_the_profile_about_180_degrees(tmp_path, theta)
     assert not _close(f, expected * 1.02)
     _, warnings = _factor(tmp_path, theta, ies="./down.ies", angle_scale=-1.0)
     assert any("angleScale at or below -1" in w for w in warnings), warnings
+
+
+def _asymmetric(v, h):
+    """A wall-washer: cos(v) down, brighter toward the light's +X (h 0) and +Y (h 90)."""
+    return 1000.0 * math.cos(math.radians(v)) * (1 + 0.5 * math.cos(math.radians(h)) + 0.25 * math.sin(math.radians(h)))
+
+
+FULL_CIRCLE = tuple(range(0, 361, 45))
+
+
+@pytest.mark.parametrize("azimuth", [0.0, 90.0, 180.0, 270.0])
+def test_ies_profile_varies_with_the_horizontal_angle(tmp_path, azimuth):
+    """Type C photometry: horizontal angle 0 along the light's +X, 90 along its +Y. At
+    vertical 30 degrees the factor is the candela over the file's peak (1000 (1 + 0.5^2 +
+    0.25^2)^0.5 ... taken from the samples: the peak is the largest written value). The
+    +Y / -Y pair (90 vs 270) tells the handedness apart; the controls are the averaged
+    profile's factor (what Tessera did before) and the same file with that one horizontal
+    column 2 % brighter, both of which must fail."""
+    _write_ies(tmp_path / "wash.ies", _asymmetric, FULL_CIRCLE)
+    peak = max(_asymmetric(v, h) for v in range(0, 91, 10) for h in FULL_CIRCLE)
+    expected = _asymmetric(30.0, azimuth) / peak
+    f, warnings = _factor(tmp_path, 30.0, azimuth=azimuth, ies="./wash.ies")
+    assert _close(f, expected), (azimuth, f, expected)
+    assert not any("IES" in w for w in warnings), warnings
+    averaged = 1000.0 * math.cos(math.radians(30.0)) / peak
+    assert not _close(f, averaged), (f, averaged)
+    _write_ies(tmp_path / "wash.ies", lambda v, h: _asymmetric(v, h) * (1.02 if h == azimuth else 1.0), FULL_CIRCLE)
+    g, _ = _factor(tmp_path, 30.0, azimuth=azimuth, ies="./wash.ies")
+    assert not _close(g, expected), (azimuth, g, expected)
+
+
+def test_an_azimuthal_ies_profile_travels_in_the_scene_blob(tmp_path):
+    """The farm's workers read the translated blob: the same image, bit for bit."""
+    from tessera_renderer.scene_blob import scene_from_blob, translate_to_blob
+
+    _write_ies(tmp_path / "wash.ies", _asymmetric, FULL_CIRCLE)
+    _render(tmp_path, 30.0, "wash", azimuth=90.0, ies="./wash.ies")
+    local = load_scene(tmp_path / "wash.usda")
+    remote = scene_from_blob(translate_to_blob(tmp_path / "wash.usda"))
+    assert remote.data.ies_tables.shape == (1, 181, 73)
+    a, b = (s.render_tile(0, 0, 4, 4, spp=4, max_depth=1) for s in (local, remote))
+    np.testing.assert_array_equal(a, b)
+    # Control: the same scene without its table renders differently.
+    _render(tmp_path, 30.0, "plain", azimuth=90.0)
+    assert not np.array_equal(load_scene(tmp_path / "plain.usda").render_tile(0, 0, 4, 4, spp=4, max_depth=1), a)
+
+
+def test_ies_horizontal_symmetries_expand_to_the_full_circle(tmp_path):
+    """LM-63's symmetric files (one angle, 0..90, 0..180) give the table of the full-circle
+    file they abbreviate; an end angle the standard does not allow is an error."""
+    from tessera_renderer.usd.light_shaping import IesError, ies_profile
+
+    def table(name, candela_of, horizontal):
+        _write_ies(tmp_path / name, candela_of, horizontal)
+        return ies_profile((tmp_path / name).read_text(), False, lambda msg: None)
+
+    def quadrant(v, h):  # symmetric about the 0-180 and the 90-270 planes
+        return 800.0 * math.cos(math.radians(v)) * (1 + 0.5 * math.cos(math.radians(2 * h)))
+
+    def bilateral(v, h):  # symmetric about the 0-180 plane only
+        return 800.0 * math.cos(math.radians(v)) * (1 + 0.5 * math.cos(math.radians(h)))
+
+    def round_(v, h=0):
+        return 800.0 * math.cos(math.radians(v))
+
+    for f, short in ((quadrant, (0, 45, 90)), (bilateral, (0, 45, 90, 135, 180)), (round_, (0,))):
+        full, abbreviated = table("full.ies", f, FULL_CIRCLE), table("short.ies", f, short)
+        assert np.allclose(abbreviated, full, atol=1e-6), f.__name__
+    # Control: cut to 0..90, a profile without the quadrant symmetry gives another table.
+    assert not np.allclose(table("q.ies", bilateral, (0, 45, 90)), table("b.ies", bilateral, FULL_CIRCLE), atol=1e-3)
+    with pytest.raises(IesError, match="end at 120 degrees"):
+        table("odd.ies", bilateral, (0, 60, 120))
+
+
+def test_normalized_azimuthal_ies_has_a_mean_of_one_over_the_sphere(tmp_path):
+    """shaping:ies:normalize: the factors are the candela over their mean over the sphere.
+    For cos(v) (1 + 0.5 cos h + 0.25 sin h) on the lower hemisphere the mean is 1/4 of the
+    peak-free amplitude (the h terms average out; the mean of cos v over the hemisphere is
+    1/2, half the sphere emits): so at v 30, h 0 the factor is 6 cos 30 exactly. The file's
+    10-degree vertical and 45-degree horizontal samples are interpolated linearly, which
+    the closed form does not see: measured, that leaves the factor 0.3 % high; the check
+    allows 1 %, and the control (a 2 % brighter expectation) must fail it."""
+    _write_ies(tmp_path / "wash.ies", _asymmetric, FULL_CIRCLE)
+    expected = 6.0 * math.cos(math.radians(30.0))
+    stage_factor, _ = _factor(tmp_path, 30.0, ies="./wash.ies", normalize=True)
+    assert abs(stage_factor / expected - 1) < 0.01, (stage_factor, expected)
+    assert not abs(stage_factor / (1.02 * expected) - 1) < 0.01
 
 
 @pytest.mark.parametrize("theta, shaping", [(30.0, {"focus": 3.0, "tint": (0.2, 0.2, 0.2)}),

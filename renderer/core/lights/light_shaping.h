@@ -1,5 +1,6 @@
 // UsdLux ShapingAPI for point lights and one-sided area lights (about their emitting
-// normal): a cone with a soft edge, focus, and an IES profile.
+// normal): a cone with a soft edge, focus, and an IES profile over the angle off the axis
+// and the horizontal angle about it (IES type C: 0 along the light's +X, 90 along +Y).
 // A factor on the light's intensity per emission direction; the light is still sampled
 // uniformly (the factor changes what a direction carries, never which directions exist).
 #pragma once
@@ -12,8 +13,11 @@
 
 namespace tessera {
 
-// Number of IES samples over the vertical angle 0..180 degrees (1 degree apart).
+// IES table: kIesSamples vertical angles 0..180 degrees (1 degree apart) by kIesAzimuths
+// horizontal angles 0..360 (5 degrees apart, the last repeating the first), row-major by
+// vertical angle.
 constexpr int kIesSamples = 181;
+constexpr int kIesAzimuths = 73;
 
 struct LightShaping {
     bool enabled = false;
@@ -22,7 +26,8 @@ struct LightShaping {
     float smooth_start = kPi;   // angle where the soft edge starts to fall off
     float focus = 0.f;          // exponent on |cos| off the axis (0: none)
     Color focus_tint{0.f};      // what the focus falloff fades to
-    std::vector<float> ies;     // kIesSamples factors over the angle off the axis, or empty
+    Vec3 azimuth_zero{1.f, 0.f, 0.f};  // the light's +X in world space: horizontal angle 0
+    std::vector<float> ies;     // kIesSamples x kIesAzimuths factors, or empty
 
     Color Factor(Vec3 w) const { return FactorAbout(axis, w); }
 
@@ -43,13 +48,33 @@ struct LightShaping {
             const float p = std::pow(std::fabs(c), focus);
             out = out * (focus_tint + (Color(1.f) - focus_tint) * p);
         }
-        if (!ies.empty()) {
-            const float x = theta / kPi * float(kIesSamples - 1);
-            const int i = std::min(int(x), kIesSamples - 2);
-            const float t = x - float(i);
-            out = out * ((1.f - t) * ies[i] + t * ies[i + 1]);
-        }
+        if (!ies.empty()) out = out * Ies(about, w, theta);
         return out;
+    }
+
+    // The IES factor, bilinear in the vertical angle theta and the horizontal angle phi of w
+    // about `about`: 0 along azimuth_zero's part across the axis, 90 degrees along
+    // zero x about (the light's +Y when about is its -Z, as type C photometry turns).
+    float Ies(Vec3 about, Vec3 w, float theta) const {
+        const float x = theta / kPi * float(kIesSamples - 1);
+        const int i = std::min(int(x), kIesSamples - 2);
+        const float t = x - float(i);
+        float phi = 0.f;
+        const Vec3 u = azimuth_zero - about * Dot(azimuth_zero, about);
+        const float ul = Length(u);
+        if (ul > 1e-6f) {
+            const Vec3 ex = u / ul, ey = Cross(ex, about);
+            phi = std::atan2(Dot(w, ey), Dot(w, ex));
+            if (phi < 0.f) phi += 2.f * kPi;
+        }
+        const float y = phi / (2.f * kPi) * float(kIesAzimuths - 1);
+        const int j = std::min(int(y), kIesAzimuths - 2);
+        const float s = y - float(j);
+        const float* row0 = &ies[size_t(i) * kIesAzimuths];
+        const float* row1 = row0 + kIesAzimuths;
+        const float a = (1.f - s) * row0[j] + s * row0[j + 1];
+        const float b = (1.f - s) * row1[j] + s * row1[j + 1];
+        return (1.f - t) * a + t * b;
     }
 };
 

@@ -1,12 +1,15 @@
 """UsdLux ShapingAPI as the core's shaped point lights (lights/light_shaping.h): the cone
 (angle, softness), focus and focus tint, and IES profiles (`shaping:ies:file`, LM-63 read
-here). The columns follow a point light's six in SceneData.point_lights.
+here). The columns follow a point light's six in SceneData.point_lights; IES profiles go
+to SceneData.ies_tables, which the columns name.
 
 Conventions: the shaping axis is the light's -Z (its emission direction); an IES profile's
-vertical angle 0 points along it; the profile is averaged over its horizontal angles (a
-note says so when they differ) and scaled to a peak of 1, so the light's intensity is its
-peak; `shaping:ies:normalize` instead scales it to a mean of 1 over the sphere (the light's
-total power unchanged).
+vertical angle 0 points along it and its horizontal angle 0 along the light's +X, 90 along
++Y (type C photometry). The files' horizontal symmetries are expanded: one angle (round),
+0..90 (mirrored into each quadrant), 0..180 (mirrored about the 0-180 plane), 0..360. The
+table is scaled to a peak of 1, so the light's intensity is its peak;
+`shaping:ies:normalize` instead scales it to a mean of 1 over the sphere (the light's total
+power unchanged).
 """
 from __future__ import annotations
 
@@ -18,7 +21,9 @@ import numpy as np
 from .errors import read_float
 
 IES_SAMPLES = 181  # lights/light_shaping.h kIesSamples: 0..180 degrees, 1 degree apart
-COLUMNS = 11 + IES_SAMPLES  # after the six of a point light
+IES_AZIMUTHS = 73  # kIesAzimuths: 0..360 degrees, 5 degrees apart
+COLUMNS = 14  # after the six of a point light (renderer/python/module.cpp kShapingColumns)
+IES_COLUMN = 10  # IES table index + 1 (0: none)
 
 
 class IesError(ValueError):
@@ -55,37 +60,65 @@ def parse_ies(text: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return v, h, cd
 
 
+def _full_circle(h: np.ndarray, cd: np.ndarray, note) -> tuple[np.ndarray, np.ndarray]:
+    """The horizontal angles and candela[h, v] over 0..360 degrees, from the symmetries
+    LM-63 allows: one angle (round), 0..90 (the quadrant mirrored about 90, 180 and 270),
+    0..180 (mirrored about the 0-180 plane), or a full circle from 0."""
+    if len(h) == 1:
+        return np.array([0.0, 360.0]), np.vstack([cd, cd])
+    if np.any(np.diff(h) <= 0) or h[0] != 0.0:
+        raise IesError("horizontal angles must rise from 0")
+    if h[-1] == 90.0:  # the four quadrants mirror the first
+        h, cd = np.concatenate([h, 180.0 - h[-2::-1]]), np.vstack([cd, cd[-2::-1]])
+    if h[-1] == 180.0:  # the other half mirrors this one
+        h, cd = np.concatenate([h, 360.0 - h[-2::-1]]), np.vstack([cd, cd[-2::-1]])
+    elif h[-1] < 360.0:
+        if h[-1] > 180.0:
+            note("IES horizontal angles end before 360 degrees; the rest of the circle is closed by interpolation")
+            h, cd = np.concatenate([h, [360.0]]), np.vstack([cd, cd[:1]])
+        else:
+            raise IesError(f"horizontal angles end at {h[-1]:g} degrees (LM-63 allows 0, 90, 180 or 360)")
+    if h[-1] > 360.0:
+        raise IesError("horizontal angles beyond 360 degrees")
+    return h, cd
+
+
 def ies_profile(text: str, normalize: bool, note, angle_scale: float = 0.0) -> np.ndarray:
-    """IES_SAMPLES factors over the angle off the axis (0 outside the file's angles).
+    """(IES_SAMPLES, IES_AZIMUTHS) factors over the angle off the axis and the horizontal
+    angle about it (0 outside the file's vertical angles).
     `angle_scale` (shaping:ies:angleScale) rescales the profile's vertical angles about
     180 degrees, as UsdLux specifies it (RenderMan's profile scale): the light's angle
     theta reads the profile at (theta - 180) / (1 + angleScale) + 180 degrees; above 0 the
     profile widens, below it narrows. Without normalizing the factors are the candela over
-    the file's peak; normalizing divides the rescaled profile by its mean over the sphere."""
-    v, _, cd = parse_ies(text)
-    mean = cd.mean(axis=0)
-    if cd.shape[0] > 1 and np.abs(cd - mean).max() > 0.01 * max(mean.max(), 1e-30):
-        note("IES profiles that vary with the horizontal angle are averaged over it (rotationally symmetric)")
+    the file's peak; normalizing divides the rescaled table by its mean over the sphere."""
+    v, h, cd = parse_ies(text)
+    h, cd = _full_circle(h, cd, note)
     theta = np.arange(IES_SAMPLES, dtype=np.float64)
     if not (math.isfinite(angle_scale) and angle_scale > -1.0):
         note("shaping:ies:angleScale at or below -1 (or not finite) is ignored")
         angle_scale = 0.0
     read_at = (theta - 180.0) / (1.0 + angle_scale) + 180.0
-    prof = np.interp(read_at, v, mean, left=0.0, right=0.0) if len(v) > 1 else np.full(IES_SAMPLES, mean[0])
-    prof[(read_at < v[0]) | (read_at > v[-1])] = 0.0
-    if not prof.max() > 0:
+    outside = (read_at < v[0]) | (read_at > v[-1])
+    # Vertical first (each file column), then horizontal at the table's azimuths.
+    by_v = np.array([np.interp(read_at, v, row) if len(v) > 1 else np.full(IES_SAMPLES, row[0]) for row in cd])
+    by_v[:, outside] = 0.0
+    phi = np.linspace(0.0, 360.0, IES_AZIMUTHS)
+    table = np.array([np.interp(phi, h, by_v[:, i]) for i in range(IES_SAMPLES)])
+    if not table.max() > 0:
         raise IesError("the profile emits nothing")
     if normalize:
-        # Mean over the sphere: integral of f(theta) sin(theta) dtheta / 2.
+        # Mean over the sphere: (1/4 pi) of the integral of f sin(theta) dtheta dphi.
         rad = np.radians(theta)
-        return prof / (0.5 * np.trapz(prof * np.sin(rad), rad))
+        around = np.trapezoid(table, np.radians(phi), axis=1)
+        return table / (np.trapezoid(around * np.sin(rad), rad) / (4.0 * math.pi))
     # Over the file's own peak: rescaling the angles moves the peak, it does not raise it.
-    return prof / max(float(mean.max()), float(prof.max()))
+    return table / max(float(cd.max()), float(table.max()))
 
 
 def shaping_columns(translator, prim) -> list[float] | None:
     """The shaping columns of a light prim with ShapingAPI, or None without it (or when
-    every authored value leaves the light unshaped)."""
+    every authored value leaves the light unshaped). An IES table is appended to
+    translator.ies_tables and named by index."""
     from pxr import UsdLux
 
     from .materials import _authoring_layer
@@ -130,12 +163,16 @@ def shaping_columns(translator, prim) -> list[float] | None:
         return None
     m = translator.world_matrix(prim)
     axis = -np.asarray(m[2, :3], np.float64)  # the light's -Z in world space (row vectors)
-    n = float(np.linalg.norm(axis))
-    if not n > 0:
+    zero = np.asarray(m[0, :3], np.float64)  # its +X: the IES horizontal angle 0
+    n, nz = float(np.linalg.norm(axis)), float(np.linalg.norm(zero))
+    if not (n > 0 and nz > 0):
         translator.warn(f"{where}: the light's transform is degenerate; not shaped")
         return None
-    return [1.0, *(axis / n), cutoff, smooth_start, focus, *tint,
-            1.0 if ies is not None else 0.0, *(ies if ies is not None else np.zeros(IES_SAMPLES))]
+    table = 0.0
+    if ies is not None:
+        translator.ies_tables.append(ies.astype(np.float32))
+        table = float(len(translator.ies_tables))
+    return [1.0, *(axis / n), cutoff, smooth_start, focus, *tint, table, *(zero / nz)]
 
 
 def unshaped_columns() -> list[float]:

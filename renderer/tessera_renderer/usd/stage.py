@@ -96,6 +96,8 @@ class SceneData:
     # Shaped area lights (UsdLux ShapingAPI on Rect and Disk lights): per material row the
     # shaping columns of usd/light_shaping.py (axis unused: the emitting normal is), or None.
     material_shaping: np.ndarray | None = None
+    # IES tables (tables, 181, 73) the shaping columns name (usd/light_shaping.py), or None.
+    ies_tables: np.ndarray | None = None
     # The time code rendered (None: the default time) and the shutter interval around it
     # in absolute time codes (None: no motion blur).
     time_code: float | None = None
@@ -131,6 +133,7 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
         self.chunks: list[_Chunk] = []
         self.sphere_lights: list[list[float]] = []
         self.point_lights: list[list[float]] = []
+        self.ies_tables: list[np.ndarray] = []
         self.distant_lights: list[list[float]] = []
         self.dome_light: dict | None = None
         self.prototypes: list[dict] = []
@@ -489,6 +492,7 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
                      world_offset=camera_offset, default_lights=default_lights,
                      motion_instances=motion_instances, motion_time_steps=motion_time_steps, **light_motion,
                      material_shaping=material_shaping,
+                     ies_tables=np.stack(tr.ies_tables) if tr.ies_tables else None,
                      motion_transforms=motion_transforms,
                      time_code=None if time.IsDefault() else float(time.GetValue()),
                      shutter=None if tr.shutter is None else (tr.shutter.open, tr.shutter.close))
