@@ -45,7 +45,8 @@ using PointLightRows = nb::ndarray<const float, nb::shape<-1, -1>, nb::c_contig,
 // IES tables (light_shaping.h): (tables, kIesSamples, kIesAzimuths).
 using IesTables = nb::ndarray<const float, nb::shape<-1, kIesSamples, kIesAzimuths>, nb::c_contig, nb::device::cpu>;
 
-// The shaping columns of light_shaping.h from column `first` of a row: shaped?, axis xyz,
+// The shaping columns of light_shaping.h from column `first` of a row: shaped? (0 no, 1 about
+// the emitting normal, 2 about the axis: LightShaping::about_axis), axis xyz,
 // cone cutoff and smooth start in radians, focus, focus tint rgb, IES table index + 1 (0:
 // none), horizontal angle 0's axis xyz (the light's +X).
 constexpr size_t kShapingColumns = 14;
@@ -55,6 +56,7 @@ LightShaping ShapingFromColumns(Column col, size_t first, const std::optional<Ie
     LightShaping s;
     if (col(first) == 0.f) return s;
     s.enabled = true;
+    s.about_axis = col(first) == 2.f;
     s.axis = Normalize(Vec3(col(first + 1), col(first + 2), col(first + 3)));
     s.cutoff = col(first + 4);
     s.smooth_start = col(first + 5);
@@ -424,7 +426,8 @@ NB_MODULE(_core, m) {
             "dome with index 0) moves rigidly through light_motion_time_steps[k] world-space transforms "
             "(light_motion_transforms float32 (total steps, 4, 4), row-vector convention) applied to it as "
             "described above. material_shaping float32 (materials, 14): per material the shaping columns "
-            "of a point light (axis unused): a shaped area light's emission about its emitting normal. "
+            "of a point light: a shaped area light's emission about its emitting normal (shaped 1) or its "
+            "axis (2). "
             "ies_tables float32 (tables, 181, 73): IES factors by vertical angle 0..180 (1 degree apart) and "
             "horizontal angle 0..360 (5 degrees apart), named by the shaping columns.")
         .def_prop_ro("has_motion", &Scene::has_motion)

@@ -52,7 +52,8 @@ BLOB_VERSION = 1
 # prototype's motion_positions), moving sphere, point, distant and dome lights
 # (light_motion_*), still-time values that are not numbers refused, RectLight textures,
 # shaped Rect and Disk lights (material_shaping); 10: IES tables by vertical and horizontal
-# angle (SceneData.ies_tables; shaping columns 14: the table index and the +X axis).
+# angle (SceneData.ies_tables; shaping columns 14: the table index and the +X axis),
+# shaped Cylinder lights (about their -Z) and Distant lights (along their direction).
 TRANSLATOR_VERSION = 10
 _ALIGN = 64
 _LIGHT_MOTION_FIELDS = ("light_motion_kinds", "light_motion_indices", "light_motion_time_steps",

@@ -45,6 +45,14 @@ def _render(tmp_path, theta_deg, name, kind="point", azimuth_deg=0.0, **shaping)
         light = UsdLux.RectLight.Define(stage, "/Light")
         light.CreateWidthAttr(0.4 * RADIUS)
         light.CreateHeightAttr(0.4 * RADIUS)
+    elif kind == "cylinder":  # along the light's X, emitting all round: shaped about its -Z
+        # 0.005 long: 0.1 degree seen from the floor point (the factor's spread over the
+        # light, and so the shaped render's sampling noise, stays far below 0.5 %).
+        light = UsdLux.CylinderLight.Define(stage, "/Light")
+        light.CreateRadiusAttr(0.025 * RADIUS)
+        light.CreateLengthAttr(0.1 * RADIUS)
+    elif kind == "distant":
+        light = UsdLux.DistantLight.Define(stage, "/Light")
     else:
         light = UsdLux.SphereLight.Define(stage, "/Light")
         light.CreateRadiusAttr(RADIUS)
@@ -272,6 +280,50 @@ def test_rect_light_is_shaped_about_its_emitting_normal(tmp_path, theta, shaping
     assert not any("Shaping" in w or "shaping" in w for w in warnings), warnings
     if expected > 0:
         assert not _close(f, expected * 1.02)
+
+
+@pytest.mark.parametrize("theta, shaping, expected", [(20.0, {"angle": 35.0}, 1.0), (36.0, {"angle": 35.0}, 0.0),
+                                                      (25.0, {"angle": 30.0, "softness": 0.5}, None)])
+def test_cylinder_light_is_shaped_about_its_axis(tmp_path, theta, shaping, expected):
+    """A CylinderLight's normals turn around it, so its ShapingAPI cone is about the light's
+    -Z (as Omniverse defines it), the same closed form as for a point light, to 0.5 %; shaped
+    about each emitting normal instead, most of the side would be cut at 20 degrees (the
+    factor would fall well below 1), and ignored (before) the light would pass 36 degrees.
+    The soft edge is checked across the cylinder: along it the light spans 0.1 degree of
+    a factor falling 34 % per degree at 25 degrees, which moves the mean factor by -0.36 %
+    (converged, 1024 spp), too close to the bound for a 16-sample render."""
+    if expected is None:
+        x = (theta - 15.0) / 15.0
+        expected = 1 - x * x * (3 - 2 * x)
+    for azimuth in (0.0, 90.0) if "softness" not in shaping else (90.0,):  # along the cylinder, across it
+        f, warnings = _factor(tmp_path, theta, "cylinder", azimuth, **shaping)
+        assert _close(f, expected), (azimuth, f, expected)
+        assert not any("haping" in w for w in warnings), warnings
+        if expected > 0:
+            assert not _close(f, expected * 1.02)
+    # Control: the cone edge moved one degree past the point flips a hard cone's answer.
+    if "softness" not in shaping:
+        g, _ = _factor(tmp_path, theta, "cylinder", angle=theta - 1.0 if expected else theta + 1.0)
+        assert not _close(g, expected), g
+
+
+def test_distant_light_is_shaped_along_its_direction(tmp_path):
+    """A DistantLight emits along its -Z only: a cone (of any angle) and focus leave it as it
+    is, an IES profile scales it by its vertical-0 candela over the peak: 0.5 for a
+    profile peaking at 30 degrees. Checked to 0.5 % (a delta light: no noise); the control
+    is a profile whose axis value is 2 % higher."""
+    for shaping in ({"angle": 10.0}, {"focus": 4.0, "tint": (0.1, 0.1, 0.1)}):
+        f, warnings = _factor(tmp_path, 20.0, "distant", **shaping)
+        assert _close(f, 1.0), (shaping, f)
+        assert not any("haping" in w for w in warnings), warnings
+    _write_ies(tmp_path / "batwing.ies", lambda a: 1000.0 * (0.5 + 0.5 * math.sin(math.radians(3 * a))))
+    f, warnings = _factor(tmp_path, 20.0, "distant", ies="./batwing.ies")
+    assert _close(f, 0.5), f
+    assert not any("IES" in w or "haping" in w for w in warnings), warnings
+    _write_ies(tmp_path / "batwing.ies",
+               lambda a: 1000.0 * (0.51 if a == 0 else 0.5 + 0.5 * math.sin(math.radians(3 * a))))
+    g, _ = _factor(tmp_path, 20.0, "distant", ies="./batwing.ies")
+    assert not _close(g, 0.5), g
 
 
 def test_ies_files_are_sandboxed_and_bad_ones_warn(tmp_path):

@@ -21,6 +21,9 @@ constexpr int kIesAzimuths = 73;
 
 struct LightShaping {
     bool enabled = false;
+    // An area light's emission is shaped about its emitting normal, or (a cylinder, whose
+    // normals turn around it) about the fixed axis.
+    bool about_axis = false;
     Vec3 axis{0.f, 0.f, -1.f};  // unit emission axis in world space (the light's -Z)
     float cutoff = kPi;         // cone half angle, radians: nothing beyond it
     float smooth_start = kPi;   // angle where the soft edge starts to fall off

@@ -110,7 +110,7 @@ struct SceneDesc {
     std::vector<uint32_t> light_motion_time_steps;
     std::vector<float> light_motion_transforms;
     std::vector<Material> materials;
-    std::vector<LightShaping> emission_shapings;  // Material::emission_shaping (axes unused)
+    std::vector<LightShaping> emission_shapings;  // Material::emission_shaping (axes used when about_axis)
     std::vector<SphereLight> sphere_lights;
     std::vector<PointLight> point_lights;
     std::vector<DistantLight> distant_lights;
@@ -423,9 +423,12 @@ private:
     bool has_cutouts_ = false;
     std::vector<Material> materials_;
     std::vector<LightShaping> emission_shapings_;
-    // The shaping of a triangle emitter's material about its emitting normal n, toward w.
+    // The shaping of a triangle emitter's material about its emitting normal n (or the
+    // light's axis), toward w.
     Color EmissionShaping(const Material& m, Vec3 n, Vec3 w) const {
-        return m.emission_shaping < 0 ? Color(1.f) : emission_shapings_[m.emission_shaping].FactorAbout(n, w);
+        if (m.emission_shaping < 0) return Color(1.f);
+        const LightShaping& s = emission_shapings_[m.emission_shaping];
+        return s.FactorAbout(s.about_axis ? s.axis : n, w);
     }
     std::vector<SphereLight> spheres_;
     std::vector<PointLight> points_;

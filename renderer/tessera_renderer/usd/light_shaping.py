@@ -24,6 +24,7 @@ IES_SAMPLES = 181  # lights/light_shaping.h kIesSamples: 0..180 degrees, 1 degre
 IES_AZIMUTHS = 73  # kIesAzimuths: 0..360 degrees, 5 degrees apart
 COLUMNS = 14  # after the six of a point light (renderer/python/module.cpp kShapingColumns)
 IES_COLUMN = 10  # IES table index + 1 (0: none)
+ABOUT_AXIS = 2.0  # column 0 of an area light shaped about the light's -Z, not its normal (1)
 
 
 class IesError(ValueError):
@@ -177,4 +178,16 @@ def shaping_columns(translator, prim) -> list[float] | None:
 
 def unshaped_columns() -> list[float]:
     return [0.0] * COLUMNS
+
+
+def along_axis_factor(translator, prim) -> float:
+    """The shaping factor along the light's own -Z: all a DistantLight emits toward (its
+    angular disk is taken as that one direction). A cone of any angle and focus leave it
+    1; an IES profile scales it by its vertical-0 value (the same at every horizontal
+    angle)."""
+    columns = shaping_columns(translator, prim)
+    if columns is None or columns[IES_COLUMN] == 0.0:
+        return 1.0
+    table = translator.ies_tables.pop()  # appended for this light alone: no row names it
+    return float(table[0, 0])
 

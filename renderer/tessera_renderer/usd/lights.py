@@ -38,9 +38,6 @@ class _LightReader:
             radiance = radiance / area
         if not np.isfinite(radiance).all() or (radiance < 0).any():
             raise SceneError(f"{prim.GetPath()}: light radiance {radiance.tolist()} must be finite and >= 0")
-        if prim.HasAPI(UsdLux.ShapingAPI) and prim.GetTypeName() not in ("SphereLight", "RectLight", "DiskLight"):
-            self._count_note("UsdLux ShapingAPI (cone, focus, IES) on Cylinder and Distant lights is ignored: "
-                             "they emit unshaped")
         return radiance
 
     def add_light(self, prim, type_name: str) -> None:
@@ -89,15 +86,22 @@ class _LightReader:
 
 
     def _emissive(self, prim, local_pts, tris, radiance, two_sided=False, texture=None, uvs=None,
-                  shaped=False) -> None:
+                  shaped=None) -> None:
         """Emitting triangles of an area light (in its own space), of `radiance`, or of
         radiance x the texture's texel at the corners' st `uvs` (T, 3, 2). `shaped`: its
-        ShapingAPI (light_shaping) shapes the emission about the emitting normal."""
+        ShapingAPI (light_shaping) shapes the emission about the emitting normal ("normal":
+        flat lights, whose normal is their -Z) or about the light's -Z ("axis": a cylinder,
+        whose normals turn around it)."""
         m = self.world_matrix(prim)
         surface = {"values": {**self.defaults, "diffuseColor": (0.0, 0.0, 0.0),
                               "emissiveColor": tuple(float(x) for x in radiance)}, "textures": {}}
         columns = light_shaping.shaping_columns(self, prim) if shaped else None
         if columns is not None:
+            if shaped == "axis":
+                columns[0] = light_shaping.ABOUT_AXIS
+                if self.motion_steps(prim, np.asarray(local_pts, np.float64)) is not None:
+                    self.warn(f"{prim.GetPath()}: a shaped CylinderLight that moves keeps its shaping axis "
+                              f"where it is at the frame")
             surface["shaping"] = tuple(float(c) for c in columns)
         if texture is not None:
             # The core reads a texture in place of the constant: scaled by the radiance.
@@ -132,7 +136,7 @@ class _LightReader:
             return
         tris = np.array([[0, 1, 2], [0, 2, 3]])
         self._emissive(prim, local, tris, self.light_radiance(prim, area), texture=texture, uvs=st[tris],
-                       shaped=True)
+                       shaped="normal")
 
     def _rect_texture(self, prim, rect) -> dict | None:
         """inputs:texture:file as an emissive texture (None without one, or when it is
@@ -163,7 +167,7 @@ class _LightReader:
             self.warn(f"{prim.GetPath()}: DiskLight has no area; skipped")
             return
         pts, tris = gprims.disk_light(r)
-        self._emissive(prim, pts, tris, self.light_radiance(prim, area), shaped=True)
+        self._emissive(prim, pts, tris, self.light_radiance(prim, area), shaped="normal")
 
     def add_cylinder_light(self, prim) -> None:
         from pxr import UsdLux
@@ -182,7 +186,7 @@ class _LightReader:
             self.warn(f"{prim.GetPath()}: CylinderLight has no area; skipped")
             return
         pts, tris = gprims.cylinder_light(r, length)
-        self._emissive(prim, pts, tris, self.light_radiance(prim, area))
+        self._emissive(prim, pts, tris, self.light_radiance(prim, area), shaped="axis")
 
     def add_sphere_light(self, prim) -> None:
         from pxr import UsdLux
@@ -237,6 +241,7 @@ class _LightReader:
         radiance = self.light_radiance(prim, None)
         if UsdLux.LightAPI(prim).GetNormalizeAttr().Get(self.time) and half > 0:
             radiance = radiance / (math.pi * math.sin(half) ** 2)
+        radiance = radiance * light_shaping.along_axis_factor(self, prim)
         self.distant_lights.append([*direction, half, *radiance])
 
     def add_dome_light(self, prim) -> None:

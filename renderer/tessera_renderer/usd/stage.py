@@ -93,8 +93,8 @@ class SceneData:
     light_motion_indices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint32))
     light_motion_time_steps: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint32))
     light_motion_transforms: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4), np.float32))
-    # Shaped area lights (UsdLux ShapingAPI on Rect and Disk lights): per material row the
-    # shaping columns of usd/light_shaping.py (axis unused: the emitting normal is), or None.
+    # Shaped area lights (UsdLux ShapingAPI on Rect, Disk and Cylinder lights): per material row the
+    # shaping columns of usd/light_shaping.py (about the emitting normal, or the axis: column 0 = 2), or None.
     material_shaping: np.ndarray | None = None
     # IES tables (tables, 181, 73) the shaping columns name (usd/light_shaping.py), or None.
     ies_tables: np.ndarray | None = None
