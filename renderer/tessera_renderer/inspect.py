@@ -1,6 +1,10 @@
 """Pre-flight of an untrusted scene, meant to run in a child process:
 
-    python -m tessera_renderer.inspect FILE
+    python -m tessera_renderer.inspect FILE [VARIANTS]
+
+VARIANTS: a JSON list of [prim path, variant set, variant] selections the stage is composed
+with, as the render will compose it (the missing layers that matter are the ones the
+selection uses).
 
 Prints one JSON object: {"ok": true, "width", "height", "warnings", "triangles", "lights",
 "cameras", "camera_note", "unlit_warnings"}, the last present for a stage without any light: the warnings of a
@@ -27,8 +31,14 @@ CENSUS_HEADROOM = 512 << 20
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    if len(argv) != 1:
-        print(json.dumps({"ok": False, "error": "usage: python -m tessera_renderer.inspect FILE"}))
+    try:
+        if len(argv) not in (1, 2):
+            raise ValueError("wrong number of arguments")
+        variants = [tuple(str(x) for x in v) for v in json.loads(argv[1])] if len(argv) == 2 else []
+        if any(len(v) != 3 for v in variants):
+            raise ValueError("each variant selection is [prim path, variant set, variant]")
+    except ValueError as exc:
+        print(json.dumps({"ok": False, "error": f"usage: python -m tessera_renderer.inspect FILE [VARIANTS] ({exc})"}))
         return 2
     from . import Scene, SceneError
     from .usd.bundle import open_bundle, open_stage
@@ -39,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         bundle = open_bundle(argv[0])
         warnings = list(bundle.warnings)
-        stage = open_stage(bundle)  # kept open: the translation reuses its layers
+        stage = open_stage(bundle, variants)  # kept open: the translation reuses its layers
         try:
             with _address_space(CENSUS_HEADROOM + 8 * bundle.limits.triangles):
                 take_census(stage, bundle.limits)
@@ -47,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
             raise SceneError("the scene's face counts are too large to count within the "
                              f"pre-flight's memory (triangle limit {bundle.limits.triangles})") from None
         bundle.warnings[:] = warnings  # translate_stage opens the stage again and adds its own
-        scene = Scene(translate_stage(argv[0], bundle=bundle, instancing="auto"))
+        scene = Scene(translate_stage(argv[0], bundle=bundle, instancing="auto", variants=variants))
         cameras = camera_paths(stage)
         del stage
     except SceneError as exc:

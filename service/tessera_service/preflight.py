@@ -9,6 +9,7 @@ import resource
 import signal
 import subprocess
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from tessera_base.process import die_with_parent
@@ -64,16 +65,18 @@ def _limits(memory_bytes: int):
 
 
 def inspect_scene(path: str, *, timeout: float, memory_bytes: int,
-                  max_triangles: int | None = None) -> SceneInfo:
+                  max_triangles: int | None = None, variants: Sequence[tuple[str, str, str]] = ()) -> SceneInfo:
     """Inspects the scene in a child process; `max_triangles`: its triangle limit
-    (default: the renderer's own, TESSERA_MAX_TRIANGLES)."""
+    (default: the renderer's own, TESSERA_MAX_TRIANGLES); `variants`: (prim path, set,
+    variant) selections the stage is composed with, as the render will."""
     # One malloc arena per thread reserves 64 MB of address space each, up to 8 per core:
     # on a many-core host that alone would eat the limit. Two arenas cost nothing here.
     env = {**os.environ, "MALLOC_ARENA_MAX": "2"}
     if max_triangles is not None:
         env["TESSERA_MAX_TRIANGLES"] = str(max_triangles)
     try:
-        proc = subprocess.run([sys.executable, "-m", INSPECT_MODULE, path],
+        proc = subprocess.run([sys.executable, "-m", INSPECT_MODULE, path,
+                               *([json.dumps([list(v) for v in variants])] if variants else [])],
                               stdin=subprocess.DEVNULL, capture_output=True, env=env,
                               timeout=timeout, preexec_fn=_limits(memory_bytes))
     except subprocess.TimeoutExpired:

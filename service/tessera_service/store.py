@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import redis
@@ -83,11 +84,11 @@ class JobStore:
         return bool(self.scripts.touch_scene(
             keys=[rdb.scene_key(scene_hash), rdb.scene_jobs_key(scene_hash)], args=[ttl]))
 
-    def preflight(self, scene_hash: str, limits: str) -> dict | None:
-        """The remembered pre-flight of a scene: its SceneInfo fields, or {"error": why} for
-        a scene that was refused under the same `limits` (a refusal under other limits is
-        forgotten: it may pass now)."""
-        raw = self.redis.get(rdb.preflight_key(scene_hash))
+    def preflight(self, scene_hash: str, limits: str, variants: Sequence[str] = ()) -> dict | None:
+        """The remembered pre-flight of a scene (composed with `variants`): its SceneInfo
+        fields, or {"error": why} for a scene that was refused under the same `limits` (a
+        refusal under other limits is forgotten: it may pass now)."""
+        raw = self.redis.get(rdb.preflight_key(scene_hash, variants))
         if not raw:
             return None
         value = json.loads(raw)
@@ -95,14 +96,14 @@ class JobStore:
             return value if value.get("limits") == limits else None
         return value
 
-    def remember_preflight(self, scene_hash: str, info: dict) -> None:
+    def remember_preflight(self, scene_hash: str, info: dict, variants: Sequence[str] = ()) -> None:
         ttl = int(self.scene_retention) if self.scene_retention > 0 else None
-        self.redis.set(rdb.preflight_key(scene_hash), json.dumps(info), ex=ttl)
+        self.redis.set(rdb.preflight_key(scene_hash, variants), json.dumps(info), ex=ttl)
 
-    def remember_rejection(self, scene_hash: str, error: str, limits: str) -> None:
+    def remember_rejection(self, scene_hash: str, error: str, limits: str, variants: Sequence[str] = ()) -> None:
         """Remembers for the scene retention that this file was refused, so that uploading
         it again is refused at once, without another inspection."""
-        self.remember_preflight(scene_hash, {"error": error, "limits": limits})
+        self.remember_preflight(scene_hash, {"error": error, "limits": limits}, variants)
 
     def count_inspection(self, rejected: bool) -> None:
         with self.redis.pipeline(transaction=False) as pipe:

@@ -35,7 +35,9 @@ Job hash fields (`job_key`), all written by the service at creation unless noted
 """
 from __future__ import annotations
 
+import hashlib
 import re
+from collections.abc import Sequence
 from functools import lru_cache
 from importlib import resources
 from typing import Literal
@@ -96,12 +98,16 @@ def translated_field(blob_version: str) -> str:
     return f"translated:{blob_version}"
 
 
-def preflight_key(scene_hash: str) -> str:
+def preflight_key(scene_hash: str, variants: Sequence[str] = ()) -> str:
     """String: the pre-flight inspection result (JSON) of a scene, so that a scene that was
     already validated is not inspected again; for a refused scene {"error", "limits"}, so
-    that it is refused again at once (under the same limits). TTL: the scene retention.
-    Only the API reads it."""
-    return f"{PREFIX}:preflight:{scene_hash}"
+    that it is refused again at once (under the same limits). With `variants` (a job's
+    selections, in order) the stage composes differently: its own key, by their digest.
+    TTL: the scene retention. Only the API reads it."""
+    if not variants:
+        return f"{PREFIX}:preflight:{scene_hash}"
+    digest = hashlib.sha256("\n".join(variants).encode()).hexdigest()[:16]
+    return f"{PREFIX}:preflight:{scene_hash}:variants:{digest}"
 
 
 def blob_key(content_hash: str) -> str:

@@ -13,6 +13,7 @@ import tempfile
 import threading
 import time
 import uuid
+from collections.abc import Sequence
 from contextlib import contextmanager
 from dataclasses import asdict
 from datetime import datetime, timezone
@@ -202,7 +203,7 @@ def create_job(
         path = Path(tmp, protocol.scene_file_name(suffix))
         scene_hash = (_save_upload(file, path, settings.max_upload_bytes) if packed is None
                       else _assemble(request, packed, path, settings.max_upload_bytes))
-        info = _inspect(request, path, scene_hash)
+        info = _inspect(request, path, scene_hash, params["variants"] or ())
         if params["camera"] is not None and info.cameras is not None and params["camera"] not in info.cameras:
             raise HTTPException(422, f"camera {params['camera']} is not a Camera prim of the scene "
                                      f"(its cameras: {', '.join(info.cameras) or 'none'})")
@@ -547,9 +548,10 @@ def _frame_job(request: Request, sequence_id: str, frame: int, user: User) -> st
                              f"{', ...' if len(record['frames']) > 20 else ''})")
 
 
-def _inspect(request: Request, path: Path, scene_hash: str) -> SceneInfo:
-    """The scene's pre-flight: remembered (passed or refused) for this exact file, else
-    inspected in a slot of the bounded pool (429 when it is full)."""
+def _inspect(request: Request, path: Path, scene_hash: str, variants: Sequence[str] = ()) -> SceneInfo:
+    """The scene's pre-flight, composed with the job's variant selections: remembered
+    (passed or refused) for this exact file and selection, else inspected in a slot of the
+    bounded pool (429 when it is full)."""
     settings: Settings = request.app.state.settings
     store: JobStore = request.app.state.store
     pool: InspectionPool = request.app.state.inspections
@@ -557,7 +559,7 @@ def _inspect(request: Request, path: Path, scene_hash: str) -> SceneInfo:
     limits = f"{max_triangles}/{settings.preflight_memory_bytes}/{settings.preflight_timeout:g}"
     # Concurrent uploads of one scene wait for a single inspection.
     with _inspection_lock(scene_hash):
-        cached = store.preflight(scene_hash, limits)
+        cached = store.preflight(scene_hash, limits, variants)
         if cached is not None and "error" in cached:
             raise HTTPException(422, f"the scene cannot be rendered: {cached['error']}")
         if cached is not None:  # this exact file was inspected before: skip the child
@@ -567,17 +569,18 @@ def _inspect(request: Request, path: Path, scene_hash: str) -> SceneInfo:
                 try:
                     info = inspect_scene(str(path), timeout=settings.preflight_timeout,
                                          memory_bytes=settings.preflight_memory_bytes,
-                                         max_triangles=max_triangles)
+                                         max_triangles=max_triangles,
+                                         variants=[protocol.parse_variant(v) for v in variants])
                 except PreflightRejected as e:
                     store.count_inspection(rejected=True)
-                    store.remember_rejection(scene_hash, str(e), limits)
+                    store.remember_rejection(scene_hash, str(e), limits, variants)
                     raise HTTPException(422, f"the scene cannot be rendered: {e}") from None
                 except PreflightBroken as e:  # the server's fault: not remembered
                     raise HTTPException(500, str(e)) from None
         except PoolFull as e:
             raise HTTPException(429, str(e), headers={"Retry-After": "5"}) from None
         store.count_inspection(rejected=False)
-        store.remember_preflight(scene_hash, asdict(info))
+        store.remember_preflight(scene_hash, asdict(info), variants)
         return info
 
 
