@@ -98,6 +98,10 @@ struct Extras {
     std::optional<Matrices> light_motion_transforms;
     std::optional<PointLightRows> material_shaping;
     std::optional<IesTables> ies_tables;
+    std::optional<InArray<float, 4>> curve_points;
+    std::optional<InVector<uint32_t>> curve_segments;
+    std::optional<InVector<uint8_t>> curve_flags;
+    std::optional<InVector<uint32_t>> curve_material;
 };
 
 WrapMode ToWrap(float v) {
@@ -232,6 +236,14 @@ void AddExtras(SceneDesc* d, const Extras& x) {
             d->materials[m].emission_shaping = int32_t(d->emission_shapings.size());
             d->emission_shapings.push_back(std::move(s));
         }
+    }
+    if (x.curve_points || x.curve_segments || x.curve_flags || x.curve_material) {
+        if (!x.curve_points || !x.curve_segments || !x.curve_flags || !x.curve_material)
+            throw std::invalid_argument("curves need curve_points, curve_segments, curve_flags and curve_material");
+        d->curve_points.assign(x.curve_points->data(), x.curve_points->data() + x.curve_points->size());
+        d->curve_segments.assign(x.curve_segments->data(), x.curve_segments->data() + x.curve_segments->size());
+        d->curve_flags.assign(x.curve_flags->data(), x.curve_flags->data() + x.curve_flags->size());
+        d->curve_material.assign(x.curve_material->data(), x.curve_material->data() + x.curve_material->size());
     }
     if (x.light_motion_kinds) {
         if (!x.light_motion_indices || !x.light_motion_time_steps || !x.light_motion_transforms)
@@ -374,7 +386,9 @@ NB_MODULE(_core, m) {
                std::optional<InVector<uint32_t>> light_motion_indices,
                std::optional<InVector<uint32_t>> light_motion_time_steps,
                std::optional<Matrices> light_motion_transforms, std::optional<PointLightRows> material_shaping,
-               std::optional<IesTables> ies_tables) {
+               std::optional<IesTables> ies_tables, std::optional<InArray<float, 4>> curve_points,
+               std::optional<InVector<uint32_t>> curve_segments, std::optional<InVector<uint8_t>> curve_flags,
+               std::optional<InVector<uint32_t>> curve_material) {
                 SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
                                           sphere_lights, point_lights, distant_lights, dome_radiance, preview_params,
                                           preview_mask, dome_texture, dome_world_to_light, shading_normals,
@@ -383,7 +397,8 @@ NB_MODULE(_core, m) {
                                         prototypes, instance_prototype, instance_transforms, motion_instances,
                                         motion_time_steps, motion_transforms, light_motion_kinds,
                                         light_motion_indices, light_motion_time_steps, light_motion_transforms,
-                                        material_shaping, ies_tables});
+                                        material_shaping, ies_tables, curve_points, curve_segments,
+                                        curve_flags, curve_material});
                 nb::gil_scoped_release release;
                 new (self) Scene(desc);
             },
@@ -397,7 +412,8 @@ NB_MODULE(_core, m) {
             "motion_instances"_a = nb::none(), "motion_time_steps"_a = nb::none(), "motion_transforms"_a = nb::none(),
             "light_motion_kinds"_a = nb::none(), "light_motion_indices"_a = nb::none(),
             "light_motion_time_steps"_a = nb::none(), "light_motion_transforms"_a = nb::none(),
-            "material_shaping"_a = nb::none(), "ies_tables"_a = nb::none(),
+            "material_shaping"_a = nb::none(), "ies_tables"_a = nb::none(), "curve_points"_a = nb::none(),
+            "curve_segments"_a = nb::none(), "curve_flags"_a = nb::none(), "curve_material"_a = nb::none(),
             "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
             "(x, y, z, r, g, b intensity W/sr, then optionally the shaping columns of light_shaping.h: "
             "shaped, axis xyz, cutoff, smooth start, focus, focus tint rgb, IES table + 1 (0 none), horizontal "
@@ -429,9 +445,13 @@ NB_MODULE(_core, m) {
             "of a point light: a shaped area light's emission about its emitting normal (shaped 1) or its "
             "axis (2). "
             "ies_tables float32 (tables, 181, 73): IES factors by vertical angle 0..180 (1 degree apart) and "
-            "horizontal angle 0..360 (5 degrees apart), named by the shaping columns.")
+            "horizontal angle 0..360 (5 degrees apart), named by the shaping columns. Curves (round linear, "
+            "world space): curve_points float32 (points, 4) x y z radius; per segment curve_segments uint32 "
+            "(its first point; it ends at the next), curve_flags uint8 (1: a segment before it on the same "
+            "curve, 2: one after it) and curve_material uint32.")
         .def_prop_ro("has_motion", &Scene::has_motion)
         .def_prop_ro("num_triangles", &Scene::num_triangles)
+        .def_prop_ro("num_curve_segments", &Scene::num_curve_segments)
         .def_prop_ro("num_emitters", &Scene::num_emitters)
         .def_prop_ro("num_instances", &Scene::num_instances)
         .def_prop_ro("num_stored_triangles", &Scene::num_stored_triangles)

@@ -62,6 +62,12 @@ class Scene:
             ies = getattr(data, "ies_tables", None)
             if ies is not None:
                 extras["ies_tables"] = np.ascontiguousarray(ies, np.float32)
+            curves = getattr(data, "curves", None)
+            if curves is not None:
+                extras.update(curve_points=np.ascontiguousarray(curves["points"], np.float32).reshape(-1, 4),
+                              curve_segments=np.ascontiguousarray(curves["segments"], np.uint32),
+                              curve_flags=np.ascontiguousarray(curves["flags"], np.uint8),
+                              curve_material=np.ascontiguousarray(curves["material"], np.uint32))
             uvs = getattr(data, "uvs", None)
             if uvs is not None and len(uvs) and extras.get("texture_table") is not None:
                 extras["uvs"] = np.ascontiguousarray(uvs, dtype=np.float32).reshape(-1, 3, 2)
@@ -94,6 +100,11 @@ class Scene:
     @property
     def num_triangles(self) -> int:
         return self._core.num_triangles
+
+    @property
+    def num_curve_segments(self) -> int:
+        """Segments of the Embree round curves (still BasisCurves of the world)."""
+        return self._core.num_curve_segments
 
     @property
     def num_emitters(self) -> int:

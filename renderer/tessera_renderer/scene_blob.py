@@ -53,7 +53,8 @@ BLOB_VERSION = 1
 # (light_motion_*), still-time values that are not numbers refused, RectLight textures,
 # shaped Rect and Disk lights (material_shaping); 10: IES tables by vertical and horizontal
 # angle (SceneData.ies_tables; shaping columns 14: the table index and the +X axis),
-# shaped Cylinder lights (about their -Z) and Distant lights (along their direction).
+# shaped Cylinder lights (about their -Z) and Distant lights (along their direction),
+# still curves of the world as Embree round curves (SceneData.curves).
 TRANSLATOR_VERSION = 10
 _ALIGN = 64
 _LIGHT_MOTION_FIELDS = ("light_motion_kinds", "light_motion_indices", "light_motion_time_steps",
@@ -105,6 +106,8 @@ def scene_data_to_blob(data: SceneData) -> bytes:
         arrays["material_shaping"] = data.material_shaping
     if getattr(data, "ies_tables", None) is not None:
         arrays["ies_tables"] = data.ies_tables
+    for key, value in (getattr(data, "curves", None) or {}).items():
+        arrays[f"curves.{key}"] = value
     for key, value in data.material_params.items():
         arrays[f"material_params.{key}"] = value
     if data.shading_normals is not None:
@@ -250,6 +253,7 @@ def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
         **{k: arrays[k] for k in _LIGHT_MOTION_FIELDS if k in arrays},
         material_shaping=arrays.get("material_shaping"),
         ies_tables=arrays.get("ies_tables"),
+        curves={k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("curves.")} or None,
         time_code=meta.get("time_code"),
         shutter=None if meta.get("shutter") is None else tuple(meta["shutter"]))
     if tmp:

@@ -118,6 +118,50 @@ Scene::Scene(const SceneDesc& desc)
     }
 }
 
+// Round linear curves: each segment a cone between two spheres (Embree 3), the whole
+// strand a smooth tube without the facets or the triangle count of a mesh. World space
+// and still: moving or instanced curves come as triangle tubes (tessera_renderer.usd).
+void Scene::BuildCurves(const SceneDesc& desc, RTCDevice device) {
+    const size_t n_points = desc.curve_points.size() / 4, n_segments = desc.curve_segments.size();
+    if (desc.curve_points.size() % 4 != 0) throw std::invalid_argument("curve_points must hold 4 floats per point");
+    if (desc.curve_material.size() != n_segments || desc.curve_flags.size() != n_segments)
+        throw std::invalid_argument("curves need one material and one flag per segment");
+    if (n_segments == 0) return;
+    for (size_t i = 0; i < n_points; ++i) {
+        const float* q = &desc.curve_points[4 * i];
+        if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2]) || !(q[3] >= 0.f) ||
+            !std::isfinite(q[3]))
+            throw std::invalid_argument("curve point " + std::to_string(i) + " needs a finite position and radius >= 0");
+    }
+    for (size_t k = 0; k < n_segments; ++k) {
+        if (size_t(desc.curve_segments[k]) + 1 >= n_points)
+            throw std::invalid_argument("curve segment " + std::to_string(k) + " starts past the last point");
+        if (desc.curve_material[k] >= materials_.size())
+            throw std::invalid_argument("curve segment " + std::to_string(k) + " refers to material " +
+                                        std::to_string(desc.curve_material[k]) + " of " +
+                                        std::to_string(materials_.size()));
+    }
+    curve_material_ = desc.curve_material;
+    curve_first_ = desc.curve_segments;
+    curve_radius_.resize(n_points);
+    for (size_t i = 0; i < n_points; ++i) curve_radius_[i] = desc.curve_points[4 * i + 3];
+    RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_ROUND_LINEAR_CURVE);
+    auto* vb = static_cast<float*>(
+        rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4, 4 * sizeof(float), n_points));
+    auto* ib = static_cast<uint32_t*>(
+        rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT, sizeof(uint32_t), n_segments));
+    auto* fb = static_cast<uint8_t*>(
+        rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_FLAGS, 0, RTC_FORMAT_UCHAR, sizeof(uint8_t), n_segments));
+    CheckDevice(device, "allocating curve buffers");
+    std::copy(desc.curve_points.begin(), desc.curve_points.end(), vb);
+    std::copy(desc.curve_segments.begin(), desc.curve_segments.end(), ib);
+    std::copy(desc.curve_flags.begin(), desc.curve_flags.end(), fb);
+    rtcCommitGeometry(geom);
+    rtcAttachGeometryByID(scene_, geom, kCurveGeometry);
+    rtcReleaseGeometry(geom);
+    CheckDevice(device, "building curves");
+}
+
 // The BVHs (the world's, one per prototype, the instances), then the light table.
 void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
     RTCDevice device = EmbreeDevice();
@@ -135,6 +179,7 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
               desc.indices.size() / 3, desc.triangle_material, desc.shading_normals, desc.uvs, {}, scene_,
               kTriangleGeometry, "");
     BuildLightMotion(desc);
+    BuildCurves(desc, device);
     if (!spheres_.empty()) {
         RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_SPHERE_POINT);
         // Moving spheres all have the same step count (BuildLightMotion): one vertex buffer

@@ -109,6 +109,15 @@ struct SceneDesc {
     std::vector<uint32_t> light_motion_indices;
     std::vector<uint32_t> light_motion_time_steps;
     std::vector<float> light_motion_transforms;
+    // Curves (UsdGeom BasisCurves of the world, static): Embree round linear curves, cones
+    // between spheres. curve_points holds 4 floats per control point (x, y, z, radius);
+    // segment s joins points curve_segments[s] and curve_segments[s] + 1, has the material
+    // curve_material[s], and flags curve_flags[s] (RTC_CURVE_FLAG_NEIGHBOR_LEFT / RIGHT:
+    // the segment before / after it belongs to the same curve).
+    std::vector<float> curve_points;
+    std::vector<uint32_t> curve_segments;
+    std::vector<uint8_t> curve_flags;
+    std::vector<uint32_t> curve_material;
     std::vector<Material> materials;
     std::vector<LightShaping> emission_shapings;  // Material::emission_shaping (axes used when about_axis)
     std::vector<SphereLight> sphere_lights;
@@ -234,6 +243,7 @@ class Scene {
 public:
     static constexpr uint32_t kTriangleGeometry = 0;
     static constexpr uint32_t kSphereGeometry = 1;
+    static constexpr uint32_t kCurveGeometry = 2;
     static constexpr int32_t kNoEmitter = -1;
 
     // Validates the description (indices in range, finite positions, material indices,
@@ -303,6 +313,7 @@ public:
     void ForEachTriangle(Visit&& visit) const;
 
     size_t num_triangles() const { return num_triangles_; }
+    size_t num_curve_segments() const { return curve_material_.size(); }
     RTCScene embree_scene() const { return scene_; }  // for raw-Embree benchmarks
     size_t num_emitters() const { return emitters_.size(); }
     size_t num_instances() const { return instances_.size(); }
@@ -401,6 +412,14 @@ private:
     const Material& MaterialOf(uint32_t mesh, uint32_t prim) const {
         return materials_[meshes_[mesh].material[prim]];
     }
+    // The material index of a surface hit (a triangle's or a curve segment's); -1 for a
+    // light's own surface (a sphere light).
+    int64_t MaterialIndexAt(const SurfaceHit& hit) const {
+        if (hit.geom_id == kTriangleGeometry) return meshes_[hit.mesh].material[hit.prim_id];
+        if (hit.geom_id == kCurveGeometry) return curve_material_[hit.prim_id];
+        return -1;
+    }
+    void BuildCurves(const SceneDesc& desc, RTCDevice device);
     // Emitted radiance of a triangle's material at barycentrics (b1, b2), before sidedness.
     Color TriangleEmission(uint32_t mesh, uint32_t prim, float b1, float b2) const;
     void ApplyTextures(const Material& m, Vec2 st, MaterialParams* p) const;
@@ -443,6 +462,9 @@ private:
     std::vector<Emitter> emitters_;
     std::vector<uint32_t> environment_lights_;  // emitter indices of distant cones and the dome
     std::vector<int32_t> sphere_emitter_;
+    std::vector<uint32_t> curve_material_;  // per curve segment
+    std::vector<float> curve_radius_;       // per curve control point (the hit's error bound)
+    std::vector<uint32_t> curve_first_;     // per curve segment: its first control point
     LightSampler light_sampler_;
 };
 

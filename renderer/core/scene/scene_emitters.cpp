@@ -29,6 +29,7 @@ struct LightFrame {
 }  // namespace
 
 int32_t Scene::EmitterAt(const SurfaceHit& hit) const {
+    if (hit.geom_id == kCurveGeometry) return kNoEmitter;  // emissive curves come as triangle tubes
     if (hit.geom_id != kTriangleGeometry) return sphere_emitter_[hit.prim_id];
     const int32_t local = meshes_[hit.mesh].emitter[hit.prim_id];
     if (hit.instance == kNoInstance || local < 0) return local;

@@ -123,7 +123,7 @@ void Scene::ApplyTextures(const Material& m, Vec2 st, MaterialParams* p) const {
 }
 
 void Scene::ApplyNormalMap(SurfaceHit* hit) const {
-    if (hit->geom_id != kTriangleGeometry) return;
+    if (hit->geom_id != kTriangleGeometry) return;  // curves have no st, so no tangent frame
     const Material& mat = MaterialOf(hit->mesh, hit->prim_id);
     const int32_t tex = mat.textures[kSlotNormal];
     const Mesh& mesh = meshes_[hit->mesh];
@@ -162,8 +162,8 @@ void Scene::ApplyNormalMap(SurfaceHit* hit) const {
 }
 
 bool Scene::IsCutoutHit(const SurfaceHit& hit) const {
-    if (hit.geom_id != kTriangleGeometry) return false;
-    const uint32_t mi = meshes_[hit.mesh].material[hit.prim_id];
+    const int64_t mi = MaterialIndexAt(hit);
+    if (mi < 0) return false;
     if (!material_is_cutout_[mi]) return false;
     const Material& m = materials_[mi];
     const int32_t t = m.textures[kSlotOpacity];
@@ -229,6 +229,27 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceH
         hit->ns = hit->ng;
         hit->p = s.center + hit->ng * s.radius;
         hit->p_error = Gamma(5) * (MaxAbsComponent(s.center) + s.radius);
+        hit->st = {};
+        return true;
+    }
+    if (inst == RTC_INVALID_GEOMETRY_ID && rh.hit.geomID == kCurveGeometry) {
+        // A round curve: Embree's Ng is the swept surface's normal there (outward). The
+        // point comes from o + t d; its error bound covers that and Embree's curve test,
+        // which is iterative and far less exact than the triangle test: a thousandth of
+        // the local radius (offsetting by it keeps a reflected ray off the strand it left
+        // without letting it pass through a thin one).
+        const uint32_t first = curve_first_[rh.hit.primID];
+        const float r = curve_radius_[first] * (1.f - rh.hit.u) + curve_radius_[first + 1] * rh.hit.u;
+        const Vec3 p = ray.o + ray.d * rh.ray.tfar;
+        Vec3 ng(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
+        const float len = Length(ng);
+        hit->geom_id = kCurveGeometry;
+        hit->mesh = 0;
+        hit->instance = kNoInstance;
+        hit->ng = len > 0.f && std::isfinite(len) ? ng / len : -ray.d;
+        hit->ns = hit->ng;
+        hit->p = p;
+        hit->p_error = Gamma(5) * (MaxAbsComponent(ray.o) + MaxAbsComponent(ray.d * rh.ray.tfar)) + 1e-3f * r;
         hit->st = {};
         return true;
     }
@@ -322,12 +343,13 @@ bool Scene::Unoccluded(Vec3 p, float p_error, Vec3 ng, const LightSample& ls) co
 
 const Material& Scene::MaterialAt(const SurfaceHit& hit) const {
     static const Material kLightSurface{Color(0.f), Color(0.f), false, std::nullopt};
-    return hit.geom_id == kTriangleGeometry ? MaterialOf(hit.mesh, hit.prim_id) : kLightSurface;
+    const int64_t mi = MaterialIndexAt(hit);
+    return mi >= 0 ? materials_[mi] : kLightSurface;
 }
 
 BSDF Scene::BSDFAt(const SurfaceHit& hit, TransportMode mode) const {
-    if (hit.geom_id != kTriangleGeometry) return BSDF();
-    const uint32_t mi = meshes_[hit.mesh].material[hit.prim_id];
+    const int64_t mi = MaterialIndexAt(hit);
+    if (mi < 0) return BSDF();
     const Material& m = materials_[mi];
     if (!m.preview) return BSDF(DiffuseBSDF(m.albedo));
     if (!material_has_textures_[mi]) return MakePreviewSurfaceBSDF(*m.preview, mode);

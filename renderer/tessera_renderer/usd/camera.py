@@ -248,6 +248,8 @@ def _move_to_camera(tr, camera: CameraDesc) -> CameraDesc:
         return camera
     for c in tr.chunks:
         c.points = c.points - shift
+    for pts in tr.curves["points"]:
+        pts[:, :3] -= shift
     for row in tr.sphere_lights:
         row[:3] = list(np.asarray(row[:3], np.float64) - shift)
     for row in tr.point_lights:

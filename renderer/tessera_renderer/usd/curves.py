@@ -1,5 +1,7 @@
-"""UsdGeom BasisCurves (Blender hair, Houdini curves) as closed tubes of triangles at
-translation time, so the renderer only meets triangles.
+"""UsdGeom BasisCurves (Blender hair, Houdini curves): still curves of the world as
+Embree round linear curves (a cone between spheres per segment of the evaluated polyline,
+radius half the authored width: seen across, exactly the authored width), and moving,
+instanced or emissive ones as closed tubes of triangles (the paths that only meshes take).
 
 A tube of TUBE_SIDES sides whose circumradius makes its projected width, averaged over
 view directions, equal the authored width (Cauchy: the mean width of a convex polygon is
@@ -83,9 +85,9 @@ def tube(path: np.ndarray, widths: np.ndarray, closed: bool):
     return pts, tris, radial.reshape(-1, 3)
 
 
-def curves_geometry(prim, time, note):
-    """(points, triangles, per-corner normals, curve index per triangle) of a BasisCurves
-    prim in its local space, or None (with a note or nothing to draw)."""
+def curve_paths(prim, time, note):
+    """The polylines of a BasisCurves prim in its local space: (points (k, 3), widths (k,),
+    periodic) per drawable curve, or None (with a note, or nothing to draw)."""
     from pxr import UsdGeom
 
     curves = UsdGeom.BasisCurves(prim)
@@ -113,7 +115,7 @@ def curves_geometry(prim, time, note):
     widths = np.asarray(widths, np.float64).reshape(-1) if widths is not None and len(widths) else np.ones(1)
     interp = curves.GetWidthsInterpolation()
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    out_pts, out_tris, out_nrm, out_curve, offset = [], [], [], [], 0
+    paths = []
     for c, (s, n) in enumerate(zip(starts, counts)):
         ctrl = points[s:s + n]
         if interp == "constant" or len(widths) == 1:
@@ -131,17 +133,52 @@ def curves_geometry(prim, time, note):
         # Widths follow the curve's parameter (per control point, spread evenly).
         w = np.interp(np.linspace(0, 1, len(path)), np.linspace(0, 1, n), wc)
         keep = np.concatenate([[True], np.linalg.norm(np.diff(path, axis=0), axis=1) > 0])
-        made = tube(path[keep], w[keep], periodic)
-        if made is None:
-            continue
-        p, t, nrm = made
+        if keep.sum() >= 2:
+            paths.append((path[keep], w[keep], periodic))
+    return paths or None
+
+
+def curves_geometry(prim, time, note):
+    """(points, triangles, per-corner normals, curve index per triangle) of a BasisCurves
+    prim's tubes in its local space, or None (with a note or nothing to draw)."""
+    paths = curve_paths(prim, time, note)
+    if paths is None:
+        return None
+    out_pts, out_tris, out_nrm, out_curve, offset = [], [], [], [], 0
+    for c, (path, w, periodic) in enumerate(paths):
+        p, t, nrm = tube(path, w, periodic)
         out_pts.append(p)
         out_tris.append(t + offset)
         out_nrm.append(nrm)
         out_curve.append(np.full(len(t), c))
         offset += len(p)
-    if not out_pts:
-        return None
     tris = np.vstack(out_tris)
     nrm = np.vstack(out_nrm)
     return np.vstack(out_pts), tris, nrm[tris].astype(np.float32), np.concatenate(out_curve)
+
+
+def native_curves(paths, m: np.ndarray, note):
+    """World-space Embree round linear curves of `paths` under the row-vector transform m:
+    (points float64 (P, 4) x y z radius, segments (S,) first point, flags (S,) neighbours). A
+    non-uniform scale keeps round sections (radius by the mean scale, one note); a periodic
+    curve is closed by repeating its first point."""
+    lin = m[:3, :3]
+    scales = np.linalg.norm(lin, axis=1)
+    scale = float(abs(np.linalg.det(lin))) ** (1.0 / 3.0)
+    if scales.max() > 1.01 * scales.min():
+        note("BasisCurves under a non-uniform scale keep round sections (widths scaled by the mean scale)")
+    pts, segs, flags, base = [], [], [], 0
+    for path, w, periodic in paths:
+        if periodic:
+            path, w = np.vstack([path, path[:1]]), np.concatenate([w, w[:1]])
+        k = len(path)
+        world = path @ lin + m[3, :3]
+        pts.append(np.column_stack([world, 0.5 * w * scale]))
+        n = k - 1
+        segs.append(base + np.arange(n))
+        f = np.zeros(n, np.uint8)
+        f[1:] |= 1   # RTC_CURVE_FLAG_NEIGHBOR_LEFT
+        f[:-1] |= 2  # RTC_CURVE_FLAG_NEIGHBOR_RIGHT
+        flags.append(f)
+        base += k
+    return np.vstack(pts), np.concatenate(segs).astype(np.uint32), np.concatenate(flags)

@@ -363,6 +363,34 @@ class _MeshReader:
         normals = nrm[tris] if type_name != "Cube" else None
         return _Chunk(pts, tris, np.full(len(tris), row, np.uint32), normals, None)
 
+    def add_native_curves(self, prim, m: np.ndarray) -> bool:
+        """A still, non-emissive BasisCurves prim of the world as Embree round curves
+        (self.curves); False when it must be drawn as tubes (it moves during the shutter,
+        or its material emits: only triangles are lights)."""
+        paths = curves.curve_paths(prim, self.time, self._count_note)
+        if paths is None:
+            return True  # nothing to draw
+        if self.motion_steps(prim, np.vstack([p for p, _, _ in paths])) is not None:
+            return False
+        row = self.material_row(prim, prim, False)
+        if any(float(x) > 0 for x in self.materials.rows[row]["values"]["emissiveColor"]):
+            return False
+        pts, segs, flags = curves.native_curves(paths, m, self._count_note)
+        if not np.isfinite(pts).all():
+            self.warn(f"{prim.GetPath()}: BasisCurves with NaN/Inf points or widths skipped")
+            return True
+        # A segment costs Embree about what a triangle does: both count toward the limit.
+        self.triangles += len(segs)
+        if self.triangles > self.limits.triangles:
+            raise SceneError(f"{prim.GetPath()}: the scene has more than {self.limits.triangles} triangles "
+                             f"and curve segments (limit)")
+        base = sum(len(p) for p in self.curves["points"])
+        self.curves["points"].append(pts)
+        self.curves["segments"].append(segs + np.uint32(base))
+        self.curves["flags"].append(flags)
+        self.curves["material"].append(np.full(len(segs), row, np.uint32))
+        return True
+
     def curves_chunk(self, prim) -> _Chunk | None:
         geo = curves.curves_geometry(prim, self.time, self._count_note)
         if geo is None:

@@ -98,6 +98,10 @@ class SceneData:
     material_shaping: np.ndarray | None = None
     # IES tables (tables, 181, 73) the shaping columns name (usd/light_shaping.py), or None.
     ies_tables: np.ndarray | None = None
+    # Still curves of the world as Embree round linear curves (usd/curves.py), or None:
+    # {"points": (P, 4) x y z radius, "segments": (S,) first point, "flags": (S,) uint8
+    # neighbours, "material": (S,) material rows}.
+    curves: dict[str, np.ndarray] | None = None
     # The time code rendered (None: the default time) and the shutter interval around it
     # in absolute time codes (None: no motion blur).
     time_code: float | None = None
@@ -134,6 +138,7 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
         self.sphere_lights: list[list[float]] = []
         self.point_lights: list[list[float]] = []
         self.ies_tables: list[np.ndarray] = []
+        self.curves: dict[str, list[np.ndarray]] = {"points": [], "segments": [], "flags": [], "material": []}
         self.distant_lights: list[list[float]] = []
         self.dome_light: dict | None = None
         self.prototypes: list[dict] = []
@@ -208,6 +213,8 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
                         chunk = self._deformed(prim, chunk, top_level and skinned is None)
                 elif type_name in _GPRIMS:
                     chunk = self.gprim_chunk(prim, type_name)
+                elif top_level and sink is self.chunks and self.add_native_curves(prim, m):
+                    continue
                 else:
                     chunk = self.curves_chunk(prim)
                 if chunk is None:
@@ -406,6 +413,7 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     else:
         # Every point (not the chunks' boxes): the fit is to what is seen.
         corners = [c.points for c in tr.chunks if len(c.points)]
+        corners += [pts[:, :3] + pts[:, 3:4] * s for pts in tr.curves["points"] for s in (-1.0, 1.0)]
         all_instances = np.concatenate(tr.instances) if tr.instances else np.zeros(0, np.uint32)
         if len(all_instances):
             mats = np.concatenate(tr.instance_xforms)
@@ -472,7 +480,7 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     has_light = bool(_emits(rows, tri_material, prototypes) or len(sphere_lights) or len(distant)
                      or len(point) or dome)
     default_lights = None
-    if len(indices) == 0 and len(sphere_lights) == 0 and len(instances) == 0:
+    if len(indices) == 0 and len(sphere_lights) == 0 and len(instances) == 0 and not tr.curves["segments"]:
         warn("the scene has no renderable geometry")
     elif not has_light:
         # Light-less assets are the rule for props and usdz files; viewers light them by
@@ -493,6 +501,7 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
                      motion_instances=motion_instances, motion_time_steps=motion_time_steps, **light_motion,
                      material_shaping=material_shaping,
                      ies_tables=np.stack(tr.ies_tables) if tr.ies_tables else None,
+                     curves=_curve_arrays(tr.curves),
                      motion_transforms=motion_transforms,
                      time_code=None if time.IsDefault() else float(time.GetValue()),
                      shutter=None if tr.shutter is None else (tr.shutter.open, tr.shutter.close))
@@ -544,3 +553,14 @@ def _assemble(chunks: list[_Chunk]):
 def _first_line(text: str) -> str:
     lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
     return "; ".join(lines[:3])[:500] if lines else "unknown error"
+
+
+def _curve_arrays(curves: dict[str, list[np.ndarray]]) -> dict[str, np.ndarray] | None:
+    """The walk's native curves as SceneData.curves (float32 once camera-relative)."""
+    if not curves["segments"]:
+        return None
+    return {"points": np.concatenate(curves["points"]).astype(np.float32),
+            "segments": np.concatenate(curves["segments"]).astype(np.uint32),
+            "flags": np.concatenate(curves["flags"]).astype(np.uint8),
+            "material": np.concatenate(curves["material"]).astype(np.uint32)}
+
