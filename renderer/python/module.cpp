@@ -531,6 +531,7 @@ NB_MODULE(_core, m) {
                 d["stop_per_tile"] = info.stop_per_tile;
                 d["complete"] = info.complete;
                 d["delta_caustics"] = info.delta_caustics;
+                d["shades_curves"] = info.shades_curves;
                 for (const IntegratorParam& p : info.params) params[std::string(p.name).c_str()] = std::string(p.description);
                 d["params"] = params;
                 out.append(d);
@@ -538,7 +539,8 @@ NB_MODULE(_core, m) {
             return out;
         },
         "The registered integrators in registry order: dicts of name, description, the capabilities "
-        "(splats, scene_passes, stop_per_tile, complete, delta_caustics; integrators/integrator.h) and "
+        "(splats, scene_passes, stop_per_tile, complete, delta_caustics, shades_curves; "
+        "integrators/integrator.h) and "
         "params (setting name -> description).");
     m.def(
         "auto_integrator", [](bool scene_has_delta_caustics) { return std::string(AutoIntegrator(scene_has_delta_caustics)); },

@@ -6,7 +6,7 @@ VARIANTS: a JSON list of [prim path, variant set, variant] selections the stage 
 with, as the render will compose it (the missing layers that matter are the ones the
 selection uses).
 
-Prints one JSON object: {"ok": true, "width", "height", "warnings", "triangles", "lights",
+Prints one JSON object: {"ok": true, "width", "height", "warnings", "triangles", "curve_segments", "lights",
 "cameras", "camera_note", "unlit_warnings"}, the last present for a stage without any light: the warnings of a
 render with default lighting off (the job setting default_light=false),
 and exits 0, or {"ok": false, "error": "..."} and exits 2. A crash of the USD parser takes
@@ -69,7 +69,8 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps({"ok": False, "error": f"cannot translate the scene: {type(exc).__name__}: {exc}"}))
         return 2
     info = {"ok": True, "width": scene.width, "height": scene.height, "warnings": scene.warnings,
-            "triangles": scene.num_triangles, "lights": scene.num_emitters, "cameras": cameras,
+            "triangles": scene.num_triangles, "curve_segments": scene.num_curve_segments,
+            "lights": scene.num_emitters, "cameras": cameras,
             # The warning naming the camera chosen among several: void for a job naming its own.
             "camera_note": next((w for w in scene.warnings if CAMERA_CHOICE_NOTE in w), None)}
     if scene.lit_by_default:

@@ -4,7 +4,7 @@ worker's main process: see tessera/tessera_base/integrators.py).
 
 The list is the core's (renderer/core/integrators/registry.cpp): no Python file names an
 integrator. Each entry is a dict of name, description, the capabilities (splats,
-scene_passes, stop_per_tile, complete, delta_caustics) and params (extra setting ->
+scene_passes, stop_per_tile, complete, delta_caustics, shades_curves) and params (extra setting ->
 description). The first entry is the default integrator.
 """
 from __future__ import annotations

@@ -47,6 +47,7 @@ class SceneInfo:
     height: int
     warnings: list[str] = field(default_factory=list)
     triangles: int = 0
+    curve_segments: int = 0  # Embree round curves: integrators that do not shade them are warned
     lights: int = 0
     # For a stage without any light: the warnings when default lighting is off.
     unlit_warnings: list[str] | None = None
@@ -90,6 +91,7 @@ def inspect_scene(path: str, *, timeout: float, memory_bytes: int,
             return SceneInfo(width=int(result["width"]), height=int(result["height"]),
                              warnings=[str(w) for w in result.get("warnings", [])],
                              triangles=int(result.get("triangles", 0)),
+                             curve_segments=int(result.get("curve_segments", 0)),
                              lights=int(result.get("lights", 0)),
                              unlit_warnings=([str(w) for w in result["unlit_warnings"]]
                                              if result.get("unlit_warnings") is not None else None),

@@ -105,7 +105,10 @@ def _render_one(args: argparse.Namespace) -> int:
         if (reason := unavailable_reason()) is not None:
             print(f"tessera render: --denoise: {reason}", file=sys.stderr)
             return 2
-    for w in scene.warnings:
+    from tessera_base import integrators
+
+    for w in [*scene.warnings, *integrators.scene_warnings(scene.resolve_integrator(settings.integrator),
+                                                           curve_segments=scene.num_curve_segments)]:
         print(f"warning: {w}", file=sys.stderr)
     samples = (f"noise target {settings.target_error:.2%} ({settings.min_spp}-{settings.max_spp} spp)"
                if settings.adaptive else f"{settings.spp} spp")

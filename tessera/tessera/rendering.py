@@ -134,6 +134,7 @@ def render_scene(scene, settings, *, scene_name: str, threads: int = 0, progress
     """`render` for a loaded tessera_renderer.Scene and checked
     tessera_base.protocol.RenderSettings (what `tessera render` calls once it has reported
     the scene and the settings)."""
+    from tessera_base import integrators
     from tessera_base.images import render_metadata
 
     from .local import render_image
@@ -154,7 +155,10 @@ def render_scene(scene, settings, *, scene_name: str, threads: int = 0, progress
                                      variance_kind))
     metadata.update(integrator=result.integrator, seconds=result.seconds, samples=result.samples,
                     samples_per_second=result.samples_per_second, passes=result.passes,
-                    warnings=list(getattr(scene, "warnings", [])), denoise_warning=result.denoise_warning)
+                    warnings=[*getattr(scene, "warnings", []),
+                              *integrators.scene_warnings(result.integrator,
+                                                          curve_segments=getattr(scene, "num_curve_segments", 0))],
+                    denoise_warning=result.denoise_warning)
     return Image(result.rgba, layers, metadata)
 
 

@@ -87,6 +87,17 @@ def stops_per_tile(name: str) -> bool:
     return all(i["stop_per_tile"] for i in _candidates(name))
 
 
+def scene_warnings(name: str, *, curve_segments: int = 0) -> list[str]:
+    """What `name` cannot render of a scene with these features, one line each (the CLI,
+    local renders and the service add them to the scene's warnings). For `auto`: what any
+    integrator it may pick cannot."""
+    out = []
+    if curve_segments and not all(i.get("shades_curves", True) for i in _candidates(name)):
+        out.append(f"the {name} integrator does not shade curves ({curve_segments} curve segments): "
+                   f"they render black; any other integrator shades them")
+    return out
+
+
 def params(name: str) -> dict[str, str]:
     """The extra settings `name` takes (setting -> description). For `auto`: those every
     integrator it may pick takes, since the pick waits for the scene."""

@@ -238,3 +238,22 @@ def test_default_light_job_setting_and_its_warning(api, tmp_path):
             assert api.get(f"/jobs/{job['id']}").json()["settings"]["default_light"] is (not form)
         finally:
             api.delete(f"/jobs/{job['id']}")
+
+
+def test_a_job_names_the_curves_its_integrator_cannot_shade(api, tmp_path):
+    """The pre-flight counts the scene's curve segments; a radiosity job on it says in one
+    warning that they render black, a path job does not."""
+    scene = tmp_path / "strand.usda"
+    scene.write_text('#usda 1.0\ndef BasisCurves "Hair" {\n  uniform token type = "linear"\n'
+                     '  point3f[] points = [(-1,0,0), (1,0,0)]\n  int[] curveVertexCounts = [2]\n'
+                     '  float[] widths = [0.2] (interpolation = "constant")\n}\n')
+    for integrator, expected in (("radiosity", 1), ("path", 0)):
+        r = submit(api, scene, spp=1, tile_size=256, integrator=integrator)
+        assert r.status_code == 201, r.text
+        job = r.json()
+        try:
+            lines = [w for w in job["warnings"] if "does not shade curves (1 curve segments)" in w]
+            assert len(lines) == expected, job["warnings"]
+        finally:
+            api.delete(f"/jobs/{job['id']}")
+

@@ -52,6 +52,9 @@ struct IntegratorInfo {
     // Finds caustics of delta lights through delta or near-delta lobes (L S+ D E from a
     // point): path tracing cannot, so `auto` needs such an integrator for those scenes.
     bool delta_caustics = false;
+    // Shades what it sees of curves (Embree round curves). Radiosity reads every surface
+    // from its element mesh, which has no curves: they show black there.
+    bool shades_curves = true;
     std::vector<IntegratorParam> params = {};
 };
 

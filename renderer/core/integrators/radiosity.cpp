@@ -34,6 +34,7 @@ public:
             .scene_passes = true,
             // Every tile reads the same solution; the image advances together.
             .stop_per_tile = false,
+            .shades_curves = false,
             .params = RadiosityParams(),
         };
         return info;

@@ -25,7 +25,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import StreamingResponse
 from pydantic import ValidationError
 
-from tessera_base import protocol
+from tessera_base import integrators, protocol
 from tessera_queue import redis_schema as rdb
 from tessera_base.protocol import FINAL_STATES, JobSpec, JobState, RenderSettings
 
@@ -225,6 +225,7 @@ def create_job(
             store.put_scene(scene_hash, name, path.read_bytes())
 
     warnings = info.warnings if render.default_light or info.unlit_warnings is None else info.unlit_warnings
+    warnings = [*warnings, *integrators.scene_warnings(render.integrator, curve_segments=info.curve_segments)]
     if render.camera is not None:  # the inspection's choice of camera is not the job's
         warnings = [w for w in warnings if w != info.camera_note]
     if frame_list is not None:

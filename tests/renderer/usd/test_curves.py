@@ -169,3 +169,29 @@ def test_a_strand_is_shaded_by_its_outward_normal(tmp_path):
     expected = albedo * irradiance / math.pi
     assert abs(value / expected - 1) < 0.01, (value, expected)
     assert abs(value / (0.98 * expected) - 1) >= 0.01
+
+
+def test_radiosity_names_the_curves_it_cannot_shade(tmp_path):
+    """radiosity reads surfaces from its element mesh, which has no curves: the strand is
+    black there (path shows it lit), and the CLI says so in one warning; path does not."""
+    import subprocess
+    import sys
+
+    from tessera_base import integrators
+
+    _, scene = _coverage(tmp_path, 0.3, 0.0, "c")
+    params = {"element_size": 0.5}
+    product = scene.scene_pass("radiosity", 0, threads=2, integrator_params=params)
+    rad = scene.render_tile(64, 64, 32, 32, width=RES, height=RES, spp=4, integrator="radiosity",
+                            integrator_params=params, scene_product=product)
+    path = scene.render_tile(64, 64, 32, 32, width=RES, height=RES, spp=4, integrator="path")
+    strand = path[..., 3] > 0.99
+    assert strand.sum() > 200 and float(path[strand][:, :3].mean()) > 0.05
+    assert float(rad[strand][:, :3].max()) == 0.0
+    assert integrators.scene_warnings("path", curve_segments=1) == []
+    assert integrators.scene_warnings("radiosity", curve_segments=0) == []
+    r = subprocess.run([sys.executable, "-m", "tessera", "render", str(tmp_path / "c.usda"), "--integrator",
+                        "radiosity", "--spp", "1", "--res", "16x16", "-q", "-o", str(tmp_path / "r.exr")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "the radiosity integrator does not shade curves (1 curve segments)" in r.stderr, r.stderr
