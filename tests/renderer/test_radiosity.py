@@ -149,3 +149,24 @@ def test_preview_frames_are_the_radiosity_image_from_a_moved_camera():
     # shell; the blocks are not symmetric, so only the frame's mean brightness is compared.
     other = preview.frame(yaw=-math.radians(20))
     assert abs(float(turned[..., 3].mean()) - float(other[..., 3].mean())) < 0.05
+
+
+def test_a_degenerate_triangle_gets_one_element_however_long(cornell):
+    """A zero-area triangle (a line 1e30 long, as a fuzzer wrote it) exchanges no light: it
+    is one element, not 4096^2 that refuse the solve. The Cornell box with such a sliver
+    added solves to the same elements plus one."""
+    data = cornell.data
+    far = np.array([[0.0, 1e30, 1e30], [1e30, 1e30, 1e30]], np.float32)
+    base = len(data.positions)
+    sliver = dataclasses.replace(
+        data, positions=np.vstack([data.positions.reshape(-1, 3), far]),
+        indices=np.vstack([data.indices.reshape(-1, 3), [[base, base + 1, base + 1]]]).astype(np.uint32),
+        triangle_material=np.concatenate([data.triangle_material, data.triangle_material[:1]]),
+        shading_normals=None if data.shading_normals is None else
+        np.concatenate([data.shading_normals, data.shading_normals[:1]]),
+        uvs=None)
+    params = {"element_size": COARSE}
+    plain = cornell.scene_pass("radiosity", 0, threads=2, integrator_params=params)
+    with_sliver = Scene(sliver).scene_pass("radiosity", 0, threads=2, integrator_params=params)
+    elements = [struct.unpack("4sIIIfI", p[:24])[1] for p in (plain, with_sliver)]
+    assert elements[1] == elements[0] + 1, elements

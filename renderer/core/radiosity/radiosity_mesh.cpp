@@ -40,6 +40,16 @@ Color Reflectance(const Scene& scene, const SurfaceHit& hit) {
 
 }  // namespace
 
+// Elements per edge of a source triangle: its longest edge over the target size (1 to
+// 4096). A degenerate triangle (no area: a line or a point) exchanges no light, so it
+// gets one element however long it is.
+uint32_t RadiosityMesh::CellsPerEdge(const Vec3 p[3], float target_size) {
+    const float area2 = Length(Cross(p[1] - p[0], p[2] - p[0]));
+    if (!(area2 > 0.f) || !std::isfinite(area2)) return 1;
+    const float longest = std::max({Length(p[1] - p[0]), Length(p[2] - p[0]), Length(p[2] - p[1])});
+    return uint32_t(std::clamp(std::ceil(double(longest) / target_size), 1.0, 4096.0));
+}
+
 RadiosityMesh::RadiosityMesh(const Scene& scene, float target_size) {
     if (!(target_size > 0.f) || !std::isfinite(target_size))
         throw std::invalid_argument("radiosity element_size must be a finite number > 0");
@@ -49,8 +59,7 @@ RadiosityMesh::RadiosityMesh(const Scene& scene, float target_size) {
     // must not run out of memory on a bad setting).
     double count = 0.0;
     scene.ForEachTriangle([&](uint32_t, uint32_t, uint32_t, const Vec3* p, float) {
-        const float longest = std::max({Length(p[1] - p[0]), Length(p[2] - p[0]), Length(p[2] - p[1])});
-        const double n = std::clamp(std::ceil(double(longest) / target_size), 1.0, 4096.0);
+        const double n = CellsPerEdge(p, target_size);
         count += n * n;
     });
     if (count > double(kMaxElements))
@@ -79,9 +88,7 @@ uint32_t RadiosityMesh::Vertex(Vec3 p, Vec3 n) {
 void RadiosityMesh::AddSource(const Scene& scene, uint32_t mesh, uint32_t prim, uint32_t instance, const Vec3 p[3],
                               float sign, float target_size) {
     const Vec3 e1 = p[1] - p[0], e2 = p[2] - p[0];
-    const float longest = std::max({Length(e1), Length(e2), Length(p[2] - p[1])});
-    const float cells = std::ceil(longest / target_size);
-    const uint32_t n = uint32_t(std::clamp(cells, 1.f, 4096.f));
+    const uint32_t n = CellsPerEdge(p, target_size);
     Source src{uint32_t(elements_.size()), n};
     if (instance == kNoInstance) world_[prim] = src;
     else instanced_[(uint64_t(instance) << 32) | prim] = src;

@@ -58,6 +58,7 @@ private:
         uint32_t first = 0;  // its first element
         uint32_t n = 1;      // subdivisions per edge: n^2 elements
     };
+    static uint32_t CellsPerEdge(const Vec3 p[3], float target_size);
     void AddSource(const Scene& scene, uint32_t mesh, uint32_t prim, uint32_t instance, const Vec3 p[3], float sign,
                    float target_size);
     uint32_t Vertex(Vec3 p, Vec3 n);
