@@ -55,24 +55,29 @@ float PointToPolygonFormFactor(Vec3 x, Vec3 n, const std::vector<Vec3>& poly) {
 
 float PointToTriangleFormFactor(Vec3 x, Vec3 n, const Vec3 tri[3]) { return PointToPolygonFormFactor(x, n, tri, 3); }
 
+std::vector<std::array<float, 2>> SubTriangleCentroids(int m) {
+    // Upward cells (i+1/3, j+1/3), downward ones (i+2/3, j+2/3), over m.
+    std::vector<std::array<float, 2>> out;
+    for (int i = 0; i < m; ++i)
+        for (int j = 0; i + j < m; ++j) {
+            out.push_back({(i + 1.f / 3.f) / m, (j + 1.f / 3.f) / m});
+            if (i + j + 1 < m) out.push_back({(i + 2.f / 3.f) / m, (j + 2.f / 3.f) / m});
+        }
+    return out;
+}
+
 float PolygonToPolygonFormFactor(const std::vector<Vec3>& a, const std::vector<Vec3>& b, int cells_per_edge) {
     const Vec3 na = Normalize(Cross(a[1] - a[0], a[2] - a[0]));
     const int c = std::max(1, cells_per_edge);
+    const std::vector<std::array<float, 2>> cells = SubTriangleCentroids(c);
     double sum = 0.0, area = 0.0;
     for (size_t t = 1; t + 1 < a.size(); ++t) {
         const Vec3 p0 = a[0], e1 = a[t] - a[0], e2 = a[t + 1] - a[0];
         const double cell_area = 0.5 * Length(Cross(e1, e2)) / (double(c) * c);
-        // Cell centroids of the regular subdivision: upward (i+1/3, j+1/3), downward (i+2/3, j+2/3).
-        for (int i = 0; i < c; ++i)
-            for (int j = 0; i + j < c; ++j) {
-                for (int down = 0; down < 2; ++down) {
-                    if (down && i + j + 1 >= c) continue;
-                    const float o = down ? 2.f / 3.f : 1.f / 3.f;
-                    const Vec3 x = p0 + e1 * ((i + o) / c) + e2 * ((j + o) / c);
-                    sum += double(PointToPolygonFormFactor(x, na, b)) * cell_area;
-                    area += cell_area;
-                }
-            }
+        for (const auto& w : cells) {
+            sum += double(PointToPolygonFormFactor(p0 + e1 * w[0] + e2 * w[1], na, b)) * cell_area;
+            area += cell_area;
+        }
     }
     return area > 0.0 ? float(sum / area) : 0.f;
 }

@@ -7,6 +7,7 @@
 // hierarchical solver's links reach the elements the two compute the same exchange.
 #pragma once
 
+#include <array>
 #include <vector>
 
 #include "scene.h"
@@ -18,6 +19,10 @@ namespace tessera {
 float PointToPolygonFormFactor(Vec3 x, Vec3 n, const Vec3* poly, size_t count);
 float PointToPolygonFormFactor(Vec3 x, Vec3 n, const std::vector<Vec3>& poly);
 float PointToTriangleFormFactor(Vec3 x, Vec3 n, const Vec3 tri[3]);
+
+// The centroids of a triangle's m^2 similar sub-triangles (its regular subdivision, m per
+// edge: equal areas), as the weights (b1, b2) of edges p1 - p0 and p2 - p0.
+std::vector<std::array<float, 2>> SubTriangleCentroids(int m);
 
 // Unoccluded area-to-area F_{A->B} = (1/|A|) Int_A F_{dA->B} dA for planar convex
 // polygons, by the midpoint rule over a fan of triangles, each cut into `cells_per_edge`^2

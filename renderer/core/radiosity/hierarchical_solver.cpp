@@ -100,6 +100,15 @@ public:
         return kInPlane;
     }
 
+    // Splits the source q (or the receiver p) into its 4 children and links each to the other.
+    void SplitAndRefine(uint32_t p, uint32_t q, bool split_source, float threshold) {
+        const uint32_t split = split_source ? q : p;
+        Subdivide(split);
+        const int32_t c = nodes_[split].child;
+        for (int k = 0; k < 4; ++k)
+            split_source ? Refine(p, uint32_t(c + k), threshold) : Refine(uint32_t(c + k), q, threshold);
+    }
+
     // Links p <- q, refined until the BF oracle is met or both are elements.
     void Refine(uint32_t p, uint32_t q, float threshold) {
         const Node& np = nodes_[p];
@@ -113,18 +122,8 @@ public:
         // side of the centres.
         const PlaneSide q_vs_p = SideOf(nq.p, np.c, np.n), p_vs_q = SideOf(np.p, nq.c, nq.n);
         if (q_vs_p == kInPlane || p_vs_q == kInPlane) return;
-        if (q_vs_p == kStraddles && can_q) {
-            Subdivide(q);
-            const int32_t c = nodes_[q].child;
-            for (int k = 0; k < 4; ++k) Refine(p, uint32_t(c + k), threshold);
-            return;
-        }
-        if (p_vs_q == kStraddles && can_p) {
-            Subdivide(p);
-            const int32_t c = nodes_[p].child;
-            for (int k = 0; k < 4; ++k) Refine(uint32_t(c + k), q, threshold);
-            return;
-        }
+        if (q_vs_p == kStraddles && can_q) return SplitAndRefine(p, q, /*split_source=*/true, threshold);
+        if (p_vs_q == kStraddles && can_p) return SplitAndRefine(p, q, /*split_source=*/false, threshold);
         const Vec3 d = nq.c - np.c;
         const float hp = q_vs_p == kStraddles ? Dot(d, np.n) : (q_vs_p == kFront ? 1.f : -1.f);
         const float hq = p_vs_q == kStraddles ? -Dot(d, nq.n) : (p_vs_q == kFront ? 1.f : -1.f);
@@ -152,16 +151,7 @@ public:
         }
         if (refine) {
             // Split the larger (the one whose size limits the estimate's accuracy most).
-            if (can_q && (!can_p || nq.area > np.area)) {
-                Subdivide(q);
-                const int32_t c = nodes_[q].child;
-                for (int k = 0; k < 4; ++k) Refine(p, uint32_t(c + k), threshold);
-            } else {
-                Subdivide(p);
-                const int32_t c = nodes_[p].child;
-                for (int k = 0; k < 4; ++k) Refine(uint32_t(c + k), q, threshold);
-            }
-            return;
+            return SplitAndRefine(p, q, can_q && (!can_p || nq.area > np.area), threshold);
         }
         if (FV > 0.f) links_[p].push_back({q, FV, sp, sq});
     }
@@ -329,13 +319,7 @@ RadiositySolution SolveHierarchical(const Scene& scene, const RadiosityMesh& mes
     // leaves; the mean is taken at the centroids of its m^2 similar sub-triangles (equal
     // areas), m = 4. Taking only the leaf under the element's centre aliases the leaves'
     // pattern onto the elements.
-    constexpr int m = 4;
-    std::vector<std::array<float, 2>> sub;  // barycentrics (of p[1], p[2]) of the sub-centroids
-    for (int i = 0; i < m; ++i)
-        for (int j = 0; i + j < m; ++j) {
-            sub.push_back({(i + 1.f / 3.f) / m, (j + 1.f / 3.f) / m});
-            if (i + j < m - 1) sub.push_back({(i + 2.f / 3.f) / m, (j + 2.f / 3.f) / m});
-        }
+    const std::vector<std::array<float, 2>> sub = SubTriangleCentroids(4);
     const auto& sources = mesh.sources();
     for (size_t s = 0; s < sources.size(); ++s) {
         const uint32_t root = h.roots_[s];
@@ -344,7 +328,7 @@ RadiositySolution SolveHierarchical(const Scene& scene, const RadiosityMesh& mes
             const RadiosityElement& x = el[e];
             Color B[2] = {Color(0.f), Color(0.f)}, D[2] = {Color(0.f), Color(0.f)};
             for (const auto& b : sub) {
-                const Vec3 at = x.p[0] * (1.f - b[0] - b[1]) + x.p[1] * b[0] + x.p[2] * b[1];
+                const Vec3 at = x.p[0] + (x.p[1] - x.p[0]) * b[0] + (x.p[2] - x.p[0]) * b[1];
                 const Node& leaf = h.nodes_[h.Leaf(root, at)];
                 for (int side = 0; side < 2; ++side) B[side] += leaf.B[side], D[side] += leaf.direct[side];
             }

@@ -138,12 +138,9 @@ def curve_paths(prim, time, note):
     return paths or None
 
 
-def curves_geometry(prim, time, note):
-    """(points, triangles, per-corner normals, curve index per triangle) of a BasisCurves
-    prim's tubes in its local space, or None (with a note or nothing to draw)."""
-    paths = curve_paths(prim, time, note)
-    if paths is None:
-        return None
+def curves_geometry(paths):
+    """(points, triangles, per-corner normals, curve index per triangle) of the tubes
+    along `paths` (curve_paths), in their space."""
     out_pts, out_tris, out_nrm, out_curve, offset = [], [], [], [], 0
     for c, (path, w, periodic) in enumerate(paths):
         p, t, nrm = tube(path, w, periodic)

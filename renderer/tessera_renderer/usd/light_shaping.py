@@ -116,13 +116,35 @@ def ies_profile(text: str, normalize: bool, note, angle_scale: float = 0.0) -> n
     return table / max(float(cd.max()), float(table.max()))
 
 
+def _ies_table(translator, api, where: str) -> np.ndarray | None:
+    """The light's IES table (shaping:ies:file read through the bundle sandbox), or None
+    without one; a missing or unreadable file is a warning naming it."""
+    from .materials import _authoring_layer
+
+    t = translator.time
+    asset = api.GetShapingIesFileAttr().Get(t)
+    if asset is None or not asset.path:
+        return None
+    layer = _authoring_layer(api.GetShapingIesFileAttr())
+    path = translator.bundle.resolve_texture(asset, os.path.dirname(layer.realPath) if layer else None,
+                                             where) if translator.bundle else None
+    if path is None:
+        translator.warn(f"{where}: IES profile {asset.path!r} is missing; the light is not shaped by it")
+        return None
+    try:
+        return ies_profile(path.read_text(errors="replace"), bool(api.GetShapingIesNormalizeAttr().Get(t)),
+                           translator._count_note, read_float(api.GetShapingIesAngleScaleAttr(), t))
+    except (IesError, OSError) as err:
+        translator.warn(f"{where}: IES profile {asset.path!r} cannot be read ({err}); "
+                        f"the light is not shaped by it")
+        return None
+
+
 def shaping_columns(translator, prim) -> list[float] | None:
     """The shaping columns of a light prim with ShapingAPI, or None without it (or when
     every authored value leaves the light unshaped). An IES table is appended to
     translator.ies_tables and named by index."""
     from pxr import UsdLux
-
-    from .materials import _authoring_layer
 
     if not prim.HasAPI(UsdLux.ShapingAPI):
         return None
@@ -144,22 +166,7 @@ def shaping_columns(translator, prim) -> list[float] | None:
     tint = [float(x) for x in tint] if tint is not None else [0.0, 0.0, 0.0]
     cutoff = math.radians(min(max(angle, 0.0), 180.0))
     smooth_start = cutoff * (1.0 - softness)
-    ies = None
-    asset = api.GetShapingIesFileAttr().Get(t)
-    if asset is not None and asset.path:
-        layer = _authoring_layer(api.GetShapingIesFileAttr())
-        path = translator.bundle.resolve_texture(asset, os.path.dirname(layer.realPath) if layer else None,
-                                                 where) if translator.bundle else None
-        if path is None:
-            translator.warn(f"{where}: IES profile {asset.path!r} is missing; the light is not shaped by it")
-        else:
-            try:
-                ies = ies_profile(path.read_text(errors="replace"),
-                                  bool(api.GetShapingIesNormalizeAttr().Get(t)), translator._count_note,
-                                  read_float(api.GetShapingIesAngleScaleAttr(), t))
-            except (IesError, OSError) as err:
-                translator.warn(f"{where}: IES profile {asset.path!r} cannot be read ({err}); "
-                                f"the light is not shaped by it")
+    ies = _ies_table(translator, api, where)
     if cutoff >= math.pi and focus == 0.0 and ies is None:
         return None
     m = translator.world_matrix(prim)
@@ -185,9 +192,9 @@ def along_axis_factor(translator, prim) -> float:
     angular disk is taken as that one direction). A cone of any angle and focus leave it
     1; an IES profile scales it by its vertical-0 value (the same at every horizontal
     angle)."""
-    columns = shaping_columns(translator, prim)
-    if columns is None or columns[IES_COLUMN] == 0.0:
-        return 1.0
-    table = translator.ies_tables.pop()  # appended for this light alone: no row names it
-    return float(table[0, 0])
+    from pxr import UsdLux
 
+    if not prim.HasAPI(UsdLux.ShapingAPI):
+        return 1.0
+    table = _ies_table(translator, UsdLux.ShapingAPI(prim), str(prim.GetPath()))
+    return 1.0 if table is None else float(table[0, 0])

@@ -363,41 +363,35 @@ class _MeshReader:
         normals = nrm[tris] if type_name != "Cube" else None
         return _Chunk(pts, tris, np.full(len(tris), row, np.uint32), normals, None)
 
-    def add_native_curves(self, prim, m: np.ndarray) -> bool:
-        """A still, non-emissive BasisCurves prim of the world as Embree round curves
-        (self.curves); False when it must be drawn as tubes (it moves during the shutter,
-        or its material emits: only triangles are lights)."""
+    def curves_chunk(self, prim, world: np.ndarray | None = None) -> _Chunk | None:
+        """A BasisCurves prim's tubes of triangles (in its local space), or None. With
+        `world` (its transform; a prim of the world, not of a prototype) a still,
+        non-emissive prim goes to self.curves as Embree round curves instead and None is
+        returned: moving curves need an instance's matrices, and only triangles are lights."""
         paths = curves.curve_paths(prim, self.time, self._count_note)
         if paths is None:
-            return True  # nothing to draw
-        if self.motion_steps(prim, np.vstack([p for p, _, _ in paths])) is not None:
-            return False
+            return None
         row = self.material_row(prim, prim, False)
-        if any(float(x) > 0 for x in self.materials.rows[row]["values"]["emissiveColor"]):
-            return False
-        pts, segs, flags = curves.native_curves(paths, m, self._count_note)
+        emissive = any(float(x) > 0 for x in self.materials.rows[row]["values"]["emissiveColor"])
+        if world is not None and not emissive and \
+                self.motion_steps(prim, np.vstack([p for p, _, _ in paths])) is None:
+            self._add_native_curves(prim, paths, world, row)
+            return None
+        pts, tris, normals, _ = curves.curves_geometry(paths)
+        return _Chunk(pts, tris, np.full(len(tris), row, np.uint32), normals, None)
+
+    def _add_native_curves(self, prim, paths, world: np.ndarray, row: int) -> None:
+        pts, segs, flags = curves.native_curves(paths, world, self._count_note)
         if not np.isfinite(pts).all():
             self.warn(f"{prim.GetPath()}: BasisCurves with NaN/Inf points or widths skipped")
-            return True
+            return
         # A segment costs Embree about what a triangle does: both count toward the limit.
-        self.triangles += len(segs)
-        if self.triangles > self.limits.triangles:
-            raise SceneError(f"{prim.GetPath()}: the scene has more than {self.limits.triangles} triangles "
-                             f"and curve segments (limit)")
+        self.count_primitives(len(segs), str(prim.GetPath()))
         base = sum(len(p) for p in self.curves["points"])
         self.curves["points"].append(pts)
         self.curves["segments"].append(segs + np.uint32(base))
         self.curves["flags"].append(flags)
         self.curves["material"].append(np.full(len(segs), row, np.uint32))
-        return True
-
-    def curves_chunk(self, prim) -> _Chunk | None:
-        geo = curves.curves_geometry(prim, self.time, self._count_note)
-        if geo is None:
-            return None
-        pts, tris, normals, _ = geo
-        row = self.material_row(prim, prim, False)
-        return _Chunk(pts, tris, np.full(len(tris), row, np.uint32), normals, None)
 
 
 def _skinnable_points(prim, time):

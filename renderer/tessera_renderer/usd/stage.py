@@ -213,10 +213,8 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
                         chunk = self._deformed(prim, chunk, top_level and skinned is None)
                 elif type_name in _GPRIMS:
                     chunk = self.gprim_chunk(prim, type_name)
-                elif top_level and sink is self.chunks and self.add_native_curves(prim, m):
-                    continue
                 else:
-                    chunk = self.curves_chunk(prim)
+                    chunk = self.curves_chunk(prim, m if top_level and sink is self.chunks else None)
                 if chunk is None:
                     continue
                 # Moving during the shutter: an instance of its own, whatever the
@@ -289,12 +287,17 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
             chunk = dataclasses.replace(chunk, normals=n)
         if len(chunk.tris) == 0:
             return
-        self.triangles += len(chunk.tris)
+        self.count_primitives(len(chunk.tris), path)
+        sink.append(chunk)
+
+    def count_primitives(self, n: int, path: str) -> None:
+        """Counts n triangles (or curve segments, which cost Embree about as much) toward
+        the scene's triangle limit; past it, a SceneError naming the prim."""
+        self.triangles += n
         if self.triangles > self.limits.triangles:
             hint = (f"; its subdivision surfaces are refined {self.subdivision_level} times, a lower "
                     f"subdivision level (0 renders their cages) makes fewer" if self.subdivided_meshes else "")
             raise SceneError(f"{path}: the scene has more than {self.limits.triangles} triangles (limit){hint}")
-        sink.append(chunk)
 
 
     # -- bookkeeping ----------------------------------------------------------------
