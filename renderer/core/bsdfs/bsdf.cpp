@@ -68,42 +68,53 @@ float MicrofacetReflection::PDF(Vec3 wo, Vec3 wi) const {
     return cos_om > 0.f ? distrib.PDF(wo, wm) / (4.f * cos_om) : 0.f;
 }
 
+MicrofacetReflection::MicrofacetReflection(TrowbridgeReitz d, Color f0_, Color f90_)
+    : distrib(d), f0(f0_), f90(f90_), row_(GGXRowOf(d.alpha())) {
+    if (distrib.EffectivelySmooth()) return;
+    const float e_avg = LookupGGXAverage(distrib.alpha()).e1;
+    loss_avg_ = 1.f - e_avg;
+    if (!(1.f - e_avg > kMinMsLoss)) return;
+    const Color f_avg = f0 + (f90 - f0) * (1.f / 21.f);
+    auto ch = [&](float fa) { return fa * fa * e_avg / (1.f - fa * (1.f - e_avg)); };
+    fms_ = {ch(f_avg.x), ch(f_avg.y), ch(f_avg.z)};
+}
+
 Color MicrofacetReflection::SingleAlbedo(float mu) const {
     if (distrib.EffectivelySmooth()) return F(mu);
-    GGXAlbedo e = LookupGGXAlbedo(mu, distrib.alpha());
+    return SingleAlbedo(mu, Table(mu));
+}
+
+Color MicrofacetReflection::SingleAlbedo(float mu, GGXAlbedo e) const {
+    if (distrib.EffectivelySmooth()) return F(mu);
     return f0 * e.e1 + (f90 - f0) * e.e5;
 }
 
-Color MicrofacetReflection::Fms() const {
-    if (distrib.EffectivelySmooth()) return Color(0.f);
-    const float e_avg = LookupGGXAverage(distrib.alpha()).e1;
-    if (!(1.f - e_avg > kMinMsLoss)) return Color(0.f);
-    const Color f_avg = f0 + (f90 - f0) * (1.f / 21.f);
-    auto ch = [&](float fa) { return fa * fa * e_avg / (1.f - fa * (1.f - e_avg)); };
-    return {ch(f_avg.x), ch(f_avg.y), ch(f_avg.z)};
+Color MicrofacetReflection::MultiAlbedo(float mu) const {
+    if (IsBlack(fms_)) return Color(0.f);
+    return MultiAlbedo(Table(mu));
 }
 
-Color MicrofacetReflection::MultiAlbedo(float mu) const {
-    Color fms_ = Fms();
+Color MicrofacetReflection::MultiAlbedo(GGXAlbedo e) const {
     if (IsBlack(fms_)) return Color(0.f);
-    return fms_ * std::max(0.f, 1.f - LookupGGXAlbedo(mu, distrib.alpha()).e1);
+    return fms_ * std::max(0.f, 1.f - e.e1);
 }
 
 Color MicrofacetReflection::AverageAlbedo() const {
     if (distrib.EffectivelySmooth()) return f0 + (f90 - f0) * (1.f / 21.f);
     GGXAlbedo a = LookupGGXAverage(distrib.alpha());
-    return f0 * a.e1 + (f90 - f0) * a.e5 + Fms() * std::max(0.f, 1.f - a.e1);
+    return f0 * a.e1 + (f90 - f0) * a.e5 + fms_ * std::max(0.f, 1.f - a.e1);
 }
 
 Color MicrofacetReflection::fms(Vec3 wo, Vec3 wi) const {
-    if (!(wo.z > 0.f && wi.z > 0.f)) return Color(0.f);
-    Color fms_ = Fms();
-    if (IsBlack(fms_)) return Color(0.f);
-    const float a = distrib.alpha();
-    const float loss_avg = 1.f - LookupGGXAverage(a).e1;
-    const float lo = std::max(0.f, 1.f - LookupGGXAlbedo(wo.z, a).e1);
-    const float li = std::max(0.f, 1.f - LookupGGXAlbedo(wi.z, a).e1);
-    return fms_ * (lo * li * kInvPi / loss_avg);
+    if (!(wo.z > 0.f && wi.z > 0.f) || IsBlack(fms_)) return Color(0.f);
+    return fms(wo, wi, Table(wo.z), Table(wi.z));
+}
+
+Color MicrofacetReflection::fms(Vec3 wo, Vec3 wi, GGXAlbedo eo, GGXAlbedo ei) const {
+    if (!(wo.z > 0.f && wi.z > 0.f) || IsBlack(fms_)) return Color(0.f);
+    const float lo = std::max(0.f, 1.f - eo.e1);
+    const float li = std::max(0.f, 1.f - ei.e1);
+    return fms_ * (lo * li * kInvPi / loss_avg_);
 }
 
 bool MicrofacetReflection::Sample(Vec3 wo, Vec2 u, Vec3* wi) const {
@@ -310,15 +321,20 @@ PreviewSurfaceBSDF::PreviewSurfaceBSDF(const MaterialParams& p, TransportMode mo
     diffuse_ = {scaled(diffuse_albedo_.x, loss_avg.x), scaled(diffuse_albedo_.y, loss_avg.y),
                 scaled(diffuse_albedo_.z, loss_avg.z)};
     if (IsBlack(diffuse_)) diffuse_albedo_ = Color(0.f);
+    flags_ = ComputeFlags();
 }
 
 float PreviewSurfaceBSDF::CoatAttenuation(float mu) const {
     return clearcoat_ > 0.f ? 1.f - clearcoat_ * coat_.Albedo(mu).x : 1.f;
 }
 
-Color PreviewSurfaceBSDF::DiffuseScale(float mu) const { return Clamp01(Color(1.f) - spec_.Albedo(mu)); }
+Color PreviewSurfaceBSDF::DiffuseScale(float mu) const { return DiffuseScale(mu, spec_.Table(mu)); }
 
-uint32_t PreviewSurfaceBSDF::Flags() const {
+Color PreviewSurfaceBSDF::DiffuseScale(float mu, GGXAlbedo e) const {
+    return Clamp01(Color(1.f) - (spec_.SingleAlbedo(mu, e) + spec_.MultiAlbedo(e)));
+}
+
+uint32_t PreviewSurfaceBSDF::ComputeFlags() const {
     uint32_t flags = 0;
     if (opacity_ > 0.f) {
         flags |= kBSDFReflection;
@@ -350,9 +366,10 @@ void PreviewSurfaceBSDF::LobeProbabilities(Vec3 wo, float p[kNumLobes]) const {
     const bool has_coat = clearcoat_ > 0.f;
     const bool has_spec = !(IsBlack(spec_.f0) && IsBlack(spec_.f90));
     const bool has_cosine = (Flags() & kBSDFDiffuse) != 0;
-    const Color cosine = spec_.MultiAlbedo(mu) + DiffuseScale(mu) * diffuse_albedo_;
+    const GGXAlbedo e = spec_.Table(mu);
+    const Color cosine = spec_.MultiAlbedo(e) + DiffuseScale(mu, e) * diffuse_albedo_;
     p[kCoat] = has_coat ? std::max(kMinLobeWeight, clearcoat_ * coat_.SingleAlbedo(mu).x) : 0.f;
-    p[kSpec] = has_spec ? std::max(kMinLobeWeight, ac * Luminance(spec_.SingleAlbedo(mu))) : 0.f;
+    p[kSpec] = has_spec ? std::max(kMinLobeWeight, ac * Luminance(spec_.SingleAlbedo(mu, e))) : 0.f;
     p[kDiffuse] = has_cosine ? std::max(kMinLobeWeight, ac * Luminance(cosine) +
                                                             (has_coat ? clearcoat_ * coat_.MultiAlbedo(mu).x : 0.f))
                              : 0.f;
@@ -367,8 +384,15 @@ void PreviewSurfaceBSDF::LobeProbabilities(Vec3 wo, float p[kNumLobes]) const {
 
 Color PreviewSurfaceBSDF::OpaqueF(Vec3 wo, Vec3 wi) const {
     Color base(0.f);
-    if (!IsBlack(diffuse_)) base = DiffuseScale(wo.z) * DiffuseScale(wi.z) * diffuse_ * kInvPi;
-    if (!spec_.distrib.EffectivelySmooth()) base += spec_.f(wo, wi) + spec_.fms(wo, wi);
+    const bool rough = !spec_.distrib.EffectivelySmooth();
+    if (IsBlack(diffuse_) && !rough) return OverCoat(base, wo, wi);
+    const GGXAlbedo eo = spec_.Table(wo.z), ei = spec_.Table(wi.z);
+    if (!IsBlack(diffuse_)) base = DiffuseScale(wo.z, eo) * DiffuseScale(wi.z, ei) * diffuse_ * kInvPi;
+    if (rough) base += spec_.f(wo, wi) + spec_.fms(wo, wi, eo, ei);
+    return OverCoat(base, wo, wi);
+}
+
+Color PreviewSurfaceBSDF::OverCoat(Color base, Vec3 wo, Vec3 wi) const {
     if (!(clearcoat_ > 0.f)) return base;
     Color result = base * (CoatAttenuation(wo.z) * CoatAttenuation(wi.z));
     if (!coat_.distrib.EffectivelySmooth()) result += (coat_.f(wo, wi) + coat_.fms(wo, wi)) * clearcoat_;

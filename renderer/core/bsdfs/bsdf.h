@@ -28,6 +28,7 @@
 #include <variant>
 
 #include "math.h"
+#include "ggx_albedo.h"
 #include "microfacet.h"
 
 namespace tessera {
@@ -81,7 +82,13 @@ private:
 // whose albedo is Fms (1 - E1(wo)): with F = 1 the lobe reflects exactly 1 at every angle.
 // E1, E5 and their averages come from ggx_albedo.h. A smooth lobe is a delta with albedo
 // F(cos) and no multiple scattering.
-struct MicrofacetReflection {
+// Everything that depends on the roughness and Fresnel only (the tables' roughness row,
+// Fms, 1 - E1_avg) is computed once by the constructor: a shading point asks for the
+// albedos up to a dozen times.
+class MicrofacetReflection {
+public:
+    MicrofacetReflection(TrowbridgeReitz d, Color f0_, Color f90_);
+
     TrowbridgeReitz distrib;
     Color f0, f90;
 
@@ -91,13 +98,25 @@ struct MicrofacetReflection {
     float PDF(Vec3 wo, Vec3 wi) const;               // rough path only, single-scattering lobe
     bool Sample(Vec3 wo, Vec2 u, Vec3* wi) const;    // rough path only; false below horizon
 
+    // The tabulated E1, E5 at mu = cos θ in [0, 1] (rough lobes only): the forms below that
+    // take it let a caller that needs several albedos at one angle look it up once.
+    GGXAlbedo Table(float mu) const { return LookupGGXAlbedo(mu, row_); }
+
     // Directional albedos at mu = cos θ in [0, 1] (per channel) and the cosine-weighted
     // hemispherical average of the total, 2 ∫ Albedo(mu) mu dmu.
     Color SingleAlbedo(float mu) const;
+    Color SingleAlbedo(float mu, GGXAlbedo e) const;
     Color MultiAlbedo(float mu) const;
+    Color MultiAlbedo(GGXAlbedo e) const;
     Color Albedo(float mu) const { return SingleAlbedo(mu) + MultiAlbedo(mu); }
     Color AverageAlbedo() const;
-    Color Fms() const;  // 0 when smooth or when E1_avg is so close to 1 that there is nothing to add
+    Color Fms() const { return fms_; }  // 0 when smooth or when E1_avg is so close to 1 that there is nothing to add
+    Color fms(Vec3 wo, Vec3 wi, GGXAlbedo eo, GGXAlbedo ei) const;  // eo = Table(wo.z), ei = Table(wi.z)
+
+private:
+    GGXRoughnessRow row_;
+    float loss_avg_ = 0.f;  // 1 - E1_avg
+    Color fms_ = Color(0.f);
 };
 
 // UsdPreviewSurface with metallic = 1: F0 = F90 = colour (angle-independent), GGX with
@@ -176,18 +195,21 @@ public:
     Color f(Vec3 wo, Vec3 wi) const;
     std::optional<BSDFSample> Sample_f(Vec3 wo, float uc, Vec2 u) const;
     float PDF(Vec3 wo, Vec3 wi) const;
-    uint32_t Flags() const;
+    uint32_t Flags() const { return flags_; }
     Color Albedo() const;
 
 private:
     enum Lobe { kCoat, kSpec, kDiffuse, kGlass, kNumLobes };
+    uint32_t ComputeFlags() const;
     // Lobe selection probabilities at wo, proportional to each lobe's estimated reflectance.
     void LobeProbabilities(Vec3 wo, float p[kNumLobes]) const;
     Color OpaqueF(Vec3 wo, Vec3 wi) const;  // both mirrored to the upper hemisphere
+    Color OverCoat(Color base, Vec3 wo, Vec3 wi) const;  // the base seen through the clearcoat, plus the coat
     float LobePdf(int lobe, Vec3 wo, Vec3 wi) const;
 
     float CoatAttenuation(float mu) const;  // Ac = 1 - c Ec(mu)
     Color DiffuseScale(float mu) const;     // 1 - Es(mu), clamped to [0, 1]
+    Color DiffuseScale(float mu, GGXAlbedo e) const;  // e = spec_.Table(mu)
 
     Color diffuse_;  // ρ = diffuseColor (1 - metallic), divided by (1 - Es_avg) per channel
     Color diffuse_albedo_;  // ρ itself
@@ -196,6 +218,7 @@ private:
     float clearcoat_;
     float opacity_;
     DielectricBSDF glass_;
+    uint32_t flags_ = 0;
     // LobeProbabilities depends on |wo.z| only, and one shading point asks for it with the
     // same wo up to three times (NEE's PDF, Sample_f and the PDF inside it): the last
     // answer is kept. A BSDF belongs to one thread's shading point, so this is not shared.

@@ -23,13 +23,26 @@ struct GGXAlbedo {
     float e5 = 0.f;  // F = (1 - wo·wm)^5
 };
 
-// mu = |cos θo| in [0, 1]; alpha as stored by TrowbridgeReitz.
-inline GGXAlbedo LookupGGXAlbedo(float mu, float alpha) {
+// The roughness row of the tables for one alpha (as stored by TrowbridgeReitz): a lobe
+// computes it once, not at every lookup (the sqrt and the clamp are the lookup's cost).
+struct GGXRoughnessRow {
+    int j = 0;
+    float fr = 0.f;
+};
+
+inline GGXRoughnessRow GGXRowOf(float alpha) {
+    using namespace ggx_table;
+    const float r = std::sqrt(std::clamp(alpha, 0.f, 1.f)) * float(kNumRough - 1);
+    const int j = std::min(int(r), kNumRough - 2);
+    return {j, r - float(j)};
+}
+
+// mu = |cos θo| in [0, 1].
+inline GGXAlbedo LookupGGXAlbedo(float mu, GGXRoughnessRow row) {
     using namespace ggx_table;
     const float t = std::sqrt(std::clamp(mu, 0.f, 1.f)) * float(kNumMu - 1);
-    const float r = std::sqrt(std::clamp(alpha, 0.f, 1.f)) * float(kNumRough - 1);
-    const int i = std::min(int(t), kNumMu - 2), j = std::min(int(r), kNumRough - 2);
-    const float ft = t - float(i), fr = r - float(j);
+    const int i = std::min(int(t), kNumMu - 2), j = row.j;
+    const float ft = t - float(i), fr = row.fr;
     auto bilerp = [&](const float (&a)[kNumRough][kNumMu]) {
         float lo = a[j][i] + (a[j][i + 1] - a[j][i]) * ft;
         float hi = a[j + 1][i] + (a[j + 1][i + 1] - a[j + 1][i]) * ft;
@@ -38,12 +51,12 @@ inline GGXAlbedo LookupGGXAlbedo(float mu, float alpha) {
     return {bilerp(kE1), bilerp(kE5)};
 }
 
+inline GGXAlbedo LookupGGXAlbedo(float mu, float alpha) { return LookupGGXAlbedo(mu, GGXRowOf(alpha)); }
+
 // 2 ∫ E(mu) mu dmu of LookupGGXAlbedo's interpolant.
 inline GGXAlbedo LookupGGXAverage(float alpha) {
     using namespace ggx_table;
-    const float r = std::sqrt(std::clamp(alpha, 0.f, 1.f)) * float(kNumRough - 1);
-    const int j = std::min(int(r), kNumRough - 2);
-    const float fr = r - float(j);
+    const auto [j, fr] = GGXRowOf(alpha);
     return {kE1Avg[j] + (kE1Avg[j + 1] - kE1Avg[j]) * fr, kE5Avg[j] + (kE5Avg[j + 1] - kE5Avg[j]) * fr};
 }
 

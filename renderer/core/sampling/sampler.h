@@ -18,13 +18,13 @@ inline uint64_t Mix64(uint64_t z) {
     return z ^ (z >> 31);
 }
 
-// Reverses the bits of a 32-bit word.
+// Reverses the bits of a 32-bit word: the byte order by one bswap, then the bits within
+// each byte.
 inline uint32_t ReverseBits32(uint32_t v) {
+    v = __builtin_bswap32(v);
     v = ((v >> 1) & 0x55555555u) | ((v & 0x55555555u) << 1);
     v = ((v >> 2) & 0x33333333u) | ((v & 0x33333333u) << 2);
-    v = ((v >> 4) & 0x0F0F0F0Fu) | ((v & 0x0F0F0F0Fu) << 4);
-    v = ((v >> 8) & 0x00FF00FFu) | ((v & 0x00FF00FFu) << 8);
-    return (v >> 16) | (v << 16);
+    return ((v >> 4) & 0x0F0F0F0Fu) | ((v & 0x0F0F0F0Fu) << 4);
 }
 
 // Hash-based nested uniform (Owen) scrambling of a 32-bit fixed-point value (Burley 2020,
@@ -45,11 +45,34 @@ inline uint32_t OwenScramble(uint32_t v, uint32_t seed) {
 // The first two dimensions of the Sobol sequence, a (0, 2)-sequence: the first 2^k points
 // of any aligned block form a (0, k, 2)-net (one point per elementary interval).
 inline uint32_t SobolDimension0(uint32_t index) { return ReverseBits32(index); }  // van der Corput
+// Dimension 1 XORs one direction number per set bit of the index, v_0 = 2^31 and
+// v_{b+1} = v_b ^ (v_b >> 1). The scrambled indices the sampler passes have ~16 of 32 bits
+// set at random, so a loop over bits mispredicts; the XOR of each byte's direction numbers
+// is tabulated instead (4 x 256 words, built at compile time).
+namespace sobol_detail {
+struct Dimension1Table {
+    uint32_t t[4][256];
+};
+constexpr Dimension1Table MakeDimension1Table() {
+    Dimension1Table table{};
+    uint32_t v[32] = {};
+    v[0] = 1u << 31;
+    for (int b = 1; b < 32; ++b) v[b] = v[b - 1] ^ (v[b - 1] >> 1);
+    for (int k = 0; k < 4; ++k)
+        for (uint32_t byte = 0; byte < 256; ++byte) {
+            uint32_t x = 0;
+            for (int bit = 0; bit < 8; ++bit)
+                if (byte & (1u << bit)) x ^= v[8 * k + bit];
+            table.t[k][byte] = x;
+        }
+    return table;
+}
+inline constexpr Dimension1Table kDimension1 = MakeDimension1Table();
+}  // namespace sobol_detail
+
 inline uint32_t SobolDimension1(uint32_t index) {
-    uint32_t result = 0;
-    for (uint32_t v = 1u << 31; index; index >>= 1, v ^= v >> 1)
-        if (index & 1u) result ^= v;
-    return result;
+    const auto& t = sobol_detail::kDimension1.t;
+    return t[0][index & 0xFFu] ^ t[1][(index >> 8) & 0xFFu] ^ t[2][(index >> 16) & 0xFFu] ^ t[3][index >> 24];
 }
 
 enum class SamplerKind : uint8_t {
