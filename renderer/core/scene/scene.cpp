@@ -88,6 +88,12 @@ Scene::Scene(const SceneDesc& desc)
                                        : textured_opacity ? pv->opacity_threshold > 0.f
                                                           : IsCutout(*pv, pv->opacity)));
         has_cutouts_ = has_cutouts_ || material_is_cutout_.back();
+        // An untextured material's BSDF is the same at every hit: built here once per
+        // transport mode, copied by BSDFAt (its constructor costs more than the copy).
+        for (TransportMode mode : {TransportMode::Radiance, TransportMode::Importance})
+            material_bsdfs_.push_back(!pv ? BSDF(DiffuseBSDF(materials_[m].albedo))
+                                      : material_has_textures_.back() ? BSDF()
+                                                                      : MakePreviewSurfaceBSDF(*pv, mode));
     }
     for (size_t s = 0; s < spheres_.size(); ++s)
         if (!IsFinite(spheres_[s].center) || !(spheres_[s].radius > 0.f) || !std::isfinite(spheres_[s].radius) ||

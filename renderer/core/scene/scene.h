@@ -439,6 +439,7 @@ private:
     TextureSet textures_;
     std::vector<uint8_t> material_is_cutout_;
     std::vector<uint8_t> material_has_textures_;  // some slot other than -1: evaluate per hit
+    std::vector<BSDF> material_bsdfs_;  // [2 m + mode]: the BSDF of an untextured material m
     bool has_cutouts_ = false;
     std::vector<Material> materials_;
     std::vector<LightShaping> emission_shapings_;

@@ -351,8 +351,7 @@ BSDF Scene::BSDFAt(const SurfaceHit& hit, TransportMode mode) const {
     const int64_t mi = MaterialIndexAt(hit);
     if (mi < 0) return BSDF();
     const Material& m = materials_[mi];
-    if (!m.preview) return BSDF(DiffuseBSDF(m.albedo));
-    if (!material_has_textures_[mi]) return MakePreviewSurfaceBSDF(*m.preview, mode);
+    if (!m.preview || !material_has_textures_[mi]) return material_bsdfs_[2 * size_t(mi) + size_t(mode)];
     MaterialParams p = *m.preview;  // a copy on the stack, textured inputs evaluated at st
     ApplyTextures(m, hit.st, &p);
     return MakePreviewSurfaceBSDF(p, mode);
