@@ -219,3 +219,31 @@ def test_cli_lists_the_registry_with_descriptions():
     refused = subprocess.run([sys.executable, "-m", "tessera", "render", "x.usda", "--integrator", "pathh"],
                              capture_output=True, text=True, timeout=120)
     assert refused.returncode == 2 and "unknown integrator 'pathh'" in refused.stderr
+
+
+@pytest.mark.parametrize("integrator", ["light", "bdpt"])
+def test_light_path_length_does_not_depend_on_the_light_brightness(cornell_path, integrator):
+    """Russian roulette on a light subpath sees its throughput relative to its start. Le / pdf
+    is in flux units: rouletting it as is (as camera paths are, from 1) kept every light path
+    alive until its absolute throughput fell below 1, so how long light paths were depended
+    on the light's units (on this box bdpt cast 3.4 x path's closest rays per sample; now 2 x).
+    The rays a render casts must be the same for the box and for the box with its light
+    1000 x brighter (every random decision is the same), and the brighter image exactly
+    1000 x (to float rounding). The old rule fails the ray count (+1.2 % rays for light,
+    +1.6 % for bdpt at 1000 x: light paths that escape the open box end regardless)."""
+    from dataclasses import replace
+
+    from tessera_renderer import Scene
+
+    base = load_scene(cornell_path)
+    bright = Scene(replace(base.data, emission=base.data.emission * 1000.0))
+    counts, images = [], []
+    for scene in (base, bright):
+        stats = {}
+        splats = new_splat_buffer(W, H)
+        cam = scene.render_tile(0, 0, W, H, width=W, height=H, spp=8, seed=5, threads=2, integrator=integrator,
+                                splats=splats, stats=stats)
+        counts.append((stats["closest_rays"], stats["shadow_rays"]))
+        images.append(resolve_splats(cam, splats, W * H * 8, scene.splat_exponent)[..., :3].astype(np.float64))
+    assert counts[0] == counts[1], f"rays (closest, shadow) for Le and 1000 Le: {counts}"
+    np.testing.assert_allclose(images[1], images[0] * 1000.0, rtol=1e-3, atol=1e-6)

@@ -148,6 +148,7 @@ public:
         int n = 0;
         float pdf_fwd = pdf;
         float eta_scale = 1.f;
+        const float roulette_scale = RouletteScale(beta);
         while (true) {
             Vertex& prev = path[n - 1];
             Vertex& v = path[n];
@@ -202,9 +203,10 @@ public:
             if (bs->is_transmission) eta_scale *= bs->eta * bs->eta;
             prev.pdf_rev = ConvertDensity(pdf_rev, v, prev);
             ray = {OffsetRayOrigin(hit.p, hit.p_error, hit.ng, wi), wi};
-            // Russian roulette past the third vertex (throughput only: see the header).
+            // Russian roulette past the third vertex (throughput only: see the header), on
+            // the throughput relative to the subpath's start.
             if (n >= 3) {
-                float q = std::min(1.f, MaxComponent(beta) * eta_scale);
+                float q = std::min(1.f, MaxComponent(beta) * eta_scale * roulette_scale);
                 if (sampler.Get1D() >= q) break;
                 beta = beta / q;
             }
@@ -263,26 +265,22 @@ public:
     }
 
     // The power-heuristic weight of strategy (s, t) for the path it built; `sampled`
-    // replaces light[0] (s = 1) or camera[0] (t = 1) for the strategy's own endpoint.
+    // stands in for light[0] (s = 1) or camera[0] (t = 1) as the strategy's own endpoint.
+    // It is read in place, not copied into the subpath (a vertex is 400 bytes and this
+    // runs for every strategy); its densities are changed and restored on return.
     // `merge_eta` > 0 (vcm: light paths merged per camera sample times the merging disk's
     // area) also counts vertex merging at every interior non-delta surface vertex, whose
     // density relative to the connection with that vertex first on the camera side is
     // its light-side density times merge_eta (Georgiev et al. 2012); 0 is plain BDPT.
-    float MISWeight(Vertex* light, Vertex* camera, const Vertex& sampled, int s, int t,
-                    float merge_eta = 0.f) const {
+    float MISWeight(Vertex* light, Vertex* camera, Vertex& sampled, int s, int t, float merge_eta = 0.f) const {
         if (s + t == 2) return 1.f;
-        Vertex saved_endpoint;
-        Vertex* endpoint = nullptr;
-        if (s == 1) endpoint = &light[0];
-        if (t == 1) endpoint = &camera[0];
-        if (endpoint) {
-            saved_endpoint = *endpoint;
-            *endpoint = sampled;
-        }
-        Vertex* qs = s > 0 ? &light[s - 1] : nullptr;
-        Vertex* pt = &camera[t - 1];
-        Vertex* qs_minus = s > 1 ? &light[s - 2] : nullptr;
-        Vertex* pt_minus = t > 1 ? &camera[t - 2] : nullptr;
+        // Vertex i of each subpath as this strategy sees it.
+        auto light_at = [&](int i) -> Vertex& { return s == 1 && i == 0 ? sampled : light[i]; };
+        auto camera_at = [&](int i) -> Vertex& { return t == 1 && i == 0 ? sampled : camera[i]; };
+        Vertex* qs = s > 0 ? &light_at(s - 1) : nullptr;
+        Vertex* pt = &camera_at(t - 1);
+        Vertex* qs_minus = s > 1 ? &light_at(s - 2) : nullptr;
+        Vertex* pt_minus = t > 1 ? &camera_at(t - 2) : nullptr;
         // Saved values restored below: the connection endpoints are not delta, and their
         // reverse densities are those of the hypothetical strategies through this edge.
         const bool pt_delta = pt->delta, qs_delta = qs ? qs->delta : false;
@@ -298,21 +296,23 @@ public:
         // Ratios p_i / p_s of the other strategies along each subpath.
         float sum = 0.f, r = 1.f;
         for (int i = t - 1; i > 0; --i) {
+            const Vertex& ci = camera_at(i);
             // Merging at camera[i] (not at the light's own vertex, which s = 0 puts last).
-            if (merge_eta > 0.f && Mergeable(camera[i]) && !(s == 0 && i == t - 1)) {
-                const float m = r * Remap0(camera[i].pdf_rev) * merge_eta;
+            if (merge_eta > 0.f && Mergeable(ci) && !(s == 0 && i == t - 1)) {
+                const float m = r * Remap0(ci.pdf_rev) * merge_eta;
                 sum += m * m;
             }
-            r *= Remap0(camera[i].pdf_rev) / Remap0(camera[i].pdf_fwd);
-            if (!camera[i].delta && !camera[i - 1].delta) sum += r * r;
+            r *= Remap0(ci.pdf_rev) / Remap0(ci.pdf_fwd);
+            if (!ci.delta && !camera_at(i - 1).delta) sum += r * r;
         }
         r = 1.f;
         for (int i = s - 1; i >= 0; --i) {
-            r *= Remap0(light[i].pdf_rev) / Remap0(light[i].pdf_fwd);
-            bool delta_before = i > 0 ? light[i - 1].delta : light[0].delta_light;
-            if (!light[i].delta && !delta_before) sum += r * r;
-            if (merge_eta > 0.f && i > 0 && Mergeable(light[i])) {
-                const float m = r * Remap0(light[i].pdf_fwd) * merge_eta;
+            const Vertex& li = light_at(i);
+            r *= Remap0(li.pdf_rev) / Remap0(li.pdf_fwd);
+            bool delta_before = i > 0 ? light_at(i - 1).delta : li.delta_light;
+            if (!li.delta && !delta_before) sum += r * r;
+            if (merge_eta > 0.f && i > 0 && Mergeable(li)) {
+                const float m = r * Remap0(li.pdf_fwd) * merge_eta;
                 sum += m * m;
             }
         }
@@ -325,7 +325,6 @@ public:
             qs->pdf_rev = qs_rev;
         }
         if (qs_minus) qs_minus->pdf_rev = qs_minus_rev;
-        if (endpoint) *endpoint = saved_endpoint;
         return 1.f / (1.f + sum);
     }
 

@@ -235,7 +235,7 @@ protected:
                 }
                 continue;
             }
-            const Vertex sampled = s == 1 ? sp.light[0] : (t == 1 ? sp.camera[0] : Vertex{});
+            Vertex sampled = s == 1 ? sp.light[0] : (t == 1 ? sp.camera[0] : Vertex{});
             const float w = walker_.MISWeight(sp.light.data(), sp.camera.data(), sampled, s, t);
             EXPECT_TRUE(std::isfinite(w) && w >= 0.f && w <= 1.f + 1e-6f) << "(s, t) = (" << s << ", " << t << ")";
             valid.push_back(s);

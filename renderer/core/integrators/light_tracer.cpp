@@ -85,6 +85,7 @@ void LightTracer::Trace(const Scene& scene, const Camera& camera, PixelSampler& 
     if (!scene.SampleEmission(light, u_pos, u_dir, u_side, &es) || !(pmf > 0.f)) return;
     Color beta = es.beta / pmf;
     float eta_scale = 1.f;
+    const float roulette_scale = RouletteScale(beta);
     Ray ray{es.on_surface ? OffsetRayOrigin(es.p, es.p_error, es.n, es.wo) : es.p, es.wo};
 
     for (int depth = 1; depth <= max_depth_; ++depth) {
@@ -121,7 +122,7 @@ void LightTracer::Trace(const Scene& scene, const Camera& camera, PixelSampler& 
         if (bs->is_transmission) eta_scale *= bs->eta * bs->eta;
         ray = {OffsetRayOrigin(hit.p, hit.p_error, hit.ng, wi), wi};
         if (depth >= 3) {
-            float q = std::min(1.f, MaxComponent(beta) * eta_scale);
+            float q = std::min(1.f, MaxComponent(beta) * eta_scale * roulette_scale);
             if (sampler.Get1D() >= q) break;
             beta = beta / q;
         }

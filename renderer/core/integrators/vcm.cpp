@@ -196,11 +196,11 @@ public:
         const int n_light = walker.LightSubpath(light_sampler, light_path.data());
         if (n_camera > 1 && camera_path[1].type == VertexType::kSurface) result.alpha = 1.f;
         Color L(0.f);
+        Vertex sampled;  // the strategy's own endpoint (s = 1 or t = 1), set by Connect
         for (int t = 1; t <= n_camera; ++t) {
             for (int s = 0; s <= n_light; ++s) {
                 const int depth = t + s - 2;
                 if ((s == 1 && t == 1) || depth < 0 || depth > max_depth_) continue;
-                Vertex sampled;
                 float px = 0.f, py = 0.f;
                 Color c = walker.Connect(light_path.data(), camera_path.data(), s, t, sampler, &sampled, &px, &py);
                 if (IsBlack(c)) continue;

@@ -61,4 +61,15 @@ inline float PowerHeuristic(float f_pdf, float g_pdf) {
     return f + g > 0.f ? f / (f + g) : 0.f;
 }
 
+// Russian roulette survives with probability min(1, max channel of beta x this scale). A
+// camera path starts at beta = 1, but a light path starts at Le / pdf, in flux units
+// (thousands for a small bright light): rouletting that absolute value never ends a light
+// path until its throughput has fallen below 1, some ten bounces in a white room. The
+// scale makes roulette see the throughput relative to the subpath's start; it is exactly 1
+// for camera paths. Any survival probability keeps the estimator unbiased.
+inline float RouletteScale(Color beta_start) {
+    const float m = MaxComponent(beta_start);
+    return m > 0.f && std::isfinite(m) ? 1.f / m : 1.f;
+}
+
 }  // namespace tessera
