@@ -388,7 +388,7 @@ NB_MODULE(_core, m) {
                std::optional<Matrices> light_motion_transforms, std::optional<PointLightRows> material_shaping,
                std::optional<IesTables> ies_tables, std::optional<InArray<float, 4>> curve_points,
                std::optional<InVector<uint32_t>> curve_segments, std::optional<InVector<uint8_t>> curve_flags,
-               std::optional<InVector<uint32_t>> curve_material) {
+               std::optional<InVector<uint32_t>> curve_material, const std::string& light_selection) {
                 SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
                                           sphere_lights, point_lights, distant_lights, dome_radiance, preview_params,
                                           preview_mask, dome_texture, dome_world_to_light, shading_normals,
@@ -399,6 +399,11 @@ NB_MODULE(_core, m) {
                                         light_motion_indices, light_motion_time_steps, light_motion_transforms,
                                         material_shaping, ies_tables, curve_points, curve_segments,
                                         curve_flags, curve_material});
+                if (light_selection == "power") desc.light_selection = SceneDesc::LightSelection::kPower;
+                else if (light_selection == "bvh") desc.light_selection = SceneDesc::LightSelection::kBVH;
+                else if (light_selection != "auto")
+                    throw std::invalid_argument("light_selection must be 'auto', 'power' or 'bvh', not '" +
+                                                light_selection + "'");
                 nb::gil_scoped_release release;
                 new (self) Scene(desc);
             },
@@ -414,6 +419,7 @@ NB_MODULE(_core, m) {
             "light_motion_time_steps"_a = nb::none(), "light_motion_transforms"_a = nb::none(),
             "material_shaping"_a = nb::none(), "ies_tables"_a = nb::none(), "curve_points"_a = nb::none(),
             "curve_segments"_a = nb::none(), "curve_flags"_a = nb::none(), "curve_material"_a = nb::none(),
+            "light_selection"_a = "auto",
             "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
             "(x, y, z, r, g, b intensity W/sr, then optionally the shaping columns of light_shaping.h: "
             "shaped, axis xyz, cutoff, smooth start, focus, focus tint rgb, IES table + 1 (0 none), horizontal "
@@ -453,6 +459,7 @@ NB_MODULE(_core, m) {
         .def_prop_ro("num_triangles", &Scene::num_triangles)
         .def_prop_ro("num_curve_segments", &Scene::num_curve_segments)
         .def_prop_ro("num_emitters", &Scene::num_emitters)
+        .def_prop_ro("uses_light_bvh", &Scene::uses_light_bvh)
         .def_prop_ro("num_instances", &Scene::num_instances)
         .def_prop_ro("num_stored_triangles", &Scene::num_stored_triangles)
         .def_prop_ro("splat_exponent", &Scene::splat_exponent,

@@ -41,9 +41,12 @@ class NonFiniteSampleError(RuntimeError):
 class Scene:
     """A translated scene with its BVH built, ready to render tiles of any size."""
 
-    def __init__(self, data: SceneData, default_light: bool = True):
+    def __init__(self, data: SceneData, default_light: bool = True, light_selection: str = "auto"):
         """`default_light`: light a stage that has no light with the default lighting
-        (usd.lights.default_lighting, announced in the warnings); off, it renders black."""
+        (usd.lights.default_lighting, announced in the warnings); off, it renders black.
+        `light_selection`: how next event estimation picks a light: "auto" (a light BVH
+        weighing position and orientation once the scene has 16 or more still area
+        emitters, by power below that), "power" or "bvh" (docs/lights.md)."""
         # What a render with default lighting off would warn (the pre-flight reports it).
         self.lit_by_default = bool(default_light and getattr(data, "default_lights", None))
         self.unlit_warnings = _with_default_lighting(data, False).warnings if self.lit_by_default else None
@@ -81,7 +84,8 @@ class Scene:
                                      *_preview_table(getattr(data, "material_params", None),
                                                      len(data.albedo.reshape(-1, 3))),
                                      *_dome_texture(dome),
-                                     _corner_normals(getattr(data, "shading_normals", None)), **extras)
+                                     _corner_normals(getattr(data, "shading_normals", None)),
+                                     light_selection=light_selection, **extras)
         except ValueError as exc:
             raise SceneError(f"invalid scene: {exc}") from None
 
@@ -109,6 +113,11 @@ class Scene:
     @property
     def num_emitters(self) -> int:
         return self._core.num_emitters
+
+    @property
+    def uses_light_bvh(self) -> bool:
+        """Whether next event estimation chooses area emitters through the light BVH."""
+        return self._core.uses_light_bvh
 
     @property
     def splat_exponent(self) -> int:

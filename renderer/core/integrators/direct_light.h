@@ -11,14 +11,17 @@ namespace tessera {
 
 // One light sample at a surface: Le f |cos| / pdf through the BSDF's non-delta lobes, with
 // a shadow ray. With `mis`, weighted by the power heuristic against BSDF sampling of the
-// same direction (delta lights always get weight 1). Inline, as it could be when it shared
+// same direction (delta lights always get weight 1). The light is chosen by
+// Scene::SampleLight at (hit.p, hit.ns): a caller weighing BSDF-sampled emitter hits asks
+// Scene::LightPmf at the same point and normal. Inline, as it could be when it shared
 // the path tracer's file: it runs at every vertex of the hot loops.
 inline Color SampleDirectLight(const Scene& scene, const SurfaceHit& hit, const BSDF& bsdf, const Frame& frame, Vec3 wo,
                                PixelSampler& sampler, bool mis) {
-    const LightSampler& lights = scene.light_sampler();
     float pmf = 0.f;
-    const uint32_t light = lights.Sample(sampler.Get1D(), &pmf);
-    const Vec2 u = sampler.Get2D();
+    uint32_t light = 0;
+    const bool chosen = scene.SampleLight(sampler.Get1D(), hit.p, hit.ns, &light, &pmf);
+    const Vec2 u = sampler.Get2D();  // drawn either way: the dimensions after it stay put
+    if (!chosen) return Color(0.f);
     LightSample ls;
     if (!scene.SampleEmitter(light, hit.p, u, &ls)) return Color(0.f);
     const float light_pdf = pmf * ls.pdf;

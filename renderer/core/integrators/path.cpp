@@ -27,7 +27,7 @@ PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler
     float bsdf_pdf = 0.f;         // solid-angle pdf of the direction that produced `ray`
     bool specular_bounce = false; // ...and whether it came from a delta lobe (no MIS then)
     float eta_scale = 1.f;        // product of eta^2 over refractions, hidden from roulette
-    Vec3 prev_p;                  // the vertex `ray` left from (for the light pdf under MIS)
+    Vec3 prev_p, prev_n;          // the vertex `ray` left from and its shading normal (light pmf under MIS)
     const LightSampler& lights = scene.light_sampler();
 
     for (int depth = 0;; ++depth) {
@@ -35,7 +35,7 @@ PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler
         if (!(depth == 0 ? scene.Intersect(ray, &hit, t_min, t_max) : scene.Intersect(ray, &hit))) {
             // Escaped: lights at infinity (dome, distant cones), weighted like emitters.
             scene.ForEachEnvironmentLight(ray.d, [&](uint32_t light, Color Le, float pdf) {
-                float w = (depth == 0 || specular_bounce) ? 1.f : PowerHeuristic(bsdf_pdf, lights.Pmf(light) * pdf);
+                float w = (depth == 0 || specular_bounce) ? 1.f : PowerHeuristic(bsdf_pdf, scene.LightPmf(prev_p, prev_n, light) * pdf);
                 L += beta * Le * w;
             });
             break;
@@ -50,7 +50,8 @@ PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler
             if (!IsBlack(Le)) {
                 float w = 1.f;
                 if (depth > 0 && !specular_bounce)
-                    w = PowerHeuristic(bsdf_pdf, lights.Pmf(uint32_t(e)) * scene.EmitterPdf(e, prev_p, hit));
+                    w = PowerHeuristic(bsdf_pdf, scene.LightPmf(prev_p, prev_n, uint32_t(e)) *
+                                                     scene.EmitterPdf(e, prev_p, hit));
                 L += beta * Le * w;
             }
         }
@@ -77,6 +78,7 @@ PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler
         specular_bounce = bs->is_specular;
         if (bs->is_transmission) eta_scale *= bs->eta * bs->eta;
         prev_p = hit.p;
+        prev_n = hit.ns;
         ray = {OffsetRayOrigin(hit.p, hit.p_error, hit.ng, wi), wi};
 
         // Russian roulette from the third vertex on: survive with probability equal to the

@@ -385,6 +385,7 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
         power.push_back(4.0 * kPi * disk_area * double(Luminance(dome_.radiance())) * mean);
     }
     light_sampler_ = LightSampler(power);
+    BuildLightBVH(power, desc.light_selection);
 
     // The splat film's unit (splat_film.h): the power of two nearest the radiance the lights
     // can give a diffuse surface, Phi / (pi^2 R^2), so that the fixed point keeps 2^-24 of

@@ -16,6 +16,7 @@
 #include "distant_light.h"
 #include "dome_light.h"
 #include "light.h"
+#include "bvh_light_sampler.h"
 #include "light_sampler.h"
 #include "math.h"
 #include "point_light.h"
@@ -118,6 +119,11 @@ struct SceneDesc {
     std::vector<uint32_t> curve_segments;
     std::vector<uint8_t> curve_flags;
     std::vector<uint32_t> curve_material;
+    // How next event estimation chooses lights (Scene::SampleLight): automatic (the light
+    // BVH from kMinLightBVHEmitters still area emitters on), always by power, or by the
+    // BVH whenever there is a still area emitter.
+    enum class LightSelection : uint8_t { kAuto, kPower, kBVH };
+    LightSelection light_selection = LightSelection::kAuto;
     std::vector<Material> materials;
     std::vector<LightShaping> emission_shapings;  // Material::emission_shaping (axes used when about_axis)
     std::vector<SphereLight> sphere_lights;
@@ -277,6 +283,16 @@ public:
 
     // All lights (area emitters first, then points, distant lights, the dome), chosen by power.
     const LightSampler& light_sampler() const { return light_sampler_; }
+    // Next event estimation's choice of a light for a shading point p with normal n (zero:
+    // any orientation). With at least kMinLightBVHEmitters still area emitters, those are
+    // chosen through a light BVH (bvh_light_sampler.h) that weighs their power by how much
+    // of it can reach p; the other lights (and every light in smaller scenes) by power, as
+    // light_sampler() chooses them. LightPmf is the probability SampleLight picks `light`
+    // at (p, n): BSDF-sampled hits on an emitter weigh themselves with it under MIS.
+    static constexpr size_t kMinLightBVHEmitters = 16;
+    bool SampleLight(float u, Vec3 p, Vec3 n, uint32_t* light, float* pmf) const;
+    float LightPmf(Vec3 p, Vec3 n, uint32_t light) const;
+    bool uses_light_bvh() const { return !light_bvh_.empty(); }
     bool SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) const;
     // Solid-angle pdf at ref of SampleEmitter having produced the point of `hit`.
     float EmitterPdf(uint32_t emitter, Vec3 ref, const SurfaceHit& hit) const;
@@ -384,6 +400,7 @@ private:
         uint32_t first_step = 0;  // into light_motion_m_, 12 floats per step
     };
     void BuildLightMotion(const SceneDesc& desc);
+    void BuildLightBVH(const std::vector<double>& power, SceneDesc::LightSelection selection);
     // The light's transform at this thread's shutter time, in scratch (12 floats) and its
     // normal matrix in n_scratch (9); nullptr when it stands still.
     const float* LightMotionAt(const LightMotion& motion, float* scratch, float* n_scratch) const {
@@ -467,6 +484,13 @@ private:
     std::vector<float> curve_radius_;       // per curve control point (the hit's error bound)
     std::vector<uint32_t> curve_first_;     // per curve segment: its first control point
     LightSampler light_sampler_;
+    // SampleLight: the BVH over still area emitters, chosen with probability light_bvh_share_
+    // (their share of the power), and the rest by power through other_lights_.
+    BVHLightSampler light_bvh_;
+    float light_bvh_share_ = 0.f;
+    LightSampler other_lights_;
+    std::vector<uint32_t> other_light_ids_;   // other_lights_ index -> emitter
+    std::vector<int32_t> other_light_index_;  // emitter -> other_lights_ index, -1 if in the BVH
 };
 
 template <typename Visit>

@@ -218,3 +218,85 @@ float Scene::EmitterArea(const Emitter& e) const {
 }
 
 }  // namespace tessera
+
+namespace tessera {
+
+void Scene::BuildLightBVH(const std::vector<double>& power, SceneDesc::LightSelection selection) {
+    if (selection == SceneDesc::LightSelection::kPower) return;
+    // Still triangles only: a moving or deforming emitter's bounds would hold at one instant.
+    auto still = [&](const Emitter& e) {
+        return e.kind == LightKind::kTriangle && meshes_[e.mesh].time_steps <= 1 &&
+               (e.instance == kNoInstance || instances_[e.instance].time_steps <= 1);
+    };
+    std::vector<LightBounds> bounds;
+    std::vector<uint32_t> ids;
+    double bvh_power = 0.0, total = 0.0;
+    for (uint32_t i = 0; i < emitters_.size(); ++i) {
+        total += power[i];
+        if (!still(emitters_[i]) || !(power[i] > 0.0)) continue;
+        const Emitter& e = emitters_[i];
+        Vec3 p[3];
+        const float orientation = TriangleVertices(e.mesh, e.index, e.instance, p);
+        const Vec3 normal = Cross(p[1] - p[0], p[2] - p[0]) * orientation;
+        const float len = Length(normal);
+        if (!(len > 0.f) || !std::isfinite(len)) continue;
+        LightBounds b;
+        b.lo = Vec3(std::min({p[0].x, p[1].x, p[2].x}), std::min({p[0].y, p[1].y, p[2].y}),
+                    std::min({p[0].z, p[1].z, p[2].z}));
+        b.hi = Vec3(std::max({p[0].x, p[1].x, p[2].x}), std::max({p[0].y, p[1].y, p[2].y}),
+                    std::max({p[0].z, p[1].z, p[2].z}));
+        b.phi = float(power[i]);
+        b.w = normal / len;
+        b.cos_theta_o = 1.f;
+        b.two_sided = MaterialOf(e.mesh, e.index).two_sided_emission;
+        bounds.push_back(b);
+        ids.push_back(i);
+        bvh_power += power[i];
+    }
+    const size_t needed = selection == SceneDesc::LightSelection::kBVH ? 1 : kMinLightBVHEmitters;
+    if (ids.size() < needed || !(total > 0.0)) return;
+    light_bvh_ = BVHLightSampler(bounds, ids, emitters_.size());
+    light_bvh_share_ = float(bvh_power / total);
+    std::vector<double> other_power;
+    other_light_index_.assign(emitters_.size(), -1);
+    std::vector<uint8_t> in_bvh(emitters_.size(), 0);
+    for (uint32_t id : ids) in_bvh[id] = 1;
+    for (uint32_t i = 0; i < emitters_.size(); ++i) {
+        if (in_bvh[i]) continue;
+        other_light_index_[i] = int32_t(other_light_ids_.size());
+        other_light_ids_.push_back(i);
+        other_power.push_back(power[i]);
+    }
+    // With nothing else (or nothing else with power) the BVH takes every sample.
+    other_lights_ = LightSampler(other_power);
+    if (other_lights_.empty()) light_bvh_share_ = 1.f;
+}
+
+bool Scene::SampleLight(float u, Vec3 p, Vec3 n, uint32_t* light, float* pmf) const {
+    if (light_bvh_.empty()) {
+        *light = light_sampler_.Sample(u, pmf);
+        return true;
+    }
+    const float share = light_bvh_share_;
+    if (u < share) {
+        const float ub = std::min(u / share, 0x1.fffffep-1f);
+        if (!light_bvh_.Sample(ub, p, n, light, pmf)) return false;
+        *pmf *= share;
+        return true;
+    }
+    const float uo = std::min((u - share) / (1.f - share), 0x1.fffffep-1f);
+    float other = 0.f;
+    *light = other_light_ids_[other_lights_.Sample(uo, &other)];
+    *pmf = other * (1.f - share);
+    return true;
+}
+
+float Scene::LightPmf(Vec3 p, Vec3 n, uint32_t light) const {
+    if (light_bvh_.empty()) return light_sampler_.Pmf(light);
+    if (light >= other_light_index_.size()) return 0.f;
+    const int32_t o = other_light_index_[light];
+    if (o < 0) return light_bvh_share_ * light_bvh_.Pmf(p, n, light);
+    return (1.f - light_bvh_share_) * other_lights_.Pmf(uint32_t(o));
+}
+
+}  // namespace tessera
