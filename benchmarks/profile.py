@@ -42,7 +42,7 @@ sc.render_tile(0, 0, 256, 256, width=256, height=256, spp=spp, seed=1, threads=2
 print(time.perf_counter() - t)
 """
 
-ROW = re.compile(r"^\s*([0-9.]+)%\s+(\S+)\s+\[\.\]\s+(.+?)\s*$")
+ROW = re.compile(r"^\s*([0-9.]+)%\s+(\S+)\s+\[\.\]\s+(.+?)(?:\s+-\s+-)?\s*$")
 DSO_ROW = re.compile(r"^\s*([0-9.]+)%\s+(\S+)\s*$")
 
 

@@ -84,8 +84,9 @@ class Scene:
                                      *_preview_table(getattr(data, "material_params", None),
                                                      len(data.albedo.reshape(-1, 3))),
                                      *_dome_texture(dome),
-                                     _corner_normals(getattr(data, "shading_normals", None)),
-                                     light_selection=light_selection, **extras)
+                                     _corner_normals(getattr(data, "shading_normals", None)), **extras,
+                                     # only when asked: benchmarks load older _core builds side by side
+                                     **({} if light_selection == "auto" else {"light_selection": light_selection}))
         except ValueError as exc:
             raise SceneError(f"invalid scene: {exc}") from None
 
