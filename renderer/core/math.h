@@ -2,6 +2,7 @@
 #pragma once
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -79,6 +80,21 @@ inline constexpr float Gamma(int n) {
     return (float(n) * u) / (1.f - float(n) * u);
 }
 
+// std::nextafter(v, +inf) and (v, -inf), bit for bit (zeros, denormals, infinities, NaN
+// included), without the libm call: a float's bits are ordered like its magnitude.
+inline float NextFloatUp(float v) {
+    if (std::isnan(v) || v == std::numeric_limits<float>::infinity()) return v;
+    if (v == 0.f) return std::bit_cast<float>(uint32_t(1));
+    const uint32_t bits = std::bit_cast<uint32_t>(v);
+    return std::bit_cast<float>(v > 0.f ? bits + 1 : bits - 1);
+}
+inline float NextFloatDown(float v) {
+    if (std::isnan(v) || v == -std::numeric_limits<float>::infinity()) return v;
+    if (v == 0.f) return std::bit_cast<float>(uint32_t(0x80000001u));
+    const uint32_t bits = std::bit_cast<uint32_t>(v);
+    return std::bit_cast<float>(v > 0.f ? bits - 1 : bits + 1);
+}
+
 // The origin of a ray leaving a surface point p toward w, where p is known to lie within
 // p_error (absolute, per axis) of the true surface with normal n: p is pushed along n past
 // the error box's extent along n, so the origin is certainly on w's side of the surface
@@ -89,11 +105,10 @@ inline constexpr float Gamma(int n) {
 inline Vec3 OffsetRayOrigin(Vec3 p, float p_error, Vec3 n, Vec3 w) {
     const float side = Dot(w, n) < 0.f ? -1.f : 1.f;
     const float d = side * p_error * (std::abs(n.x) + std::abs(n.y) + std::abs(n.z));
-    const float inf = std::numeric_limits<float>::infinity();
     auto push = [&](float c, float nc) {
         const float away = nc * side;  // which way this axis moves off the surface
         c += nc * d;
-        return away > 0.f ? std::nextafter(c, inf) : (away < 0.f ? std::nextafter(c, -inf) : c);
+        return away > 0.f ? NextFloatUp(c) : (away < 0.f ? NextFloatDown(c) : c);
     };
     return {push(p.x, n.x), push(p.y, n.y), push(p.z, n.z)};
 }

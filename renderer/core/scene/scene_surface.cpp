@@ -188,7 +188,7 @@ bool Scene::IntersectSurface(const Ray& ray, SurfaceHit* hit, float t_min, float
     for (int layer = 0; layer < 1024; ++layer) {
         if (!IntersectClosest(ray, t_near, t_max, hit)) return false;
         if (!IsCutoutHit(*hit)) return true;
-        t_near = std::nextafter(hit->t, std::numeric_limits<float>::infinity()) * (1.f + 1e-6f);
+        t_near = NextFloatUp(hit->t) * (1.f + 1e-6f);
     }
     return false;
 }
