@@ -123,7 +123,8 @@ def _render_one(args: argparse.Namespace) -> int:
           f"{width}x{height}, {samples}, seed {settings.seed}{when}", file=sys.stderr)
     try:
         image = render_scene(scene, settings, scene_name=scene_path.name, threads=args.threads,
-                             progress=not args.quiet, variance=not args.no_variance)
+                             progress=not args.quiet, variance=not args.no_variance,
+                             log=lambda line: print(line, file=sys.stderr))
     except NonFiniteSampleError as exc:
         print(f"tessera render: renderer bug: {exc}", file=sys.stderr)
         return 3

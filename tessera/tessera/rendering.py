@@ -130,15 +130,24 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
 
 
 def render_scene(scene, settings, *, scene_name: str, threads: int = 0, progress: bool = False,
-                 variance: bool = True) -> Image:
+                 variance: bool = True, log=None) -> Image:
     """`render` for a loaded tessera_renderer.Scene and checked
     tessera_base.protocol.RenderSettings (what `tessera render` calls once it has reported
-    the scene and the settings)."""
+    the scene and the settings). Integrator `auto` runs a pilot first (tessera.pilot) and
+    renders with the measured choice; `log`, if given, receives its one-line summary."""
     from tessera_base import integrators
     from tessera_base.images import render_metadata
 
     from .local import render_image
 
+    pilot = None
+    if settings.integrator == integrators.AUTO:
+        from .pilot import run_pilot
+
+        pilot = run_pilot(scene, settings, threads=threads)
+        settings = settings.model_copy(update={"integrator": pilot.choice})
+        if log is not None:
+            log(pilot.summary())
     result = render_image(scene, settings, threads=threads, progress=progress, variance=variance)
     # The noise estimate `tessera compare` needs rides along as layers; for light and bdpt
     # it is the batch estimate, never the camera half's per-sample variance.
@@ -159,6 +168,9 @@ def render_scene(scene, settings, *, scene_name: str, threads: int = 0, progress
                               *integrators.scene_warnings(result.integrator,
                                                           curve_segments=getattr(scene, "num_curve_segments", 0))],
                     denoise_warning=result.denoise_warning)
+    if pilot is not None:
+        metadata["tessera:auto"] = pilot.to_json()
+        metadata["auto_pilot"] = pilot.summary()
     return Image(result.rgba, layers, metadata)
 
 
