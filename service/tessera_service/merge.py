@@ -111,6 +111,8 @@ def encode_image(rgba: np.ndarray, spec: JobSpec, fmt: str, aovs: dict[str, np.n
             # file's own hash is local only: the farm holds the uploaded bundle).
             layers = aovs or {}
             metadata.update(noise_attributes(s.target_error, rgba, layers.get("variance"), layers.get("spp"), kind))
+            if s.auto_pilot:
+                metadata["tessera:auto"] = s.auto_pilot
             images.write_exr(path, rgba, metadata, aovs=aovs, crop=s.crop)
         else:
             images.write_png_preview(path, rgba)

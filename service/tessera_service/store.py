@@ -147,6 +147,9 @@ class JobStore:
                        f"{now!r} job queued: {len(tasks)} tiles, priority {spec.priority}")
             for w in warnings:
                 pipe.rpush(rdb.job_log_key(spec.job_id), f"{now!r} warning: {w}")
+            if spec.settings.auto_pilot:
+                pipe.rpush(rdb.job_log_key(spec.job_id), f"{now!r} integrator {spec.settings.integrator} chosen "
+                                                         f"by the client's auto pilot: {spec.settings.auto_pilot}")
             pipe.xadd(rdb.job_events_key(spec.job_id),
                       rdb.JobEvent(type="state", state="queued").to_fields())
             self.scripts.admit_job(keys=rdb.job_script_keys(spec.job_id, spec.scene_hash),

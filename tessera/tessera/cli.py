@@ -310,6 +310,25 @@ def cmd_worker(args: argparse.Namespace) -> int:
     return 0
 
 
+def _submit_pilot(args: argparse.Namespace):
+    """`submit --integrator auto`: the pilot (tessera.pilot) runs here, on the scene as the
+    farm will load it (its bundle sandbox, frame, camera, variants), so that the job carries
+    one measured choice that every worker renders, and its numbers."""
+    from tessera_base.protocol import RenderSettings, parse_variant, parse_frames
+    from tessera_renderer import load_scene
+
+    from .pilot import run_pilot
+
+    frame = args.frame
+    if frame is None and getattr(args, "frames", None):
+        frame = float(parse_frames(args.frames)[0])
+    scene = load_scene(Path(args.scene), frame=frame, default_light=not args.no_default_light,
+                       subdivision_level=args.subdivision_level, camera=args.camera, shutter=args.shutter,
+                       variants=[parse_variant(v) for v in args.variants or ()])
+    width, height = args.res or (scene.width, scene.height)
+    return run_pilot(scene, RenderSettings(width=width, height=height, max_depth=args.max_depth or 64))
+
+
 def cmd_submit(args: argparse.Namespace) -> int:
     """Uploads a scene to a farm's API (through tessera.Client: a loose layer travels with
     its assets); with --wait follows its progress and downloads the image."""
@@ -329,6 +348,14 @@ def cmd_submit(args: argparse.Namespace) -> int:
                                       crop=",".join(map(str, args.crop)) if args.crop else None,
                                       **_noise_target(args)).items() if v is not None}
     report = lambda line: print(line, file=sys.stderr)  # noqa: E731
+    if args.integrator == "auto":
+        try:
+            pilot = _submit_pilot(args)
+        except (OSError, ValueError) as exc:  # SceneError is a ValueError
+            print(f"tessera submit: --integrator auto: the pilot could not load the scene: {exc}", file=sys.stderr)
+            return 2
+        report(pilot.summary())
+        settings.update(integrator=pilot.choice, auto_pilot=pilot.to_json())
     try:
         with Client(args.server, args.token or os.environ.get("TESSERA_TOKEN")) as farm:
             try:

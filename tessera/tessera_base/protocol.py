@@ -140,6 +140,12 @@ class RenderSettings(BaseModel):
         default_factory=integrators.default,
         description="light transport method: a name from the renderer's registry, or auto "
                     "(`tessera render --integrator help`, docs/integrators.md)")
+    # Added within schema 2: optional, so earlier messages stay valid.
+    auto_pilot: str | None = Field(
+        default=None, max_length=4096,
+        description="what `auto` measured before the job was sent (tessera.pilot's JSON: the choice "
+                    "and each candidate's efficiency), when the client resolved it; logged with the "
+                    "job and written to the image's tessera:auto")
     # Added within schema 2: optional with an empty default, so earlier messages stay valid.
     integrator_params: dict[str, float] = Field(
         default_factory=dict,

@@ -409,3 +409,32 @@ def test_farm_denoised_layer_equals_the_local_one(farm, tmp_path):
     assert not set(images.AOV_EXR_CHANNELS["denoised"]) & set(images.read_exr_channels(tmp_path / "plain.exr"))
     r = farm.get(f"/jobs/{plain['id']}/denoised.png")
     assert r.status_code == 409 and "denoise=true" in r.json()["detail"]
+
+
+def test_submit_auto_sends_one_measured_choice_that_the_farm_records(farm, tmp_path):
+    """`tessera submit --integrator auto` runs the pilot on the client and sends its choice
+    and numbers: the job log names them, every worker renders that integrator (the image
+    equals a local render with it, bit for bit) and the EXR carries tessera:auto."""
+    import json
+
+    from tessera.local import render_image
+    from tessera.pilot import PilotRow, choose
+
+    out = tmp_path / "auto.exr"
+    proc = subprocess.run([sys.executable, "-m", "tessera", "submit", str(CORNELL), "--server", str(farm.base_url),
+                           "--integrator", "auto", "--res", "40x24", "--spp", "4", "--seed", "5", "--max-depth", "8",
+                           "--tile", "16", "--wait", "-q", "-o", str(out)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "auto chose " in proc.stderr, proc.stderr
+    spec = oiio.ImageInput.open(str(out)).spec()
+    pilot = json.loads(spec.getattribute("tessera:auto"))
+    assert pilot["choice"] == choose([PilotRow(**row) for row in pilot["rows"]])
+    assert spec.getattribute("tessera:integrator") == pilot["choice"]
+    job = next(j for j in farm.get("/jobs").json()["jobs"] if j["settings"].get("auto_pilot"))
+    assert json.loads(job["settings"]["auto_pilot"]) == pilot and job["settings"]["integrator"] == pilot["choice"]
+    log = farm.get(f"/jobs/{job['id']}/log").json()["lines"]
+    assert any(f"integrator {pilot['choice']} chosen by the client's auto pilot" in line for line in log), log
+    form = dict(width=40, height=24, spp=4, seed=5, max_depth=8, tile_size=16, integrator=pilot["choice"])
+    local = render_image(load_scene(str(CORNELL)), RenderSettings(**form), progress=False, variance=False).rgba
+    images.write_exr(tmp_path / "local.exr", local)
+    assert_bit_identical(images.read_exr(out), images.read_exr(tmp_path / "local.exr"))

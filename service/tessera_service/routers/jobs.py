@@ -114,6 +114,9 @@ def create_job(
     integrator: Annotated[str | None, Form(description="a name from the renderer's registry "
                                                        "(`tessera render --integrator help`) or auto; "
                                                        "default: the registry's first")] = None,
+    auto_pilot: Annotated[str | None, Form(max_length=4096, description=(
+        "what a client's `auto` pilot measured (JSON), when it chose the integrator before "
+        "sending the job: logged and written to the image's tessera:auto"))] = None,
     max_attempts: Annotated[int, Form(ge=1, le=100, description=(
         "failed deliveries of one tile pass (errors, crashes, dead workers) before the job "
         "fails naming the tile"))] = protocol.DEFAULT_MAX_ATTEMPTS,
@@ -184,7 +187,8 @@ def create_job(
                   integrator_params=_integrator_params_form(integrator_params),
                   subdivision_level=subdivision_level, camera=camera or None, frame=frame,
                   shutter=_shutter_form(shutter),
-                  variants=[v.strip() for v in variants.split(",") if v.strip()] or None)
+                  variants=[v.strip() for v in variants.split(",") if v.strip()] or None,
+                  auto_pilot=auto_pilot or None)
     if crop.strip():
         params["crop"] = crop
     if integrator is None:
