@@ -176,7 +176,7 @@ def test_submit_uses_scene_resolution_and_creates_tiles(api, redis_client):
     assert status["settings"] == {"width": 512, "height": 512, "spp": 4, "seed": 0,
                                   "max_depth": 64, "tile_size": 100, "target_error": None,
                                   "min_spp": 16, "max_spp": 1024, "time_limit": None,
-                                  "integrator": "path", "integrator_params": {}, "aovs": [],
+                                  "integrator": "path", "auto_pilot": None, "integrator_params": {}, "aovs": [],
                                   "default_light": True, "denoise": False, "crop": None,
                                   "subdivision_level": None, "camera": None,
                                   "frame": None, "shutter": None, "variants": None}
