@@ -24,7 +24,7 @@ SCENES = {"cornell": REPO / "examples" / "cornell" / "cornell.usda",
 
 
 def long_measure(scene, res: int = 128, spp: int = 64, seeds: int = 8) -> dict:
-    from tessera.pilot import CANDIDATES, _image
+    from tessera.pilot import CANDIDATES, _image, efficiencies
 
     images = {c: [] for c in CANDIDATES}
     seconds = {c: [] for c in CANDIDATES}
@@ -33,13 +33,8 @@ def long_measure(scene, res: int = 128, spp: int = 64, seeds: int = 8) -> dict:
             t = time.perf_counter()
             images[c].append(_image(scene, c, res, res, spp, 777 + k, 64, 2).astype(np.float64))
             seconds[c].append(time.perf_counter() - t)
-    scale = np.median(np.stack([i for c in CANDIDATES for i in images[c]]), axis=0)
-    out = {}
-    for c in CANDIDATES:
-        rel = float(np.mean(np.stack(images[c]).var(axis=0, ddof=1) / (scale ** 2 + 0.01)))
-        out[c] = {"rel_variance": rel, "seconds": float(np.mean(seconds[c])),
-                  "efficiency": 1.0 / (rel * float(np.mean(seconds[c])))}
-    return out
+    return {r.integrator: {"rel_variance": r.rel_variance, "seconds": r.seconds, "efficiency": r.efficiency}
+            for r in efficiencies(images, seconds)}
 
 
 def main() -> int:

@@ -100,14 +100,20 @@ def run_pilot(scene, settings, threads: int = 0) -> Pilot:
             img = _image(scene, c, w, h, PILOT_SPP, 0x51107 + k, settings.max_depth, threads)
             seconds[c].append(time.perf_counter() - start)
             images[c].append(img.astype(np.float64))
-    # The scale of each pixel: the median over every pilot image of every candidate. A
-    # candidate's own mean would hold its own fireflies, and divide them away.
-    scale = np.median(np.stack([img for c in CANDIDATES for img in images[c]]), axis=0)
-    rows = []
-    for c in CANDIDATES:
-        stack = np.stack(images[c])
-        rel = float(np.mean(stack.var(axis=0, ddof=1) / (scale ** 2 + 0.01)))
-        t = float(np.mean(seconds[c]))
-        eff = 1.0 / (rel * t) if rel > 0 and t > 0 else float("inf")
-        rows.append(PilotRow(c, t, rel, eff))
+    rows = efficiencies(images, seconds)
     return Pilot(choice=choose(rows), rows=rows, size=(w, h))
+
+
+def efficiencies(images: dict[str, list], seconds: dict[str, list[float]]) -> list[PilotRow]:
+    """Each candidate's row from its repeated images (same size, float64) and their seconds."""
+    import numpy as np
+
+    # The scale of each pixel: the median over every image of every candidate. A
+    # candidate's own mean would hold its own fireflies, and divide them away.
+    scale = np.median(np.stack([img for c in images for img in images[c]]), axis=0)
+    rows = []
+    for c in images:
+        rel = float(np.mean(np.stack(images[c]).var(axis=0, ddof=1) / (scale ** 2 + 0.01)))
+        t = float(np.mean(seconds[c]))
+        rows.append(PilotRow(c, t, rel, 1.0 / (rel * t) if rel > 0 and t > 0 else float("inf")))
+    return rows
