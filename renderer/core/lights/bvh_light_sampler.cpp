@@ -64,6 +64,20 @@ float LightBounds::Importance(Vec3 p, Vec3 n) const {
     return std::isfinite(importance) ? importance : 0.f;
 }
 
+LightBounds LightBounds::Triangle(const Vec3 p[3], float phi, bool two_sided) {
+    LightBounds b;
+    const Vec3 normal = Cross(p[1] - p[0], p[2] - p[0]);
+    const float len = Length(normal);
+    if (!(len > 0.f) || !std::isfinite(len)) return b;
+    b.lo = Min(Min(p[0], p[1]), p[2]);
+    b.hi = Max(Max(p[0], p[1]), p[2]);
+    b.phi = phi;
+    b.w = normal / len;
+    b.cos_theta_o = 1.f;
+    b.two_sided = two_sided;
+    return b;
+}
+
 LightBounds LightBounds::Union(const LightBounds& a, const LightBounds& b) {
     if (!(a.phi > 0.f)) return b;
     if (!(b.phi > 0.f)) return a;

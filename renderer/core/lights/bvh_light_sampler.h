@@ -36,6 +36,9 @@ struct LightBounds {
     // surface with normal n (n = 0: any orientation). 0 only if no emitter can reach p.
     float Importance(Vec3 p, Vec3 n) const;
     static LightBounds Union(const LightBounds& a, const LightBounds& b);
+    // One emitting triangle: its box, its normal Cross(p1 - p0, p2 - p0) as the cone's axis
+    // (half-angle 0). phi 0 (nothing to choose) when it is degenerate.
+    static LightBounds Triangle(const Vec3 p[3], float phi, bool two_sided);
 };
 
 class BVHLightSampler {

@@ -15,18 +15,7 @@ struct Tri {
     bool two_sided;
 };
 
-LightBounds BoundsOf(const Tri& t, float phi) {
-    LightBounds b;
-    for (const Vec3& v : t.p) {
-        b.lo = Vec3(std::min(b.lo.x, v.x), std::min(b.lo.y, v.y), std::min(b.lo.z, v.z));
-        b.hi = Vec3(std::max(b.hi.x, v.x), std::max(b.hi.y, v.y), std::max(b.hi.z, v.z));
-    }
-    b.phi = phi;
-    b.w = Normalize(Cross(t.p[1] - t.p[0], t.p[2] - t.p[0]));
-    b.cos_theta_o = 1.f;
-    b.two_sided = t.two_sided;
-    return b;
-}
+LightBounds BoundsOf(const Tri& t, float phi) { return LightBounds::Triangle(t.p, phi, t.two_sided); }
 
 // 300 small triangles scattered in a 10-unit cube, random orientations, a third two-sided.
 struct Field {

@@ -217,9 +217,6 @@ float Scene::EmitterArea(const Emitter& e) const {
     return std::max(1e-30f, 0.5f * Length(Cross(p[1] - p[0], p[2] - p[0])));
 }
 
-}  // namespace tessera
-
-namespace tessera {
 
 void Scene::BuildLightBVH(const std::vector<double>& power, SceneDesc::LightSelection selection) {
     if (selection == SceneDesc::LightSelection::kPower) return;
@@ -237,18 +234,9 @@ void Scene::BuildLightBVH(const std::vector<double>& power, SceneDesc::LightSele
         const Emitter& e = emitters_[i];
         Vec3 p[3];
         const float orientation = TriangleVertices(e.mesh, e.index, e.instance, p);
-        const Vec3 normal = Cross(p[1] - p[0], p[2] - p[0]) * orientation;
-        const float len = Length(normal);
-        if (!(len > 0.f) || !std::isfinite(len)) continue;
-        LightBounds b;
-        b.lo = Vec3(std::min({p[0].x, p[1].x, p[2].x}), std::min({p[0].y, p[1].y, p[2].y}),
-                    std::min({p[0].z, p[1].z, p[2].z}));
-        b.hi = Vec3(std::max({p[0].x, p[1].x, p[2].x}), std::max({p[0].y, p[1].y, p[2].y}),
-                    std::max({p[0].z, p[1].z, p[2].z}));
-        b.phi = float(power[i]);
-        b.w = normal / len;
-        b.cos_theta_o = 1.f;
-        b.two_sided = MaterialOf(e.mesh, e.index).two_sided_emission;
+        if (orientation < 0.f) std::swap(p[1], p[2]);  // the side it faces: Cross(p1 - p0, p2 - p0) x orientation
+        const LightBounds b = LightBounds::Triangle(p, float(power[i]), MaterialOf(e.mesh, e.index).two_sided_emission);
+        if (!(b.phi > 0.f)) continue;
         bounds.push_back(b);
         ids.push_back(i);
         bvh_power += power[i];
