@@ -24,14 +24,14 @@ SCENES = {"cornell": REPO / "examples" / "cornell" / "cornell.usda",
 
 
 def long_measure(scene, res: int = 128, spp: int = 64, seeds: int = 8) -> dict:
-    from tessera.pilot import CANDIDATES, _image, efficiencies
+    from tessera.pilot import CANDIDATES, efficiencies, pilot_image
 
     images = {c: [] for c in CANDIDATES}
     seconds = {c: [] for c in CANDIDATES}
     for k in range(seeds):
         for c in CANDIDATES:
             t = time.perf_counter()
-            images[c].append(_image(scene, c, res, res, spp, 777 + k, 64, 2).astype(np.float64))
+            images[c].append(pilot_image(scene, c, res, res, spp, 777 + k, 64, 2).astype(np.float64))
             seconds[c].append(time.perf_counter() - t)
     return {r.integrator: {"rel_variance": r.rel_variance, "seconds": r.seconds, "efficiency": r.efficiency}
             for r in efficiencies(images, seconds)}

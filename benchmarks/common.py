@@ -23,5 +23,17 @@ def fmt(s: dict, unit: str = "", digits: int = 3) -> str:
             f"(n={s['n']}, range {s['min']:.{digits}g}–{s['max']:.{digits}g})")
 
 
+# The first lines of a benchmark's child process (`python -c`): argv[1], when not empty, is
+# the path of another build's `_core*.so`, loaded in place of this tree's so that two
+# builds are timed side by side in one run.
+LOAD_CORE = r"""
+import importlib.util, sys
+if sys.argv[1]:
+    _spec = importlib.util.spec_from_file_location("tessera_renderer._core", sys.argv[1])
+    _mod = importlib.util.module_from_spec(_spec); sys.modules["tessera_renderer._core"] = _mod
+    _spec.loader.exec_module(_mod)
+"""
+
+
 # One definition of relMSE for the scripts here and `tessera bench` (tessera/tessera_tools/bench_stats.py).
 from tessera_tools.bench_stats import rel_mse  # noqa: E402,F401

@@ -24,16 +24,12 @@ import subprocess
 import sys
 import tempfile
 
-from common import OUT, REPO
+from common import LOAD_CORE, OUT, REPO
 
-CHILD = r"""
-import importlib.util, sys, time
+CHILD = LOAD_CORE + r"""
+import time
 import numpy as np
-core, name, integ, spp = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
-if core:
-    spec = importlib.util.spec_from_file_location("tessera_renderer._core", core)
-    mod = importlib.util.module_from_spec(spec); sys.modules["tessera_renderer._core"] = mod
-    spec.loader.exec_module(mod)
+name, integ, spp = sys.argv[2], sys.argv[3], int(sys.argv[4])
 from tessera_tools.bench import SCENES, load_bench_scene
 sc = load_bench_scene(SCENES[name])
 splats = np.zeros((256, 256, 3), np.int64) if integ in ("bdpt", "light") else None

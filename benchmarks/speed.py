@@ -22,18 +22,13 @@ import subprocess
 import sys
 import time
 
-from common import OUT, REPO, fmt, summary
+from common import LOAD_CORE, OUT, REPO, fmt, summary
 
 SCENES = ("cornell-lambert", "caustic")
 
-CHILD = r"""
-import importlib.util, json, sys, time
+CHILD = LOAD_CORE + r"""
+import json, time
 import numpy as np
-core = sys.argv[1]
-if core:
-    spec = importlib.util.spec_from_file_location("tessera_renderer._core", core)
-    mod = importlib.util.module_from_spec(spec); sys.modules["tessera_renderer._core"] = mod
-    spec.loader.exec_module(mod)
 from tessera_tools.bench import SCENES, load_bench_scene
 scenes = {}
 for line in sys.stdin:

@@ -70,7 +70,7 @@ def pilot_size(width: int, height: int) -> tuple[int, int]:
     return max(8, round(width * scale)), max(8, round(height * scale))
 
 
-def _image(scene, integrator: str, w: int, h: int, spp: int, seed: int, max_depth: int, threads: int):
+def pilot_image(scene, integrator: str, w: int, h: int, spp: int, seed: int, max_depth: int, threads: int):
     from tessera_base.film import assemble_image, render_tile_pass
     from tessera_base.protocol import RenderSettings, TileRect
 
@@ -93,11 +93,11 @@ def run_pilot(scene, settings, threads: int = 0) -> Pilot:
     images: dict[str, list] = {c: [] for c in CANDIDATES}
     seconds: dict[str, list[float]] = {c: [] for c in CANDIDATES}
     for c in CANDIDATES:  # warm-up: first-call costs stay out of the timings
-        _image(scene, c, 8, 8, 1, 0, settings.max_depth, threads)
+        pilot_image(scene, c, 8, 8, 1, 0, settings.max_depth, threads)
     for k in range(PILOT_REPEATS):
         for c in CANDIDATES:
             start = time.perf_counter()
-            img = _image(scene, c, w, h, PILOT_SPP, 0x51107 + k, settings.max_depth, threads)
+            img = pilot_image(scene, c, w, h, PILOT_SPP, 0x51107 + k, settings.max_depth, threads)
             seconds[c].append(time.perf_counter() - start)
             images[c].append(img.astype(np.float64))
     rows = efficiencies(images, seconds)
