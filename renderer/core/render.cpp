@@ -104,9 +104,10 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
         throw std::invalid_argument("integrator '" + options.integrator +
                                     "' splats across tiles and needs a full-frame splat buffer");
     SplatFilm film(splats, camera.width, camera.height, scene.splat_exponent());
-    // Integrators whose tiles reuse a scene pass's product (photon maps, vcm, radiosity)
-    // cannot match one camera sample's instant to the product's: they see mid-shutter.
-    const bool sample_time = (scene.has_motion() || camera.Moves()) && !info.scene_passes;
+    // Every integrator's camera samples get their instants, those whose tiles read a scene
+    // pass's product too: its photons and light vertices were traced at instants of their
+    // own (LightPathInstant), its radiosity solution at mid-shutter (docs/motion.md).
+    const bool sample_time = scene.has_motion() || camera.Moves();
     std::atomic<uint64_t> nonfinite{0}, rejected_splats{0}, closest_rays{0}, shadow_rays{0};
     const bool want_aovs = aovs.any();
     std::mutex first_mutex;

@@ -87,6 +87,14 @@ struct CameraSample {
     }
 };
 
+// The instant of the shutter at which a scene pass's light path or photon path lives: the
+// first dimension of its own stream, drawn only when something moves (still scenes keep
+// their streams and products bit for bit). Held for the whole path with ShutterTimeScope,
+// as RenderTile holds a camera sample's instant for its camera path.
+inline float LightPathInstant(const Scene& scene, PixelSampler& sampler) {
+    return scene.has_motion() ? sampler.Get1D() : 0.5f;
+}
+
 // Per-thread counters an integrator may add to.
 struct IntegratorCounters {
     uint64_t rejected_splats = 0;  // splats that were not finite and >= 0: a bug if > 0

@@ -82,6 +82,7 @@ public:
             for (uint32_t i = range.begin(); i != range.end(); ++i) {
                 if (lights.empty()) return;
                 PixelSampler sampler(seed, kPhotonStreamBase + iteration, i, kPhotonStream);
+                const ShutterTimeScope instant(LightPathInstant(scene, sampler));
                 float pmf = 0.f;
                 const uint32_t light = lights.Sample(sampler.Get1D(), &pmf);
                 const Vec2 u_pos = sampler.Get2D(), u_dir = sampler.Get2D();

@@ -10,6 +10,7 @@
 #include <stdexcept>
 
 #include "bsdf.h"
+#include "integrator.h"
 #include "sampler.h"
 
 namespace tessera {
@@ -89,6 +90,7 @@ std::vector<StoredPhoton> TracePhotons(const Scene& scene, uint32_t seed, uint64
     std::vector<std::vector<StoredPhoton>> kept(chunks);
     auto trace_path = [&](uint32_t i, std::vector<StoredPhoton>& out) {
         PixelSampler sampler(seed, stream, i, kPhotonStream);
+        const ShutterTimeScope instant(LightPathInstant(scene, sampler));
         float pmf = 0.f;
         const uint32_t light = lights.Sample(sampler.Get1D(), &pmf);
         const Vec2 u_pos = sampler.Get2D(), u_dir = sampler.Get2D();

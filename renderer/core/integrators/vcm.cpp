@@ -32,10 +32,21 @@
 // Radius schedule (Georgiev et al. 2012, from Knaus & Zwicker 2011): iteration i (from 1)
 // merges within r_i = r_1 i^((alpha - 1) / 2), so the kernel's bias and the merging
 // variance both vanish as iterations grow (consistent for 0 < alpha < 1).
+//
+// Motion blur (docs/motion.md): a camera sample and its own light subpath live at the
+// sample's instant; light path i of the scene pass at an instant of its own, uniform in
+// time slice b = i mod K of the shutter's K equal slices. A camera vertex merges only with
+// its own slice's light vertices, so a merged path sees the scene within 1/K of one
+// instant, and N above is the slice's path count n_b (in the merge's 1 / (n_b pi r^2) and
+// in every MIS weight of the sample). K_i = ceil(K_1 i^((1 - alpha) / 2)) narrows the
+// slices as the radius shrinks: the time kernel's bias vanishes too, while the merging
+// variance, O(K_i / r_i^2) per iteration, still averages away (consistent). A still scene
+// has K = 1: one slice, the products and images it always had.
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <stdexcept>
@@ -71,24 +82,31 @@ struct LightVertex {
     float prev_sum;       // Q_{j-1}
     uint16_t index;       // j
     uint8_t prev_delta;   // y_{j-1} scattered by a delta lobe: VC_j does not exist
-    uint8_t pad = 0;
+    uint8_t time_slice;   // b: the slice of the shutter its path lives in (0 in a still scene)
 };
 static_assert(sizeof(LightVertex) == 56);
 
-constexpr char kMagic[4] = {'T', 'V', 'C', '1'};
+constexpr float kDefaultTimeSlices = 32.f;
+constexpr char kMagic[4] = {'T', 'V', 'C', '2'};
 struct Header {
     char magic[4];
     uint32_t iteration;
     uint32_t light_paths;
     uint32_t merging;
-    float radius;  // r_i of this iteration
+    float radius;          // r_i of this iteration
+    uint32_t time_slices;  // K_i: 1 in a still scene
 };
 
 class VCMIntegrator final : public Integrator {
 public:
-    VCMIntegrator(int max_depth, uint32_t light_paths, float radius, float alpha, bool merging,
+    VCMIntegrator(int max_depth, uint32_t light_paths, float radius, float alpha, bool merging, float time_slices,
                   const std::string& product)
-        : max_depth_(max_depth), light_paths_(light_paths), radius_(radius), alpha_(alpha), merging_(merging) {
+        : max_depth_(max_depth),
+          light_paths_(light_paths),
+          radius_(radius),
+          alpha_(alpha),
+          merging_(merging),
+          time_slices_(time_slices) {
         if (!product.empty()) Load(product);
     }
 
@@ -107,7 +125,9 @@ public:
                        {"radius", "merging radius of the first iteration in scene units (default: 0.005 of the "
                                   "scene's bounding diameter)"},
                        {"alpha", "radius schedule r_i = r_1 i^((alpha-1)/2), 0 < alpha < 1 (default 0.75)"},
-                       {"merging", "1 to merge, 0 for connections only: then exactly bdpt (default 1)"}},
+                       {"merging", "1 to merge, 0 for connections only: then exactly bdpt (default 1)"},
+                       {"time_slices", "with motion blur, the first iteration's slices of the shutter; a camera "
+                                       "vertex merges with light paths of its own slice (default 32)"}},
         };
         return info;
     }
@@ -117,6 +137,13 @@ public:
         return radius_ * std::pow(float(iteration) + 1.f, 0.5f * (alpha_ - 1.f));
     }
 
+    // K_i (header); at most 255 (a light vertex keeps its slice in a byte) and the paths.
+    uint32_t IterationTimeSlices(const Scene& scene, uint32_t iteration) const {
+        if (!scene.has_motion()) return 1;
+        const double k = std::ceil(double(time_slices_) * std::pow(double(iteration) + 1.0, 0.5 * (1.0 - alpha_)));
+        return uint32_t(std::clamp(k, 1.0, double(std::min<uint32_t>(255, light_paths_))));
+    }
+
     std::string RunScenePass(const Scene& scene, uint32_t seed, uint32_t iteration, int threads) const override {
         Header h{};
         std::memcpy(h.magic, kMagic, 4);
@@ -124,11 +151,12 @@ public:
         h.light_paths = light_paths_;
         h.merging = merging_ ? 1 : 0;
         h.radius = IterationRadius(iteration);
+        h.time_slices = IterationTimeSlices(scene, iteration);
         std::string bytes(sizeof(Header), '\0');
         std::memcpy(bytes.data(), &h, sizeof(Header));
         if (!merging_) return bytes;  // connections only: nothing to merge with
 
-        const float eta = float(light_paths_) * kPi * h.radius * h.radius;
+        const uint32_t slices = h.time_slices;
         std::vector<std::vector<LightVertex>> slots(light_paths_);
         const Camera no_camera{};  // light subpaths never consult the camera
         auto trace = [&](const tbb::blocked_range<uint32_t>& range) {
@@ -137,6 +165,10 @@ public:
             Walker walker(scene, no_camera, max_depth_);
             for (uint32_t i = range.begin(); i != range.end(); ++i) {
                 PixelSampler sampler(seed, kLightPathStreamBase + iteration, i, kLightPathStream);
+                const uint32_t slice = i % slices;
+                const float u_time = LightPathInstant(scene, sampler);
+                const ShutterTimeScope instant(slices > 1 ? (float(slice) + u_time) / float(slices) : u_time);
+                const float eta = float(SlicePaths(light_paths_, slices, slice)) * kPi * h.radius * h.radius;
                 const int n = walker.LightSubpath(sampler, path.data());
                 if (n < 2) continue;
                 float q = (!path[0].delta && !path[0].delta_light) ? 1.f : 0.f;  // Q_0
@@ -155,6 +187,7 @@ public:
                         lv.prev_sum = q;
                         lv.index = uint16_t(j);
                         lv.prev_delta = prev.delta ? 1 : 0;
+                        lv.time_slice = uint8_t(slice);
                         slots[i].push_back(lv);
                     }
                     // Q_j, for the vertices further along.
@@ -187,6 +220,9 @@ public:
         if (camera_path.size() < size_t(max_depth_) + 2) camera_path.resize(size_t(max_depth_) + 2);
         if (light_path.size() < size_t(max_depth_) + 1) light_path.resize(size_t(max_depth_) + 1);
         PixelSampler light_sampler = cs.Stream(1);
+        // The merging density of this sample's time slice (the one slice of a still scene).
+        const uint32_t slice = TimeSlice();
+        const float eta = slice_eta_.empty() ? 0.f : slice_eta_[slice];
 
         // Connections, as BDPTIntegrator::SampleStrategies (same streams, same order: with
         // merging off the image is bdpt's bit for bit).
@@ -204,7 +240,7 @@ public:
                 float px = 0.f, py = 0.f;
                 Color c = walker.Connect(light_path.data(), camera_path.data(), s, t, sampler, &sampled, &px, &py);
                 if (IsBlack(c)) continue;
-                c *= walker.MISWeight(light_path.data(), camera_path.data(), sampled, s, t, eta_);
+                c *= walker.MISWeight(light_path.data(), camera_path.data(), sampled, s, t, eta);
                 if (t == 1) {
                     if (!film.Add(px, py, c) && counters) ++counters->rejected_splats;
                 } else {
@@ -212,36 +248,50 @@ public:
                 }
             }
         }
-        if (eta_ > 0.f)
-            for (int t = 2; t <= n_camera; ++t) L += Merge(camera_path.data(), t);
+        if (eta > 0.f)
+            for (int t = 2; t <= n_camera; ++t) L += Merge(camera_path.data(), t, slice, eta);
         result.radiance = L;
         return result;
     }
 
 private:
-    // Merging at camera[t - 1] with every light vertex within the radius.
-    Color Merge(const Vertex* camera, int t) const {
+    // Paths i < n with i mod slices == slice.
+    static uint32_t SlicePaths(uint32_t n, uint32_t slices, uint32_t slice) {
+        return n / slices + (slice < n % slices ? 1 : 0);
+    }
+
+    // The slice of the shutter holding this thread's instant (the camera sample's).
+    uint32_t TimeSlice() const {
+        if (time_slices_in_product_ <= 1) return 0;
+        const float t = std::clamp(tls_shutter_time, 0.f, 1.f) * float(time_slices_in_product_);
+        return std::min(uint32_t(t), time_slices_in_product_ - 1);
+    }
+
+    // Merging at camera[t - 1] with every light vertex of its time slice within the
+    // radius; eta = n_slice pi r^2.
+    Color Merge(const Vertex* camera, int t, uint32_t slice, float eta) const {
         const Vertex& pt = camera[t - 1];
         if (pt.type != VertexType::kSurface || !pt.bsdf.IsNonSpecular() || IsBlack(pt.beta)) return Color(0.f);
         const Vec3 wo_local = pt.frame.ToLocal(pt.wo);
         Color sum(0.f);
         grid_.ForEachNear(pt.p, [&](const LightVertex& q) {
-            if (int(q.index) + t - 2 > max_depth_) return;
+            if (q.time_slice != slice || int(q.index) + t - 2 > max_depth_) return;
             const Vec3 wi(q.wo[0], q.wo[1], q.wo[2]);
             const Vec3 wi_local = pt.frame.ToLocal(wi);
             if (!SidesAgree(pt.wo, wi, pt.ng, wo_local, wi_local)) return;
             const Color f = pt.bsdf.f(wo_local, wi_local);
             if (IsBlack(f)) return;
-            sum += f * Color(q.beta[0], q.beta[1], q.beta[2]) * MergeWeight(camera, t, q, wo_local, wi_local);
+            sum += f * Color(q.beta[0], q.beta[1], q.beta[2]) * MergeWeight(camera, t, q, wo_local, wi_local, eta);
         });
-        return pt.beta * sum * inv_merge_area_;
+        return pt.beta * sum * (1.f / eta);
     }
 
     // The power-heuristic weight of merging camera[t - 1] with light vertex q: the
     // merging's own ratio to VC_j squared over the sum of every strategy's (header).
-    float MergeWeight(const Vertex* camera, int t, const LightVertex& q, Vec3 wo_local, Vec3 wi_local) const {
+    float MergeWeight(const Vertex* camera, int t, const LightVertex& q, Vec3 wo_local, Vec3 wi_local,
+                      float eta) const {
         const Vertex& pt = camera[t - 1];
-        const float vm = Remap0(q.pdf_fwd) * eta_;
+        const float vm = Remap0(q.pdf_fwd) * eta;
         float total = vm * vm + (q.prev_delta ? 0.f : 1.f);
         // Camera side: p_L of camera[t - 2] is pt's BSDF sampling it from the light's side.
         const float pl_before = ConvertDensity(pt.bsdf.PDF(wi_local, wo_local), pt, camera[t - 2]);
@@ -252,7 +302,7 @@ private:
             const bool delta_i = i == t - 1 ? false : camera[i].delta;
             if (!delta_i && !camera[i - 1].delta) total += r * r;
             if (i - 1 >= 1 && Mergeable(camera[i - 1])) {
-                const float m = r * Remap0(pl(i - 1)) * eta_;
+                const float m = r * Remap0(pl(i - 1)) * eta;
                 total += m * m;
             }
         }
@@ -274,18 +324,22 @@ private:
             if (product.size() != sizeof(Header)) throw std::invalid_argument("vcm: the scene product has the wrong size");
             return;
         }
+        if (h.time_slices < 1 || h.time_slices > std::min<uint32_t>(255, h.light_paths))
+            throw std::invalid_argument("vcm: the scene product's time slices are out of range");
         grid_ = PointHashGrid<LightVertex>::Deserialize(product.data() + sizeof(Header), product.size() - sizeof(Header));
-        eta_ = float(h.light_paths) * kPi * h.radius * h.radius;
-        inv_merge_area_ = 1.f / eta_;
+        time_slices_in_product_ = h.time_slices;
+        for (uint32_t b = 0; b < h.time_slices; ++b)
+            slice_eta_.push_back(float(SlicePaths(h.light_paths, h.time_slices, b)) * kPi * h.radius * h.radius);
     }
 
     int max_depth_;
     uint32_t light_paths_;
     float radius_, alpha_;
     bool merging_;
+    float time_slices_;
     PointHashGrid<LightVertex> grid_;
-    float eta_ = 0.f;             // N pi r_i^2 of the product's iteration; 0 without merging
-    float inv_merge_area_ = 0.f;  // 1 / (N pi r_i^2)
+    uint32_t time_slices_in_product_ = 1;
+    std::vector<float> slice_eta_;  // n_b pi r_i^2 per time slice; empty without merging
 };
 
 }  // namespace
@@ -306,8 +360,11 @@ IntegratorEntry VCMIntegratorEntry() {
                 const float merging = s.Param("merging", 1.f);
                 if (merging != 0.f && merging != 1.f) throw std::invalid_argument("vcm merging must be 0 or 1");
                 if (s.max_depth > 65535) throw std::invalid_argument("vcm max_depth must be at most 65535");
+                const float slices = s.Param("time_slices", kDefaultTimeSlices);
+                if (!(slices >= 1.f && slices <= 255.f && slices == std::floor(slices)))
+                    throw std::invalid_argument("vcm time_slices must be a whole number from 1 to 255");
                 return std::make_unique<VCMIntegrator>(s.max_depth, uint32_t(paths), radius, alpha, merging == 1.f,
-                                                       s.scene_product);
+                                                       slices, s.scene_product);
             }};
 }
 

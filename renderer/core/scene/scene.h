@@ -160,10 +160,10 @@ inline double NormalMatrixOf(const float* m, float* n) {
 // The instant at which this thread's scene queries see moving geometry, as a fraction of
 // the shutter interval in [0, 1] (Embree's ray time). RenderTile sets it once per camera
 // sample (ShutterTimeScope), so every ray of the sample -- its camera path, shadow rays,
-// and the light subpaths light and bdpt trace for it -- sees one consistent instant
-// without each integrator threading it through every query. Everywhere else (scene
-// passes, and integrators whose tiles reuse a scene pass's product) it stays 0.5: the
-// scene frozen at mid-shutter. A static scene ignores it.
+// and the light subpaths light, bdpt and vcm trace for it -- sees one consistent instant
+// without each integrator threading it through every query. Scene passes set it per
+// photon or light path (LightPathInstant); everywhere else (a radiosity solve) it stays
+// 0.5: the scene frozen at mid-shutter. A static scene ignores it.
 inline thread_local float tls_shutter_time = 0.5f;
 
 // Embree's time model: time_steps (>= 2) steps evenly spaced over the shutter [0, 1],
