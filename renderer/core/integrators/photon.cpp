@@ -13,6 +13,10 @@
 // The three are disjoint and cover every path, so only the kernels bias the image (both
 // Epanechnikov: K(d) = 2 (1 - d^2/r^2) / (pi r^2)). Each iteration traces fresh photons,
 // so averaging iterations lowers the noise but not the kernel bias.
+//
+// Motion blur (docs/motion.md): both maps' photon paths live in `time_slices` slices of
+// the shutter (shutter_slices.h), and a visible point or gather point sees only the
+// photons of its camera sample's slice: a time kernel 1/K wide, fixed like the radii.
 #include <cmath>
 #include <stdexcept>
 
@@ -34,14 +38,14 @@ constexpr float kMaxPhotons = 1e7f;
 // Delta lobes a gather ray follows before it gives up on finding a non-specular surface.
 constexpr int kGatherSpecularDepth = 16;
 constexpr uint64_t kPhotonStreamBase = uint64_t(1) << 40;
-constexpr char kMagic[] = "TPJ1";
+constexpr char kMagic[] = "TPJ2";
 
 class PhotonIntegrator final : public Integrator {
 public:
     PhotonIntegrator(int max_depth, uint32_t photons, uint32_t caustic_photons, float radius, float caustic_radius,
-                     int gather, const std::string& product)
+                     int gather, uint32_t time_slices, const std::string& product)
         : max_depth_(max_depth), photons_(photons), caustic_photons_(caustic_photons), radius_(radius),
-          caustic_radius_(caustic_radius), gather_(gather) {
+          caustic_radius_(caustic_radius), gather_(gather), time_slices_(time_slices) {
         if (!product.empty()) {
             size_t offset = 0;
             PhotonProductParse(product, kMagic, 2, &offset, "photon");
@@ -64,7 +68,9 @@ public:
                        {"radius", "global map's kernel radius in scene units (default: 2 % of the scene's "
                                   "bounding diameter)"},
                        {"caustic_radius", "caustic map's kernel radius (default: 0.5 % of the diameter)"},
-                       {"gather", "final-gather rays per visible point (default 8)"}},
+                       {"gather", "final-gather rays per visible point (default 8)"},
+                       {"time_slices", "with motion blur, the slices of the shutter; a point merges with "
+                                       "photons of its own slice (default 32)"}},
         };
         return info;
     }
@@ -72,14 +78,18 @@ public:
 
     std::string RunScenePass(const Scene& scene, uint32_t seed, uint32_t iteration, int threads) const override {
         const uint64_t stream = kPhotonStreamBase + 2 * uint64_t(iteration);
-        std::vector<StoredPhoton> global = TracePhotons(scene, seed, stream, photons_, max_depth_, PhotonFilter{}, threads);
-        std::vector<StoredPhoton> caustic = TracePhotons(scene, seed, stream + 1, caustic_photons_, max_depth_,
-                                                         PhotonFilter{.min_bounces = 1, .caustic_only = true}, threads);
+        const ShutterSlices global_slices = PassShutterSlices(scene, time_slices_, 1.0, photons_);
+        const ShutterSlices caustic_slices = PassShutterSlices(scene, time_slices_, 1.0, caustic_photons_);
+        std::vector<StoredPhoton> global =
+            TracePhotons(scene, seed, stream, photons_, max_depth_, PhotonFilter{}, global_slices, threads);
+        std::vector<StoredPhoton> caustic =
+            TracePhotons(scene, seed, stream + 1, caustic_photons_, max_depth_,
+                         PhotonFilter{.min_bounces = 1, .caustic_only = true}, caustic_slices, threads);
         for (StoredPhoton& ph : global) ph.radius = radius_;
         for (StoredPhoton& ph : caustic) ph.radius = caustic_radius_;
         std::string bytes = PhotonProductBegin(kMagic, iteration, 2);
-        PhotonGrid::Serialize(global, radius_, &bytes);
-        PhotonGrid::Serialize(caustic, caustic_radius_, &bytes);
+        PhotonGrid::Serialize(global, radius_, global_slices, &bytes);
+        PhotonGrid::Serialize(caustic, caustic_radius_, caustic_slices, &bytes);
         return bytes;
     }
 
@@ -138,6 +148,7 @@ private:
     uint32_t photons_, caustic_photons_;
     float radius_, caustic_radius_;
     int gather_;
+    uint32_t time_slices_;
     PhotonGrid global_, caustic_;
 };
 
@@ -167,7 +178,7 @@ IntegratorEntry PhotonIntegratorEntry() {
                 if (!(gather >= 1.f && gather <= 1024.f && gather == std::floor(gather)))
                     throw std::invalid_argument("photon gather must be a whole number from 1 to 1024");
                 return std::make_unique<PhotonIntegrator>(s.max_depth, photons, caustic, radius, caustic_radius,
-                                                          int(gather), s.scene_product);
+                                                          int(gather), TimeSlicesSetting(s, "photon"), s.scene_product);
             }};
 }
 

@@ -11,6 +11,8 @@
 //
 // Every iteration draws fresh photons (its own sampler streams), so averaging iterations
 // averages independent photon maps: the farm repeats scene pass -> tile passes per pass.
+// With motion the photons live in `time_slices` slices of the shutter and a camera sample
+// sees its own slice's (shutter_slices.h).
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
@@ -23,6 +25,8 @@
 #include <vector>
 
 #include "integrator.h"
+#include "point_hash_grid.h"
+#include "shutter_slices.h"
 
 namespace tessera {
 
@@ -38,22 +42,27 @@ constexpr uint64_t kPhotonStreamBase = uint64_t(1) << 40;
 constexpr uint32_t kPhotonStream = 3;
 
 // The product: a header, then per photon its position, the direction it came from (toward
-// the light) and its flux, 9 little-endian floats. Opaque to everything outside this file.
-constexpr char kMagic[4] = {'T', 'P', 'D', '1'};
+// the light), its flux (9 little-endian floats) and its time slice (a byte and 3 zero
+// bytes). Opaque to everything outside this file.
+constexpr char kMagic[4] = {'T', 'P', 'D', '2'};
 struct Header {
     char magic[4];
     uint32_t count;
     uint32_t iteration;
-    uint32_t traced;  // photons traced, including those that landed nowhere useful
+    uint32_t traced;       // photons traced, including those that landed nowhere useful
+    uint32_t time_slices;  // K: 1 in a still scene
 };
 struct Photon {
     float p[3], wi[3], flux[3];
+    uint8_t time_slice;
+    uint8_t zero[3];  // the product's bytes are all written
 };
+static_assert(sizeof(Photon) == 40);
 
 class PhotonDirectIntegrator final : public Integrator {
 public:
-    PhotonDirectIntegrator(uint32_t photons, float radius, const std::string& product)
-        : photons_(photons), radius_(radius) {
+    PhotonDirectIntegrator(uint32_t photons, float radius, uint32_t time_slices, const std::string& product)
+        : photons_(photons), radius_(radius), time_slices_(time_slices) {
         if (!product.empty()) Load(product);
     }
 
@@ -67,7 +76,9 @@ public:
             .stop_per_tile = false,
             .params = {{"photons", "photons traced per iteration (default 200000)"},
                        {"radius", "density-estimation disk radius in scene units (default: a hundredth "
-                                  "of the scene's bounding diameter)"}},
+                                  "of the scene's bounding diameter)"},
+                       {"time_slices", "with motion blur, the slices of the shutter; a camera sample sees "
+                                       "the photons of its own slice (default 32)"}},
         };
         return info;
     }
@@ -77,12 +88,12 @@ public:
         std::vector<Photon> slot(photons_);
         std::vector<uint8_t> kept(photons_, 0);
         const LightSampler& lights = scene.light_sampler();
-        const float inv_n = 1.f / float(photons_);
+        const ShutterSlices slices = PassShutterSlices(scene, time_slices_, 1.0, photons_);
         auto trace = [&](const tbb::blocked_range<uint32_t>& range) {
             for (uint32_t i = range.begin(); i != range.end(); ++i) {
                 if (lights.empty()) return;
                 PixelSampler sampler(seed, kPhotonStreamBase + iteration, i, kPhotonStream);
-                const ShutterTimeScope instant(LightPathInstant(scene, sampler));
+                const ShutterTimeScope instant(slices.Instant(i, LightPathInstant(scene, sampler)));
                 float pmf = 0.f;
                 const uint32_t light = lights.Sample(sampler.Get1D(), &pmf);
                 const Vec2 u_pos = sampler.Get2D(), u_dir = sampler.Get2D();
@@ -94,8 +105,13 @@ public:
                 if (!scene.Intersect(ray, &hit)) continue;
                 const BSDF bsdf = scene.BSDFAt(hit, TransportMode::Importance);
                 if (bsdf.Flags() == kBSDFUnset || !bsdf.IsNonSpecular()) continue;
-                const Color flux = es.beta * (inv_n / pmf);
-                slot[i] = Photon{{hit.p.x, hit.p.y, hit.p.z}, {-ray.d.x, -ray.d.y, -ray.d.z}, {flux.x, flux.y, flux.z}};
+                const uint32_t slice = slices.SliceOfPath(i);
+                const Color flux = es.beta * ((1.f / float(slices.Paths(photons_, slice))) / pmf);
+                slot[i] = Photon{{hit.p.x, hit.p.y, hit.p.z},
+                                 {-ray.d.x, -ray.d.y, -ray.d.z},
+                                 {flux.x, flux.y, flux.z},
+                                 uint8_t(slice),
+                                 {0, 0, 0}};
                 kept[i] = 1;
             }
         };
@@ -111,6 +127,7 @@ public:
         h.count = uint32_t(out.size());
         h.iteration = iteration;
         h.traced = photons_;
+        h.time_slices = slices.count;
         std::string bytes(sizeof(Header) + out.size() * sizeof(Photon), '\0');
         std::memcpy(bytes.data(), &h, sizeof(Header));
         if (!out.empty()) std::memcpy(bytes.data() + sizeof(Header), out.data(), out.size() * sizeof(Photon));
@@ -129,41 +146,19 @@ public:
         if (bsdf.Flags() == kBSDFUnset || !bsdf.IsNonSpecular()) return result;
         const Frame frame = Frame::FromZ(hit.ns);
         const Vec3 wo_local = frame.ToLocal(wo);
-        const float r2 = radius_ * radius_;
         Color sum(0.f);
-        // The 27 cells around the point; two of them may share a bucket, which must then
-        // be visited once, or its photons would count twice.
-        const int cx = Cell(hit.p.x), cy = Cell(hit.p.y), cz = Cell(hit.p.z);
-        std::array<uint32_t, 27> buckets;
-        int n = 0;
-        for (int dz = -1; dz <= 1; ++dz)
-            for (int dy = -1; dy <= 1; ++dy)
-                for (int dx = -1; dx <= 1; ++dx) buckets[n++] = Bucket(cx + dx, cy + dy, cz + dz);
-        std::sort(buckets.begin(), buckets.end());
-        const auto last = std::unique(buckets.begin(), buckets.end());
-        for (auto b = buckets.begin(); b != last; ++b)
-            for (uint32_t k = start_[*b]; k < start_[*b + 1]; ++k) {
-                const Photon& ph = photons_map_[order_[k]];
-                const Vec3 d(ph.p[0] - hit.p.x, ph.p[1] - hit.p.y, ph.p[2] - hit.p.z);
-                if (LengthSquared(d) > r2) continue;
-                const Vec3 wi(ph.wi[0], ph.wi[1], ph.wi[2]);
-                const Vec3 wi_local = frame.ToLocal(wi);
-                if (!SidesAgree(wo, wi, hit.ng, wo_local, wi_local)) continue;
-                sum += bsdf.f(wo_local, wi_local) * Color(ph.flux[0], ph.flux[1], ph.flux[2]);
-            }
-        result.radiance += sum / (kPi * r2);
+        grid_.ForEachNear(hit.p, slices_.Current(), [&](const Photon& ph) {
+            const Vec3 wi(ph.wi[0], ph.wi[1], ph.wi[2]);
+            const Vec3 wi_local = frame.ToLocal(wi);
+            if (!SidesAgree(wo, wi, hit.ng, wo_local, wi_local)) return;
+            sum += bsdf.f(wo_local, wi_local) * Color(ph.flux[0], ph.flux[1], ph.flux[2]);
+        });
+        result.radiance += sum / (kPi * radius_ * radius_);
         return result;
     }
 
 private:
-    int Cell(float x) const { return int(std::floor(x / radius_)); }
-    uint32_t Bucket(int x, int y, int z) const {
-        const uint32_t h = (uint32_t(x) * 73856093u) ^ (uint32_t(y) * 19349663u) ^ (uint32_t(z) * 83492791u);
-        return h & (buckets_ - 1);
-    }
-
-    // Parses a product and sorts its photons into a hash grid of cells one radius wide, so
-    // a lookup visits the 27 cells around a point (collisions only add candidates).
+    // Parses a product into a hash grid of cells one radius wide.
     void Load(const std::string& product) {
         Header h;
         if (product.size() < sizeof(Header) || std::memcmp(product.data(), kMagic, 4) != 0)
@@ -171,28 +166,19 @@ private:
         std::memcpy(&h, product.data(), sizeof(Header));
         if (product.size() != sizeof(Header) + size_t(h.count) * sizeof(Photon))
             throw std::invalid_argument("photon_direct: the scene product has the wrong size");
-        photons_map_.resize(h.count);
-        if (h.count) std::memcpy(photons_map_.data(), product.data() + sizeof(Header), h.count * sizeof(Photon));
-        buckets_ = 1;
-        while (buckets_ < 2 * uint64_t(h.count) + 1) buckets_ <<= 1;
-        start_.assign(buckets_ + 1, 0);
-        std::vector<uint32_t> bucket_of(h.count);
-        for (uint32_t i = 0; i < h.count; ++i) {
-            const Photon& ph = photons_map_[i];
-            bucket_of[i] = Bucket(Cell(ph.p[0]), Cell(ph.p[1]), Cell(ph.p[2]));
-            ++start_[bucket_of[i] + 1];
-        }
-        for (uint32_t b = 0; b < buckets_; ++b) start_[b + 1] += start_[b];
-        order_.resize(h.count);
-        std::vector<uint32_t> fill(start_.begin(), start_.end() - 1);
-        for (uint32_t i = 0; i < h.count; ++i) order_[fill[bucket_of[i]]++] = i;
+        if (h.time_slices < 1 || h.time_slices > kMaxShutterSlices)
+            throw std::invalid_argument("photon_direct: the scene product's time slices are out of range");
+        std::vector<Photon> photons(h.count);
+        if (h.count) std::memcpy(photons.data(), product.data() + sizeof(Header), h.count * sizeof(Photon));
+        slices_ = ShutterSlices{h.time_slices};
+        grid_ = PointHashGrid<Photon>(photons, radius_);
     }
 
     uint32_t photons_;
     float radius_;
-    std::vector<Photon> photons_map_;
-    std::vector<uint32_t> order_, start_{0, 0};
-    uint32_t buckets_ = 1;
+    uint32_t time_slices_;  // K
+    ShutterSlices slices_;  // the product's
+    PointHashGrid<Photon> grid_;
 };
 
 }  // namespace
@@ -202,11 +188,12 @@ IntegratorEntry PhotonDirectIntegratorEntry() {
             [](const IntegratorSettings& s, const Scene& scene) -> std::unique_ptr<Integrator> {
                 const float photons = s.Param("photons", kDefaultPhotons);
                 if (!(photons >= 1.f && photons <= 1e7f && photons == std::floor(photons)))
-                    throw std::invalid_argument("photon_direct photons must be a whole number from 1 to 1e7 (a product of 36 bytes a photon, kept in Redis)");
+                    throw std::invalid_argument("photon_direct photons must be a whole number from 1 to 1e7 (a product of 40 bytes a photon, kept in Redis)");
                 const float radius = s.Param("radius", kDefaultRadiusOfDiameter * 2.f * scene.scene_radius());
                 if (!(radius > 0.f && std::isfinite(radius)))
                     throw std::invalid_argument("photon_direct radius must be a finite number > 0");
-                return std::make_unique<PhotonDirectIntegrator>(uint32_t(photons), radius, s.scene_product);
+                return std::make_unique<PhotonDirectIntegrator>(uint32_t(photons), radius,
+                                                                TimeSlicesSetting(s, "photon_direct"), s.scene_product);
             }};
 }
 

@@ -93,8 +93,8 @@ TEST(PhotonDirect, TheProductIsAPureFunctionOfSeedAndIteration) {
     opt.seed += 1;
     EXPECT_NE(RunScenePass(scene, opt, 3), a);
     // Half the photons of a point light go up and escape: about half are kept.
-    EXPECT_GT(a.size(), 9000u * 36u);
-    EXPECT_LT(a.size(), 11000u * 36u + 64u);
+    EXPECT_GT(a.size(), 9000u * 40u);
+    EXPECT_LT(a.size(), 11000u * 40u + 64u);
 }
 
 TEST(PhotonDirect, TilesRefuseAMissingOrForeignProduct) {

@@ -61,11 +61,6 @@ Vec3 DecodeDirection(std::array<uint16_t, 2> e) {
     return Normalize(Vec3(x, y, z));
 }
 
-uint32_t HashCell(int x, int y, int z, uint32_t buckets) {
-    const uint32_t h = (uint32_t(x) * 73856093u) ^ (uint32_t(y) * 19349663u) ^ (uint32_t(z) * 83492791u);
-    return h & (buckets - 1);
-}
-
 template <typename T>
 void Append(std::string* out, const T* data, size_t count) {
     if (count) out->append(reinterpret_cast<const char*>(data), count * sizeof(T));
@@ -82,22 +77,25 @@ void Read(std::string_view data, size_t* offset, T* dst, size_t count, std::stri
 }  // namespace
 
 std::vector<StoredPhoton> TracePhotons(const Scene& scene, uint32_t seed, uint64_t stream, uint32_t paths,
-                                       int max_depth, const PhotonFilter& filter, int threads) {
+                                       int max_depth, const PhotonFilter& filter, ShutterSlices slices, int threads) {
     const LightSampler& lights = scene.light_sampler();
     if (lights.empty() || paths == 0) return {};
-    const float inv_paths = 1.f / float(paths);
+    // 1 / n_b per slice (a still scene's one slice: 1 / paths).
+    std::vector<float> inv_slice_paths(slices.count);
+    for (uint32_t b = 0; b < slices.count; ++b) inv_slice_paths[b] = 1.f / float(std::max(1u, slices.Paths(paths, b)));
     const uint32_t chunks = (paths + kPathsPerChunk - 1) / kPathsPerChunk;
     std::vector<std::vector<StoredPhoton>> kept(chunks);
     auto trace_path = [&](uint32_t i, std::vector<StoredPhoton>& out) {
         PixelSampler sampler(seed, stream, i, kPhotonStream);
-        const ShutterTimeScope instant(LightPathInstant(scene, sampler));
+        const uint8_t slice = uint8_t(slices.SliceOfPath(i));
+        const ShutterTimeScope instant(slices.Instant(i, LightPathInstant(scene, sampler)));
         float pmf = 0.f;
         const uint32_t light = lights.Sample(sampler.Get1D(), &pmf);
         const Vec2 u_pos = sampler.Get2D(), u_dir = sampler.Get2D();
         const float u_side = sampler.Get1D();
         EmissionSample es;
         if (!scene.SampleEmission(light, u_pos, u_dir, u_side, &es) || !(pmf > 0.f)) return;
-        Color beta = es.beta * (inv_paths / pmf);
+        Color beta = es.beta * (inv_slice_paths[slice] / pmf);
         Ray ray{es.on_surface ? OffsetRayOrigin(es.p, es.p_error, es.n, es.wo) : es.p, es.wo};
         bool all_specular = true;
         for (int bounces = 0; bounces <= max_depth; ++bounces) {
@@ -108,7 +106,7 @@ std::vector<StoredPhoton> TracePhotons(const Scene& scene, uint32_t seed, uint64
             const Vec3 wo = -ray.d;
             if (bsdf.IsNonSpecular()) {
                 if (bounces >= filter.min_bounces && (!filter.caustic_only || (bounces > 0 && all_specular)))
-                    out.push_back({hit.p, wo, beta});
+                    out.push_back({hit.p, wo, beta, 0.f, slice});
                 if (filter.caustic_only) return;
             }
             if (bounces == max_depth) return;
@@ -155,7 +153,8 @@ std::vector<StoredPhoton> TracePhotons(const Scene& scene, uint32_t seed, uint64
     return all;
 }
 
-void PhotonGrid::Serialize(const std::vector<StoredPhoton>& photons, float cell, std::string* out) {
+void PhotonGrid::Serialize(const std::vector<StoredPhoton>& photons, float cell, ShutterSlices slices,
+                           std::string* out) {
     const uint32_t count = uint32_t(photons.size());
     uint32_t buckets = 1;
     while (buckets < count) buckets <<= 1;
@@ -165,13 +164,14 @@ void PhotonGrid::Serialize(const std::vector<StoredPhoton>& photons, float cell,
     auto cell_of = [cell](float x) { return int(std::floor(x / cell)); };
     for (uint32_t i = 0; i < count; ++i) {
         const Vec3 p = photons[i].p;
-        bucket_of[i] = HashCell(cell_of(p.x), cell_of(p.y), cell_of(p.z), buckets);
+        bucket_of[i] = HashGridBucket(cell_of(p.x), cell_of(p.y), cell_of(p.z), photons[i].time_slice, buckets);
         ++start[bucket_of[i] + 1];
     }
     for (uint32_t b = 0; b < buckets; ++b) start[b + 1] += start[b];
     std::vector<float> pos(3 * size_t(count)), radius(count);
     std::vector<std::array<uint16_t, 2>> dir(count);
     std::vector<std::array<uint16_t, 3>> power(count);
+    std::vector<uint8_t> slice(count);
     std::vector<uint32_t> fill(start.begin(), start.end() - 1);
     const float inv_scale = scale > 0.f ? 1.f / scale : 0.f;
     for (uint32_t i = 0; i < count; ++i) {
@@ -181,31 +181,34 @@ void PhotonGrid::Serialize(const std::vector<StoredPhoton>& photons, float cell,
         radius[k] = ph.radius;
         dir[k] = EncodeDirection(ph.wi);
         power[k] = {ToHalf(ph.power.x * inv_scale), ToHalf(ph.power.y * inv_scale), ToHalf(ph.power.z * inv_scale)};
+        slice[k] = ph.time_slice;
     }
-    const uint32_t head[2] = {count, buckets};
+    const uint32_t head[3] = {count, buckets, slices.count};
     const float fhead[2] = {cell, scale};
-    Append(out, head, 2);
+    Append(out, head, 3);
     Append(out, fhead, 2);
     Append(out, start.data(), start.size());
     Append(out, pos.data(), pos.size());
     Append(out, radius.data(), radius.size());
     Append(out, dir.data(), dir.size());
     Append(out, power.data(), power.size());
+    Append(out, slice.data(), slice.size());
 }
 
 void PhotonGrid::Parse(std::string_view data, size_t* offset, std::string_view who) {
-    uint32_t head[2];
+    uint32_t head[3];
     float fhead[2];
-    Read(data, offset, head, 2, who);
+    Read(data, offset, head, 3, who);
     Read(data, offset, fhead, 2, who);
-    const uint32_t count = head[0], buckets = head[1];
+    const uint32_t count = head[0], buckets = head[1], slices = head[2];
     // Bound the sizes by what the bytes can hold before allocating anything.
     if (buckets == 0 || (buckets & (buckets - 1)) != 0 || uint64_t(buckets) > data.size() ||
-        uint64_t(count) * 26 > data.size() || !(fhead[0] > 0.f) || !std::isfinite(fhead[0]) || !(fhead[1] >= 0.f))
+        uint64_t(count) * 27 > data.size() || slices < 1 || slices > kMaxShutterSlices || !(fhead[0] > 0.f) || !std::isfinite(fhead[0]) || !(fhead[1] >= 0.f))
         throw std::invalid_argument(std::string(who) + ": the scene product is not a photon map");
     cell_ = fhead[0];
     power_scale_ = fhead[1];
     buckets_ = buckets;
+    slices_ = ShutterSlices{slices};
     start_.resize(size_t(buckets) + 1);
     Read(data, offset, start_.data(), start_.size(), who);
     if (start_.front() != 0 || start_.back() != count || !std::is_sorted(start_.begin(), start_.end()))
@@ -214,6 +217,7 @@ void PhotonGrid::Parse(std::string_view data, size_t* offset, std::string_view w
     radius_.resize(count);
     dir_.resize(count);
     power_.resize(count);
+    slice_.resize(count);
     Read(data, offset, pos_.data(), pos_.size(), who);
     Read(data, offset, radius_.data(), radius_.size(), who);
     for (float r : radius_)
@@ -221,10 +225,12 @@ void PhotonGrid::Parse(std::string_view data, size_t* offset, std::string_view w
             throw std::invalid_argument(std::string(who) + ": the scene product has a photon radius beyond its grid");
     Read(data, offset, dir_.data(), dir_.size(), who);
     Read(data, offset, power_.data(), power_.size(), who);
+    Read(data, offset, slice_.data(), slice_.size(), who);
+    for (uint8_t b : slice_)
+        if (b >= slices) throw std::invalid_argument(std::string(who) + ": the scene product has a photon beyond its time slices");
 }
 
 int PhotonGrid::CellOf(float x) const { return int(std::floor(x / cell_)); }
-uint32_t PhotonGrid::Bucket(int x, int y, int z) const { return HashCell(x, y, z, buckets_); }
 Vec3 PhotonGrid::Direction(uint32_t k) const { return DecodeDirection(dir_[k]); }
 Color PhotonGrid::Power(uint32_t k) const {
     return Color(FromHalf(power_[k][0]), FromHalf(power_[k][1]), FromHalf(power_[k][2])) * power_scale_;

@@ -116,7 +116,7 @@ TEST(Photon, ProductIsPureAndBadInputIsRefused) {
     EXPECT_NE(RunScenePass(scene, opt, 3), a);
     std::vector<float> out(64);
     EXPECT_THROW(RenderTile(scene, LookDownAtOrigin(0.5f), opt, {0, 0, 4, 4}, out.data()), std::invalid_argument);
-    opt.scene_product = "TPJ1 not a photon map";
+    opt.scene_product = "TPJ2 not a photon map";
     EXPECT_THROW(RenderTile(scene, LookDownAtOrigin(0.5f), opt, {0, 0, 4, 4}, out.data()), std::invalid_argument);
     for (auto bad : std::vector<std::map<std::string, float>>{{{"gather", 0.f}}, {{"radius", -1.f}}, {{"caustic_photons", 2e7f}}}) {
         RenderOptions b = Photon(bad);

@@ -4,7 +4,9 @@
 // points sorted by bucket and each bucket's start), which is also its serialised form: a
 // scene pass can store it as bytes and a tile pass use it after a copy, with no rebuild.
 //
-// T is any trivially copyable record with a `float p[3]` position.
+// T is any trivially copyable record with a `float p[3]` position and a `uint8_t
+// time_slice` (shutter_slices.h): the hash keys a cell and a slice together, so a lookup
+// visits only its own slice's points (a still scene's are all slice 0).
 #pragma once
 
 #include <algorithm>
@@ -21,6 +23,26 @@
 
 namespace tessera {
 
+// The bucket of cell (x, y, z) in time slice `slice` among `buckets` (a power of two).
+// Slice 0 hashes as the cell alone.
+inline uint32_t HashGridBucket(int x, int y, int z, uint32_t slice, uint32_t buckets) {
+    const uint32_t h = (uint32_t(x) * 73856093u) ^ (uint32_t(y) * 19349663u) ^ (uint32_t(z) * 83492791u) ^
+                       (slice * 2654435761u);
+    return h & (buckets - 1);
+}
+
+// The buckets of the 27 cells around cell (cx, cy, cz) in `slice`, sorted and each once
+// (two cells may share a bucket, whose points must not count twice); returns how many.
+inline int NeighbourBuckets(int cx, int cy, int cz, uint32_t slice, uint32_t buckets,
+                            std::array<uint32_t, 27>* out) {
+    int n = 0;
+    for (int dz = -1; dz <= 1; ++dz)
+        for (int dy = -1; dy <= 1; ++dy)
+            for (int dx = -1; dx <= 1; ++dx) (*out)[n++] = HashGridBucket(cx + dx, cy + dy, cz + dz, slice, buckets);
+    std::sort(out->begin(), out->end());
+    return int(std::unique(out->begin(), out->end()) - out->begin());
+}
+
 template <typename T>
 class PointHashGrid {
     static_assert(std::is_trivially_copyable_v<T>);
@@ -36,7 +58,8 @@ public:
         start_.assign(size_t(buckets_) + 1, 0);
         std::vector<uint32_t> bucket_of(points.size());
         for (size_t i = 0; i < points.size(); ++i) {
-            bucket_of[i] = BucketOf(points[i].p[0], points[i].p[1], points[i].p[2]);
+            bucket_of[i] = HashGridBucket(Cell(points[i].p[0]), Cell(points[i].p[1]), Cell(points[i].p[2]),
+                                          points[i].time_slice, buckets_);
             ++start_[bucket_of[i] + 1];
         }
         for (uint32_t b = 0; b < buckets_; ++b) start_[b + 1] += start_[b];
@@ -49,23 +72,18 @@ public:
     size_t size() const { return points_.size(); }
     const std::vector<T>& points() const { return points_; }
 
-    // Calls visit(point) for every point within the radius of x, each once.
+    // Calls visit(point) for every point of time slice `slice` within the radius of x,
+    // each once.
     template <typename Visit>
-    void ForEachNear(Vec3 x, Visit&& visit) const {
+    void ForEachNear(Vec3 x, uint32_t slice, Visit&& visit) const {
         if (points_.empty()) return;
-        const int cx = Cell(x.x), cy = Cell(x.y), cz = Cell(x.z);
-        // Two of the 27 cells may hash to one bucket, which must then be visited once.
         std::array<uint32_t, 27> buckets;
-        int n = 0;
-        for (int dz = -1; dz <= 1; ++dz)
-            for (int dy = -1; dy <= 1; ++dy)
-                for (int dx = -1; dx <= 1; ++dx) buckets[n++] = Bucket(cx + dx, cy + dy, cz + dz);
-        std::sort(buckets.begin(), buckets.end());
-        const auto last = std::unique(buckets.begin(), buckets.end());
+        const int n = NeighbourBuckets(Cell(x.x), Cell(x.y), Cell(x.z), slice, buckets_, &buckets);
         const float r2 = radius_ * radius_;
-        for (auto b = buckets.begin(); b != last; ++b)
-            for (uint32_t k = start_[*b]; k < start_[*b + 1]; ++k) {
+        for (int b = 0; b < n; ++b)
+            for (uint32_t k = start_[buckets[b]]; k < start_[buckets[b] + 1]; ++k) {
                 const T& q = points_[k];
+                if (q.time_slice != slice) continue;  // another slice's cell in the same bucket
                 const Vec3 d(q.p[0] - x.x, q.p[1] - x.y, q.p[2] - x.z);
                 if (LengthSquared(d) <= r2) visit(q);
             }
@@ -114,11 +132,6 @@ public:
 
 private:
     int Cell(float x) const { return int(std::floor(x / radius_)); }
-    uint32_t Bucket(int x, int y, int z) const {
-        const uint32_t h = (uint32_t(x) * 73856093u) ^ (uint32_t(y) * 19349663u) ^ (uint32_t(z) * 83492791u);
-        return h & (buckets_ - 1);
-    }
-    uint32_t BucketOf(float x, float y, float z) const { return Bucket(Cell(x), Cell(y), Cell(z)); }
 
     float radius_ = 1.f;
     uint32_t buckets_ = 1;

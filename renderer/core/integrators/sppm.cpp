@@ -18,6 +18,10 @@
 // weight in the image, as in Knaus and Zwicker's average. The camera side follows delta
 // lobes to the visible points, adds direct light there by next event estimation, and the
 // photons (after at least one scattering) for the rest.
+//
+// Motion blur (docs/motion.md): iteration k's photon paths live in K_k time slices of the
+// shutter (shutter_slices.h), K_k = ceil(K_1 j^((1 - alpha) / 2)) for its first batch j,
+// narrowing with the radius, and a visible point sees only its own instant's slice.
 #include <cmath>
 #include <cstring>
 #include <stdexcept>
@@ -34,16 +38,17 @@ namespace {
 constexpr float kDefaultPhotons = 100000.f;
 constexpr float kDefaultRadiusOfDiameter = 0.01f;
 constexpr float kDefaultAlpha = 2.f / 3.f;
-// The most photons one iteration's product holds (26 bytes each, stored in Redis); past
+// The most photons one iteration's product holds (27 bytes each, stored in Redis); past
 // it an iteration holds fewer batches than its samples' weight and convergence slows.
 constexpr uint64_t kMaxPhotonsPerIteration = 10'000'000;
 constexpr uint64_t kPhotonStreamBase = uint64_t(1) << 40;
-constexpr char kMagic[] = "TSP1";
+constexpr char kMagic[] = "TSP2";
 
 class SPPMIntegrator final : public Integrator {
 public:
-    SPPMIntegrator(int max_depth, uint32_t photons, float radius, float alpha, const std::string& product)
-        : max_depth_(max_depth), photons_(photons), radius_(radius), alpha_(alpha) {
+    SPPMIntegrator(int max_depth, uint32_t photons, float radius, float alpha, uint32_t time_slices,
+                   const std::string& product)
+        : max_depth_(max_depth), photons_(photons), radius_(radius), alpha_(alpha), time_slices_(time_slices) {
         if (!product.empty()) {
             size_t offset = 0;
             PhotonProductParse(product, kMagic, 1, &offset, "sppm");
@@ -63,7 +68,9 @@ public:
             .params = {{"photons", "photon paths per batch (default 100000)"},
                        {"radius", "first batch's disk-kernel radius in scene units (default: a hundredth of "
                                   "the scene's bounding diameter)"},
-                       {"alpha", "radius reduction, 0 < alpha < 1: r_j = r_1 j^((alpha-1)/2) (default 2/3)"}},
+                       {"alpha", "radius reduction, 0 < alpha < 1: r_j = r_1 j^((alpha-1)/2) (default 2/3)"},
+                       {"time_slices", "with motion blur, the first batch's slices of the shutter; a visible "
+                                       "point merges with photons of its own slice (default 32)"}},
         };
         return info;
     }
@@ -85,9 +92,11 @@ public:
         std::vector<StoredPhoton> photons;
         PhotonFilter filter;
         filter.min_bounces = 1;  // direct light is next event estimation's
+        const ShutterSlices slices =
+            PassShutterSlices(scene, time_slices_, std::pow(double(first), 0.5 * (1.0 - alpha_)), photons_);
         for (uint64_t j = first; j < first + count; ++j) {
             std::vector<StoredPhoton> batch =
-                TracePhotons(scene, seed, kPhotonStreamBase + j, photons_, max_depth_, filter, threads);
+                TracePhotons(scene, seed, kPhotonStreamBase + j, photons_, max_depth_, filter, slices, threads);
             const float r = float(BatchRadius(j));
             for (StoredPhoton& ph : batch) {
                 ph.power = ph.power / float(count);  // the iteration averages its batches
@@ -96,7 +105,7 @@ public:
             photons.insert(photons.end(), batch.begin(), batch.end());
         }
         std::string bytes = PhotonProductBegin(kMagic, iteration, 1);
-        PhotonGrid::Serialize(photons, float(BatchRadius(first)), &bytes);
+        PhotonGrid::Serialize(photons, float(BatchRadius(first)), slices, &bytes);
         return bytes;
     }
 
@@ -115,6 +124,7 @@ private:
     int max_depth_;
     uint32_t photons_;
     float radius_, alpha_;
+    uint32_t time_slices_;  // K_1
     PhotonGrid map_;
 };
 
@@ -130,7 +140,8 @@ IntegratorEntry SPPMIntegratorEntry() {
                     throw std::invalid_argument("sppm radius must be a finite number > 0");
                 const float alpha = s.Param("alpha", kDefaultAlpha);
                 if (!(alpha > 0.f && alpha < 1.f)) throw std::invalid_argument("sppm alpha must be between 0 and 1 (exclusive)");
-                return std::make_unique<SPPMIntegrator>(s.max_depth, uint32_t(photons), radius, alpha, s.scene_product);
+                return std::make_unique<SPPMIntegrator>(s.max_depth, uint32_t(photons), radius, alpha,
+                                                        TimeSlicesSetting(s, "sppm"), s.scene_product);
             }};
 }
 

@@ -34,14 +34,11 @@
 // variance both vanish as iterations grow (consistent for 0 < alpha < 1).
 //
 // Motion blur (docs/motion.md): a camera sample and its own light subpath live at the
-// sample's instant; light path i of the scene pass at an instant of its own, uniform in
-// time slice b = i mod K of the shutter's K equal slices. A camera vertex merges only with
-// its own slice's light vertices, so a merged path sees the scene within 1/K of one
-// instant, and N above is the slice's path count n_b (in the merge's 1 / (n_b pi r^2) and
-// in every MIS weight of the sample). K_i = ceil(K_1 i^((1 - alpha) / 2)) narrows the
-// slices as the radius shrinks: the time kernel's bias vanishes too, while the merging
-// variance, O(K_i / r_i^2) per iteration, still averages away (consistent). A still scene
-// has K = 1: one slice, the products and images it always had.
+// sample's instant; the scene pass's light paths in K_i time slices of the shutter
+// (shutter_slices.h), K_i = ceil(K_1 i^((1 - alpha) / 2)). A camera vertex merges only
+// with its own slice's light vertices (the grid keys cells by slice), and N above is the
+// slice's path count n_b (in the merge's 1 / (n_b pi r^2) and in every MIS weight of the
+// sample).
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
@@ -55,6 +52,7 @@
 #include "bdpt_internal.h"
 #include "integrator.h"
 #include "point_hash_grid.h"
+#include "shutter_slices.h"
 
 namespace tessera {
 
@@ -86,8 +84,7 @@ struct LightVertex {
 };
 static_assert(sizeof(LightVertex) == 56);
 
-constexpr float kDefaultTimeSlices = 32.f;
-constexpr char kMagic[4] = {'T', 'V', 'C', '2'};
+constexpr char kMagic[4] = {'T', 'V', 'C', '3'};
 struct Header {
     char magic[4];
     uint32_t iteration;
@@ -99,7 +96,7 @@ struct Header {
 
 class VCMIntegrator final : public Integrator {
 public:
-    VCMIntegrator(int max_depth, uint32_t light_paths, float radius, float alpha, bool merging, float time_slices,
+    VCMIntegrator(int max_depth, uint32_t light_paths, float radius, float alpha, bool merging, uint32_t time_slices,
                   const std::string& product)
         : max_depth_(max_depth),
           light_paths_(light_paths),
@@ -137,11 +134,9 @@ public:
         return radius_ * std::pow(float(iteration) + 1.f, 0.5f * (alpha_ - 1.f));
     }
 
-    // K_i (header); at most 255 (a light vertex keeps its slice in a byte) and the paths.
-    uint32_t IterationTimeSlices(const Scene& scene, uint32_t iteration) const {
-        if (!scene.has_motion()) return 1;
-        const double k = std::ceil(double(time_slices_) * std::pow(double(iteration) + 1.0, 0.5 * (1.0 - alpha_)));
-        return uint32_t(std::clamp(k, 1.0, double(std::min<uint32_t>(255, light_paths_))));
+    ShutterSlices IterationTimeSlices(const Scene& scene, uint32_t iteration) const {
+        return PassShutterSlices(scene, time_slices_, std::pow(double(iteration) + 1.0, 0.5 * (1.0 - alpha_)),
+                                 light_paths_);
     }
 
     std::string RunScenePass(const Scene& scene, uint32_t seed, uint32_t iteration, int threads) const override {
@@ -151,12 +146,12 @@ public:
         h.light_paths = light_paths_;
         h.merging = merging_ ? 1 : 0;
         h.radius = IterationRadius(iteration);
-        h.time_slices = IterationTimeSlices(scene, iteration);
+        const ShutterSlices slices = IterationTimeSlices(scene, iteration);
+        h.time_slices = slices.count;
         std::string bytes(sizeof(Header), '\0');
         std::memcpy(bytes.data(), &h, sizeof(Header));
         if (!merging_) return bytes;  // connections only: nothing to merge with
 
-        const uint32_t slices = h.time_slices;
         std::vector<std::vector<LightVertex>> slots(light_paths_);
         const Camera no_camera{};  // light subpaths never consult the camera
         auto trace = [&](const tbb::blocked_range<uint32_t>& range) {
@@ -165,10 +160,9 @@ public:
             Walker walker(scene, no_camera, max_depth_);
             for (uint32_t i = range.begin(); i != range.end(); ++i) {
                 PixelSampler sampler(seed, kLightPathStreamBase + iteration, i, kLightPathStream);
-                const uint32_t slice = i % slices;
-                const float u_time = LightPathInstant(scene, sampler);
-                const ShutterTimeScope instant(slices > 1 ? (float(slice) + u_time) / float(slices) : u_time);
-                const float eta = float(SlicePaths(light_paths_, slices, slice)) * kPi * h.radius * h.radius;
+                const uint32_t slice = slices.SliceOfPath(i);
+                const ShutterTimeScope instant(slices.Instant(i, LightPathInstant(scene, sampler)));
+                const float eta = float(slices.Paths(light_paths_, slice)) * kPi * h.radius * h.radius;
                 const int n = walker.LightSubpath(sampler, path.data());
                 if (n < 2) continue;
                 float q = (!path[0].delta && !path[0].delta_light) ? 1.f : 0.f;  // Q_0
@@ -221,7 +215,7 @@ public:
         if (light_path.size() < size_t(max_depth_) + 1) light_path.resize(size_t(max_depth_) + 1);
         PixelSampler light_sampler = cs.Stream(1);
         // The merging density of this sample's time slice (the one slice of a still scene).
-        const uint32_t slice = TimeSlice();
+        const uint32_t slice = slices_.Current();
         const float eta = slice_eta_.empty() ? 0.f : slice_eta_[slice];
 
         // Connections, as BDPTIntegrator::SampleStrategies (same streams, same order: with
@@ -255,18 +249,6 @@ public:
     }
 
 private:
-    // Paths i < n with i mod slices == slice.
-    static uint32_t SlicePaths(uint32_t n, uint32_t slices, uint32_t slice) {
-        return n / slices + (slice < n % slices ? 1 : 0);
-    }
-
-    // The slice of the shutter holding this thread's instant (the camera sample's).
-    uint32_t TimeSlice() const {
-        if (time_slices_in_product_ <= 1) return 0;
-        const float t = std::clamp(tls_shutter_time, 0.f, 1.f) * float(time_slices_in_product_);
-        return std::min(uint32_t(t), time_slices_in_product_ - 1);
-    }
-
     // Merging at camera[t - 1] with every light vertex of its time slice within the
     // radius; eta = n_slice pi r^2.
     Color Merge(const Vertex* camera, int t, uint32_t slice, float eta) const {
@@ -274,8 +256,8 @@ private:
         if (pt.type != VertexType::kSurface || !pt.bsdf.IsNonSpecular() || IsBlack(pt.beta)) return Color(0.f);
         const Vec3 wo_local = pt.frame.ToLocal(pt.wo);
         Color sum(0.f);
-        grid_.ForEachNear(pt.p, [&](const LightVertex& q) {
-            if (q.time_slice != slice || int(q.index) + t - 2 > max_depth_) return;
+        grid_.ForEachNear(pt.p, slice, [&](const LightVertex& q) {
+            if (int(q.index) + t - 2 > max_depth_) return;
             const Vec3 wi(q.wo[0], q.wo[1], q.wo[2]);
             const Vec3 wi_local = pt.frame.ToLocal(wi);
             if (!SidesAgree(pt.wo, wi, pt.ng, wo_local, wi_local)) return;
@@ -324,21 +306,21 @@ private:
             if (product.size() != sizeof(Header)) throw std::invalid_argument("vcm: the scene product has the wrong size");
             return;
         }
-        if (h.time_slices < 1 || h.time_slices > std::min<uint32_t>(255, h.light_paths))
+        if (h.time_slices < 1 || h.time_slices > std::min(kMaxShutterSlices, h.light_paths))
             throw std::invalid_argument("vcm: the scene product's time slices are out of range");
         grid_ = PointHashGrid<LightVertex>::Deserialize(product.data() + sizeof(Header), product.size() - sizeof(Header));
-        time_slices_in_product_ = h.time_slices;
+        slices_ = ShutterSlices{h.time_slices};
         for (uint32_t b = 0; b < h.time_slices; ++b)
-            slice_eta_.push_back(float(SlicePaths(h.light_paths, h.time_slices, b)) * kPi * h.radius * h.radius);
+            slice_eta_.push_back(float(slices_.Paths(h.light_paths, b)) * kPi * h.radius * h.radius);
     }
 
     int max_depth_;
     uint32_t light_paths_;
     float radius_, alpha_;
     bool merging_;
-    float time_slices_;
+    uint32_t time_slices_;  // K_1
     PointHashGrid<LightVertex> grid_;
-    uint32_t time_slices_in_product_ = 1;
+    ShutterSlices slices_;  // the product's
     std::vector<float> slice_eta_;  // n_b pi r_i^2 per time slice; empty without merging
 };
 
@@ -360,11 +342,8 @@ IntegratorEntry VCMIntegratorEntry() {
                 const float merging = s.Param("merging", 1.f);
                 if (merging != 0.f && merging != 1.f) throw std::invalid_argument("vcm merging must be 0 or 1");
                 if (s.max_depth > 65535) throw std::invalid_argument("vcm max_depth must be at most 65535");
-                const float slices = s.Param("time_slices", kDefaultTimeSlices);
-                if (!(slices >= 1.f && slices <= 255.f && slices == std::floor(slices)))
-                    throw std::invalid_argument("vcm time_slices must be a whole number from 1 to 255");
                 return std::make_unique<VCMIntegrator>(s.max_depth, uint32_t(paths), radius, alpha, merging == 1.f,
-                                                       slices, s.scene_product);
+                                                       TimeSlicesSetting(s, "vcm"), s.scene_product);
             }};
 }
 

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "photon_map.h"
 #include "scene_helpers.h"
 
 using namespace tessera;
@@ -290,8 +291,10 @@ TEST(Motion, BlurredShadowEqualsTheTimeAverageOfStaticShadows) {
         RenderOptions o{M * opt.spp, 0, 8, 2};
         if (name == "path") o.spp = M * opt.spp / 4;
         if (name == "photon_direct") {
-            o.spp = 16;
-            o.integrator_params = {{"photons", 2000000.f}, {"radius", 0.08f}};
+            // A camera sample sees the photons of its 1/32 of the shutter: at 256 samples a
+            // pixel each photon is seen by about 4 samples (kernel disk: 0.6 pixel).
+            o.spp = 256;
+            o.integrator_params = {{"photons", 4000000.f}, {"radius", 0.08f}};
         }
         const Profile p =
             ColumnProfile([&](uint32_t seed) { return RenderWith(moving, cam, o, integrator, seed); }, 7, K, 0, kH);
@@ -723,4 +726,118 @@ TEST(Motion, VCMMergesWithLightVerticesOfItsOwnTimeSlice) {
     EXPECT_EQ(failing(sliced, 1.0, true), 0);
     EXPECT_GT(failing(sliced, 0.98, false), 0) << "the 2 % negative control passed";
     EXPECT_GT(failing(vcm(1.f), 1.0, false), 0) << "merging across the whole shutter passed";
+}
+
+TEST(Motion, TracedPhotonsLiveInTheirTimeSliceAndEachSliceCarriesTheFullFlux) {
+    // The photon tracing sppm and photon share (photon_map.h): a point light of intensity I
+    // at the origin over the sliding quad (z = -3) and its 100 x 100 backdrop (z = -6),
+    // first landings only. Path i lives in slice i mod K: its photon on the quad lies
+    // within the quad's sweep over that slice, and each slice's photons, Phi / n_b each,
+    // carry the flux of every landing: I times the backdrop's solid angle (the quad lies
+    // inside it), 4 arcsin(a^2 / (a^2 + d^2)) for half-side a = 50 at distance d = 6.
+    SceneDesc d = SlidingEmitter(0.f, -1.25f, 1.5f);
+    d.materials[0].albedo = Color(0.5f);  // the backdrop keeps its landings too
+    d.materials[1].albedo = Color(0.8f);
+    const float I = 2.f;
+    d.point_lights.push_back({Vec3(0, 0, 0), Color(I)});
+    const Scene moving(d);
+    const uint32_t K = 8, N = 400000;
+    const std::vector<StoredPhoton> photons =
+        TracePhotons(moving, 5, 11, N, 0, PhotonFilter{}, ShutterSlices{K}, 2);
+    // Photons on the quad outside the sweep of slice (b + shift) mod K.
+    auto outside_sweep = [&](uint32_t shift) {
+        int n = 0;
+        for (const StoredPhoton& ph : photons) {
+            if (std::abs(ph.p.z + 3.f) > 1e-3f) continue;
+            const uint32_t b = (ph.time_slice + shift) % K;
+            const float lo = -1.25f + 1.5f * float(b) / K, hi = -0.25f + 1.5f * float(b + 1) / K;
+            n += (ph.p.x < lo - 1e-4f || ph.p.x > hi + 1e-4f);
+        }
+        return n;
+    };
+    EXPECT_EQ(outside_sweep(0), 0);
+    EXPECT_GT(outside_sweep(1), 1000) << "the sweep check cannot see a photon at another slice's instant";
+    // Per slice: the landing count is binomial (p = Omega / 4 pi), so the flux's relative
+    // standard deviation is sqrt((1 - p) / (n_b p)), 0.33 % here; 4 sigma is 1.3 %.
+    const double a = 50, dist = 6;
+    const double omega = 4.0 * std::asin(a * a / (a * a + dist * dist));
+    const double p = omega / (4.0 * kPi), expected = I * omega;
+    std::vector<double> flux(K, 0.0);
+    for (const StoredPhoton& ph : photons) flux[ph.time_slice] += ph.power.x;
+    double total = 0;
+    for (uint32_t b = 0; b < K; ++b) {
+        const double sigma = expected * std::sqrt((1 - p) / (double(N / K) * p));
+        EXPECT_NEAR(flux[b], expected, 4 * sigma) << "slice " << b;
+        total += flux[b] / K;
+    }
+    // The slices' mean, 0.12 % standard deviation: a 2 % error in the flux fails.
+    const double sigma_total = expected * std::sqrt((1 - p) / (double(N) * p));
+    EXPECT_NEAR(total, expected, 4 * sigma_total);
+    EXPECT_GT(std::abs(0.98 * total - expected), 4 * sigma_total) << "the 2 % negative control passed";
+}
+
+TEST(Motion, PhotonDensityOnAMovingReceiverIsTheTimeAverageOfStaticOnes) {
+    // photon_direct sees the sliding quad's light only through photon density estimation:
+    // merging a camera sample with photons from the whole shutter counts light that fell
+    // where the quad was at other instants, and the blur comes out too dark (up to the
+    // coverage fraction, squared). Against the mean of still photon_direct renders at
+    // uniformly spaced instants, which has the same disk kernel's bias at the quad's
+    // edges, the time kernel of K slices leaves about 1 / (4 K) of the peak where the
+    // edges sweep (0.4 % for the K = 64 used here); time_slices 1 must fail.
+    auto scene_at = [](bool moving, float at) {
+        SceneDesc d = SlidingEmitter(0.f, moving ? -1.25f : -1.25f + 1.5f * at, moving ? 1.5f : 0.f);
+        d.materials[1].albedo = Color(0.8f);
+        d.point_lights.push_back({Vec3(0, 0, -1), Color(10.f)});
+        return d;
+    };
+    const Scene moving(scene_at(true, 0.f));
+    const int M = 16, K = 24;
+    std::vector<std::unique_ptr<Scene>> instants;
+    for (int m = 0; m < M; ++m) instants.push_back(std::make_unique<Scene>(scene_at(false, (m + 0.5f) / M)));
+    const Camera cam = OrthoView();
+    const float photons = 4e6f, radius = 0.1f;
+    RenderOptions still{64, 0, 8, 2};
+    still.integrator_params = {{"photons", photons / M}, {"radius", radius}};
+    const Profile ref = ColumnProfile(
+        [&](uint32_t seed) {
+            std::vector<float> sum(size_t(kW) * kH * 4, 0.f);
+            for (int m = 0; m < M; ++m) {
+                const std::vector<float> img =
+                    RenderWith(*instants[m], cam, still, "photon_direct", seed * 1000u + uint32_t(m));
+                for (size_t i = 0; i < sum.size(); ++i) sum[i] += img[i] / M;
+            }
+            return sum;
+        },
+        500, K, 5, 11);
+    double peak = 0;
+    for (double v : ref.mean) peak = std::max(peak, v);
+    ASSERT_GT(peak, 0.1);
+    auto blurred = [&](float slices, float cost) {
+        RenderOptions o{uint32_t(1024 * cost), 0, 8, 2};
+        o.integrator_params = {{"photons", photons * cost}, {"radius", radius}, {"time_slices", slices}};
+        return ColumnProfile([&](uint32_t seed) { return RenderWith(moving, cam, o, "photon_direct", seed); }, 700,
+                             K, 5, 11);
+    };
+    const double alpha = 1e-3 / double(kW);
+    auto failing = [&](const Profile& p, double scale, bool report) {
+        int n = 0;
+        for (uint32_t x = 0; x < kW; ++x) {
+            const Welch w = WelchT(scale * p.mean[x], scale * scale * p.var[x], K, ref.mean[x], ref.var[x], K);
+            const double critical = StudentTCritical(alpha, w.df);
+            // Limits at most 1.5 % of the brightest column: the 2 % control must fail.
+            if (report) EXPECT_LE(critical * w.se, 0.015 * peak) << "column " << x << " too noisy";
+            if (std::abs(w.t) > critical && std::abs(scale * p.mean[x] - ref.mean[x]) > 1e-6) {
+                ++n;
+                if (report)
+                    ADD_FAILURE() << "column " << x << ": blurred " << p.mean[x] << ", static mean " << ref.mean[x]
+                                  << " (t = " << w.t << ")";
+            }
+        }
+        return n;
+    };
+    const Profile sliced = blurred(64.f, 1.f);
+    EXPECT_EQ(failing(sliced, 1.0, true), 0);
+    EXPECT_GT(failing(sliced, 0.98, false), 0) << "the 2 % negative control passed";
+    // A quarter of the work suffices to see the whole-shutter estimate's tens of percent.
+    EXPECT_GT(failing(blurred(1.f, 0.25f), 1.0, false), 0) << "density estimation across the whole shutter passed";
 }
