@@ -16,7 +16,9 @@ velocities, angular velocities and accelerations, through USD's own
 ComputeInstanceTransformsAtTimes), and so does the camera (CameraDesc.motion: its poses
 at the steps). A mesh whose `points` are time-sampled inside the shutter deforms: its
 points at T steps (chosen the same way, on the points) make a deforming prototype (Embree
-vertex time steps), placed by a still or moving instance. Sphere, point, distant and dome
+vertex time steps), placed by a still or moving instance; so does a mesh whose `velocities`
+(and `accelerations`) move its points from the points sample at or before the frame, as
+USD's ComputePointsAtTimes extrapolates them (per second: timeCodesPerSecond codes). Sphere, point, distant and dome
 lights move rigidly (light_motion: their motion relative to the frame, without scale);
 rect, disk and cylinder lights are geometry and move like any other prim. Not blurred
 yet, each named in one warning: deforming subdivision surfaces, skinned meshes and meshes
@@ -197,26 +199,33 @@ class _MotionReader:
 
     def deforming_points(self, prim, n_points: int) -> np.ndarray | None:
         """A mesh's points (T, V, 3) at T evenly spaced instants of the shutter when its
-        `points` change during it (USD interpolates them linearly between samples), else
-        None. Meshes whose point count changes inside the shutter, or whose points are not
-        finite there, are left at the frame with a note."""
+        `points` change during it (USD interpolates them linearly between samples) or its
+        velocities move them (moves_by_velocities), else None. Meshes whose point count
+        changes inside the shutter, or whose points are not finite there, are left at the
+        frame with a note."""
         from pxr import Gf, UsdGeom
 
         from .meshes import _float_rows
 
-        attr = UsdGeom.PointBased(prim).GetPointsAttr()
-        if not self.deforms_during_shutter(attr):
+        based = UsdGeom.PointBased(prim)
+        attr = based.GetPointsAttr()
+        by_velocity = self.moves_by_velocities(prim)
+        if not by_velocity and not self.deforms_during_shutter(attr):
             return None
         interval = Gf.Interval(self.shutter.open, self.shutter.close, False, False)
 
         def sample(times):
-            rows = [_float_rows(attr.Get(float(t)), 3) for t in times]
-            if any(r is None or len(r) != n_points for r in rows):
+            if by_velocity:
+                rows = [_float_rows(p, 3) for p in based.ComputePointsAtTimes([float(t) for t in times], self.time)]
+            else:
+                rows = [_float_rows(attr.Get(float(t)), 3) for t in times]
+            if len(rows) != len(times) or any(r is None or len(r) != n_points for r in rows):
                 raise _TopologyChanges
             return np.stack(rows)
 
         try:
-            steps = self._over_shutter(sample, list(attr.GetTimeSamplesInInterval(interval)),
+            keys = [] if by_velocity else list(attr.GetTimeSamplesInInterval(interval))
+            steps = self._over_shutter(sample, keys,
                                        lambda off: np.abs(off).max(),
                                        lambda pts: max(np.abs(pts).max(), 1e-30))
         except _TopologyChanges:
@@ -317,6 +326,25 @@ class _MotionReader:
             return False
         mats = self._world_at(prim, self.shutter.times(3))
         return not np.array_equal(mats, np.broadcast_to(mats[:1], mats.shape))
+
+    def moves_by_velocities(self, prim) -> bool:
+        """Whether a point-based prim's `velocities` move its points during the shutter. USD
+        applies them (with `accelerations`) only to a time-sampled `points`, from its sample
+        at or before the frame; velocities on points without samples get a note and are
+        left alone, as USD leaves them."""
+        from pxr import UsdGeom
+
+        if self.shutter is None:
+            return False
+        based = UsdGeom.PointBased(prim)
+        if not based or not based.GetVelocitiesAttr().HasAuthoredValue():
+            return False
+        if based.GetPointsAttr().GetNumTimeSamples() == 0:
+            self._count_note("mesh velocities on points without time samples are ignored (as USD's "
+                             "ComputePointsAtTime ignores them): not motion-blurred")
+            return False
+        ends = based.ComputePointsAtTimes([self.shutter.open, self.shutter.close], self.time)
+        return len(ends) == 2 and not np.array_equal(np.asarray(ends[0]), np.asarray(ends[1]))
 
     def deforms_during_shutter(self, attr) -> bool:
         """Whether a points-like attribute has time samples that change it in the shutter."""

@@ -250,7 +250,8 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
         note when it deforms all the same."""
         from pxr import UsdGeom
 
-        if self.shutter is None or not self.deforms_during_shutter(UsdGeom.Mesh(prim).GetPointsAttr()):
+        if self.shutter is None or not (self.deforms_during_shutter(UsdGeom.Mesh(prim).GetPointsAttr()) or
+                                        self.moves_by_velocities(prim)):
             return chunk
         refined = UsdGeom.Mesh(prim).GetSubdivisionSchemeAttr().Get(self.time) not in (None, UsdGeom.Tokens.none) \
             and self.subdivision_level > 0

@@ -435,6 +435,75 @@ def test_point_instancer_velocities_give_the_closed_form_ramp(tmp_path, codes_pe
     np.testing.assert_allclose(bottom.mean(axis=0), _ramp(mid, 0), atol=1e-6)  # the still quad, sharp
 
 
+def _quad_with_velocities(path, codes_per_second: float, *, accelerate: bool = False, sampled: bool = True):
+    """An emitting unit quad (y in [-1, 1], z = -3) whose points are sampled once, at the
+    frame, centred on X0 + DISTANCE / 2, with `velocities` that slide it by DISTANCE over
+    the shutter (per second: timeCodesPerSecond codes); `accelerate` adds an acceleration
+    that moves it a further quarter unit (a t^2 / 2 over the half-shutter after the frame)."""
+    stage = _timed_stage(path)
+    stage.SetTimeCodesPerSecond(codes_per_second)
+    glow = add_material(stage, "/Looks/Glow", diffuse=(0, 0, 0), emissive=(LE, LE, LE))
+    mid = X0 + 0.5 * DISTANCE
+    points = [(mid, -1, -3), (mid + 1, -1, -3), (mid + 1, 1, -3), (mid, 1, -3)]
+    quad = add_mesh(stage, "/Quad", points, [4], [0, 1, 2, 3], glow)
+    speed = codes_per_second * DISTANCE  # units per second: DISTANCE per time code
+    if sampled:
+        quad.GetPointsAttr().Set(points, 1.0)
+        quad.CreateVelocitiesAttr().Set([Gf.Vec3f(speed, 0, 0)] * 4, 1.0)
+    else:
+        quad.CreateVelocitiesAttr([Gf.Vec3f(speed, 0, 0)] * 4)
+    if accelerate:
+        quad.CreateAccelerationsAttr().Set([Gf.Vec3f(2.0 * codes_per_second ** 2, 0, 0)] * 4, 1.0)
+    add_render_settings(stage, _ortho_camera(stage), (W, H))
+    stage.GetRootLayer().Save()
+    return path
+
+
+@pytest.mark.parametrize("codes_per_second", [24.0, 48.0])
+def test_mesh_velocities_give_the_closed_form_ramp(tmp_path, codes_per_second):
+    """A mesh whose points are sampled at the frame and whose `velocities` slide it by
+    DISTANCE over the shutter deforms like a keyed one: the closed-form ramp per column
+    (the 2 % control and the quad frozen at the frame fail). Accelerations add USD's
+    a t^2 / 2; velocities on points without samples are named and left alone, as USD does."""
+    path = _quad_with_velocities(tmp_path / "velocities.usda", codes_per_second)
+    data = translate_stage(str(path), camera_relative=False)
+    (proto,) = [p for p in data.prototypes if p.get("motion_positions") is not None]
+    steps = np.concatenate([proto["positions"][None], proto["motion_positions"]])
+    np.testing.assert_allclose(steps[[0, -1], 0, 0], [X0, X0 + DISTANCE], atol=1e-5)  # linear: 2 steps
+    assert len(steps) == 2
+    scene = load_scene(path)
+    assert scene.has_motion
+    K = 24
+    mean, se = _columns(scene, "path", range(K), 256)
+    _assert_columns(mean, se, K, _ramp(X0, DISTANCE), _ramp(X0 + 0.5 * DISTANCE, 0), LE)
+
+    # x(t) = x_frame + v dt + a dt^2 / 2, dt in seconds from the frame: more steps, on the parabola.
+    accelerated = translate_stage(str(_quad_with_velocities(tmp_path / "a.usda", codes_per_second, accelerate=True)),
+                                  camera_relative=False)
+    (proto,) = [p for p in accelerated.prototypes if p.get("motion_positions") is not None]
+    xs = np.concatenate([proto["positions"][None], proto["motion_positions"]])[:, 0, 0]
+    dt = np.linspace(-0.5, 0.5, len(xs))  # time codes from the frame
+    parabola = X0 + 0.5 * DISTANCE + DISTANCE * dt + 0.5 * 2.0 * dt ** 2
+    assert len(xs) > 2
+    np.testing.assert_allclose(xs, parabola, atol=1e-4)
+
+    # A simulation cache: the point count changes from sample to sample, and the frame's
+    # sample with its velocities gives every step.
+    stage = Usd.Stage.Open(str(path))
+    quad = UsdGeom.Mesh(stage.GetPrimAtPath("/Quad"))
+    quad.GetPointsAttr().Set([(0, 0, -3), (1, 0, -3), (1, 1, -3)], 0.0)
+    quad.GetVelocitiesAttr().Set([Gf.Vec3f(0, 0, 0)] * 3, 0.0)
+    stage.GetRootLayer().Save()
+    (proto,) = [p for p in translate_stage(str(path), camera_relative=False).prototypes
+                if p.get("motion_positions") is not None]
+    np.testing.assert_allclose(proto["motion_positions"][-1][:, 0], [X0 + DISTANCE, X0 + DISTANCE + 1, X0 + DISTANCE + 1, X0 + DISTANCE],
+                               atol=1e-5)
+
+    unsampled = translate_stage(str(_quad_with_velocities(tmp_path / "u.usda", codes_per_second, sampled=False)))
+    assert not any(p.get("motion_positions") is not None for p in unsampled.prototypes)
+    assert sum("velocities on points without time samples" in w for w in unsampled.warnings) == 1
+
+
 def test_a_camera_keyed_to_slide_past_a_still_quad_gives_the_same_ramp(tmp_path):
     """The quad stands still at x in [0, 1], seen from a camera keyed to slide from -X0 to
     -X0 - DISTANCE over the shutter: relative to the camera, the quad slides from X0 to
