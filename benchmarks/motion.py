@@ -12,7 +12,12 @@
    still over a deforming prototype (its vertices at T = 2, 9, 33 steps) give the cost of
    deformation: build, Embree memory (one vertex buffer per step, a motion-blur BVH) and
    render.
-2. Translation: a USD stage of 400 Xforms with time-sampled rotation, each holding a
+2. Merging under motion: the same rigid scene (static, and moving with T = 2) rendered by
+   `vcm` and `sppm` (200,000 light or photon paths, radius 0.05, one iteration's scene pass
+   and a 96 x 64 tile at 16 spp), moving with the default 32 time slices and with
+   `time_slices` 1 (one grid over the whole shutter, as before slicing): the scene pass
+   and the tile pass, each as a median ratio to the static scene per repeat.
+3. Translation: a USD stage of 400 Xforms with time-sampled rotation, each holding a
    20 x 20 grid mesh, translated at frame 1 with the camera's shutter (moving instances
    with the steps usd/motion.py chooses) against the same frame with shutter (0, 0) (a
    still frame, flattened as usual): the time per frame, and the ratio.
@@ -42,6 +47,8 @@ import numpy as np
 from tessera_renderer import _core
 
 steps, n, mode = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
+integrator = sys.argv[4] if len(sys.argv) > 4 else "path"
+params = json.loads(sys.argv[5]) if len(sys.argv) > 5 else {}
 
 from shapes import wavy_grid
 
@@ -85,6 +92,16 @@ cx, cz = 1.5 * (side - 1), -1.5 * (side - 1)
 fwd = np.array([0.0, -0.6, -1.0]); fwd /= np.linalg.norm(fwd)
 right = np.array([1.0, 0, 0]); up = np.cross(right, fwd)
 cam = _core.Camera(tuple(np.array([cx, 6.0, cz + 9.0])), tuple(right), tuple(up), tuple(fwd), 0.8, 0.8 * 64 / 96, 96, 64)
+if integrator != "path":  # a merging integrator: its scene pass, then a tile that merges with it
+    t = time.perf_counter()
+    product = _core.scene_pass(scene, integrator, 0, 0, 8, 2, params)
+    pass_s = time.perf_counter() - t
+    t = time.perf_counter()
+    splats = np.zeros((64, 96, 3), np.int64)  # vcm's light-tracing strategies splat over the frame
+    _core.render_tile(scene, cam, 0, 0, 96, 64, 16, 0, 8, 2, integrator=integrator, integrator_params=params,
+                      scene_product=product, splats=splats)
+    print(json.dumps({"pass_s": pass_s, "render_s": time.perf_counter() - t, "product_bytes": len(product)}))
+    sys.exit(0)
 _core.render_tile(scene, cam, 0, 0, 96, 64, 1, 0, 8, 2)  # warm-up
 t = time.perf_counter()
 _core.render_tile(scene, cam, 0, 0, 96, 64, 32, 0, 8, 2)
@@ -93,9 +110,16 @@ print(json.dumps({"steps": steps, "mode": mode, "build_s": build, "embree_bytes"
 """
 
 
-def child(steps: int, n: int, mode: str = "rigid") -> dict:
-    r = subprocess.run([sys.executable, "-c", _CHILD, str(steps), str(n), mode], capture_output=True, text=True,
-                       check=True, env=child_env())
+MERGING = {"vcm": {"light_paths": 200000.0, "radius": 0.05},
+           "sppm": {"photons": 200000.0, "radius": 0.05}}
+# (label, time steps, extra settings): the still scene, the moving one with the default
+# slices, and the moving one merged over the whole shutter.
+MERGING_ROWS = (("static", 1, {}), ("moving, 32 slices", 2, {}), ("moving, 1 slice", 2, {"time_slices": 1.0}))
+
+
+def child(steps: int, n: int, mode: str = "rigid", integrator: str = "path", params: dict | None = None) -> dict:
+    r = subprocess.run([sys.executable, "-c", _CHILD, str(steps), str(n), mode, integrator, json.dumps(params or {})],
+                       capture_output=True, text=True, check=True, env=child_env())
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
@@ -153,11 +177,16 @@ def main() -> int:
     load_before = os.getloadavg()[0]
     runs: dict[int, list[dict]] = {}
     deforming: dict[int, list[dict]] = {}
+    merging: dict[tuple[str, str], list[dict]] = {}
     for _ in range(args.repeats):
         for steps in (1, *STEPS):
             runs.setdefault(steps, []).append(child(steps, n))
         for steps in DEFORM_STEPS:
             deforming.setdefault(steps, []).append(child(steps, n, "deform"))
+        for integrator, params in MERGING.items():
+            for label, steps, extra in MERGING_ROWS:
+                merging.setdefault((integrator, label), []).append(
+                    child(steps, n, "rigid", integrator, {**params, **extra}))
     result: dict = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                                 "load_average_before": load_before}, "instances": n, "core": {}}
     for steps in (1, *STEPS):
@@ -173,6 +202,15 @@ def main() -> int:
         for f in ("build_s", "render_s", "embree_bytes"):
             row[f + "_ratio"] = summary([r[f] / s[f] for r, s in zip(rs, runs[1])])
         result["deforming"][steps] = row
+    result["merging"] = {}
+    for integrator in MERGING:
+        still = merging[(integrator, "static")]
+        for label, _, _ in MERGING_ROWS:
+            rs = merging[(integrator, label)]
+            row = {f: summary([r[f] for r in rs]) for f in ("pass_s", "render_s", "product_bytes")}
+            for f in ("pass_s", "render_s"):
+                row[f + "_ratio"] = summary([r[f] / s[f] for r, s in zip(rs, still)])
+            result["merging"][f"{integrator}: {label}"] = row
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "spinning.usda")
         animated_stage(path, 40 if args.quick else 400)
@@ -214,6 +252,20 @@ def render_md(r: dict) -> str:
         ratio = lambda f: f"{row[f]['median']:.2f} ± {row[f]['half_range']:.2f}"
         lines.append(f"| {steps} | {ratio('build_s_ratio')} | {row['embree_bytes']['median'] / 1e6:.1f} MB "
                      f"| {ratio('embree_bytes_ratio')} | {ratio('render_s_ratio')} |")
+    if r.get("merging"):
+        lines += ["", "## Merging under motion", "",
+                  "vcm and sppm on the same instances (200,000 light or photon paths, radius 0.05): one "
+                  "iteration's scene pass and a 96 x 64 tile at 16 spp, each a fresh process, ratios per repeat "
+                  "against the static scene. With motion the passes' paths live in time slices and the grids "
+                  "key cells by slice, so a camera vertex visits only its slice's points; `time_slices` 1 merges "
+                  "over the whole shutter (and is biased on moving receivers, docs/motion.md).", "",
+                  "| integrator: scene | scene pass | pass / static | tile | tile / static | product |",
+                  "|---|---|---|---|---|---|"]
+        for label, row in r["merging"].items():
+            ratio = lambda f: f"{row[f]['median']:.2f} ± {row[f]['half_range']:.2f}"
+            lines.append(f"| {label} | {row['pass_s']['median']:.3f} s | {ratio('pass_s_ratio')} "
+                         f"| {row['render_s']['median']:.3f} s | {ratio('render_s_ratio')} "
+                         f"| {row['product_bytes']['median'] / 1e6:.1f} MB |")
     t = r["translation"]
     lines += ["", "## Translation per frame", "",
               f"A stage of {t['moving_instances']} spinning Xforms (each a 20 x 20 grid, rotateY keyed every "
