@@ -59,8 +59,11 @@ class _MeshReader:
         skeleton's animation (SkelAnimation, else its rest pose) gives the skinning
         transforms, UsdSkel's skinning query applies them with each mesh's joint
         influences and geomBindTransform (linear blend or dual quaternion, as authored;
-        rigid bindings as one transform). The posed points are in the skeleton's space."""
-        from pxr import Usd, UsdSkel
+        rigid bindings as one transform). The posed points are in the skeleton's space.
+        With a shutter, a mesh whose pose changes inside it is posed at time steps too
+        (self.skinned_steps; chosen as usd/motion.py chooses a deforming mesh's, landing on
+        the animation's keys), and deforms like a mesh with time-sampled points."""
+        from pxr import Gf, Usd, UsdSkel
 
         predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
         roots = [p for p in Usd.PrimRange.Stage(self.stage, predicate) if p.IsA(UsdSkel.Root)]
@@ -73,26 +76,47 @@ class _MeshReader:
             for binding in cache.ComputeSkelBindings(root, predicate):
                 skel_query = cache.GetSkelQuery(binding.GetSkeleton())
                 skel_world = self.world_matrix(skel_query.GetPrim())
-                xforms = skel_query.ComputeSkinningTransforms(self.time)
+                anim = skel_query.GetAnimQuery()
+                keys = list(anim.GetJointTransformTimeSamplesInInterval(
+                    Gf.Interval(self.shutter.open, self.shutter.close, False, False))) \
+                    if self.shutter is not None and anim else []
                 for query in binding.GetSkinningTargets():
-                    prim = query.GetPrim()
-                    path = str(prim.GetPath())
-                    points = _skinnable_points(prim, self.time)
-                    if points is None or xforms is None:
-                        continue
+                    path = str(query.GetPrim().GetPath())
                     if query.HasBlendShapes():
                         self._count_note("UsdSkel blend shapes are not applied (skinning is)")
-                    if query.IsRigidlyDeformed():
-                        m = np.array(query.ComputeSkinnedTransform(xforms, self.time), np.float64)
-                        posed = np.asarray(points, np.float64) @ m[:3, :3] + m[3, :3]
-                    else:
-                        if not query.ComputeSkinnedPoints(xforms, points, self.time):
-                            self.warn(f"{path}: UsdSkel could not skin this mesh; rendered in its rest pose")
-                            continue
-                        posed = np.asarray(points, np.float64)
+                    posed = _posed_points(skel_query, query, self.time)
+                    if posed is None:
+                        self.warn(f"{path}: UsdSkel could not skin this mesh; rendered in its rest pose")
+                        continue
                     self.skinned[path] = (posed, skel_world)
+                    self.skinned_skeletons[path] = skel_query.GetPrim()
+                    if self.shutter is not None:
+                        steps = self._skinned_over_shutter(skel_query, query, keys, len(posed))
+                        if steps is not None:
+                            self.skinned_steps[path] = steps
         if self.skinned:
-            self._count_note(f"UsdSkel: {len(self.skinned)} skinned mesh(es) posed at the render frame")
+            blurred = f", {len(self.skinned_steps)} of them motion-blurred" if self.skinned_steps else ""
+            self._count_note(f"UsdSkel: {len(self.skinned)} skinned mesh(es) posed at the render frame{blurred}")
+
+    def _skinned_over_shutter(self, skel_query, query, keys: list, n_points: int) -> np.ndarray | None:
+        """A skinned mesh's posed points (T, V, 3) at the shutter's time steps when its pose
+        changes inside the shutter, else None."""
+        def sample(times):
+            rows = [_posed_points(skel_query, query, float(t)) for t in times]
+            if any(r is None or len(r) != n_points for r in rows):
+                raise ValueError("the pose cannot be computed at every instant")
+            return np.stack(rows)
+
+        try:
+            steps = self._over_shutter(sample, keys, lambda off: np.abs(off).max(),
+                                       lambda pts: max(np.abs(pts).max(), 1e-30))
+        except ValueError:
+            self._count_note("skinned meshes UsdSkel cannot pose at every instant of the shutter are not "
+                             "motion-blurred: rendered at the frame")
+            return None
+        if not np.isfinite(steps).all() or np.array_equal(steps, np.broadcast_to(steps[:1], steps.shape)):
+            return None
+        return steps
 
     # -- meshes ---------------------------------------------------------------------
     def mesh_chunk(self, prim) -> _Chunk | None:
@@ -235,6 +259,7 @@ class _MeshReader:
                                              self._count_note)
                 if refined is not None:
                     self.subdivided_meshes += 1
+                    self.subdivision_limits[path] = refined.limit_points
                     return self._refined_geometry(refined, api, shape, counts, face_indices, path)
 
         normals = None
@@ -392,6 +417,20 @@ class _MeshReader:
         self.curves["segments"].append(segs + np.uint32(base))
         self.curves["flags"].append(flags)
         self.curves["material"].append(np.full(len(segs), row, np.uint32))
+
+
+def _posed_points(skel_query, query, time) -> np.ndarray | None:
+    """A skinned mesh's points posed at `time`, in the skeleton's space, or None."""
+    points = _skinnable_points(query.GetPrim(), time)
+    xforms = skel_query.ComputeSkinningTransforms(time)
+    if points is None or xforms is None:
+        return None
+    if query.IsRigidlyDeformed():
+        m = np.array(query.ComputeSkinnedTransform(xforms, time), np.float64)
+        return np.asarray(points, np.float64) @ m[:3, :3] + m[3, :3]
+    if not query.ComputeSkinnedPoints(xforms, points, time):
+        return None
+    return np.asarray(points, np.float64)
 
 
 def _skinnable_points(prim, time):

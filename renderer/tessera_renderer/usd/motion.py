@@ -20,8 +20,9 @@ vertex time steps), placed by a still or moving instance; so does a mesh whose `
 (and `accelerations`) move its points from the points sample at or before the frame, as
 USD's ComputePointsAtTimes extrapolates them (per second: timeCodesPerSecond codes). Sphere, point, distant and dome
 lights move rigidly (light_motion: their motion relative to the frame, without scale);
-rect, disk and cylinder lights are geometry and move like any other prim. Not blurred
-yet, each named in one warning: deforming subdivision surfaces, skinned meshes and meshes
+rect, disk and cylinder lights are geometry and move like any other prim. Subdivision
+surfaces refine each step's cage (stage.py), skinned meshes are posed at each step
+(meshes.py, skin). Not blurred yet, each named in one warning: deforming or skinned meshes
 inside instance prototypes.
 """
 from __future__ import annotations

@@ -160,6 +160,14 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
         # Skinned meshes: prim path -> (points in skeleton space at the frame, the
         # skeleton's local-to-world matrix). Filled by skin() before the walk.
         self.skinned: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        # Skinned meshes whose pose changes inside the shutter: path -> posed points at
+        # its time steps (T, V, 3), in the skeleton's space.
+        self.skinned_steps: dict[str, np.ndarray] = {}
+        # Skinned mesh path -> its skeleton's prim, whose transform places (and moves) it.
+        self.skinned_skeletons: dict[str, Any] = {}
+        # Subdivided meshes: prim path -> their limit points for other cage points, so a
+        # deforming one refines each time step's cage (RefinedMesh.limit_points).
+        self.subdivision_limits: dict[str, Any] = {}
         # Materials rendered with the default grey: path -> their shader id or why.
         self.grey_materials: dict[str, str] = {}
         node = Sdr.Registry().GetShaderNodeByIdentifier("UsdPreviewSurface")
@@ -210,7 +218,8 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
                 if prim.IsA(UsdGeom.Mesh):
                     chunk = self.mesh_chunk(prim)
                     if chunk is not None:
-                        chunk = self._deformed(prim, chunk, top_level and skinned is None)
+                        chunk = self._deformed(prim, chunk, top_level) if skinned is None else \
+                            self._skin_deformed(prim, chunk, top_level)
                 elif type_name in _GPRIMS:
                     chunk = self.gprim_chunk(prim, type_name)
                 else:
@@ -219,7 +228,8 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
                     continue
                 # Moving during the shutter: an instance of its own, whatever the
                 # instancing mode (only an instance's matrices can move in Embree).
-                mats = self.motion_steps(prim, chunk.points) if top_level and skinned is None else None
+                mover = prim if skinned is None else self.skinned_skeletons.get(str(prim.GetPath()))
+                mats = self.motion_steps(mover, chunk.points) if top_level and mover is not None else None
                 if mats is None and chunk.motion_points is not None:
                     mats = m[None]  # deforming in place: a still instance of a deforming prototype
                 if mats is not None:
@@ -247,22 +257,42 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
     def _deformed(self, prim, chunk: _Chunk, blurrable: bool) -> _Chunk:
         """The mesh's chunk with its points at the shutter's time steps when it deforms
         during the shutter and can be blurred (usd/motion.py); otherwise as it is, with a
-        note when it deforms all the same."""
+        note when it deforms all the same. A subdivided mesh's steps are the limit points
+        of each step's cage; its limit normals stay the frame's, as authored normals do."""
         from pxr import UsdGeom
 
-        if self.shutter is None or not (self.deforms_during_shutter(UsdGeom.Mesh(prim).GetPointsAttr()) or
-                                        self.moves_by_velocities(prim)):
+        points = UsdGeom.Mesh(prim).GetPointsAttr()
+        if self.shutter is None or not (self.deforms_during_shutter(points) or self.moves_by_velocities(prim)):
             return chunk
-        refined = UsdGeom.Mesh(prim).GetSubdivisionSchemeAttr().Get(self.time) not in (None, UsdGeom.Tokens.none) \
-            and self.subdivision_level > 0
-        if not blurrable or refined:
-            what = "subdivision surfaces" if refined else \
-                "skinned meshes and meshes inside instances" if not blurrable else ""
-            self._count_note(f"deforming {what} (points time-sampled within the shutter) are not "
-                             f"motion-blurred yet: rendered in their shape at the frame")
+        if not blurrable:
+            self._count_note("deforming meshes inside instances (points time-sampled within the shutter) "
+                             "are not motion-blurred yet: rendered in their shape at the frame")
             return chunk
-        steps = self.deforming_points(prim, len(chunk.points))
-        return chunk if steps is None else dataclasses.replace(chunk, motion_points=steps)
+        limit_points = self.subdivision_limits.get(str(prim.GetPath()))
+        cage = points.Get(self.time) if limit_points is not None else None
+        steps = self.deforming_points(prim, len(cage) if cage is not None else len(chunk.points))
+        if steps is None:
+            return chunk
+        if limit_points is not None:
+            steps = np.stack([limit_points(step) for step in steps])
+        return dataclasses.replace(chunk, motion_points=steps)
+
+    def _skin_deformed(self, prim, chunk: _Chunk, top_level: bool) -> _Chunk:
+        """A skinned mesh's chunk with its posed points at the shutter's time steps when its
+        pose changes during the shutter (skin()); a moving skeleton moves it as well (its
+        instance follows the skeleton's transform). Subdivided: each step's posed cage
+        refined."""
+        steps = self.skinned_steps.get(str(prim.GetPath()))
+        if steps is None:
+            return chunk
+        if not top_level:
+            self._count_note("skinned meshes inside instances are not motion-blurred yet: rendered in "
+                             "their pose at the frame")
+            return chunk
+        limit_points = self.subdivision_limits.get(str(prim.GetPath()))
+        if limit_points is not None:
+            steps = np.stack([limit_points(step) for step in steps])
+        return dataclasses.replace(chunk, motion_points=steps)
 
     def emit(self, chunk: _Chunk, sink: list, path: str) -> None:
         bad_vertex = ~np.isfinite(chunk.points).all(axis=1)

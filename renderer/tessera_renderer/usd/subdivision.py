@@ -9,6 +9,7 @@ face (OpenSubdiv's "linear all"), whatever faceVaryingLinearInterpolation says.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -34,6 +35,9 @@ class RefinedMesh:
     surface: object          # the core's SubdivisionSurface, for face-varying data
     order: np.ndarray        # cage corner (faceVertexIndices position) per OpenSubdiv slot
     level: int
+    # Limit positions (V, 3) of the same cage with other points (a deforming mesh's steps):
+    # the same topology and rules, so the same vertices in the same order.
+    limit_points: Callable[[np.ndarray], np.ndarray]
 
     def face_varying(self, per_corner: np.ndarray) -> np.ndarray:
         """(C, w) values per faceVertexIndices entry -> (T, 3, w) per triangle corner."""
@@ -111,17 +115,21 @@ def refine(mesh, time, points, counts, face_indices, left_handed: bool, level: i
         corner_idx, corner_sharp = np.zeros(0, np.int32), np.zeros(0, np.float32)
     boundary = str(mesh.GetInterpolateBoundaryAttr().Get(time) or "edgeAndCorner")
     rule = mesh.GetTriangleSubdivisionRuleAttr().Get(time)
-    try:
-        surface = _subdivision.SubdivisionSurface(
-            np.ascontiguousarray(points, np.float32), np.ascontiguousarray(counts, np.int32),
+    def surface_of(cage_points):
+        return _subdivision.SubdivisionSurface(
+            np.ascontiguousarray(cage_points, np.float32), np.ascontiguousarray(counts, np.int32),
             np.ascontiguousarray(face_indices[order], np.int32), int(level), SCHEMES[scheme],
             BOUNDARIES.get(boundary, 2), rule == UsdGeom.Tokens.smooth,
             np.ascontiguousarray(edges.reshape(-1)), sharpness, corner_idx, corner_sharp,
             np.asarray(holes, np.int32))
+
+    try:
+        surface = surface_of(points)
     except ValueError as err:
         note(f"subdivision meshes OpenSubdiv cannot refine ({err}) render as their cage")
         return None
     pts = np.asarray(surface.points(), np.float64)
     tris = np.asarray(surface.triangles(), np.int64)
     normals = np.asarray(surface.normals(), np.float32)[tris]
-    return RefinedMesh(pts, tris, np.asarray(surface.parent_faces(), np.int64), normals, surface, order, level)
+    return RefinedMesh(pts, tris, np.asarray(surface.parent_faces(), np.int64), normals, surface, order, level,
+                       lambda cage_points: np.asarray(surface_of(cage_points).points(), np.float64))

@@ -570,6 +570,42 @@ def _skinned_bar(tmp_path):
     return _save(stage)
 
 
+def test_a_skinned_mesh_posed_during_the_shutter_deforms_through_its_pose(tmp_path):
+    """The rigged bar at frame 5 with a shutter from frame 3 to 7: the tip turns 90° over
+    frames 1-10 (slerp between the keys: 10° a frame), so during the shutter it sweeps
+    from 20° to 60°. Every time step of the deforming prototype holds the top row where
+    the closed form puts it, the joint at (0, 1, 0) turned by 10° (t - 1) about +Z; the
+    root half stands still. Without a shutter the bar is posed at the frame alone."""
+    path = _skinned_bar(tmp_path)
+    data = translate_stage(path, frame=5, shutter=(-2.0, 2.0), camera_relative=False)
+    (proto,) = [p for p in data.prototypes if p.get("motion_positions") is not None]
+    steps = np.concatenate([proto["positions"][None], proto["motion_positions"]]).astype(np.float64)
+    assert len(steps) > 2  # a turn of 40° needs more than its two ends
+    for k, step in enumerate(steps):
+        theta = np.radians(10.0 * (3.0 + 4.0 * k / (len(steps) - 1) - 1.0))
+        top = step[np.abs(step[:, 1] - step[:, 1].max()) < 0.25]  # the tip's far row
+        for dx in (-0.1, 0.1):  # (dx, 1) from the joint, turned by theta
+            want = (dx * np.cos(theta) - np.sin(theta), 1.0 + dx * np.sin(theta) + np.cos(theta))
+            assert np.min(np.hypot(top[:, 0] - want[0], top[:, 1] - want[1])) < 1e-4, (k, theta, top)
+        root = step[np.abs(step[:, 1]) < 1e-6]  # the bottom row, bound to the still root
+        np.testing.assert_allclose(np.abs(root[:, [0, 2]]), 0.1, atol=1e-6)
+    assert not any("not motion-blurred" in w for w in data.warnings), data.warnings
+    assert any("1 of them motion-blurred" in w for w in data.warnings), data.warnings
+    still = translate_stage(path, frame=5, shutter=(0.0, 0.0), camera_relative=False)
+    assert not any(p.get("motion_positions") is not None for p in still.prototypes)
+    # A SkelRoot keyed to slide from x = 5 to 6 over the shutter carries the bending bar:
+    # its instance moves with the skeleton.
+    stage = Usd.Stage.Open(path)
+    op = stage.GetPrimAtPath("/Rig").GetAttribute("xformOp:translate")
+    op.Set(Gf.Vec3d(5, 0, 0), 3.0)
+    op.Set(Gf.Vec3d(6, 0, 0), 7.0)
+    _save(stage)
+    moving = translate_stage(path, frame=5, shutter=(-2.0, 2.0), camera_relative=False)
+    assert len(moving.motion_instances) == 1
+    xs = np.asarray(moving.motion_transforms, np.float64).reshape(-1, 4, 4)[:, 3, 0]
+    np.testing.assert_allclose(xs[[0, -1]], [5.0, 6.0], atol=1e-9)
+
+
 def test_skinned_mesh_is_posed_at_the_render_frame(tmp_path):
     path = _skinned_bar(tmp_path)
     rest = translate_stage(path, frame=1, camera_relative=False)
