@@ -56,8 +56,9 @@ inline ShutterSlices PassShutterSlices(const Scene& scene, uint32_t first_slices
 }
 
 // The `time_slices` setting of integrator `who`: K_1, a whole number from 1 to 255.
-inline uint32_t TimeSlicesSetting(const IntegratorSettings& settings, const std::string& who) {
-    const float k = settings.Param("time_slices", kDefaultShutterSlices);
+inline uint32_t TimeSlicesSetting(const IntegratorSettings& settings, const std::string& who,
+                                  float fallback = kDefaultShutterSlices) {
+    const float k = settings.Param("time_slices", fallback);
     if (!(k >= 1.f && k <= float(kMaxShutterSlices) && k == std::floor(k)))
         throw std::invalid_argument(who + " time_slices must be a whole number from 1 to 255");
     return uint32_t(k);

@@ -266,6 +266,7 @@ RadiositySolution SolveHierarchical(const Scene& scene, const RadiosityMesh& mes
         // Unmeshed lights at the leaves (their reflected light is a source like emission).
         arena.execute([&] {
             tbb::parallel_for(tbb::blocked_range<size_t>(0, h.nodes_.size(), 64), [&](const auto& r) {
+                const ShutterTimeScope instant(settings.shutter_time);
                 for (size_t i = r.begin(); i != r.end(); ++i) {
                     Node& n = h.nodes_[i];
                     for (int s = 0; s < 2; ++s)

@@ -73,6 +73,7 @@ RadiositySolution SolveProgressive(const Scene& scene, const RadiosityMesh& mesh
     if (!other_lights.empty()) {
         arena.execute([&] {
             tbb::parallel_for(tbb::blocked_range<size_t>(0, 2 * n, 64), [&](const tbb::blocked_range<size_t>& r) {
+                const ShutterTimeScope instant(settings.shutter_time);
                 for (size_t k = r.begin(); k != r.end(); ++k) {
                     const RadiosityElement& e = el[k / 2];
                     if (IsBlack(e.rho)) continue;
@@ -106,6 +107,7 @@ RadiositySolution SolveProgressive(const Scene& scene, const RadiosityMesh& mesh
         const Vec3 ns = s ? -src.n : src.n;
         arena.execute([&] {
             tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 64), [&](const tbb::blocked_range<size_t>& r) {
+                const ShutterTimeScope instant(settings.shutter_time);
                 for (size_t j = r.begin(); j != r.end(); ++j) {
                     const RadiosityElement& rec = el[j];
                     if (j == i || IsBlack(rec.rho)) continue;

@@ -26,6 +26,10 @@ struct RadiositySettings {
     uint32_t seed = 0;
     int threads = 0;             // 0: all
     bool hierarchical = false;   // SolveHierarchical instead of SolveProgressive
+    // The shutter instant the solution holds (a moving scene solves one per time slice);
+    // every ray and element of the solve sees the scene then.
+    float shutter_time = 0.5f;
+    uint32_t time_slices = 8;    // K for a scene with motion (radiosity_product.cpp)
 };
 
 struct RadiositySolution {

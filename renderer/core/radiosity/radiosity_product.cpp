@@ -1,6 +1,7 @@
 #include "radiosity_product.h"
 
 #include "hierarchical_solver.h"
+#include "shutter_slices.h"
 
 #include <cmath>
 #include <cstring>
@@ -11,7 +12,14 @@ namespace tessera {
 
 namespace {
 
-constexpr char kMagic[4] = {'T', 'R', 'A', '1'};
+// The product: an outer header naming the time slices, then one block per slice, each a
+// Header and its four arrays.
+constexpr char kMagic[4] = {'T', 'R', 'A', '2'};
+struct OuterHeader {
+    char magic[4];
+    uint32_t time_slices;
+};
+constexpr char kSliceMagic[4] = {'T', 'R', 'A', 'S'};
 struct Header {
     char magic[4];
     uint32_t elements;
@@ -42,6 +50,8 @@ const std::vector<IntegratorParam>& RadiosityParams() {
     {"interpolate", "1: radiosity interpolated from the element vertices; 0: constant per element (default 1 for "
                     "radiosity's display, 0 for hybrid's gather)"},
     {"solver", "0: progressive refinement, Southwell shooting (default); 1: hierarchical, BF-refined links"},
+    {"time_slices", "with motion blur, the shutter's slices: one solution per slice, at its middle instant, "
+                    "read by the camera samples in it (default 8; 1 to 255)"},
     };
     return params;
 }
@@ -64,6 +74,7 @@ RadiositySettings RadiositySettingsFrom(const IntegratorSettings& s, const Scene
     if (!(samples >= 1.f && samples <= 65536.f && samples == std::floor(samples)))
         throw std::invalid_argument(std::string(who) + " light_samples must be a whole number from 1 to 65536");
     r.light_samples = uint32_t(samples);
+    r.time_slices = TimeSlicesSetting(s, who, 8.f);
     return r;
 }
 
@@ -73,24 +84,47 @@ bool RadiosityInterpolates(const IntegratorSettings& s, const char* who, bool by
     return v == 1.f;
 }
 
-std::string SolveRadiosityProduct(const Scene& scene, const RadiositySettings& settings) {
+namespace {
+
+// The middle instant of slice k of K (a still scene's one slice: mid-shutter).
+float SliceInstant(uint32_t k, uint32_t slices) { return (float(k) + 0.5f) / float(slices); }
+
+// One slice's block: the mesh and solution at settings.shutter_time.
+void AppendSlice(const Scene& scene, const RadiositySettings& settings, std::string* out) {
+    const ShutterTimeScope instant(settings.shutter_time);  // the mesh and the calling thread's rays
     const RadiosityMesh mesh(scene, settings.element_size);
     const RadiositySolution sol = settings.hierarchical ? SolveHierarchical(scene, mesh, settings)
                                                         : SolveProgressive(scene, mesh, settings);
     const std::vector<Color> reflected = ReflectedRadiosity(mesh, sol);
     Header h{};
-    std::memcpy(h.magic, kMagic, 4);
+    std::memcpy(h.magic, kSliceMagic, 4);
     h.elements = uint32_t(mesh.elements().size());
     h.vertices = uint32_t(mesh.num_vertices());
     h.shots = sol.shots;
     h.relative_residual = sol.entered_power > 0.0 && !sol.residual.empty() ? float(sol.residual.back() / sol.entered_power) : 0.f;
     h.converged = sol.converged;
-    std::string out(sizeof(Header), '\0');
-    std::memcpy(out.data(), &h, sizeof(Header));
-    Append(&out, reflected);
-    Append(&out, sol.direct);
-    Append(&out, mesh.VertexAverage(reflected));
-    Append(&out, mesh.VertexAverage(sol.direct));
+    const size_t at = out->size();
+    out->resize(at + sizeof(Header));
+    std::memcpy(out->data() + at, &h, sizeof(Header));
+    Append(out, reflected);
+    Append(out, sol.direct);
+    Append(out, mesh.VertexAverage(reflected));
+    Append(out, mesh.VertexAverage(sol.direct));
+}
+
+}  // namespace
+
+std::string SolveRadiosityProduct(const Scene& scene, const RadiositySettings& settings) {
+    OuterHeader outer{};
+    std::memcpy(outer.magic, kMagic, 4);
+    outer.time_slices = scene.has_motion() ? settings.time_slices : 1;
+    std::string out(sizeof(OuterHeader), '\0');
+    std::memcpy(out.data(), &outer, sizeof(OuterHeader));
+    for (uint32_t k = 0; k < outer.time_slices; ++k) {
+        RadiositySettings at = settings;
+        at.shutter_time = SliceInstant(k, outer.time_slices);
+        AppendSlice(scene, at, &out);
+    }
     return out;
 }
 
@@ -105,35 +139,50 @@ struct CachedLookup {
     size_t triangles;
     float element_size;
     std::string product;
-    std::shared_ptr<const RadiosityLookup::Data> data;
+    std::shared_ptr<const RadiosityLookup::Slices> data;
 };
 std::mutex cache_mutex;
 std::vector<CachedLookup> cache;
 constexpr size_t kCachedLookups = 4;
 
-std::shared_ptr<const RadiosityLookup::Data> Parse(const Scene& scene, float element_size, const std::string& product,
-                                                   const char* who) {
-    Header h;
-    if (product.size() < sizeof(Header) || std::memcmp(product.data(), kMagic, 4) != 0)
+std::shared_ptr<const RadiosityLookup::Slices> Parse(const Scene& scene, float element_size,
+                                                     const std::string& product, const char* who) {
+    OuterHeader outer;
+    if (product.size() < sizeof(OuterHeader) || std::memcmp(product.data(), kMagic, 4) != 0)
         throw std::invalid_argument(std::string(who) + ": the scene product is not a radiosity solution");
-    std::memcpy(&h, product.data(), sizeof(Header));
-    auto data = std::make_shared<RadiosityLookup::Data>(scene, element_size);
-    const size_t ne = 2 * size_t(h.elements), nv = 2 * size_t(h.vertices);
-    if (h.elements != data->mesh.elements().size() || h.vertices != data->mesh.num_vertices() ||
-        product.size() != sizeof(Header) + (2 * ne + 2 * nv) * sizeof(Color))
-        throw std::invalid_argument(std::string(who) +
-                                    ": the scene product is a radiosity solution of another scene or element_size");
-    const char* p = product.data() + sizeof(Header);
-    auto read = [&](std::vector<Color>* v, size_t count) {
-        v->resize(count);
-        if (count) std::memcpy(v->data(), p, count * sizeof(Color));
-        p += count * sizeof(Color);
-    };
-    read(&data->element_reflected, ne);
-    read(&data->element_direct, ne);
-    read(&data->vertex_reflected, nv);
-    read(&data->vertex_direct, nv);
-    return data;
+    std::memcpy(&outer, product.data(), sizeof(OuterHeader));
+    if (outer.time_slices < 1 || outer.time_slices > kMaxShutterSlices || (outer.time_slices > 1 && !scene.has_motion()))
+        throw std::invalid_argument(std::string(who) + ": the scene product's time slices do not fit the scene");
+    auto slices = std::make_shared<RadiosityLookup::Slices>();
+    size_t at = sizeof(OuterHeader);
+    for (uint32_t k = 0; k < outer.time_slices; ++k) {
+        Header h;
+        if (product.size() - at < sizeof(Header) || std::memcmp(product.data() + at, kSliceMagic, 4) != 0)
+            throw std::invalid_argument(std::string(who) + ": the scene product is truncated");
+        std::memcpy(&h, product.data() + at, sizeof(Header));
+        const ShutterTimeScope instant(SliceInstant(k, outer.time_slices));  // the slice's own mesh
+        auto data = std::make_unique<RadiosityLookup::Data>(scene, element_size);
+        const size_t ne = 2 * size_t(h.elements), nv = 2 * size_t(h.vertices);
+        const size_t bytes = sizeof(Header) + (2 * ne + 2 * nv) * sizeof(Color);
+        if (h.elements != data->mesh.elements().size() || h.vertices != data->mesh.num_vertices() ||
+            product.size() - at < bytes)
+            throw std::invalid_argument(std::string(who) +
+                                        ": the scene product is a radiosity solution of another scene or element_size");
+        const char* p = product.data() + at + sizeof(Header);
+        auto read = [&](std::vector<Color>* v, size_t count) {
+            v->resize(count);
+            if (count) std::memcpy(v->data(), p, count * sizeof(Color));
+            p += count * sizeof(Color);
+        };
+        read(&data->element_reflected, ne);
+        read(&data->element_direct, ne);
+        read(&data->vertex_reflected, nv);
+        read(&data->vertex_direct, nv);
+        at += bytes;
+        slices->push_back(std::move(data));
+    }
+    if (at != product.size()) throw std::invalid_argument(std::string(who) + ": the scene product has trailing bytes");
+    return slices;
 }
 
 }  // namespace
@@ -158,7 +207,7 @@ RadiosityLookup::RadiosityLookup(const Scene& scene, float element_size, const s
 
 bool RadiosityLookup::Reflected(const SurfaceHit& hit, Vec3 wo, Color* reflected, Color* direct) const {
     float w[3];
-    const Data& d = *data_;
+    const Data& d = *(*data_)[ShutterSlices{uint32_t(data_->size())}.Current()];
     const int32_t e = d.mesh.Locate(hit, w);
     if (e < 0) return false;
     const RadiosityElement& el = d.mesh.elements()[e];

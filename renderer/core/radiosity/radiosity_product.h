@@ -2,6 +2,12 @@
 // passes"): the reflected radiosity, and its direct part, per element side and per display
 // vertex side. No geometry: every reader rebuilds the same RadiosityMesh from the scene
 // and element_size, and the product names its element and vertex counts to check that.
+//
+// A scene with motion is solved once per time slice of the shutter (`time_slices`, K,
+// default 8; shutter_slices.h): slice k's mesh and solution hold the scene at the instant
+// (k + 1/2) / K, and a camera sample reads the solution of the slice holding its own
+// instant, so the diffuse light moves with the scene (a time kernel 1/K wide; the solve
+// costs K times a still one). A still scene has one slice, the solution it always had.
 #pragma once
 
 #include <memory>
@@ -36,14 +42,16 @@ public:
     // the side wo points to, and its direct part; false if the hit is on no element.
     bool Reflected(const SurfaceHit& hit, Vec3 wo, Color* reflected, Color* direct) const;
 
+    // One time slice's mesh (built at its instant) and solution.
     struct Data {
         Data(const Scene& scene, float element_size) : mesh(scene, element_size) {}
         RadiosityMesh mesh;
         std::vector<Color> element_reflected, element_direct, vertex_reflected, vertex_direct;
     };
+    using Slices = std::vector<std::unique_ptr<const Data>>;
 
 private:
-    std::shared_ptr<const Data> data_;
+    std::shared_ptr<const Slices> data_;
     bool interpolate_;
 };
 
