@@ -153,6 +153,28 @@ std::vector<float> RenderWith(const Scene& scene, const Camera& cam, RenderOptio
     return RenderResolved(scene, cam, o);
 }
 
+// Columns where `p` (scaled by `scale`, shifted by `offset`; K runs) and `ref` (K runs)
+// differ by Welch's t beyond the two-sided limit at `alpha`. With `report`, each failing
+// column is reported as `what` and every column's limit must be at most `resolution`, so
+// that a control perturbed by more than twice that must fail.
+int WelchFailingColumns(const Profile& p, double scale, double offset, const Profile& ref, int K, double alpha,
+                        double resolution, const std::string& what, bool report) {
+    int failing = 0;
+    for (uint32_t x = 0; x < kW; ++x) {
+        const double value = scale * p.mean[x] + offset;
+        const Welch w = WelchT(value, scale * scale * p.var[x], K, ref.mean[x], ref.var[x], K);
+        const double critical = StudentTCritical(alpha, w.df);
+        if (report) EXPECT_LE(critical * w.se, resolution) << what << ": column " << x << " too noisy";
+        if (std::abs(w.t) > critical && std::abs(value - ref.mean[x]) > 1e-6) {
+            ++failing;
+            if (report)
+                ADD_FAILURE() << what << ": column " << x << " = " << value << ", reference " << ref.mean[x]
+                              << " (t = " << w.t << ")";
+        }
+    }
+    return failing;
+}
+
 }  // namespace
 
 TEST(Motion, SlidingEmitterGivesTheClosedFormRampForEveryIntegratorThatSeesEmitters) {
@@ -298,24 +320,11 @@ TEST(Motion, BlurredShadowEqualsTheTimeAverageOfStaticShadows) {
         }
         const Profile p =
             ColumnProfile([&](uint32_t seed) { return RenderWith(moving, cam, o, integrator, seed); }, 7, K, 0, kH);
-        // Welch's t per column against the reference.
-        // Limits at most 1 % of the brightest column, so the negative control -- the image
-        // brightened by 2 % of that column -- must fail.
+        // Welch's t per column against the static average. Limits at most 1 % of the
+        // brightest column, so the negative control -- the image brightened by 2 % of
+        // that column -- must fail.
         auto failing = [&](double offset, bool report) {
-            int n = 0;
-            for (uint32_t x = 0; x < kW; ++x) {
-                const Welch w = WelchT(p.mean[x] + offset, p.var[x], K, ref.mean[x], ref.var[x], K);
-                const double critical = StudentTCritical(alpha, w.df);
-                if (report)
-                    EXPECT_LE(critical * w.se, 0.01 * peak) << integrator << ": column " << x << " too noisy";
-                if (std::abs(w.t) > critical) {
-                    ++n;
-                    if (report)
-                        ADD_FAILURE() << integrator << ": column " << x << " = " << p.mean[x] << ", static average "
-                                      << ref.mean[x] << " (t = " << w.t << ")";
-                }
-            }
-            return n;
+            return WelchFailingColumns(p, 1.0, offset, ref, K, alpha, 0.01 * peak, integrator, report);
         };
         EXPECT_EQ(failing(0.0, true), 0) << integrator;
         EXPECT_GT(failing(0.02 * peak, false), 0) << integrator << ": the 2 % negative control passed";
@@ -324,12 +333,8 @@ TEST(Motion, BlurredShadowEqualsTheTimeAverageOfStaticShadows) {
     Scene frozen(SlidingOccluder(false, 0.5f));
     const Profile still = ColumnProfile([&](uint32_t seed) { return RenderWith(frozen, cam, opt, "path", seed); },
                                         300, K, 0, kH);
-    int differing = 0;
-    for (uint32_t x = 0; x < kW; ++x) {
-        const Welch w = WelchT(still.mean[x], still.var[x], K, ref.mean[x], ref.var[x], K);
-        differing += std::abs(w.t) > StudentTCritical(alpha, w.df);
-    }
-    EXPECT_GT(differing, 0) << "a frozen occluder casts the blurred shadow: the test cannot see motion";
+    EXPECT_GT(WelchFailingColumns(still, 1.0, 0.0, ref, K, alpha, 0.0, "frozen", false), 0)
+        << "a frozen occluder casts the blurred shadow: the test cannot see motion";
 }
 
 TEST(Motion, DeformingEmittersGiveTheClosedFormCoverageForEveryIntegratorThatSeesEmitters) {
@@ -706,21 +711,9 @@ TEST(Motion, VCMMergesWithLightVerticesOfItsOwnTimeSlice) {
         return ColumnProfile([&](uint32_t seed) { return RenderWith(moving, cam, v, "vcm", seed); }, 101, K, 4, 12);
     };
     const double alpha = 1e-3 / double(kW);
+    // Limits at most 1 % of the brightest column: the 2 % control must fail.
     auto failing = [&](const Profile& p, double scale, bool report) {
-        int n = 0;
-        for (uint32_t x = 0; x < kW; ++x) {
-            const Welch w = WelchT(scale * p.mean[x], scale * scale * p.var[x], K, ref.mean[x], ref.var[x], K);
-            const double critical = StudentTCritical(alpha, w.df);
-            // Limits at most 1 % of the brightest column: the 2 % control must fail.
-            if (report) EXPECT_LE(critical * w.se, 0.01 * peak) << "column " << x << " too noisy";
-            if (std::abs(w.t) > critical && std::abs(scale * p.mean[x] - ref.mean[x]) > 1e-6) {
-                ++n;
-                if (report)
-                    ADD_FAILURE() << "column " << x << ": vcm " << p.mean[x] << ", path " << ref.mean[x]
-                                  << " (t = " << w.t << ")";
-            }
-        }
-        return n;
+        return WelchFailingColumns(p, scale, 0.0, ref, K, alpha, 0.01 * peak, "vcm against path", report);
     };
     const Profile sliced = vcm(0.f);  // the default: 32 slices in the first iteration
     EXPECT_EQ(failing(sliced, 1.0, true), 0);
@@ -819,21 +812,10 @@ TEST(Motion, PhotonDensityOnAMovingReceiverIsTheTimeAverageOfStaticOnes) {
                              K, 5, 11);
     };
     const double alpha = 1e-3 / double(kW);
+    // Limits at most 1.5 % of the brightest column: the 2 % control must fail.
     auto failing = [&](const Profile& p, double scale, bool report) {
-        int n = 0;
-        for (uint32_t x = 0; x < kW; ++x) {
-            const Welch w = WelchT(scale * p.mean[x], scale * scale * p.var[x], K, ref.mean[x], ref.var[x], K);
-            const double critical = StudentTCritical(alpha, w.df);
-            // Limits at most 1.5 % of the brightest column: the 2 % control must fail.
-            if (report) EXPECT_LE(critical * w.se, 0.015 * peak) << "column " << x << " too noisy";
-            if (std::abs(w.t) > critical && std::abs(scale * p.mean[x] - ref.mean[x]) > 1e-6) {
-                ++n;
-                if (report)
-                    ADD_FAILURE() << "column " << x << ": blurred " << p.mean[x] << ", static mean " << ref.mean[x]
-                                  << " (t = " << w.t << ")";
-            }
-        }
-        return n;
+        return WelchFailingColumns(p, scale, 0.0, ref, K, alpha, 0.015 * peak, "blurred against the still mean",
+                                   report);
     };
     const Profile sliced = blurred(64.f, 1.f);
     EXPECT_EQ(failing(sliced, 1.0, true), 0);
@@ -910,19 +892,7 @@ TEST(Motion, RadiositySolvesEachTimeSliceAtItsInstant) {
         };
         const double alpha = 1e-3 / double(kW);
         auto failing = [&](const Profile& p, double scale, bool report) {
-            int n = 0;
-            for (uint32_t x = 0; x < kW; ++x) {
-                const Welch w = WelchT(scale * p.mean[x], scale * scale * p.var[x], seeds, ref.mean[x], ref.var[x], seeds);
-                const double critical = StudentTCritical(alpha, w.df);
-                if (report) EXPECT_LE(critical * w.se, 0.01 * peak) << integrator << ": column " << x << " too noisy";
-                if (std::abs(w.t) > critical && std::abs(scale * p.mean[x] - ref.mean[x]) > 1e-6 * peak) {
-                    ++n;
-                    if (report)
-                        ADD_FAILURE() << integrator << ": column " << x << " = " << p.mean[x] << ", still mean "
-                                      << ref.mean[x] << " (t = " << w.t << ")";
-                }
-            }
-            return n;
+            return WelchFailingColumns(p, scale, 0.0, ref, seeds, alpha, 0.01 * peak, integrator, report);
         };
         const Profile sliced = blurred(float(K));
         EXPECT_EQ(failing(sliced, 1.0, true), 0) << integrator;

@@ -271,11 +271,7 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
         limit_points = self.subdivision_limits.get(str(prim.GetPath()))
         cage = points.Get(self.time) if limit_points is not None else None
         steps = self.deforming_points(prim, len(cage) if cage is not None else len(chunk.points))
-        if steps is None:
-            return chunk
-        if limit_points is not None:
-            steps = np.stack([limit_points(step) for step in steps])
-        return dataclasses.replace(chunk, motion_points=steps)
+        return chunk if steps is None else self._deforming(prim, chunk, steps)
 
     def _skin_deformed(self, prim, chunk: _Chunk, top_level: bool) -> _Chunk:
         """A skinned mesh's chunk with its posed points at the shutter's time steps when its
@@ -289,6 +285,11 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
             self._count_note("skinned meshes inside instances are not motion-blurred yet: rendered in "
                              "their pose at the frame")
             return chunk
+        return self._deforming(prim, chunk, steps)
+
+    def _deforming(self, prim, chunk: _Chunk, steps: np.ndarray) -> _Chunk:
+        """The chunk deforming through the points `steps` (T, V, 3): a subdivided mesh's are
+        its cage's, each refined to the limit surface."""
         limit_points = self.subdivision_limits.get(str(prim.GetPath()))
         if limit_points is not None:
             steps = np.stack([limit_points(step) for step in steps])
