@@ -34,6 +34,9 @@ SLOW_TESTS+=":Integrators.PathLightAndBidirectionalAgreeForEveryLightKind:Camera
 SLOW_TESTS+=":Motion.SlidingEmitterGivesTheClosedFormRampForEveryIntegratorThatSeesEmitters:Motion.BlurredShadowEqualsTheTimeAverageOfStaticShadows:Motion.ACameraSlidingPastAStillQuadSeesTheSameRampAsTheQuadSlidingPastIt"
 SLOW_TESTS+=":Motion.DeformingEmittersGiveTheClosedFormCoverageForEveryIntegratorThatSeesEmitters"
 SLOW_TESTS+=":Motion.MovingPointSphereAndDistantLightsGiveTheClosedFormIrradiance"
+# Its 2 x 10^8 photon paths take minutes under the sanitizers; the same tracing, slicing and
+# grids run there in Motion.TracedPhotons... and the PhotonDirect tests.
+SLOW_TESTS+=":Motion.PhotonDensityOnAMovingReceiverIsTheTimeAverageOfStaticOnes"
 SLOW_TESTS+=":AreaLightShaping.PathLightAndBidirectionalAgreeOnTheShapedPool"
 
 start=$(date +%s)
