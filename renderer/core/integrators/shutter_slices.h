@@ -36,6 +36,9 @@ struct ShutterSlices {
     uint32_t SliceOfPath(uint32_t i) const { return i % count; }
     // Light path i's instant from its uniform u (LightPathInstant): uniform in its slice.
     float Instant(uint32_t i, float u) const { return count > 1 ? (float(SliceOfPath(i)) + u) / float(count) : u; }
+    // Slice b's middle instant (one slice: mid-shutter), where a pass solved per slice
+    // (radiosity) holds the scene.
+    float Middle(uint32_t b) const { return (float(b) + 0.5f) / float(count); }
     // The slice holding this thread's instant: the camera sample's (ShutterTimeScope).
     uint32_t Current() const {
         if (count <= 1) return 0;

@@ -86,9 +86,6 @@ bool RadiosityInterpolates(const IntegratorSettings& s, const char* who, bool by
 
 namespace {
 
-// The middle instant of slice k of K (a still scene's one slice: mid-shutter).
-float SliceInstant(uint32_t k, uint32_t slices) { return (float(k) + 0.5f) / float(slices); }
-
 // One slice's block: the mesh and solution at settings.shutter_time.
 void AppendSlice(const Scene& scene, const RadiositySettings& settings, std::string* out) {
     const ShutterTimeScope instant(settings.shutter_time);  // the mesh and the calling thread's rays
@@ -122,7 +119,7 @@ std::string SolveRadiosityProduct(const Scene& scene, const RadiositySettings& s
     std::memcpy(out.data(), &outer, sizeof(OuterHeader));
     for (uint32_t k = 0; k < outer.time_slices; ++k) {
         RadiositySettings at = settings;
-        at.shutter_time = SliceInstant(k, outer.time_slices);
+        at.shutter_time = ShutterSlices{outer.time_slices}.Middle(k);
         AppendSlice(scene, at, &out);
     }
     return out;
@@ -160,7 +157,7 @@ std::shared_ptr<const RadiosityLookup::Slices> Parse(const Scene& scene, float e
         if (product.size() - at < sizeof(Header) || std::memcmp(product.data() + at, kSliceMagic, 4) != 0)
             throw std::invalid_argument(std::string(who) + ": the scene product is truncated");
         std::memcpy(&h, product.data() + at, sizeof(Header));
-        const ShutterTimeScope instant(SliceInstant(k, outer.time_slices));  // the slice's own mesh
+        const ShutterTimeScope instant(ShutterSlices{outer.time_slices}.Middle(k));  // the slice's own mesh
         auto data = std::make_unique<RadiosityLookup::Data>(scene, element_size);
         const size_t ne = 2 * size_t(h.elements), nv = 2 * size_t(h.vertices);
         const size_t bytes = sizeof(Header) + (2 * ne + 2 * nv) * sizeof(Color);

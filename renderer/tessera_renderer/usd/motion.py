@@ -198,12 +198,12 @@ class _MotionReader:
                 return values
             steps = min(MAX_TIME_STEPS, 2 * steps - 1)
 
-    def deforming_points(self, prim, n_points: int) -> np.ndarray | None:
+    def deforming_points(self, prim, n_points: int | None = None) -> np.ndarray | None:
         """A mesh's points (T, V, 3) at T evenly spaced instants of the shutter when its
         `points` change during it (USD interpolates them linearly between samples) or its
         velocities move them (moves_by_velocities), else None. Meshes whose point count
         changes inside the shutter, or whose points are not finite there, are left at the
-        frame with a note."""
+        frame with a note. n_points: the mesh's point count at the frame (None: read it)."""
         from pxr import Gf, UsdGeom
 
         from .meshes import _float_rows
@@ -213,6 +213,8 @@ class _MotionReader:
         by_velocity = self.moves_by_velocities(prim)
         if not by_velocity and not self.deforms_during_shutter(attr):
             return None
+        if n_points is None:
+            n_points = len(attr.Get(self.time) or [])
         interval = Gf.Interval(self.shutter.open, self.shutter.close, False, False)
 
         def sample(times):

@@ -262,15 +262,17 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
         from pxr import UsdGeom
 
         points = UsdGeom.Mesh(prim).GetPointsAttr()
-        if self.shutter is None or not (self.deforms_during_shutter(points) or self.moves_by_velocities(prim)):
+        if self.shutter is None:
             return chunk
         if not blurrable:
-            self._count_note("deforming meshes inside instances (points time-sampled within the shutter) "
-                             "are not motion-blurred yet: rendered in their shape at the frame")
+            if self.deforms_during_shutter(points) or self.moves_by_velocities(prim):
+                self._count_note("deforming meshes inside instances (points time-sampled within the shutter) "
+                                 "are not motion-blurred yet: rendered in their shape at the frame")
             return chunk
-        limit_points = self.subdivision_limits.get(str(prim.GetPath()))
-        cage = points.Get(self.time) if limit_points is not None else None
-        steps = self.deforming_points(prim, len(cage) if cage is not None else len(chunk.points))
+        # deforming_points decides whether it deforms (keyed points or velocities), once; a
+        # subdivided mesh's chunk holds limit points, so its cage count is read there.
+        subdivided = str(prim.GetPath()) in self.subdivision_limits
+        steps = self.deforming_points(prim, None if subdivided else len(chunk.points))
         return chunk if steps is None else self._deforming(prim, chunk, steps)
 
     def _skin_deformed(self, prim, chunk: _Chunk, top_level: bool) -> _Chunk:
