@@ -54,6 +54,49 @@ Color GatherIrradiance(const Scene& scene, Vec3 x, Vec3 n, const std::vector<uin
     return irradiance / float(std::max(1u, samples));
 }
 
+void GatherUnmeshedDirect(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings,
+                          tbb::task_arena& arena, RadiositySolution* sol) {
+    const std::vector<uint32_t> other_lights = UnmeshedLights(scene, mesh);
+    if (other_lights.empty()) return;
+    const std::vector<RadiosityElement>& el = mesh.elements();
+    const float eps = 1e-4f * std::max(1.f, scene.scene_radius());
+    arena.execute([&] {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, 2 * el.size(), 64), [&](const tbb::blocked_range<size_t>& r) {
+            const ShutterTimeScope instant(settings.shutter_time);
+            for (size_t k = r.begin(); k != r.end(); ++k) {
+                const RadiosityElement& e = el[k / 2];
+                if (IsBlack(e.rho)) continue;
+                const Vec3 nr = (k % 2) ? -e.n : e.n;
+                const Color b = e.rho * GatherIrradiance(scene, e.center, nr, other_lights, settings.light_samples,
+                                                         settings.seed, k, eps);
+                sol->direct[k] = b;
+                sol->radiosity[k] = b;
+                sol->unshot[k] = b;
+            }
+        });
+    });
+}
+
+void SetAmbient(const RadiosityMesh& mesh, RadiositySolution* sol) {
+    // Ambient (Cohen et al. 1988): the unshot power spread uniformly and interreflected
+    // with the mean reflectance, over the element sides that take part (received light).
+    const std::vector<RadiosityElement>& el = mesh.elements();
+    Color unshot_area(0.f), rho_area(0.f);
+    float area = 0.f;
+    for (size_t k = 0; k < 2 * el.size(); ++k) {
+        if (!(Luminance(sol->radiosity[k]) > 0.f)) continue;
+        unshot_area += sol->unshot[k] * el[k / 2].area;
+        rho_area += el[k / 2].rho * el[k / 2].area;
+        area += el[k / 2].area;
+    }
+    sol->ambient = Color(0.f);
+    if (!(area > 0.f)) return;
+    const Color rho_avg = rho_area / area;
+    const Color u = unshot_area / area;
+    sol->ambient = Color(rho_avg.x < 1.f ? u.x / (1.f - rho_avg.x) : 0.f, rho_avg.y < 1.f ? u.y / (1.f - rho_avg.y) : 0.f,
+                         rho_avg.z < 1.f ? u.z / (1.f - rho_avg.z) : 0.f);
+}
+
 RadiositySolution SolveProgressive(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings) {
     const std::vector<RadiosityElement>& el = mesh.elements();
     const size_t n = el.size();
@@ -69,24 +112,7 @@ RadiositySolution SolveProgressive(const Scene& scene, const RadiosityMesh& mesh
     tbb::task_arena arena(settings.threads > 0 ? settings.threads : tbb::this_task_arena::max_concurrency());
 
     // Step 1a: lights that are not meshed, gathered per element side.
-    const std::vector<uint32_t> other_lights = UnmeshedLights(scene, mesh);
-    if (!other_lights.empty()) {
-        arena.execute([&] {
-            tbb::parallel_for(tbb::blocked_range<size_t>(0, 2 * n, 64), [&](const tbb::blocked_range<size_t>& r) {
-                const ShutterTimeScope instant(settings.shutter_time);
-                for (size_t k = r.begin(); k != r.end(); ++k) {
-                    const RadiosityElement& e = el[k / 2];
-                    if (IsBlack(e.rho)) continue;
-                    const Vec3 nr = (k % 2) ? -e.n : e.n;
-                    const Color b = e.rho * GatherIrradiance(scene, e.center, nr, other_lights, settings.light_samples,
-                                                             settings.seed, k, eps);
-                    sol.direct[k] = b;
-                    sol.radiosity[k] = b;
-                    sol.unshot[k] = b;
-                }
-            });
-        });
-    }
+    GatherUnmeshedDirect(scene, mesh, settings, arena, &sol);
     for (size_t i = 0; i < n; ++i)
         for (int s = 0; s < 2; ++s) {
             sol.radiosity[2 * i + s] += el[i].emission[s];
@@ -178,23 +204,7 @@ RadiositySolution SolveProgressive(const Scene& scene, const RadiosityMesh& mesh
     sol.converged = r <= target;
     sol.cached_factors = cached;
 
-    // Ambient (Cohen et al. 1988): the unshot power spread uniformly and interreflected
-    // with the mean reflectance, over the element sides that take part (received light).
-    Color unshot_area(0.f), rho_area(0.f);
-    float area = 0.f;
-    for (size_t k = 0; k < 2 * n; ++k) {
-        if (!(Luminance(sol.radiosity[k]) > 0.f)) continue;
-        unshot_area += sol.unshot[k] * el[k / 2].area;
-        rho_area += el[k / 2].rho * el[k / 2].area;
-        area += el[k / 2].area;
-    }
-    if (area > 0.f) {
-        const Color rho_avg = rho_area / area;
-        const Color u = unshot_area / area;
-        sol.ambient = Color(rho_avg.x < 1.f ? u.x / (1.f - rho_avg.x) : 0.f,
-                            rho_avg.y < 1.f ? u.y / (1.f - rho_avg.y) : 0.f,
-                            rho_avg.z < 1.f ? u.z / (1.f - rho_avg.z) : 0.f);
-    }
+    SetAmbient(mesh, &sol);
     return sol;
 }
 

@@ -13,9 +13,20 @@
 #include <cstdint>
 #include <vector>
 
+#include <tbb/task_arena.h>
+
 #include "radiosity_mesh.h"
 
 namespace tessera {
+
+enum class RadiositySolver : uint8_t {
+    // kProgressive up to kAutoStochasticElements elements, kStochastic above (the
+    // progressive solver's form factors are O(n^2): 12 s at 4096 Cornell elements).
+    kAuto,
+    kProgressive,   // Southwell shooting with form factors (SolveProgressive)
+    kHierarchical,  // BF-refined links (hierarchical_solver.h)
+    kStochastic,    // shooting by ray casting (stochastic_solver.h)
+};
 
 struct RadiositySettings {
     float element_size = 1.f;
@@ -25,7 +36,11 @@ struct RadiositySettings {
     uint32_t light_samples = 16; // per element side and non-meshed light
     uint32_t seed = 0;
     int threads = 0;             // 0: all
-    bool hierarchical = false;   // SolveHierarchical instead of SolveProgressive
+    static constexpr size_t kAutoStochasticElements = 4096;
+    RadiositySolver solver = RadiositySolver::kProgressive;
+    // Stochastic: rays of the first shot per element (later shots in proportion to the
+    // power still unshot).
+    float rays_per_element = 1024.f;
     // The shutter instant the solution holds (a moving scene solves one per time slice);
     // every ray and element of the solve sees the scene then.
     float shutter_time = 0.5f;
@@ -41,7 +56,8 @@ struct RadiositySolution {
     // Unshot power (luminance-weighted W) before the first shot of step 2 and after every shot.
     std::vector<double> residual;
     double entered_power = 0.0;    // what step 1 put into the scene
-    uint32_t shots = 0;
+    uint32_t shots = 0;            // progressive: shots; stochastic: iterations
+    uint64_t rays = 0;             // stochastic: rays cast
     bool converged = false;
     size_t cached_factors = 0;     // form factors kept for reuse
     size_t links = 0;              // hierarchical: links between nodes (progressive: 0)
@@ -56,6 +72,13 @@ Color GatherIrradiance(const Scene& scene, Vec3 x, Vec3 n, const std::vector<uin
                        uint32_t seed, uint64_t stream, float eps);
 
 RadiositySolution SolveProgressive(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings);
+
+// Step 1a of every shooting solver: each element side's reflected irradiance from the
+// unmeshed lights goes into sol's radiosity, direct and unshot (which must be zeroed).
+void GatherUnmeshedDirect(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings,
+                          tbb::task_arena& arena, RadiositySolution* sol);
+// The ambient term from what is still unshot (Cohen et al. 1988).
+void SetAmbient(const RadiosityMesh& mesh, RadiositySolution* sol);
 
 // The ambient-corrected reflected radiosity B - E + rho ambient, per element side.
 std::vector<Color> ReflectedRadiosity(const RadiosityMesh& mesh, const RadiositySolution& solution);

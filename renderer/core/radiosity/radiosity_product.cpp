@@ -1,6 +1,7 @@
 #include "radiosity_product.h"
 
 #include "hierarchical_solver.h"
+#include "stochastic_solver.h"
 #include "shutter_slices.h"
 
 #include <cmath>
@@ -49,7 +50,11 @@ const std::vector<IntegratorParam>& RadiosityParams() {
     {"light_samples", "samples per element of each point, distant, dome or sphere light (default 16)"},
     {"interpolate", "1: radiosity interpolated from the element vertices; 0: constant per element (default 1 for "
                     "radiosity's display, 0 for hybrid's gather)"},
-    {"solver", "0: progressive refinement, Southwell shooting (default); 1: hierarchical, BF-refined links"},
+    {"solver", "0: progressive refinement, Southwell shooting; 1: hierarchical, BF-refined links; 2: stochastic, "
+               "shooting by ray casting (no form factors: for 10^5 triangles and more); default: progressive up to "
+               "4096 elements, stochastic above"},
+    {"rays_per_element", "stochastic solver: rays of the first shot per element; later shots in proportion to the "
+                         "power left unshot (default 1024)"},
     {"time_slices", "with motion blur, the shutter's slices: one solution per slice, at its middle instant, "
                     "read by the camera samples in it (default 8; 1 to 255)"},
     };
@@ -61,19 +66,24 @@ RadiositySettings RadiositySettingsFrom(const IntegratorSettings& s, const Scene
     r.element_size = s.Param("element_size", kDefaultElementOfDiameter * 2.f * scene.scene_radius());
     if (!(r.element_size > 0.f) || !std::isfinite(r.element_size))
         throw std::invalid_argument(std::string(who) + " element_size must be a finite number > 0");
-    const float solver = s.Param("solver", 0.f);
-    if (solver != 0.f && solver != 1.f)
-        throw std::invalid_argument(std::string(who) + " solver must be 0 (progressive) or 1 (hierarchical)");
-    r.hierarchical = solver == 1.f;
-    // The two tolerances mean different things; each default is where the solver agrees
-    // with the other within 1 % per wall on the Cornell box (docs/integrators.md).
-    r.tolerance = s.Param("tolerance", r.hierarchical ? 1e-5f : 1e-3f);
+    const float solver = s.Param("solver", -1.f);
+    if (solver != -1.f && solver != 0.f && solver != 1.f && solver != 2.f)
+        throw std::invalid_argument(std::string(who) +
+                                    " solver must be 0 (progressive), 1 (hierarchical) or 2 (stochastic)");
+    r.solver = solver == -1.f ? RadiositySolver::kAuto : RadiositySolver(int(solver) + 1);
+    const bool hierarchical = r.solver == RadiositySolver::kHierarchical;
+    // The tolerances mean different things; each default is where the solver agrees with
+    // the progressive one within 1 % per wall on the Cornell box (docs/integrators.md).
+    r.tolerance = s.Param("tolerance", hierarchical ? 1e-5f : 1e-3f);
     if (!(r.tolerance > 0.f && r.tolerance < 1.f))
         throw std::invalid_argument(std::string(who) + " tolerance must be a number in (0, 1)");
     const float samples = s.Param("light_samples", 16.f);
     if (!(samples >= 1.f && samples <= 65536.f && samples == std::floor(samples)))
         throw std::invalid_argument(std::string(who) + " light_samples must be a whole number from 1 to 65536");
     r.light_samples = uint32_t(samples);
+    r.rays_per_element = s.Param("rays_per_element", r.rays_per_element);
+    if (!(r.rays_per_element >= 1.f && r.rays_per_element <= 1e6f))
+        throw std::invalid_argument(std::string(who) + " rays_per_element must be a number from 1 to 1e6");
     r.time_slices = TimeSlicesSetting(s, who, 8.f);
     return r;
 }
@@ -90,8 +100,13 @@ namespace {
 void AppendSlice(const Scene& scene, const RadiositySettings& settings, std::string* out) {
     const ShutterTimeScope instant(settings.shutter_time);  // the mesh and the calling thread's rays
     const RadiosityMesh mesh(scene, settings.element_size);
-    const RadiositySolution sol = settings.hierarchical ? SolveHierarchical(scene, mesh, settings)
-                                                        : SolveProgressive(scene, mesh, settings);
+    RadiositySolver solver = settings.solver;
+    if (solver == RadiositySolver::kAuto)
+        solver = mesh.elements().size() > RadiositySettings::kAutoStochasticElements ? RadiositySolver::kStochastic
+                                                                                     : RadiositySolver::kProgressive;
+    const RadiositySolution sol = solver == RadiositySolver::kHierarchical ? SolveHierarchical(scene, mesh, settings)
+                                  : solver == RadiositySolver::kStochastic ? SolveStochastic(scene, mesh, settings)
+                                                                            : SolveProgressive(scene, mesh, settings);
     const std::vector<Color> reflected = ReflectedRadiosity(mesh, sol);
     Header h{};
     std::memcpy(h.magic, kSliceMagic, 4);
