@@ -29,7 +29,7 @@ struct RadiosityElement {
 
 class RadiosityMesh {
 public:
-    // More elements than this are refused (the progressive solver is O(n^2) in them).
+    // More elements than this are refused (memory: the solution and display per element).
     static constexpr uint64_t kMaxElements = uint64_t(1) << 22;
     // target_size: the longest edge an element may have (scene units, > 0).
     RadiosityMesh(const Scene& scene, float target_size);
