@@ -39,7 +39,7 @@ def _still_solution_header(product: bytes) -> tuple:
     outer header naming one time slice, then the slice's (tag, elements, vertices, shots or
     links, relative residual, converged)."""
     magic, slices = struct.unpack("4sI", product[:8])
-    assert magic == b"TRA2" and slices == 1, (magic, slices)
+    assert magic == b"TRA3" and slices == 1, (magic, slices)
     return struct.unpack("4sIIIfI", product[8:32])
 
 
@@ -144,6 +144,22 @@ def test_stochastic_solution_is_the_same_for_any_thread_count(cornell):
     assert cornell.scene_pass("radiosity", 0, threads=2, integrator_params={**params, "rays_per_element": 65}) != one
 
 
+def test_refined_solution_travels_in_the_product(cornell):
+    """Adaptive refinement's mesh is named in the product (each element's quadtree depth),
+    so a tile rebuilds it from the bytes alone; the same settings give the same bytes on
+    any thread count, and a product cut inside its depths is refused."""
+    params = {"element_size": 150.0, "solver": 2, "rays_per_element": 64, "refine_levels": 2}
+    product = cornell.scene_pass("radiosity", 0, threads=1, integrator_params=params)
+    assert cornell.scene_pass("radiosity", 0, threads=2, integrator_params=params) == product
+    _, elements, _, _, _, _, cells, depth_bytes = struct.unpack("4sIIIfIII", product[8:40])
+    assert elements > cells and depth_bytes == elements, (elements, cells, depth_bytes)
+    refined = render(cornell, "radiosity", params, 1, product)
+    uniform = render(cornell, "radiosity", {**params, "refine_levels": 0}, 1)
+    assert np.abs(refined - uniform).max() > 0  # the refined mesh is what is shown
+    with pytest.raises(ValueError, match="truncated"):
+        render(cornell, "radiosity", params, 1, product[:40 + depth_bytes // 2])
+
+
 @pytest.mark.slow
 def test_hybrid_matches_path_and_counts_direct_light_once(cornell, path_reference):
     """The hybrid's noise per region is about 0.5 % at 256 spp and its gather reads the
@@ -180,6 +196,10 @@ def test_bad_settings_and_foreign_products_are_refused(cornell):
         cornell.scene_pass("radiosity", 0, integrator_params={"solver": 3})
     with pytest.raises(ValueError, match="rays_per_element must be a number from 1 to 1e6"):
         cornell.scene_pass("radiosity", 0, integrator_params={"solver": 2, "rays_per_element": 0})
+    with pytest.raises(ValueError, match="refine_levels must be a whole number from 0 to 3"):
+        cornell.scene_pass("radiosity", 0, integrator_params={"refine_levels": 4})
+    with pytest.raises(ValueError, match="refine_levels needs solver 0 .progressive. or 2 .stochastic."):
+        cornell.scene_pass("radiosity", 0, integrator_params={"refine_levels": 1, "solver": 1})
     product = cornell.scene_pass("radiosity", 0, threads=2, integrator_params={"element_size": 150.0})
     with pytest.raises(ValueError, match="another scene or element_size"):
         render(cornell, "radiosity", {"element_size": 120.0}, 1, product=product)

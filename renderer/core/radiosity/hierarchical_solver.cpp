@@ -1,5 +1,7 @@
 #include "hierarchical_solver.h"
 
+#include <stdexcept>
+
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
@@ -249,6 +251,9 @@ public:
 }  // namespace
 
 RadiositySolution SolveHierarchical(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings) {
+    if (mesh.refined())
+        throw std::invalid_argument("the hierarchical radiosity solver refines its own links: refine_levels needs "
+                                    "solver 0 (progressive) or 2 (stochastic)");
     const auto& el = mesh.elements();
     RadiositySolution sol;
     sol.radiosity.assign(2 * el.size(), Color(0.f));

@@ -41,6 +41,12 @@ struct RadiositySettings {
     // Stochastic: rays of the first shot per element (later shots in proportion to the
     // power still unshot).
     float rays_per_element = 1024.f;
+    // Adaptive meshing: after each solve, the uniform cells with an element whose display
+    // vertices differ from it by more than refine_tolerance of the larger of the two (and
+    // of a tenth of the mean) are halved, and the scene is solved again, refine_levels
+    // times at most (radiosity_product.cpp).
+    uint32_t refine_levels = 0;
+    float refine_tolerance = 0.25f;
     // The shutter instant the solution holds (a moving scene solves one per time slice);
     // every ray and element of the solve sees the scene then.
     float shutter_time = 0.5f;

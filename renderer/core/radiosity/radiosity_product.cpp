@@ -4,6 +4,7 @@
 #include "stochastic_solver.h"
 #include "shutter_slices.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <mutex>
@@ -14,8 +15,9 @@ namespace tessera {
 namespace {
 
 // The product: an outer header naming the time slices, then one block per slice, each a
-// Header and its four arrays.
-constexpr char kMagic[4] = {'T', 'R', 'A', '2'};
+// Header, the mesh's refinement (each element's quadtree depth, one byte, when refined) and
+// its four arrays.
+constexpr char kMagic[4] = {'T', 'R', 'A', '3'};
 struct OuterHeader {
     char magic[4];
     uint32_t time_slices;
@@ -28,6 +30,8 @@ struct Header {
     uint32_t shots;
     float relative_residual;  // unshot / entered power at the end
     uint32_t converged;
+    uint32_t cells;           // uniform cells of the mesh
+    uint32_t depth_bytes;     // 0 (not refined) or elements: each leaf's depth (radiosity_mesh.h)
 };
 // Default element size as a fraction of the scene's bounding diameter (unit-free).
 constexpr float kDefaultElementOfDiameter = 1.f / 10.f;
@@ -55,6 +59,11 @@ const std::vector<IntegratorParam>& RadiosityParams() {
                "4096 elements, stochastic above"},
     {"rays_per_element", "stochastic solver: rays of the first shot per element; later shots in proportion to the "
                          "power left unshot (default 1024)"},
+    {"refine_levels", "adaptive meshing: rounds of halving the cells where the radiosity varies fast (an element "
+                      "differs from one of its display vertices by more than refine_tolerance of the larger), each "
+                      "followed by a new solve; 0 to 3 (default 0; not with solver 1)"},
+    {"refine_tolerance", "adaptive meshing's threshold, relative to the local radiosity and at least a tenth of the "
+                         "mean (default 0.25)"},
     {"time_slices", "with motion blur, the shutter's slices: one solution per slice, at its middle instant, "
                     "read by the camera samples in it (default 8; 1 to 255)"},
     };
@@ -84,6 +93,17 @@ RadiositySettings RadiositySettingsFrom(const IntegratorSettings& s, const Scene
     r.rays_per_element = s.Param("rays_per_element", r.rays_per_element);
     if (!(r.rays_per_element >= 1.f && r.rays_per_element <= 1e6f))
         throw std::invalid_argument(std::string(who) + " rays_per_element must be a number from 1 to 1e6");
+    const float levels = s.Param("refine_levels", 0.f);
+    if (!(levels >= 0.f && levels <= float(RadiosityMesh::kMaxDepth) && levels == std::floor(levels)))
+        throw std::invalid_argument(std::string(who) + " refine_levels must be a whole number from 0 to " +
+                                    std::to_string(RadiosityMesh::kMaxDepth));
+    r.refine_levels = uint32_t(levels);
+    if (r.refine_levels > 0 && r.solver == RadiositySolver::kHierarchical)
+        throw std::invalid_argument(std::string(who) + " refine_levels needs solver 0 (progressive) or 2 (stochastic): "
+                                                       "the hierarchical solver refines its own links");
+    r.refine_tolerance = s.Param("refine_tolerance", r.refine_tolerance);
+    if (!(r.refine_tolerance > 0.f && r.refine_tolerance < 10.f))
+        throw std::invalid_argument(std::string(who) + " refine_tolerance must be a number in (0, 10)");
     r.time_slices = TimeSlicesSetting(s, who, 8.f);
     return r;
 }
@@ -96,17 +116,21 @@ bool RadiosityInterpolates(const IntegratorSettings& s, const char* who, bool by
 
 namespace {
 
-// One slice's block: the mesh and solution at settings.shutter_time.
-void AppendSlice(const Scene& scene, const RadiositySettings& settings, std::string* out) {
-    const ShutterTimeScope instant(settings.shutter_time);  // the mesh and the calling thread's rays
-    const RadiosityMesh mesh(scene, settings.element_size);
+RadiositySolution SolveOn(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings) {
     RadiositySolver solver = settings.solver;
     if (solver == RadiositySolver::kAuto)
         solver = mesh.elements().size() > RadiositySettings::kAutoStochasticElements ? RadiositySolver::kStochastic
                                                                                      : RadiositySolver::kProgressive;
-    const RadiositySolution sol = solver == RadiositySolver::kHierarchical ? SolveHierarchical(scene, mesh, settings)
-                                  : solver == RadiositySolver::kStochastic ? SolveStochastic(scene, mesh, settings)
-                                                                            : SolveProgressive(scene, mesh, settings);
+    return solver == RadiositySolver::kHierarchical ? SolveHierarchical(scene, mesh, settings)
+           : solver == RadiositySolver::kStochastic ? SolveStochastic(scene, mesh, settings)
+                                                     : SolveProgressive(scene, mesh, settings);
+}
+
+// One slice's block: the mesh and solution at settings.shutter_time.
+void AppendSlice(const Scene& scene, const RadiositySettings& settings, std::string* out) {
+    const SolvedRadiosity solved = SolveRadiosity(scene, settings);
+    const RadiosityMesh& mesh = *solved.mesh;
+    const RadiositySolution& sol = solved.solution;
     const std::vector<Color> reflected = ReflectedRadiosity(mesh, sol);
     Header h{};
     std::memcpy(h.magic, kSliceMagic, 4);
@@ -115,9 +139,12 @@ void AppendSlice(const Scene& scene, const RadiositySettings& settings, std::str
     h.shots = sol.shots;
     h.relative_residual = sol.entered_power > 0.0 && !sol.residual.empty() ? float(sol.residual.back() / sol.entered_power) : 0.f;
     h.converged = sol.converged;
+    h.cells = uint32_t(mesh.num_cells());
+    h.depth_bytes = mesh.refined() ? h.elements : 0;
     const size_t at = out->size();
-    out->resize(at + sizeof(Header));
+    out->resize(at + sizeof(Header) + h.depth_bytes);
     std::memcpy(out->data() + at, &h, sizeof(Header));
+    if (h.depth_bytes) std::memcpy(out->data() + at + sizeof(Header), mesh.leaf_depth().data(), h.depth_bytes);
     Append(out, reflected);
     Append(out, sol.direct);
     Append(out, mesh.VertexAverage(reflected));
@@ -125,6 +152,60 @@ void AppendSlice(const Scene& scene, const RadiositySettings& settings, std::str
 }
 
 }  // namespace
+
+std::vector<uint8_t> RefinedDepths(const RadiosityMesh& mesh, const RadiositySolution& solution, float tolerance) {
+    const std::vector<RadiosityElement>& el = mesh.elements();
+    const std::vector<Color> reflected = ReflectedRadiosity(mesh, solution);
+    const std::vector<Color> vertex = mesh.VertexAverage(reflected);
+    const std::vector<Color> vertex_direct = mesh.VertexAverage(solution.direct);
+    double sum = 0.0, area = 0.0;
+    for (size_t k = 0; k < reflected.size(); ++k) {
+        const float b = Luminance(reflected[k]);
+        if (b > 0.f) sum += double(b) * el[k / 2].area, area += el[k / 2].area;
+    }
+    if (!(area > 0.0)) return {};
+    // Relative to the local radiosity, so a shadow's edge counts in a dim room as in a bright
+    // one, but not below a tenth of the mean, where the solvers' noise would drive it.
+    const float floor = float(0.1 * sum / area);
+    std::vector<uint8_t> depth;
+    depth.reserve(el.size());
+    bool changed = false;
+    for (size_t e = 0; e < el.size(); ++e) {
+        const uint8_t d = mesh.refined() ? mesh.leaf_depth()[e] : 0;
+        bool split = false;
+        for (int side = 0; side < 2 && !split && d < RadiosityMesh::kMaxDepth && el[e].emitter == Scene::kNoEmitter;
+             ++side) {
+            const float b = Luminance(reflected[2 * e + side]), bd = Luminance(solution.direct[2 * e + side]);
+            for (int k = 0; k < 3; ++k) {
+                const uint32_t vk = 2 * el[e].vertex[k] + side;
+                const float v = Luminance(vertex[vk]), vd = Luminance(vertex_direct[vk]);
+                if (std::max(std::abs(v - b), std::abs(vd - bd)) > tolerance * std::max({b, v, floor})) split = true;
+            }
+        }
+        if (split) {
+            depth.insert(depth.end(), 4, uint8_t(d + 1));
+            changed = true;
+        } else {
+            depth.push_back(d);
+        }
+        if (depth.size() > RadiosityMesh::kMaxElements) return {};
+    }
+    return changed ? depth : std::vector<uint8_t>{};
+}
+
+SolvedRadiosity SolveRadiosity(const Scene& scene, const RadiositySettings& settings) {
+    const ShutterTimeScope instant(settings.shutter_time);  // the mesh and the calling thread's rays
+    SolvedRadiosity out;
+    out.mesh = std::make_unique<RadiosityMesh>(scene, settings.element_size);
+    out.solution = SolveOn(scene, *out.mesh, settings);
+    for (uint32_t level = 0; level < settings.refine_levels; ++level) {
+        std::vector<uint8_t> depth = RefinedDepths(*out.mesh, out.solution, settings.refine_tolerance);
+        if (depth.empty()) break;
+        out.mesh = std::make_unique<RadiosityMesh>(scene, settings.element_size, depth);
+        out.solution = SolveOn(scene, *out.mesh, settings);
+    }
+    return out;
+}
 
 std::string SolveRadiosityProduct(const Scene& scene, const RadiositySettings& settings) {
     OuterHeader outer{};
@@ -173,14 +254,22 @@ std::shared_ptr<const RadiosityLookup::Slices> Parse(const Scene& scene, float e
             throw std::invalid_argument(std::string(who) + ": the scene product is truncated");
         std::memcpy(&h, product.data() + at, sizeof(Header));
         const ShutterTimeScope instant(ShutterSlices{outer.time_slices}.Middle(k));  // the slice's own mesh
-        auto data = std::make_unique<RadiosityLookup::Data>(scene, element_size);
         const size_t ne = 2 * size_t(h.elements), nv = 2 * size_t(h.vertices);
-        const size_t bytes = sizeof(Header) + (2 * ne + 2 * nv) * sizeof(Color);
-        if (h.elements != data->mesh.elements().size() || h.vertices != data->mesh.num_vertices() ||
-            product.size() - at < bytes)
+        const size_t bytes = sizeof(Header) + h.depth_bytes + (2 * ne + 2 * nv) * sizeof(Color);
+        if (product.size() - at < bytes) throw std::invalid_argument(std::string(who) + ": the scene product is truncated");
+        std::vector<uint8_t> depth(h.depth_bytes);
+        if (h.depth_bytes) std::memcpy(depth.data(), product.data() + at + sizeof(Header), h.depth_bytes);
+        std::unique_ptr<RadiosityLookup::Data> data;
+        try {
+            data = std::make_unique<RadiosityLookup::Data>(scene, element_size, depth);
+        } catch (const std::invalid_argument&) {
+            data.reset();  // refinement depths of another mesh
+        }
+        if (!data || h.elements != data->mesh.elements().size() || h.vertices != data->mesh.num_vertices() ||
+            h.cells != data->mesh.num_cells())
             throw std::invalid_argument(std::string(who) +
                                         ": the scene product is a radiosity solution of another scene or element_size");
-        const char* p = product.data() + at + sizeof(Header);
+        const char* p = product.data() + at + sizeof(Header) + h.depth_bytes;
         auto read = [&](std::vector<Color>* v, size_t count) {
             v->resize(count);
             if (count) std::memcpy(v->data(), p, count * sizeof(Color));

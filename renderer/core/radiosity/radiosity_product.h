@@ -33,6 +33,19 @@ bool RadiosityInterpolates(const IntegratorSettings& s, const char* who, bool by
 // Solves and encodes: what RunScenePass of both integrators returns.
 std::string SolveRadiosityProduct(const Scene& scene, const RadiositySettings& settings);
 
+// The solve behind it, at settings.shutter_time: the chosen solver on the uniform mesh,
+// then refine_levels rounds of adaptive refinement (each re-meshes and solves again).
+struct SolvedRadiosity {
+    std::unique_ptr<RadiosityMesh> mesh;
+    RadiositySolution solution;
+};
+SolvedRadiosity SolveRadiosity(const Scene& scene, const RadiositySettings& settings);
+// The leaf depths of the next round's mesh: every element one of whose display vertices
+// differs from it by more than `tolerance` of the larger of the two (or of a tenth of the
+// mean reflected radiosity) is split in four. Empty when nothing changes or
+// kMaxElements would be passed.
+std::vector<uint8_t> RefinedDepths(const RadiosityMesh& mesh, const RadiositySolution& solution, float tolerance);
+
 // A tile's view of a product: the radiosity leaving a surface point.
 class RadiosityLookup {
 public:
@@ -44,7 +57,8 @@ public:
 
     // One time slice's mesh (built at its instant) and solution.
     struct Data {
-        Data(const Scene& scene, float element_size) : mesh(scene, element_size) {}
+        Data(const Scene& scene, float element_size, const std::vector<uint8_t>& leaf_depth)
+            : mesh(scene, element_size, leaf_depth) {}
         RadiosityMesh mesh;
         std::vector<Color> element_reflected, element_direct, vertex_reflected, vertex_direct;
     };

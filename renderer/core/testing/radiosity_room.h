@@ -1,6 +1,7 @@
 // A room for the radiosity solvers' tests: a 2 x 2 x 2 box of coloured walls lit by a small
 // area light under its ceiling, with a grey blocker halfway up that shadows most of the
 // floor (lit only in the blocker's penumbra), meshed at element size 0.4 (808 elements).
+// Get() is the room of coloured walls (0.7, 0.5, 0.3); other wall albedos build their own.
 #pragma once
 
 #include <cmath>
@@ -18,9 +19,11 @@ struct RadiosityRoom {
 
     static constexpr float kElementSize = 0.4f;
     static const RadiosityRoom& Get() {
-        static const RadiosityRoom room;
+        static const RadiosityRoom room(tessera::Color(0.7f, 0.5f, 0.3f));
         return room;
     }
+    explicit RadiosityRoom(tessera::Color wall_albedo)
+        : desc(Describe(wall_albedo)), scene(desc), mesh(scene, kElementSize) {}
     // Settings of a solve of the room (2 threads).
     static tessera::RadiositySettings Settings(float tolerance) {
         tessera::RadiositySettings s;
@@ -50,17 +53,16 @@ struct RadiosityRoom {
     }
 
 private:
-    static tessera::SceneDesc Describe() {
+    static tessera::SceneDesc Describe(tessera::Color wall_albedo) {
         using tessera::Color;
         tessera::SceneDesc d;
-        AddInwardBox(d, {0, 0, 0}, {2, 2, 2}, AddMaterial(d, Color(0.7f, 0.5f, 0.3f), Color(0.f)));
+        AddInwardBox(d, {0, 0, 0}, {2, 2, 2}, AddMaterial(d, wall_albedo, Color(0.f)));
         const uint32_t light = AddMaterial(d, Color(0.f), Color(10.f));
         AddQuad(d, {0.8f, 1.99f, 0.8f}, {1.2f, 1.99f, 0.8f}, {1.2f, 1.99f, 1.2f}, {0.8f, 1.99f, 1.2f}, light);
         const uint32_t grey = AddMaterial(d, Color(0.6f), Color(0.f));
         AddQuad(d, {0.5f, 1.f, 0.5f}, {0.5f, 1.f, 1.5f}, {1.5f, 1.f, 1.5f}, {1.5f, 1.f, 0.5f}, grey);
         return d;
     }
-    RadiosityRoom() : desc(Describe()), scene(desc), mesh(scene, kElementSize) {}
 };
 
 }  // namespace tessera_test
