@@ -46,7 +46,7 @@ struct RadiositySettings {
     // of a tenth of the mean) are halved, and the scene is solved again, refine_levels
     // times at most (radiosity_product.cpp).
     uint32_t refine_levels = 0;
-    float refine_tolerance = 0.25f;
+    float refine_tolerance = 0.1f;
     // The shutter instant the solution holds (a moving scene solves one per time slice);
     // every ray and element of the solve sees the scene then.
     float shutter_time = 0.5f;

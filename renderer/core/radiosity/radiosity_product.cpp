@@ -63,7 +63,7 @@ const std::vector<IntegratorParam>& RadiosityParams() {
                       "differs from one of its display vertices by more than refine_tolerance of the larger), each "
                       "followed by a new solve; 0 to 3 (default 0; not with solver 1)"},
     {"refine_tolerance", "adaptive meshing's threshold, relative to the local radiosity and at least a tenth of the "
-                         "mean (default 0.25)"},
+                         "mean (default 0.1)"},
     {"time_slices", "with motion blur, the shutter's slices: one solution per slice, at its middle instant, "
                     "read by the camera samples in it (default 8; 1 to 255)"},
     };
