@@ -20,8 +20,9 @@
 namespace tessera {
 
 enum class RadiositySolver : uint8_t {
-    // kProgressive up to kAutoStochasticElements elements, kStochastic above (the
-    // progressive solver's form factors are O(n^2): 12 s at 4096 Cornell elements).
+    // kStochastic above kAutoStochasticElements elements (the progressive solver's form
+    // factors are O(n^2): 12 s at 4096 Cornell elements) or when the scene has delta
+    // surfaces (only the stochastic solver carries light across them); else kProgressive.
     kAuto,
     kProgressive,   // Southwell shooting with form factors (SolveProgressive)
     kHierarchical,  // BF-refined links (hierarchical_solver.h)

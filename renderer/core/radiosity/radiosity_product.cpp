@@ -55,8 +55,8 @@ const std::vector<IntegratorParam>& RadiosityParams() {
     {"interpolate", "1: radiosity interpolated from the element vertices; 0: constant per element (default 1 for "
                     "radiosity's display, 0 for hybrid's gather)"},
     {"solver", "0: progressive refinement, Southwell shooting; 1: hierarchical, BF-refined links; 2: stochastic, "
-               "shooting by ray casting (no form factors: for 10^5 triangles and more); default: progressive up to "
-               "4096 elements, stochastic above"},
+               "shooting by ray casting (no form factors: for 10^5 triangles and more; carries light across mirrors "
+               "and glass); default: stochastic above 4096 elements or with mirrors or glass, else progressive"},
     {"rays_per_element", "stochastic solver: rays of the first shot per element; later shots in proportion to the "
                          "power left unshot (default 1024)"},
     {"refine_levels", "adaptive meshing: rounds of halving the cells where the radiosity varies fast (an element "
@@ -119,8 +119,9 @@ namespace {
 RadiositySolution SolveOn(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings) {
     RadiositySolver solver = settings.solver;
     if (solver == RadiositySolver::kAuto)
-        solver = mesh.elements().size() > RadiositySettings::kAutoStochasticElements ? RadiositySolver::kStochastic
-                                                                                     : RadiositySolver::kProgressive;
+        solver = mesh.elements().size() > RadiositySettings::kAutoStochasticElements || scene.has_delta_surfaces()
+                     ? RadiositySolver::kStochastic
+                     : RadiositySolver::kProgressive;
     return solver == RadiositySolver::kHierarchical ? SolveHierarchical(scene, mesh, settings)
            : solver == RadiositySolver::kStochastic ? SolveStochastic(scene, mesh, settings)
                                                      : SolveProgressive(scene, mesh, settings);

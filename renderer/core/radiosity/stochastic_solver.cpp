@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 
 #include "sampler.h"
 #include "sampling.h"
@@ -18,6 +19,8 @@ namespace {
 // pixels and past the light gathering's (2^41, progressive_solver.cpp).
 constexpr uint64_t kShootStreamBase = uint64_t(3) << 41;
 constexpr uint32_t kShootStream = 16;  // + the iteration
+// Specular bounces a shooting ray may take before it is dropped.
+constexpr int kMaxSpecularBounces = 16;
 // Rays per parallel chunk and per block whose deposits are merged (in ray order) before
 // the next block is traced: bounded memory, and sums that no thread count changes.
 constexpr uint64_t kChunkRays = 4096;
@@ -70,6 +73,7 @@ std::vector<Color> Shoot(const Scene& scene, const RadiosityMesh& mesh, const Ra
     *cast += count;
 
     const float eps = 1e-4f * std::max(1.f, scene.scene_radius());
+    const bool through_delta = scene.has_delta_surfaces();
     const uint64_t chunks = (count + kChunkRays - 1) / kChunkRays;
     std::vector<std::vector<Deposit>> deposits(kBlockChunks);
     for (uint64_t block = 0; block < chunks; block += kBlockChunks) {
@@ -94,13 +98,41 @@ std::vector<Color> Shoot(const Scene& scene, const RadiosityMesh& mesh, const Ra
                         const Vec3 b = SampleUniformTriangle(sampler.Get2D());
                         const Vec3 p = e.p[0] * b.x + e.p[1] * b.y + e.p[2] * b.z;
                         const Vec3 d = Frame::FromZ(ns).FromLocal(SampleCosineHemisphere(sampler.Get2D()));
+                        Ray ray{p + ns * eps, d};
+                        Color power = sh.ray_power;
                         SurfaceHit hit;
-                        if (!scene.Intersect(Ray{p + ns * eps, d}, &hit)) continue;
+                        bool landed = false;
+                        // Across surfaces with only delta lobes (smooth mirrors, clear glass) the
+                        // ray goes on as their BSDF sends it: Wallace's extended form factors,
+                        // sampled, so the light a mirror or a glass sphere throws onto a wall
+                        // is in the solution.
+                        for (int bounce = 0; bounce <= kMaxSpecularBounces; ++bounce) {
+                            if (!scene.Intersect(ray, &hit)) break;
+                            if (!through_delta) {
+                                landed = true;
+                                break;
+                            }
+                            const BSDF bsdf = scene.BSDFAt(hit, TransportMode::Importance);
+                            if (bsdf.IsNonSpecular() || !bsdf.HasDelta()) {
+                                landed = true;
+                                break;
+                            }
+                            const Frame frame = Frame::FromZ(hit.ns);
+                            const Vec3 wo = -ray.d, wo_local = frame.ToLocal(wo);
+                            const float uc = sampler.Get1D();
+                            const std::optional<BSDFSample> bs = bsdf.Sample_f(wo_local, uc, sampler.Get2D());
+                            if (!bs || !(bs->pdf > 0.f) || IsBlack(bs->f)) break;
+                            const Vec3 wi = Normalize(frame.FromLocal(bs->wi));
+                            if (!SidesAgree(wo, wi, hit.ng, wo_local, bs->wi)) break;
+                            power = power * bs->f * (std::abs(bs->wi.z) / bs->pdf);
+                            ray = {OffsetRayOrigin(hit.p, hit.p_error, hit.ng, wi), wi};
+                        }
+                        if (!landed) continue;
                         float w[3];
                         const int32_t j = mesh.Locate(hit, w);
                         if (j < 0 || IsBlack(el[j].rho) || !(el[j].area > 0.f)) continue;
-                        const uint32_t side = Dot(d, el[j].n) < 0.f ? 0u : 1u;
-                        out.push_back({2 * uint32_t(j) + side, el[j].rho * sh.ray_power});
+                        const uint32_t side = Dot(ray.d, el[j].n) < 0.f ? 0u : 1u;
+                        out.push_back({2 * uint32_t(j) + side, el[j].rho * power});
                     }
                 }
             });

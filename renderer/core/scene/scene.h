@@ -321,6 +321,13 @@ public:
     template <typename Visit>
     void ForEachEnvironmentLight(Vec3 dir, Visit&& visit) const;
     bool has_environment() const { return !environment_lights_.empty(); }
+    // Some material has a delta lobe (a smooth mirror, clear glass): transport radiosity's
+    // form factors do not carry (radiosity_product.cpp picks the stochastic solver then).
+    bool has_delta_surfaces() const {
+        for (const BSDF& b : material_bsdfs_)
+            if (b.HasDelta()) return true;
+        return false;
+    }
 
     // Every triangle a ray can hit, world mesh first, then each instance's, in a fixed order
     // (the radiosity mesher's input): visit(mesh, prim, instance, world corners, sign), the
