@@ -7,7 +7,7 @@
 #include <cstdio>
 
 #include "hierarchical_solver.h"
-#include "radiosity_room.h"
+#include "radiosity_scenes.h"
 #include "scene_helpers.h"
 
 namespace {
@@ -19,19 +19,12 @@ constexpr float kPi = 3.14159265358979323846f;
 
 TEST(HierarchicalRadiosity, ClosedBoxGivesEOverOneMinusRho) {
     for (float rho : {0.5f, 0.8f}) {
-        SceneDesc desc;
-        const float Le = 2.f;
-        AddInwardBox(desc, {0, 0, 0}, {1, 1.5f, 2}, AddMaterial(desc, Color(rho), Color(Le)));
-        const Scene scene(desc);
         // Every wall is a source here, so the BF oracle refines nearly everywhere: larger
         // elements than the progressive test's keep the links (and the time) in bounds.
-        const RadiosityMesh mesh(scene, 0.5f);
-        RadiositySettings s;
-        s.element_size = 0.5f;
-        s.tolerance = 1e-4f;
-        s.threads = 2;
-        const RadiositySolution sol = SolveHierarchical(scene, mesh, s);
-        const double want = kPi * Le / (1.0 - rho);
+        const FurnaceBox box(rho, 0.5f);
+        const RadiosityMesh& mesh = box.mesh;
+        const RadiositySolution sol = SolveHierarchical(box.scene, mesh, box.settings);
+        const double want = kPi * FurnaceBox::kLe / (1.0 - rho);
         double worst = 0.0;
         for (size_t e = 0; e < mesh.elements().size(); ++e)
             worst = std::max(worst, std::abs(sol.radiosity[2 * e].y / want - 1.0));
@@ -41,7 +34,7 @@ TEST(HierarchicalRadiosity, ClosedBoxGivesEOverOneMinusRho) {
     }
 }
 
-// The room (radiosity_room.h), per wall: the area-weighted mean radiosity of the
+// The room (radiosity_scenes.h), per wall: the area-weighted mean radiosity of the
 // hierarchical solution against the progressive one, at two oracle tolerances. Both
 // solvers take an element's factor with the same estimator, so what separates them is the
 // hierarchy: links above the elements, and leaves (8 per wall edge) finer than the

@@ -54,6 +54,15 @@ Color GatherIrradiance(const Scene& scene, Vec3 x, Vec3 n, const std::vector<uin
     return irradiance / float(std::max(1u, samples));
 }
 
+RadiositySolution ZeroSolution(size_t elements) {
+    RadiositySolution sol;
+    sol.radiosity.assign(2 * elements, Color(0.f));
+    sol.direct.assign(2 * elements, Color(0.f));
+    sol.unshot.assign(2 * elements, Color(0.f));
+    sol.converged = elements == 0;
+    return sol;
+}
+
 void GatherUnmeshedDirect(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings,
                           tbb::task_arena& arena, RadiositySolution* sol) {
     const std::vector<uint32_t> other_lights = UnmeshedLights(scene, mesh);
@@ -100,14 +109,8 @@ void SetAmbient(const RadiosityMesh& mesh, RadiositySolution* sol) {
 RadiositySolution SolveProgressive(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings) {
     const std::vector<RadiosityElement>& el = mesh.elements();
     const size_t n = el.size();
-    RadiositySolution sol;
-    sol.radiosity.assign(2 * n, Color(0.f));
-    sol.direct.assign(2 * n, Color(0.f));
-    sol.unshot.assign(2 * n, Color(0.f));
-    if (n == 0) {
-        sol.converged = true;
-        return sol;
-    }
+    RadiositySolution sol = ZeroSolution(n);
+    if (n == 0) return sol;
     const float eps = 1e-4f * std::max(1.f, scene.scene_radius());
     tbb::task_arena arena(settings.threads > 0 ? settings.threads : tbb::this_task_arena::max_concurrency());
 

@@ -80,6 +80,8 @@ Color GatherIrradiance(const Scene& scene, Vec3 x, Vec3 n, const std::vector<uin
 
 RadiositySolution SolveProgressive(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings);
 
+// A solution of `elements` elements with every array zeroed (converged when empty).
+RadiositySolution ZeroSolution(size_t elements);
 // Step 1a of every shooting solver: each element side's reflected irradiance from the
 // unmeshed lights goes into sol's radiosity, direct and unshot (which must be zeroed).
 void GatherUnmeshedDirect(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings,

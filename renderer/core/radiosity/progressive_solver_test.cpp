@@ -11,6 +11,7 @@
 
 #include "progressive_solver.h"
 #include "radiosity_mesh.h"
+#include "radiosity_scenes.h"
 #include "scene_helpers.h"
 
 namespace {
@@ -22,23 +23,13 @@ constexpr float kPi = 3.14159265358979323846f;
 
 // Mean relative error of B on the front sides against E / (1 - rho_expected).
 double BoxError(float rho, float rho_expected, float tolerance, RadiositySolution* out = nullptr) {
-    SceneDesc desc;
-    const float Le = 2.f;
-    AddInwardBox(desc, {0, 0, 0}, {1, 1.5f, 2}, AddMaterial(desc, Color(rho), Color(Le)));
-    const Scene scene(desc);
-    const RadiosityMesh mesh(scene, 0.3f);
-    RadiositySettings s;
-    s.element_size = 0.3f;
-    s.tolerance = tolerance;
-    s.threads = 2;
-    const RadiositySolution sol = SolveProgressive(scene, mesh, s);
-    const std::vector<Color> reflected = ReflectedRadiosity(mesh, sol);
-    const double want = kPi * Le / (1.0 - rho_expected);
+    FurnaceBox box(rho, 0.3f);
+    box.settings.tolerance = tolerance;
+    const RadiositySolution sol = SolveProgressive(box.scene, box.mesh, box.settings);
+    const std::vector<Color> reflected = ReflectedRadiosity(box.mesh, sol);
+    const double want = kPi * FurnaceBox::kLe / (1.0 - rho_expected);
     double worst = 0.0;
-    for (size_t e = 0; e < mesh.elements().size(); ++e) {
-        const double b = reflected[2 * e].y + mesh.elements()[e].emission[0].y;
-        worst = std::max(worst, std::abs(b / want - 1.0));
-    }
+    for (size_t e = 0; e < box.mesh.elements().size(); ++e) worst = std::max(worst, std::abs(box.B(reflected, e) / want - 1.0));
     if (out) *out = sol;
     return worst;
 }

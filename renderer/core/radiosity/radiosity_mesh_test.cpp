@@ -1,4 +1,4 @@
-// The radiosity mesh's adaptive refinement, on the room with a blocker (radiosity_room.h):
+// The radiosity mesh's adaptive refinement, on the room with a blocker (radiosity_scenes.h):
 // the display's direct light on the floor, point by point, against a reference computed
 // here without the renderer; and the display's continuity where refined cells meet coarse
 // ones (hanging vertices).
@@ -9,7 +9,7 @@
 #include <cstdio>
 
 #include "radiosity_product.h"
-#include "radiosity_room.h"
+#include "radiosity_scenes.h"
 #include "stochastic_solver.h"
 
 namespace {

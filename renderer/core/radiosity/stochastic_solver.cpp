@@ -150,14 +150,8 @@ std::vector<Color> Shoot(const Scene& scene, const RadiosityMesh& mesh, const Ra
 RadiositySolution SolveStochastic(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings) {
     const std::vector<RadiosityElement>& el = mesh.elements();
     const size_t n = el.size();
-    RadiositySolution sol;
-    sol.radiosity.assign(2 * n, Color(0.f));
-    sol.direct.assign(2 * n, Color(0.f));
-    sol.unshot.assign(2 * n, Color(0.f));
-    if (n == 0) {
-        sol.converged = true;
-        return sol;
-    }
+    RadiositySolution sol = ZeroSolution(n);
+    if (n == 0) return sol;
     tbb::task_arena arena(settings.threads > 0 ? settings.threads : tbb::this_task_arena::max_concurrency());
     GatherUnmeshedDirect(scene, mesh, settings, arena, &sol);
 

@@ -7,7 +7,7 @@
 #include <cstdio>
 #include <cstring>
 
-#include "radiosity_room.h"
+#include "radiosity_scenes.h"
 #include "scene_helpers.h"
 #include "stochastic_solver.h"
 
@@ -26,24 +26,16 @@ struct BoxResult {
     double rms_error;   // root mean square of the per-element relative errors
 };
 BoxResult Box(float rho, float rho_expected, uint32_t seed) {
-    SceneDesc desc;
-    const float Le = 2.f;
-    AddInwardBox(desc, {0, 0, 0}, {1, 1.5f, 2}, AddMaterial(desc, Color(rho), Color(Le)));
-    const Scene scene(desc);
-    const RadiosityMesh mesh(scene, 0.3f);
-    RadiositySettings s;
-    s.element_size = 0.3f;
-    s.tolerance = 1e-4f;
-    s.threads = 2;
-    s.seed = seed;
-    const RadiositySolution sol = SolveStochastic(scene, mesh, s);
+    FurnaceBox box(rho, 0.3f);
+    box.settings.seed = seed;
+    const RadiositySolution sol = SolveStochastic(box.scene, box.mesh, box.settings);
     EXPECT_TRUE(sol.converged);
-    const std::vector<Color> reflected = ReflectedRadiosity(mesh, sol);
-    const double want = kPi * Le / (1.0 - rho_expected);
+    const std::vector<Color> reflected = ReflectedRadiosity(box.mesh, sol);
+    const double want = kPi * FurnaceBox::kLe / (1.0 - rho_expected);
     double sum = 0.0, area = 0.0, sq = 0.0;
-    const auto& el = mesh.elements();
+    const auto& el = box.mesh.elements();
     for (size_t e = 0; e < el.size(); ++e) {
-        const double b = reflected[2 * e].y + el[e].emission[0].y;
+        const double b = box.B(reflected, e);
         sum += b * el[e].area;
         area += el[e].area;
         sq += (b / want - 1.0) * (b / want - 1.0);

@@ -1,4 +1,5 @@
-// A room for the radiosity solvers' tests: a 2 x 2 x 2 box of coloured walls lit by a small
+// Scenes the radiosity solvers' tests share: the closed furnace box (FurnaceBox, below) and
+// a room, a 2 x 2 x 2 box of coloured walls lit by a small
 // area light under its ceiling, with a grey blocker halfway up that shadows most of the
 // floor (lit only in the blocker's penumbra), meshed at element size 0.4 (808 elements).
 // Get() is the room of coloured walls (0.7, 0.5, 0.3); other wall albedos build their own.
@@ -8,6 +9,7 @@
 #include <vector>
 
 #include "progressive_solver.h"
+#include "radiosity_mesh.h"
 #include "scene_helpers.h"
 
 namespace tessera_test {
@@ -61,6 +63,34 @@ private:
         AddQuad(d, {0.8f, 1.99f, 0.8f}, {1.2f, 1.99f, 0.8f}, {1.2f, 1.99f, 1.2f}, {0.8f, 1.99f, 1.2f}, light);
         const uint32_t grey = AddMaterial(d, Color(0.6f), Color(0.f));
         AddQuad(d, {0.5f, 1.f, 0.5f}, {0.5f, 1.f, 1.5f}, {1.5f, 1.f, 1.5f}, {1.5f, 1.f, 0.5f}, grey);
+        return d;
+    }
+};
+
+// The furnace: a closed 1 x 1.5 x 2 box of albedo rho whose every wall emits Le = 2, so
+// B = E / (1 - rho) = pi Le / (1 - rho) everywhere; meshed at `element_size`.
+struct FurnaceBox {
+    static constexpr float kLe = 2.f;
+    tessera::SceneDesc desc;
+    tessera::Scene scene;
+    tessera::RadiosityMesh mesh;
+    tessera::RadiositySettings settings;  // element_size, 2 threads, tolerance 1e-4
+
+    FurnaceBox(float rho, float element_size)
+        : desc(Describe(rho)), scene(desc), mesh(scene, element_size) {
+        settings.element_size = element_size;
+        settings.tolerance = 1e-4f;
+        settings.threads = 2;
+    }
+    // B on element e's front side (W m^-2) from a solution's reflected radiosity.
+    double B(const std::vector<tessera::Color>& reflected, size_t e) const {
+        return reflected[2 * e].y + mesh.elements()[e].emission[0].y;
+    }
+
+private:
+    static tessera::SceneDesc Describe(float rho) {
+        tessera::SceneDesc d;
+        AddInwardBox(d, {0, 0, 0}, {1, 1.5f, 2}, AddMaterial(d, tessera::Color(rho), tessera::Color(kLe)));
         return d;
     }
 };
