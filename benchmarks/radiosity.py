@@ -49,7 +49,7 @@ NOTE = ("For the hierarchical solver, \"residual\" is the last Jacobi change rel
         "(tests/renderer/test_radiosity.py; docs/integrators.md, \"Hierarchical solver\"). The issue's target of 25 frames/s at 256 x 256 on 2 threads "
         "was met (152 frames/s by wall clock with the machine idle, load 0.4; 17 frames/s while seven helpers shared "
         "its 2 cores, load 14). The stochastic solver's rays cost O(rays), not O(element pairs): it is the default "
-        "above 4096 elements.")
+        "above 4096 elements and in scenes with mirrors or glass, whose light only it carries.")
 
 CHILD = r"""
 import dataclasses, json, struct, sys, time
