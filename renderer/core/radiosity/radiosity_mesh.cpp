@@ -98,8 +98,6 @@ RadiosityMesh::RadiosityMesh(const Scene& scene, float target_size, const std::v
     if (refined()) FindHangingVertices();
     vertex_index_.clear();
     reflectance_.clear();
-    source_normal_.clear();
-    source_normal_.shrink_to_fit();
 }
 
 namespace {
@@ -195,7 +193,6 @@ void RadiosityMesh::AddSource(const Scene& scene, uint32_t mesh, uint32_t prim, 
     const Vec3 cross = Cross(e1, e2) * sign;
     const float len = Length(cross);
     const Vec3 ng = len > 0.f ? cross / len : Vec3(0.f, 0.f, 1.f);
-    source_normal_.push_back(ng);
 
     SurfaceHit hit;
     hit.geom_id = Scene::kTriangleGeometry;
@@ -267,28 +264,22 @@ void RadiosityMesh::FindHangingVertices() {
     // Probe every leaf edge at the finest spacing a neighbour could have; a vertex found
     // there belongs to a finer neighbour and hangs on this edge.
     std::vector<std::pair<uint8_t, HangingVertex>> found;
-    for (size_t s = 0; s < source_list_.size(); ++s) {
-        const SourceTriangle& src = source_list_[s];
-        for (uint32_t cell = 0; cell < src.n * src.n; ++cell) {
-            const size_t global = size_t(src.first) + cell;
-            for (size_t e = CellFirst(global); e < CellFirst(global + 1); ++e) {
-                const uint8_t d = leaf_depth_[e];
-                if (d == kMaxDepth) continue;
-                const uint32_t parts = 1u << (kMaxDepth - d);
-                const RadiosityElement& el = elements_[e];
-                for (int k = 0; k < 3; ++k) {
-                    const Vec3 P = el.p[k], Q = el.p[(k + 1) % 3];
-                    for (uint32_t i = 1; i < parts; ++i) {
-                        const float t = float(i) / float(parts);
-                        const int64_t v = FindVertex(P + (Q - P) * t, source_normal_[s]);
-                        if (v < 0 || uint32_t(v) == el.vertex[k] || uint32_t(v) == el.vertex[(k + 1) % 3]) continue;
-                        found.push_back({d, {uint32_t(v), el.vertex[k], el.vertex[(k + 1) % 3], t}});
-                    }
-                }
+    for (size_t e = 0; e < elements_.size(); ++e) {
+        const uint8_t d = leaf_depth_[e];
+        if (d == kMaxDepth) continue;
+        const uint32_t parts = 1u << (kMaxDepth - d);
+        const RadiosityElement& el = elements_[e];
+        for (int k = 0; k < 3; ++k) {
+            const Vec3 P = el.p[k], Q = el.p[(k + 1) % 3];
+            const uint32_t a = el.vertex[k], b = el.vertex[(k + 1) % 3];
+            for (uint32_t i = 1; i < parts; ++i) {
+                const float t = float(i) / float(parts);
+                const int64_t v = FindVertex(P + (Q - P) * t, el.n);
+                if (v >= 0 && uint32_t(v) != a && uint32_t(v) != b) found.push_back({d, {uint32_t(v), a, b, t}});
             }
         }
     }
-    std::stable_sort(found.begin(), found.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+    std::stable_sort(found.begin(), found.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
     hanging_.reserve(found.size());
     for (const auto& f : found) hanging_.push_back(f.second);
 }

@@ -93,7 +93,6 @@ private:
 
     std::vector<RadiosityElement> elements_;
     std::vector<SourceTriangle> source_list_;
-    std::vector<Vec3> source_normal_;  // facing normal per source (only while building)
     std::vector<uint8_t> leaf_depth_;
     std::vector<uint8_t> leaf_offset_;  // per element: its first finest cell in its cell (preorder)
     std::vector<uint32_t> cell_first_;  // num_cells_ + 1 entries when refined
