@@ -2,7 +2,8 @@
 //
 // Scene pass: a global map (every landing of `photons` photon paths on a non-specular
 // surface) and a caustic map (the landings of `caustic_photons` more paths after one or
-// more specular scatterings only: L S+ D). Tile pass: the camera ray follows delta lobes
+// more specular scatterings only: L S+ D; all of them aimed at the delta surfaces, which
+// every such path crosses: photon_map.h). Tile pass: the camera ray follows delta lobes
 // to the visible points (visible_point.h); at each the outgoing radiance is split by the
 // last scattering of the light arriving there:
 //   - from a light directly (L D E): next event estimation;
@@ -84,7 +85,8 @@ public:
             TracePhotons(scene, seed, stream, photons_, max_depth_, PhotonFilter{}, global_slices, threads);
         std::vector<StoredPhoton> caustic =
             TracePhotons(scene, seed, stream + 1, caustic_photons_, max_depth_,
-                         PhotonFilter{.min_bounces = 1, .caustic_only = true}, caustic_slices, threads);
+                         PhotonFilter{.min_bounces = 1, .caustic_only = true}, caustic_slices, threads,
+                         /*specular_aim=*/1.f);
         for (StoredPhoton& ph : global) ph.radius = radius_;
         for (StoredPhoton& ph : caustic) ph.radius = caustic_radius_;
         std::string bytes = PhotonProductBegin(kMagic, iteration, 2);

@@ -12,6 +12,7 @@
 #include "bsdf.h"
 #include "integrator.h"
 #include "sampler.h"
+#include "sampling.h"
 
 namespace tessera {
 
@@ -74,11 +75,42 @@ void Read(std::string_view data, size_t* offset, T* dst, size_t count, std::stri
     *offset += bytes;
 }
 
+// Jensen's projection maps as a one-sample mixture: with probability `aim` the photon
+// leaves in a direction drawn uniformly from the cone that the delta surfaces' bounding
+// sphere subtends at es->p, else in the light's own direction; its throughput is then
+// Le |cos| / (pdf_pos ((1 - aim) pdf_light + aim pdf_cone)), so the map's expectation is
+// unchanged. A caustic-only map may aim every photon (aim = 1): each of its paths starts
+// L S and so crosses the sphere. False: the photon carries nothing.
+bool AimEmission(const Scene& scene, uint32_t light, float aim, float u_aim, Vec2 u_dir, EmissionSample* es) {
+    const float r = scene.delta_surfaces_radius();
+    if (es->infinite || !(r > 0.f)) return true;
+    const Vec3 to_center = scene.delta_surfaces_center() - es->p;
+    const float d2 = LengthSquared(to_center);
+    if (d2 <= r * r) return true;  // inside the bound every direction may meet a delta surface
+    const float sin2_max = r * r / d2, one_minus_cos = ConeOneMinusCos(sin2_max);
+    const Frame cone = Frame::FromZ(to_center / std::sqrt(d2));
+    const Vec3 w = u_aim < aim ? Normalize(cone.FromLocal(SampleUniformCone(u_dir, one_minus_cos))) : es->wo;
+    Color Le_cos;
+    float pdf_light = 0.f;
+    if (!scene.EmissionToward(light, *es, w, &Le_cos, &pdf_light)) return true;
+    // In the cone, by its sine (exact for small cones), with a margin for the sampled
+    // direction's rounding: a band of relative width 1e-3 at the cone's rim.
+    const float cos_axis = Dot(w, cone.n);
+    const bool in_cone = cos_axis > 0.f && LengthSquared(Cross(w, cone.n)) <= sin2_max * (1.f + 1e-3f);
+    const float pdf = (1.f - aim) * pdf_light + (in_cone ? aim / (2.f * kPi * one_minus_cos) : 0.f);
+    if (!(pdf > 0.f) || IsBlack(Le_cos)) return false;
+    es->wo = w;
+    es->beta = Le_cos / (es->pdf_pos * pdf);
+    return true;
+}
+
 }  // namespace
 
 std::vector<StoredPhoton> TracePhotons(const Scene& scene, uint32_t seed, uint64_t stream, uint32_t paths,
-                                       int max_depth, const PhotonFilter& filter, ShutterSlices slices, int threads) {
+                                       int max_depth, const PhotonFilter& filter, ShutterSlices slices, int threads,
+                                       float specular_aim) {
     const LightSampler& lights = scene.light_sampler();
+    const bool aiming = specular_aim > 0.f && scene.delta_surfaces_radius() > 0.f;
     if (lights.empty() || paths == 0) return {};
     // 1 / n_b per slice (a still scene's one slice: 1 / paths).
     std::vector<float> inv_slice_paths(slices.count);
@@ -95,6 +127,7 @@ std::vector<StoredPhoton> TracePhotons(const Scene& scene, uint32_t seed, uint64
         const float u_side = sampler.Get1D();
         EmissionSample es;
         if (!scene.SampleEmission(light, u_pos, u_dir, u_side, &es) || !(pmf > 0.f)) return;
+        if (aiming && !AimEmission(scene, light, specular_aim, sampler.Get1D(), u_dir, &es)) return;
         Color beta = es.beta * (inv_slice_paths[slice] / pmf);
         Ray ray{es.on_surface ? OffsetRayOrigin(es.p, es.p_error, es.n, es.wo) : es.p, es.wo};
         bool all_specular = true;

@@ -51,9 +51,12 @@ struct PhotonFilter {
 // of `slices`, and its photons carry power Phi / n_b (n_b = paths, K = 1, without motion).
 // Path i draws from its own sampler stream keyed by (seed, stream, i), so the result does
 // not depend on `threads`. Paths scatter by BSDF sampling (Importance mode) with Russian
-// roulette, up to max_depth scatterings.
+// roulette, up to max_depth scatterings. A fraction `specular_aim` of the photons (in
+// [0, 1]) leaves toward the scene's delta surfaces (Scene::delta_surfaces_radius; none: no
+// effect), weighted so the expectation is the same: caustics get that many more photons.
 std::vector<StoredPhoton> TracePhotons(const Scene& scene, uint32_t seed, uint64_t stream, uint32_t paths,
-                                       int max_depth, const PhotonFilter& filter, ShutterSlices slices, int threads);
+                                       int max_depth, const PhotonFilter& filter, ShutterSlices slices, int threads,
+                                       float specular_aim = 0.f);
 
 // One map of a product, parsed. Lookups need radius <= cell().
 class PhotonGrid {

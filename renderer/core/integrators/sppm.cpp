@@ -38,6 +38,9 @@ namespace {
 constexpr float kDefaultPhotons = 100000.f;
 constexpr float kDefaultRadiusOfDiameter = 0.01f;
 constexpr float kDefaultAlpha = 2.f / 3.f;
+// Half the photons aimed at the delta surfaces (when there are any): a small glass object
+// then gets a good share of them, the rest of the scene keeps half.
+constexpr float kDefaultAim = 0.5f;
 // The most photons one iteration's product holds (27 bytes each, stored in Redis); past
 // it an iteration holds fewer batches than its samples' weight and convergence slows.
 constexpr uint64_t kMaxPhotonsPerIteration = 10'000'000;
@@ -46,9 +49,10 @@ constexpr char kMagic[] = "TSP2";
 
 class SPPMIntegrator final : public Integrator {
 public:
-    SPPMIntegrator(int max_depth, uint32_t photons, float radius, float alpha, uint32_t time_slices,
+    SPPMIntegrator(int max_depth, uint32_t photons, float radius, float alpha, float aim, uint32_t time_slices,
                    const std::string& product)
-        : max_depth_(max_depth), photons_(photons), radius_(radius), alpha_(alpha), time_slices_(time_slices) {
+        : max_depth_(max_depth), photons_(photons), radius_(radius), alpha_(alpha), aim_(aim),
+          time_slices_(time_slices) {
         if (!product.empty()) {
             size_t offset = 0;
             PhotonProductParse(product, kMagic, 1, &offset, "sppm");
@@ -69,6 +73,8 @@ public:
                        {"radius", "first batch's disk-kernel radius in scene units (default: a hundredth of "
                                   "the scene's bounding diameter)"},
                        {"alpha", "radius reduction, 0 < alpha < 1: r_j = r_1 j^((alpha-1)/2) (default 2/3)"},
+                       {"aim", "share of photons aimed at the smooth mirrors and glass (a projection map), "
+                               "0 to 1 (default 0.5; no effect without such surfaces or with motion)"},
                        {"time_slices", "with motion blur, the first batch's slices of the shutter; a visible "
                                        "point merges with photons of its own slice (default 32)"}},
         };
@@ -96,7 +102,7 @@ public:
             PassShutterSlices(scene, time_slices_, std::pow(double(first), 0.5 * (1.0 - alpha_)), photons_);
         for (uint64_t j = first; j < first + count; ++j) {
             std::vector<StoredPhoton> batch =
-                TracePhotons(scene, seed, kPhotonStreamBase + j, photons_, max_depth_, filter, slices, threads);
+                TracePhotons(scene, seed, kPhotonStreamBase + j, photons_, max_depth_, filter, slices, threads, aim_);
             const float r = float(BatchRadius(j));
             for (StoredPhoton& ph : batch) {
                 ph.power = ph.power / float(count);  // the iteration averages its batches
@@ -123,7 +129,7 @@ public:
 private:
     int max_depth_;
     uint32_t photons_;
-    float radius_, alpha_;
+    float radius_, alpha_, aim_;
     uint32_t time_slices_;  // K_1
     PhotonGrid map_;
 };
@@ -140,7 +146,12 @@ IntegratorEntry SPPMIntegratorEntry() {
                     throw std::invalid_argument("sppm radius must be a finite number > 0");
                 const float alpha = s.Param("alpha", kDefaultAlpha);
                 if (!(alpha > 0.f && alpha < 1.f)) throw std::invalid_argument("sppm alpha must be between 0 and 1 (exclusive)");
-                return std::make_unique<SPPMIntegrator>(s.max_depth, uint32_t(photons), radius, alpha,
+                const float aim = s.Param("aim", kDefaultAim);
+                if (!(aim >= 0.f && aim <= 1.f)) throw std::invalid_argument("sppm aim must be between 0 and 1");
+                if (aim == 1.f)  // photons would reach only what the delta surfaces send
+                    throw std::invalid_argument("sppm aim must be below 1: the photons would skip every path that "
+                                                "does not start at a mirror or glass");
+                return std::make_unique<SPPMIntegrator>(s.max_depth, uint32_t(photons), radius, alpha, aim,
                                                         TimeSlicesSetting(s, "sppm"), s.scene_product);
             }};
 }

@@ -39,6 +39,7 @@ struct EmissionSample {
     Vec3 n;                   // that surface's normal on the emitting side
     // The factors of beta, for bidirectional MIS: beta = Le |cos| / (pdf_pos pdf_dir).
     Color Le;                 // radiance (intensity for points, irradiance for delta-distant)
+    Color Le_unshaped;        // area lights: Le before the emitter's directional shaping
     float pdf_pos = 0.f;      // area density (1 for points; the bounding disk's for infinity)
     float pdf_dir = 0.f;      // solid-angle density (1 for delta-distant)
     bool infinite = false;    // a light at infinity: p is on the bounding disk, not the light

@@ -94,6 +94,11 @@ Scene::Scene(const SceneDesc& desc)
             material_bsdfs_.push_back(!pv ? BSDF(DiffuseBSDF(materials_[m].albedo))
                                       : material_has_textures_.back() ? BSDF()
                                                                       : MakePreviewSurfaceBSDF(*pv, mode));
+        // A textured material may have a delta lobe where a texture sets its roughness to 0.
+        const auto& tex = materials_[m].textures;
+        material_may_have_delta_.push_back(
+            pv && (MakePreviewSurfaceBSDF(*pv, TransportMode::Radiance).HasDelta() ||
+                   (material_has_textures_.back() && (tex[kSlotRoughness] >= 0 || tex[kSlotClearcoatRoughness] >= 0))));
     }
     for (size_t s = 0; s < spheres_.size(); ++s)
         if (!IsFinite(spheres_[s].center) || !(spheres_[s].radius > 0.f) || !std::isfinite(spheres_[s].radius) ||
@@ -122,6 +127,35 @@ Scene::Scene(const SceneDesc& desc)
         ReleaseEmbree();
         throw;
     }
+    BoundDeltaSurfaces();
+}
+
+void Scene::BoundDeltaSurfaces() {
+    if (has_motion() || !has_delta_surfaces()) return;
+    for (uint32_t m : curve_material_)
+        if (material_may_have_delta_[m]) return;  // not bounded here: photons are not aimed then
+    auto is_delta = [&](uint32_t mesh, uint32_t prim) {
+        return material_may_have_delta_[meshes_[mesh].material[prim]] != 0;
+    };
+    constexpr float kInf = std::numeric_limits<float>::infinity();
+    Vec3 lo(kInf, kInf, kInf), hi(-kInf, -kInf, -kInf);
+    ForEachTriangle([&](uint32_t mesh, uint32_t prim, uint32_t, const Vec3* p, float) {
+        if (!is_delta(mesh, prim)) return;
+        for (int k = 0; k < 3; ++k) {
+            lo = Vec3(std::min(lo.x, p[k].x), std::min(lo.y, p[k].y), std::min(lo.z, p[k].z));
+            hi = Vec3(std::max(hi.x, p[k].x), std::max(hi.y, p[k].y), std::max(hi.z, p[k].z));
+        }
+    });
+    if (!(lo.x <= hi.x)) return;  // the delta materials are on curves or unused
+    const Vec3 c = (lo + hi) * 0.5f;
+    float r2 = 0.f;
+    ForEachTriangle([&](uint32_t mesh, uint32_t prim, uint32_t, const Vec3* p, float) {
+        if (!is_delta(mesh, prim)) return;
+        for (int k = 0; k < 3; ++k) r2 = std::max(r2, LengthSquared(p[k] - c));
+    });
+    delta_center_ = c;
+    // Slightly beyond the farthest corner, so rounding never leaves a corner outside.
+    delta_radius_ = std::sqrt(r2) * (1.f + 1e-4f) + 1e-6f * (MaxAbsComponent(c) + 1.f);
 }
 
 // Round linear curves: each segment a cone between two spheres (Embree 3), the whole

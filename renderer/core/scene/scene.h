@@ -302,6 +302,12 @@ public:
     // lights at infinity: a direction, then a point on the scene's bounding disk across it.
     bool SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_side, EmissionSample* out) const;
 
+    // Emission sample `es` of a finite light, had it left toward w instead of es.wo: the
+    // numerator Le(w) |cos| of its throughput (a point light's intensity I(w)) and
+    // SampleEmission's direction density of w (photon emission aimed elsewhere weighs
+    // itself by the mixture). False for lights at infinity.
+    bool EmissionToward(uint32_t emitter, const EmissionSample& es, Vec3 w, Color* Le_cos, float* pdf_dir) const;
+
     // Densities of SampleEmission, for bidirectional MIS.
     // Direction: a finite light at a point with normal n (zero for points) emitting toward w.
     float EmissionPdfDirection(uint32_t emitter, Vec3 n, Vec3 w) const;
@@ -324,10 +330,17 @@ public:
     // Some material has a delta lobe (a smooth mirror, clear glass): transport radiosity's
     // form factors do not carry (radiosity_product.cpp picks the stochastic solver then).
     bool has_delta_surfaces() const {
-        for (const BSDF& b : material_bsdfs_)
-            if (b.HasDelta()) return true;
+        for (uint8_t d : material_may_have_delta_)
+            if (d) return true;
         return false;
     }
+
+    // A sphere around every triangle whose material has a delta lobe, where photons are
+    // aimed (Jensen's projection maps): every light path that starts L S crosses it.
+    // Radius 0 when there is none, or when something moves (the bound would have to hold
+    // over the whole shutter).
+    Vec3 delta_surfaces_center() const { return delta_center_; }
+    float delta_surfaces_radius() const { return delta_radius_; }
 
     // Every triangle a ray can hit, world mesh first, then each instance's, in a fixed order
     // (the radiosity mesher's input): visit(mesh, prim, instance, world corners, sign), the
@@ -347,6 +360,7 @@ public:
 
 private:
     void BuildGeometryAndLights(const SceneDesc& desc);
+    void BoundDeltaSurfaces();
     void ReleaseEmbree() noexcept;
     struct Emitter {
         LightKind kind = LightKind::kTriangle;
@@ -464,6 +478,7 @@ private:
     std::vector<uint8_t> material_is_cutout_;
     std::vector<uint8_t> material_has_textures_;  // some slot other than -1: evaluate per hit
     std::vector<BSDF> material_bsdfs_;  // [2 m + mode]: the BSDF of an untextured material m
+    std::vector<uint8_t> material_may_have_delta_;  // some hit of the material has a delta lobe
     bool has_cutouts_ = false;
     std::vector<Material> materials_;
     std::vector<LightShaping> emission_shapings_;
@@ -482,6 +497,8 @@ private:
     LightMotion dome_motion_;
     std::vector<float> light_motion_m_;
     Vec3 scene_center_;
+    Vec3 delta_center_;
+    float delta_radius_ = 0.f;
     float scene_radius_ = 1.f;
     int splat_exponent_ = 0;  // bounding sphere: the power of lights at infinity
     std::vector<Emitter> emitters_;

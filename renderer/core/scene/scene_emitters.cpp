@@ -104,6 +104,7 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
                     u_pos, u_dir, u_side,
                     [&](float b1, float b2) { return TriangleEmission(e.mesh, e.index, b1, b2); }, out))
                 return false;
+            out->Le_unshaped = out->Le;
             const Material& m = MaterialOf(e.mesh, e.index);
             if (m.emission_shaping >= 0) {  // out->n is the side it leaves from
                 const Color f = EmissionShaping(m, out->n, out->wo);
@@ -112,7 +113,10 @@ bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_sid
             }
             return true;
         }
-        case LightKind::kSphere: return SphereAt(e.index).SampleEmission(u_pos, u_dir, e.area, out);
+        case LightKind::kSphere:
+            if (!SphereAt(e.index).SampleEmission(u_pos, u_dir, e.area, out)) return false;
+            out->Le_unshaped = out->Le;
+            return true;
         case LightKind::kPoint: {
             if (!points_[e.index].SampleEmission(u_dir, out)) return false;
             LightFrame f;
@@ -159,6 +163,40 @@ float Scene::EmissionPdfDirection(uint32_t emitter, Vec3 n, Vec3 w) const {
         }
     }
     return 0.f;
+}
+
+bool Scene::EmissionToward(uint32_t emitter, const EmissionSample& es, Vec3 w, Color* Le_cos, float* pdf_dir) const {
+    const Emitter& e = emitters_[emitter];
+    *Le_cos = Color(0.f);
+    *pdf_dir = 0.f;
+    switch (e.kind) {
+        case LightKind::kSphere: {
+            const float c = Dot(es.n, w);
+            *pdf_dir = SphereLight::PdfDirection(es.n, w);
+            if (c > 0.f) *Le_cos = es.Le_unshaped * c;
+            return true;
+        }
+        case LightKind::kTriangle: {
+            const Material& m = MaterialOf(e.mesh, e.index);
+            *pdf_dir = TriangleLightPdfDirection(m.two_sided_emission, es.n, w);
+            const float c = Dot(es.n, w);
+            if (!(c > 0.f) && !(m.two_sided_emission && c < 0.f)) return true;
+            const Vec3 side = c > 0.f ? es.n : -es.n;
+            const Color Le = m.emission_shaping < 0 ? es.Le_unshaped : es.Le_unshaped * EmissionShaping(m, side, w);
+            *Le_cos = Le * std::abs(c);
+            return true;
+        }
+        case LightKind::kPoint: {
+            LightFrame f;
+            f.m = EmitterMotionAt(e, f.m_scratch, f.n);
+            *pdf_dir = PointLight::PdfDirection();
+            *Le_cos = points_[e.index].intensity * points_[e.index].shaping.Factor(f.ToLightDir(w));
+            return true;
+        }
+        case LightKind::kDistant:
+        case LightKind::kDome: return false;
+    }
+    return false;
 }
 
 float Scene::EmissionPdfPosition(uint32_t emitter) const {
