@@ -456,6 +456,7 @@ NB_MODULE(_core, m) {
             "(its first point; it ends at the next), curve_flags uint8 (1: a segment before it on the same "
             "curve, 2: one after it) and curve_material uint32.")
         .def_prop_ro("has_motion", &Scene::has_motion)
+        .def_prop_ro("has_delta_surfaces", &Scene::has_delta_surfaces)
         .def_prop_ro("num_triangles", &Scene::num_triangles)
         .def_prop_ro("num_curve_segments", &Scene::num_curve_segments)
         .def_prop_ro("num_emitters", &Scene::num_emitters)

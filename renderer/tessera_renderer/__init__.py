@@ -149,6 +149,11 @@ class Scene:
             return name
         return _core.auto_integrator(self.has_delta_caustics())
 
+    def has_delta_surfaces(self) -> bool:
+        """Some material may have a delta lobe (a smooth mirror, clear glass): where photon
+        merging (vcm, sppm) earns its cost, and where sppm aims its photons."""
+        return bool(self._core.has_delta_surfaces)
+
     def has_delta_caustics(self) -> bool:
         """Whether a delta light (point, or distant with angle 0) can shine through or off a
         material that forms caustics (transmission, or a metal/clearcoat smoother than

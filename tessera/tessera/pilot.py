@@ -9,10 +9,21 @@ pilot renders each candidate `PILOT_REPEATS` times (different seeds, interleaved
 repeats, var / (m^2 + 0.01) with m the median of all candidates' pilot images there (the
 measure relMSE uses, with a scale no candidate's fireflies inflate), averaged over the image.
 
-Candidates are the integrators `auto` chooses between (`path`, `bdpt`). A scene whose
-caustics path tracing cannot reach at all (a delta light through glass or off a smooth
-metal: Scene.has_delta_caustics) leaves `bdpt` alone: path's variance there is small
+Candidates are the integrators `auto` chooses between: `path` and `bdpt` always, and the
+photon-merging `vcm` and `sppm` when the scene has mirrors or glass (Scene.has_delta_surfaces:
+the caustics merging is for) and the render runs in passes (a noise target: merging
+integrators converge over iterations, and a fixed-spp render is one iteration). A scene
+whose caustics path tracing cannot reach at all (a delta light through glass or off a
+smooth metal: Scene.has_delta_caustics) leaves out `path`: its variance there is small
 because it misses that light, not because it is efficient.
+
+The pilot image is coarse, the render is not: a candidate's seconds are extrapolated to
+the render's size, its tile pass scaled by the pixel count and its scene pass (photons or
+light paths, whose cost does not depend on the image) added once. A merging integrator's
+efficiency is also multiplied by J^(alpha - 1), J the photon batches (sppm) or
+iterations (vcm) the render's passes hold at most: their radius shrinks, so their variance
+falls as J^(-alpha) rather than 1/J, and the pilot sees only the first. The rule's choices
+are checked against time to relMSE in docs/benchmarks/auto.md.
 
 The choice is measured, so it can differ between runs on different machines or loads:
 it is made once per render (locally, or by `tessera submit` before the job is sent, so
@@ -26,6 +37,9 @@ import time
 from dataclasses import asdict, dataclass, field
 
 CANDIDATES = ("path", "bdpt")
+MERGING_CANDIDATES = ("vcm", "sppm")
+# The radius exponents of the merging integrators' defaults (docs/integrators.md).
+MERGING_ALPHA = {"vcm": 0.75, "sppm": 2.0 / 3.0}
 PILOT_PIXELS = 64
 PILOT_SPP = 4
 PILOT_REPEATS = 4
@@ -34,9 +48,11 @@ PILOT_REPEATS = 4
 @dataclass
 class PilotRow:
     integrator: str
-    seconds: float        # mean seconds of one pilot image
+    seconds: float        # mean seconds of one pilot pass, extrapolated to the render's size
     rel_variance: float   # mean over pixels and channels of var / (mean^2 + 0.01), one image
-    efficiency: float     # 1 / (rel_variance x seconds)
+    efficiency: float     # handicap / (rel_variance x seconds)
+    scene_seconds: float = 0.0  # of `seconds`, the scene pass's
+    handicap: float = 1.0       # J^(alpha - 1) for merging integrators, else 1
 
 
 @dataclass
@@ -70,42 +86,80 @@ def pilot_size(width: int, height: int) -> tuple[int, int]:
     return max(8, round(width * scale)), max(8, round(height * scale))
 
 
+def candidates(scene, settings) -> tuple[str, ...]:
+    """The integrators the pilot measures for this scene and render (the module's rule)."""
+    merging = MERGING_CANDIDATES if settings.adaptive and scene.has_delta_surfaces() else ()
+    base = ("bdpt",) if scene.has_delta_caustics() else CANDIDATES
+    return base + merging
+
+
+def merging_iterations(integrator: str, settings) -> int:
+    """J: the photon batches (sppm) or iterations (vcm) the render's passes hold at most."""
+    from tessera_base.protocol import pass_range
+
+    passes = 0
+    while pass_range(settings, passes) is not None:
+        passes += 1
+    return max(1, settings.max_spp // settings.min_spp) if integrator == "sppm" else max(1, passes)
+
+
 def pilot_image(scene, integrator: str, w: int, h: int, spp: int, seed: int, max_depth: int, threads: int):
-    from tessera_base.film import assemble_image, render_tile_pass
+    """One pilot pass: (image, seconds of its scene pass, seconds of its tile pass)."""
+    from tessera_base import integrators
+    from tessera_base.film import assemble_image, render_tile_pass, run_scene_pass
     from tessera_base.protocol import RenderSettings, TileRect
 
     st = RenderSettings(width=w, height=h, spp=spp, seed=seed, max_depth=max_depth,
                         tile_size=max(8, w, h), integrator=integrator)
+    product, scene_seconds = None, 0.0
+    if integrators.scene_passes(integrator):
+        start = time.perf_counter()
+        product = run_scene_pass(scene, st, 0, integrator=integrator, threads=threads)
+        scene_seconds = time.perf_counter() - start
+    start = time.perf_counter()
     result, _ = render_tile_pass(scene, st, TileRect(index=0, x0=0, y0=0, width=w, height=h), 0,
-                                 integrator=integrator, threads=threads)
-    return assemble_image(st, {0: [result]}).rgba[..., :3]
+                                 integrator=integrator, threads=threads, scene_product=product)
+    image = assemble_image(st, {0: [result]}).rgba[..., :3]
+    return image, scene_seconds, time.perf_counter() - start
 
 
 def run_pilot(scene, settings, threads: int = 0) -> Pilot:
-    """Measures the candidates on `scene` (a tessera_renderer.Scene) for `settings`
-    (its width, height and max_depth) and returns the choice with the numbers."""
+    """Measures the candidates, each with its default settings, on `scene` (a
+    tessera_renderer.Scene) for `settings` (its size, max_depth and pass schedule) and
+    returns the choice with the numbers."""
     import numpy as np
 
     w, h = pilot_size(settings.width, settings.height)
-    if scene.has_delta_caustics():
+    names = candidates(scene, settings)
+    if names == ("bdpt",):
         return Pilot(choice="bdpt", size=(w, h), spp=0, repeats=0,
                      reason="a delta light lights a caustic path tracing cannot reach: bdpt without a pilot")
-    images: dict[str, list] = {c: [] for c in CANDIDATES}
-    seconds: dict[str, list[float]] = {c: [] for c in CANDIDATES}
-    for c in CANDIDATES:  # warm-up: first-call costs stay out of the timings
+    images: dict[str, list] = {c: [] for c in names}
+    scene_s: dict[str, list[float]] = {c: [] for c in names}
+    tile_s: dict[str, list[float]] = {c: [] for c in names}
+    for c in names:  # warm-up: first-call costs stay out of the timings
         pilot_image(scene, c, 8, 8, 1, 0, settings.max_depth, threads)
     for k in range(PILOT_REPEATS):
-        for c in CANDIDATES:
-            start = time.perf_counter()
-            img = pilot_image(scene, c, w, h, PILOT_SPP, 0x51107 + k, settings.max_depth, threads)
-            seconds[c].append(time.perf_counter() - start)
+        for c in names:
+            img, ts, tt = pilot_image(scene, c, w, h, PILOT_SPP, 0x51107 + k, settings.max_depth, threads)
+            scene_s[c].append(ts)
+            tile_s[c].append(tt)
             images[c].append(img.astype(np.float64))
-    rows = efficiencies(images, seconds)
-    return Pilot(choice=choose(rows), rows=rows, size=(w, h))
+    scale = settings.width * settings.height / (w * h)
+    seconds = {c: [a + b * scale for a, b in zip(scene_s[c], tile_s[c])] for c in names}
+    handicap = {c: merging_iterations(c, settings) ** (MERGING_ALPHA[c] - 1.0) if c in MERGING_ALPHA else 1.0
+                for c in names}
+    rows = efficiencies(images, seconds, handicap)
+    for r in rows:
+        r.scene_seconds = float(np.mean(scene_s[r.integrator]))
+    reason = "" if set(names) >= set(CANDIDATES) else "a delta light lights a caustic path tracing cannot reach"
+    return Pilot(choice=choose(rows), rows=rows, size=(w, h), reason=reason)
 
 
-def efficiencies(images: dict[str, list], seconds: dict[str, list[float]]) -> list[PilotRow]:
-    """Each candidate's row from its repeated images (same size, float64) and their seconds."""
+def efficiencies(images: dict[str, list], seconds: dict[str, list[float]],
+                 handicap: dict[str, float] | None = None) -> list[PilotRow]:
+    """Each candidate's row from its repeated images (same size, float64), their seconds
+    and its handicap (default 1)."""
     import numpy as np
 
     # The scale of each pixel: the median over every image of every candidate. A
@@ -115,5 +169,6 @@ def efficiencies(images: dict[str, list], seconds: dict[str, list[float]]) -> li
     for c in images:
         rel = float(np.mean(np.stack(images[c]).var(axis=0, ddof=1) / (scale ** 2 + 0.01)))
         t = float(np.mean(seconds[c]))
-        rows.append(PilotRow(c, t, rel, 1.0 / (rel * t) if rel > 0 and t > 0 else float("inf")))
+        k = (handicap or {}).get(c, 1.0)
+        rows.append(PilotRow(c, t, rel, k / (rel * t) if rel > 0 and t > 0 else float("inf"), handicap=k))
     return rows
