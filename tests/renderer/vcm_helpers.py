@@ -16,9 +16,12 @@ def render_iteration(scene, integrator: str, iteration: int, *, spp: int, seed: 
     """Iteration `iteration` of `integrator` over the whole image, or over the pixels of
     `crop` = (x0, y0, w, h) only (the rest of the frame then holds just the splats of the
     crop's light paths): samples [iteration * spp, (iteration + 1) * spp), splats resolved
-    by the light paths traced (one per pixel sample)."""
+    by the light paths traced (one per pixel sample). vcm traces one batch of light paths
+    an iteration (its `grow` = 0), as iterations of equal samples need."""
     w, h = width or scene.width, height or scene.height
     x0, y0, cw, ch = crop or (0, 0, w, h)
+    if integrator == "vcm":  # iterations of equal samples: one batch of light paths each (vcm's grow = 0)
+        params = {"grow": 0, **(params or {})}
     product = (scene.scene_pass(integrator, iteration, seed=seed, max_depth=max_depth, threads=threads,
                                 integrator_params=params) if integrator == "vcm" else None)
     splats = new_splat_buffer(w, h)

@@ -73,7 +73,8 @@ RenderOptions VCMOptions(uint32_t spp, float light_paths, float radius) {
     opt.seed = 7;
     opt.threads = 2;
     opt.integrator = "vcm";
-    opt.integrator_params = {{"light_paths", light_paths}, {"radius", radius}};
+    // Iterations of equal samples (IterationMeans): one batch of light paths each.
+    opt.integrator_params = {{"light_paths", light_paths}, {"radius", radius}, {"grow", 0.f}};
     return opt;
 }
 
