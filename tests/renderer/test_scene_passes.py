@@ -24,7 +24,7 @@ import pytest
 
 from conftest import CORNELL, api_client, child_pids, farm_image, start_worker, submit, wait_for_job
 from tessera import local
-from tessera_base.protocol import RenderSettings
+from tessera_base.protocol import RenderSettings, tile_grid
 from tessera_queue import redis_schema as rdb
 from tessera_queue import tasks as queue_tasks
 from tessera_renderer import load_scene
@@ -93,6 +93,12 @@ def test_farm_image_equals_local_and_each_product_is_computed_once(farm, redis_c
         digests = {fields[rdb.product_field(p).encode()] for p in range(ITERATIONS)}
         assert len(digests) == ITERATIONS  # every iteration has photons of its own
         assert redis_client.hlen(rdb.job_products_key(job)) == ITERATIONS
+        # Progress and the lockstep barriers count the grid's tiles (a scene-pass job starts
+        # with one scene task, which once made tiles_total 1: a barrier after every tile
+        # pass, all but the last dropped, and progress of "1 tile").
+        tiles = len(tile_grid(FORM["width"], FORM["height"], FORM["tile_size"]))
+        assert int(fields[b"tiles_total"]) == tiles == status["tiles_total"] == 4
+        assert int(fields[b"lockstep_tiles"]) == tiles * ITERATIONS
         # The scene pass matters: another photon count is another image.
         other = local_image(FORM, {**PARAMS, "photons": 10000})
         assert not np.array_equal(other, expected)
