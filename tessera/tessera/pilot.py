@@ -20,10 +20,12 @@ because it misses that light, not because it is efficient.
 The pilot image is coarse, the render is not: a candidate's seconds are extrapolated to
 the render's size, its tile pass scaled by the pixel count and its scene pass (photons or
 light paths, whose cost does not depend on the image) added once. A merging integrator's
-efficiency is also multiplied by J^(alpha - 1), J the photon batches (sppm) or
-iterations (vcm) the render's passes hold at most: their radius shrinks, so their variance
-falls as J^(-alpha) rather than 1/J, and the pilot sees only the first. The rule's choices
-are checked against time to relMSE in docs/benchmarks/auto.md.
+variance falls more slowly than 1/J over J passes: its radius shrinks from batch to batch,
+so it falls as J^(-alpha). To reach the render's noise target (relative variance
+eps = target_error^2) it needs J = (v / eps)^(1/alpha) passes where an unbiased one needs
+v / eps, so its efficiency is multiplied by the handicap J'^(1 - 1/alpha), J' = v / eps
+clamped to [1, the batches the render holds at most]. The rule's choices are checked
+against time to relMSE in docs/benchmarks/auto.md.
 
 The choice is measured, so it can differ between runs on different machines or loads:
 it is made once per render (locally, or by `tessera submit` before the job is sent, so
@@ -52,7 +54,7 @@ class PilotRow:
     rel_variance: float   # mean over pixels and channels of var / (mean^2 + 0.01), one image
     efficiency: float     # handicap / (rel_variance x seconds)
     scene_seconds: float = 0.0  # of `seconds`, the scene pass's
-    handicap: float = 1.0       # J^(alpha - 1) for merging integrators, else 1
+    handicap: float = 1.0       # J'^(1 - 1/alpha) for merging integrators, else 1
 
 
 @dataclass
@@ -93,14 +95,18 @@ def candidates(scene, settings) -> tuple[str, ...]:
     return base + merging
 
 
-def merging_iterations(integrator: str, settings) -> int:
-    """J: the photon batches (sppm) or iterations (vcm) the render's passes hold at most."""
-    from tessera_base.protocol import pass_range
+def merging_handicap(integrator: str, rel_variance: float, settings) -> float:
+    """The factor on a merging integrator's efficiency (the module's rule); 1 for others."""
+    if integrator not in MERGING_ALPHA or not settings.target_error:
+        return 1.0
+    passes = min(max(1.0, rel_variance / settings.target_error ** 2), float(merging_batches(settings)))
+    return passes ** (1.0 - 1.0 / MERGING_ALPHA[integrator])
 
-    passes = 0
-    while pass_range(settings, passes) is not None:
-        passes += 1
-    return max(1, settings.max_spp // settings.min_spp) if integrator == "sppm" else max(1, passes)
+
+def merging_batches(settings) -> int:
+    """J: the photon (sppm) or light-path (vcm) batches the render's passes hold at most,
+    one per first pass's worth of samples."""
+    return max(1, settings.max_spp // settings.min_spp)
 
 
 def pilot_image(scene, integrator: str, w: int, h: int, spp: int, seed: int, max_depth: int, threads: int):
@@ -147,11 +153,11 @@ def run_pilot(scene, settings, threads: int = 0) -> Pilot:
             images[c].append(img.astype(np.float64))
     scale = settings.width * settings.height / (w * h)
     seconds = {c: [a + b * scale for a, b in zip(scene_s[c], tile_s[c])] for c in names}
-    handicap = {c: merging_iterations(c, settings) ** (MERGING_ALPHA[c] - 1.0) if c in MERGING_ALPHA else 1.0
-                for c in names}
-    rows = efficiencies(images, seconds, handicap)
+    rows = efficiencies(images, seconds)
     for r in rows:
         r.scene_seconds = float(np.mean(scene_s[r.integrator]))
+        r.handicap = merging_handicap(r.integrator, r.rel_variance, settings)
+        r.efficiency *= r.handicap
     reason = "" if set(names) >= set(CANDIDATES) else "a delta light lights a caustic path tracing cannot reach"
     return Pilot(choice=choose(rows), rows=rows, size=(w, h), reason=reason)
 

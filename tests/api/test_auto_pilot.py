@@ -113,16 +113,22 @@ def test_merging_candidates_join_for_mirrors_or_glass_in_a_progressive_render(co
     assert candidates(cornell, progressive) == CANDIDATES
 
 
-def test_merging_handicap_counts_the_renders_batches_and_iterations():
-    """J for the handicap J^(alpha - 1): sppm's photon batches are the render's samples over
-    its first pass's (16 -> 1024: 64), vcm's iterations its passes (16, 32, ..., 1024: 7)."""
-    from tessera.pilot import merging_iterations
+def test_merging_handicap_is_the_slower_variance_decay_to_the_noise_target():
+    """A merging integrator needs (v / eps)^(1/alpha) passes to the target eps =
+    target_error^2 where an unbiased one needs v / eps: the handicap is (v / eps)^(1 -
+    1/alpha), the passes clamped to [1, the render's batches: max_spp / min_spp]."""
+    from tessera.pilot import merging_batches, merging_handicap
     from tessera_base.protocol import RenderSettings
 
-    st = RenderSettings(width=8, height=8, target_error=0.01, min_spp=16, max_spp=1024)
-    assert merging_iterations("sppm", st) == 64
-    assert merging_iterations("vcm", st) == 7
-    assert merging_iterations("vcm", st.model_copy(update={"max_spp": 2048})) == 8  # control: one pass more
+    st = RenderSettings(width=8, height=8, target_error=0.1, min_spp=16, max_spp=1024)
+    assert merging_batches(st) == 64
+    assert merging_batches(st.model_copy(update={"max_spp": 2048})) == 128  # control: one pass more
+    assert merging_handicap("sppm", 0.16, st) == pytest.approx(16 ** -0.5)
+    assert merging_handicap("vcm", 0.16, st) == pytest.approx(16 ** (1 - 4 / 3))
+    assert merging_handicap("sppm", 0.001, st) == 1.0          # reached in one pass
+    assert merging_handicap("sppm", 100.0, st) == pytest.approx(64 ** -0.5)  # the render stops at max_spp
+    assert merging_handicap("path", 100.0, st) == 1.0
+    assert merging_handicap("sppm", 0.16, st.model_copy(update={"target_error": None})) == 1.0
 
 
 def test_pilot_on_the_caustic_measures_merging_and_records_its_numbers():
@@ -131,7 +137,7 @@ def test_pilot_on_the_caustic_measures_merging_and_records_its_numbers():
     0.135 against 11: asserted 10x), and the recorded numbers give the recorded choice:
     efficiency = handicap / (rel_variance x seconds), seconds extrapolated to the render's
     size and holding the scene pass's."""
-    from tessera.pilot import MERGING_ALPHA, merging_iterations
+    from tessera.pilot import MERGING_ALPHA, merging_handicap
     from tessera_base.protocol import RenderSettings
     from tessera_renderer import load_scene
 
@@ -142,9 +148,10 @@ def test_pilot_on_the_caustic_measures_merging_and_records_its_numbers():
     assert list(rows) == ["path", "bdpt", "vcm", "sppm"]
     assert rows["path"].rel_variance > 10 * rows["sppm"].rel_variance, rows
     for name, r in rows.items():
-        expected = merging_iterations(name, st) ** (MERGING_ALPHA[name] - 1) if name in MERGING_ALPHA else 1.0
-        assert r.handicap == pytest.approx(expected)
+        assert r.handicap == pytest.approx(merging_handicap(name, r.rel_variance, st))
+        assert (r.handicap < 1) == (name in MERGING_ALPHA)
         assert r.efficiency == pytest.approx(r.handicap / (r.rel_variance * r.seconds))
         assert (r.scene_seconds > 0) == (name in MERGING_ALPHA) and r.seconds > r.scene_seconds
-    assert rows["sppm"].handicap == pytest.approx(64 ** (-1 / 3))
+    # target 1e-2: eps = 1e-4, so v / eps = 1350 passes, clamped to the render's 1024 / 16 = 64.
+    assert rows["sppm"].handicap == pytest.approx(min(rows["sppm"].rel_variance / 1e-4, 64) ** -0.5)
     assert p.choice == choose(p.rows)
