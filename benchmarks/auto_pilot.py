@@ -1,11 +1,16 @@
-"""`auto` by measurement: what the pilot chooses, against a much longer measurement.
+"""`auto` by measurement: what the pilot chooses, against time to relMSE 1e-2 measured by
+`tessera bench`.
 
     .venv/bin/python benchmarks/auto_pilot.py [--reps 3]
 
-For each scene, the pilot (tessera/tessera/pilot.py: 4 x 4 spp of each candidate at 64 px)
-runs `--reps` times; then the same efficiency, 1 / (relative variance x seconds), is
-measured with ~50 x the samples (8 seeds x 64 spp at 128 px, interleaved) as the check of
-which integrator really is faster there. Writes docs/benchmarks/auto.{md,json}.
+For each scene the pilot (tessera/tessera/pilot.py) runs `--reps` times for a render of the
+bench's own settings (64 x 64, passes of 1, 1, 2, ... up to 256 samples, so merging
+integrators are candidates where the scene has mirrors or glass); the check is which of
+its candidates reached relMSE 1e-2 first in the bench's runs: docs/benchmarks/caustics/
+(benchmarks/caustics.py: the caustic and the mirror scene, all five integrators, Mitsuba
+beside) and docs/benchmarks/error-vs-time.json (`tessera bench`: the Cornell box, path and
+bdpt). Writes docs/benchmarks/auto.{md,json}. The handicaps of the merging candidates
+are in the JSON rows.
 """
 from __future__ import annotations
 
@@ -18,23 +23,19 @@ import time
 import numpy as np
 from common import OUT, REPO
 
-SCENES = {"cornell": REPO / "examples" / "cornell" / "cornell.usda",
-          "caustic": REPO / "examples" / "caustic" / "caustic.usda",
-          "caustic-mirror": REPO / "examples" / "caustic" / "caustic_mirror.usda"}
+SCENES = {"cornell": (REPO / "examples" / "cornell" / "cornell.usda", OUT / "error-vs-time.json"),
+          "caustic": (REPO / "examples" / "caustic" / "caustic.usda", OUT / "caustics" / "error-vs-time.json"),
+          "caustic-mirror": (REPO / "examples" / "caustic" / "caustic_mirror.usda",
+                             OUT / "caustics" / "error-vs-time.json")}
 
 
-def long_measure(scene, res: int = 128, spp: int = 64, seeds: int = 8) -> dict:
-    from tessera.pilot import CANDIDATES, efficiencies, pilot_image
-
-    images = {c: [] for c in CANDIDATES}
-    seconds = {c: [] for c in CANDIDATES}
-    for k in range(seeds):
-        for c in CANDIDATES:
-            t = time.perf_counter()
-            images[c].append(pilot_image(scene, c, res, res, spp, 777 + k, 64, 2).astype(np.float64))
-            seconds[c].append(time.perf_counter() - t)
-    return {r.integrator: {"rel_variance": r.rel_variance, "seconds": r.seconds, "efficiency": r.efficiency}
-            for r in efficiencies(images, seconds)}
+def bench_times(name: str, results) -> dict[str, float]:
+    """Median seconds to relMSE 1e-2 of each Tessera integrator in the bench's results."""
+    if not results.is_file():
+        return {}
+    series = json.loads(results.read_text())["scenes"].get(name, {}).get("series", {})
+    return {s["integrator"]: s["time_to_0.01"]["median"] for s in series.values()
+            if s["renderer"] == "tessera" and "time_to_0.01" in s}
 
 
 def main() -> int:
@@ -45,36 +46,42 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--reps", type=int, default=3)
     args = ap.parse_args()
-    result = {"load_average": os.getloadavg()[0], "scenes": {}}
+    # A noise target of 0.1 is relMSE 1e-2, the bench's first target.
+    settings = RenderSettings(width=64, height=64, target_error=0.1, min_spp=1, max_spp=256)
+    result = {"load_average": os.getloadavg()[0], "settings": settings.model_dump(mode="json"), "scenes": {}}
     lines = ["# `auto` by measurement: the pilot's choice", "",
-             "Written by `benchmarks/auto_pilot.py`. The pilot (4 x 4 spp of `path` and `bdpt` at 64 px, "
-             "efficiency = 1 / (relative variance x seconds)) runs "
-             f"{args.reps} times per scene; the check measures the same efficiency with ~50 x the samples "
-             "(8 seeds x 64 spp at 128 px, interleaved). 2 threads.", "",
-             "| scene | pilot choices | pilot seconds | pilot efficiency path / bdpt | long efficiency path / bdpt "
-             "| faster by the long measurement |", "|---|---|---|---|---|---|"]
-    for name, path in SCENES.items():
+             "Written by `benchmarks/auto_pilot.py`. The pilot (4 x 4 spp of each candidate at 64 px, efficiency = "
+             "handicap / (relative variance x seconds at the render's size), tessera/tessera/pilot.py) runs "
+             f"{args.reps} times per scene for a render of the bench's settings: 64 x 64, passes of 1, 1, 2, ... "
+             "up to 256 samples, noise target 0.1 (relMSE 1e-2), so a merging integrator's handicap is "
+             "(v / 1e-2)^(1 - 1/alpha). The check is the bench's time to relMSE 1e-2 among the same candidates "
+             "(docs/benchmarks/caustics/ for the caustic scenes, docs/benchmarks/error-vs-time.json for the "
+             "Cornell box). 2 threads.", "",
+             "| scene | candidates | pilot choices | pilot seconds | pilot efficiency (median of runs) | bench: "
+             "seconds to relMSE 1e-2 | fastest by the bench |", "|---|---|---|---|---|---|---|"]
+    agree = 0
+    for name, (path, bench) in SCENES.items():
         scene = load_scene(path)
-        settings = RenderSettings(width=scene.width, height=scene.height)
         pilots = []
         for _ in range(args.reps):
             t = time.perf_counter()
             p = run_pilot(scene, settings, threads=2)
             pilots.append({"choice": p.choice, "seconds": time.perf_counter() - t,
                            "rows": [r.__dict__ for r in p.rows]})
-        long = long_measure(scene)
-        best = max(long, key=lambda c: long[c]["efficiency"])
-        result["scenes"][name] = {"pilots": pilots, "long": long, "long_choice": best}
-        ratio = [r0["efficiency"] / r1["efficiency"] for p in pilots for r0, r1 in [p["rows"]]]
-        lines.append(f"| {name} | {', '.join(p['choice'] for p in pilots)} | "
+        names = [r["integrator"] for r in pilots[0]["rows"]]
+        eff = {c: float(np.median([next(r["efficiency"] for r in p["rows"] if r["integrator"] == c)
+                                   for p in pilots])) for c in names}
+        times = {c: t for c, t in bench_times(name, bench).items() if c in names}
+        best = min(times, key=times.get) if times else "—"
+        agree += sum(p["choice"] == best for p in pilots)
+        result["scenes"][name] = {"pilots": pilots, "bench_seconds_to_1e-2": times, "bench_fastest": best}
+        lines.append(f"| {name} | {', '.join(names)} | {', '.join(p['choice'] for p in pilots)} | "
                      f"{np.median([p['seconds'] for p in pilots]):.2f} | "
-                     f"{', '.join(f'{x:.2f}' for x in ratio)} | "
-                     f"{long['path']['efficiency'] / long['bdpt']['efficiency']:.2f} | {best} |")
+                     f"{', '.join(f'{c} {e:.3g}' for c, e in eff.items())} | "
+                     f"{', '.join(f'{c} {t:.3g}' for c, t in times.items())} | {best} |")
         print(lines[-1], flush=True)
-    lines += ["", "A ratio above 1 means path is the more efficient. `tessera bench` measures the same "
-              "question by time to relMSE against a reference (docs/benchmarks/error-vs-time-results.md: "
-              "on the caustic bdpt reaches relMSE 1e-2 in 0.40 x path's time; on the Cornell box path is "
-              "faster).", "", f"Load average at the start: {result['load_average']:.2f} (2 shared vCPUs)."]
+    lines += ["", f"The pilot's choice is the bench's fastest in {agree} of {args.reps * len(SCENES)} runs.", "",
+              f"Load average at the start: {result['load_average']:.2f} (2 shared vCPUs)."]
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / "auto.json").write_text(json.dumps(result, indent=2) + "\n")
     (OUT / "auto.md").write_text("\n".join(lines) + "\n")

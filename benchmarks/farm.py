@@ -48,7 +48,8 @@ class Farm:
         self.redis_url = stack.enter_context(redis_server(workdir)).url
         self.redis = redis.Redis.from_url(self.redis_url)
         env = {k: v for k, v in os.environ.items() if not k.startswith("TESSERA_")}
-        env.update(TESSERA_REDIS_URL=self.redis_url, REDIS_URL=self.redis_url)
+        # No tokens: the benchmark's client is on the same host (loopback), as `tessera serve`.
+        env.update(TESSERA_REDIS_URL=self.redis_url, REDIS_URL=self.redis_url, TESSERA_ALLOW_ANONYMOUS_LOOPBACK="1")
         port = free_port()
         self.base = f"http://127.0.0.1:{port}"
         self.procs: list[subprocess.Popen] = []
