@@ -25,11 +25,7 @@ three times the final error on both scenes.
 """
 from __future__ import annotations
 
-import hashlib
 import math
-import os
-import tempfile
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -39,7 +35,7 @@ from tessera_base.protocol import RenderSettings, pass_range
 from tessera_renderer import load_scene
 from test_sppm_mirror import MAX_DEPTH, W, H
 from test_sppm_mirror import reference as mirror_reference
-from vcm_helpers import render_iteration  # the references' renders
+from vcm_helpers import cached_halves, render_iteration
 
 pytestmark = pytest.mark.slow
 
@@ -52,18 +48,9 @@ def reference(name: str) -> tuple[np.ndarray, np.ndarray]:
     if name == "mirror":  # the same reference as test_sppm_mirror.py's (one cache)
         return mirror_reference()
     path, integrator, spp = SCENES[name]
-    key = hashlib.sha256(path.read_bytes() + f"{W}x{H}:{integrator}:{spp}:{MAX_DEPTH}".encode()).hexdigest()[:16]
-    cache = Path(tempfile.gettempdir()) / f"tessera-test-{name}-ref-{key}.npz"
-    if cache.exists():
-        with np.load(cache) as f:
-            return f["a"], f["b"]
     scene = load_scene(str(path))
-    a, b = (render_iteration(scene, integrator, 0, spp=spp, seed=seed, max_depth=MAX_DEPTH, width=W,
-                             height=H)[..., :3].astype(np.float64) for seed in (101, 202))
-    tmp = cache.with_suffix(f".{os.getpid()}.npz")
-    np.savez(tmp, a=a, b=b)
-    os.replace(tmp, cache)
-    return a, b
+    return cached_halves(name, path, f"{W}x{H}:{integrator}:{spp}:{MAX_DEPTH}", lambda seed: render_iteration(
+        scene, integrator, 0, spp=spp, seed=seed, max_depth=MAX_DEPTH, width=W, height=H)[..., :3])
 
 
 def checkpoints(name: str, integrator: str, params: dict) -> list[np.ndarray]:

@@ -12,11 +12,7 @@ E[((a - b) / 2)^2], and the error of sppm is measured with that noise subtracted
 """
 from __future__ import annotations
 
-import hashlib
 import math
-import os
-import tempfile
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,6 +20,7 @@ import pytest
 from conftest import REPO
 from tessera_base.protocol import RenderSettings, pass_range
 from tessera_renderer import load_scene
+from vcm_helpers import cached_halves
 
 pytestmark = pytest.mark.slow
 
@@ -36,18 +33,10 @@ PARAMS = {"photons": 50000}
 
 
 def reference() -> tuple[np.ndarray, np.ndarray]:
-    key = hashlib.sha256(MIRROR.read_bytes() + f"{W}x{H}:{REF_SPP}:{MAX_DEPTH}".encode()).hexdigest()[:16]
-    cache = Path(tempfile.gettempdir()) / f"tessera-test-mirror-ref-{key}.npz"
-    if cache.exists():
-        with np.load(cache) as f:
-            return f["a"], f["b"]
     scene = load_scene(str(MIRROR))
-    a, b = (scene.render_tile(0, 0, W, H, width=W, height=H, spp=REF_SPP, seed=seed, max_depth=MAX_DEPTH,
-                              threads=2, integrator="path")[..., :3].astype(np.float64) for seed in (101, 202))
-    tmp = cache.with_suffix(f".{os.getpid()}.npz")
-    np.savez(tmp, a=a, b=b)
-    os.replace(tmp, cache)
-    return a, b
+    return cached_halves("mirror", MIRROR, f"{W}x{H}:{REF_SPP}:{MAX_DEPTH}", lambda seed: scene.render_tile(
+        0, 0, W, H, width=W, height=H, spp=REF_SPP, seed=seed, max_depth=MAX_DEPTH, threads=2,
+        integrator="path")[..., :3])
 
 
 def sppm_iterations(alpha: float = 2 / 3) -> list[np.ndarray]:

@@ -1,8 +1,14 @@
 """Rendering vcm iteration by iteration for the tests: each iteration runs its scene pass
 (fresh light paths, the radius of the schedule) and renders its own sample range with that
 product, so the per-iteration images are independent estimates whose spread gives the
-standard error."""
+standard error. And the merging tests' cached high-sample references."""
 from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
@@ -40,3 +46,20 @@ def iterations(scene, integrator: str, count: int, **kw) -> list[np.ndarray]:
 def mean_and_stderr(values) -> tuple[float, float]:
     v = np.asarray(values, dtype=np.float64)
     return float(v.mean()), float(v.std(ddof=1) / np.sqrt(len(v)))
+
+
+def cached_halves(tag: str, scene_path: Path, settings: str,
+                  render: Callable[[int], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """A reference as two independent renders, render(101) and render(202): their mean is
+    the reference, half their difference its own noise. Cached under the system temp
+    directory, keyed by the scene's bytes and `settings` (they take minutes)."""
+    key = hashlib.sha256(scene_path.read_bytes() + settings.encode()).hexdigest()[:16]
+    cache = Path(tempfile.gettempdir()) / f"tessera-test-{tag}-ref-{key}.npz"
+    if cache.exists():
+        with np.load(cache) as f:
+            return f["a"], f["b"]
+    a, b = (render(seed).astype(np.float64) for seed in (101, 202))
+    tmp = cache.with_suffix(f".{os.getpid()}.npz")
+    np.savez(tmp, a=a, b=b)
+    os.replace(tmp, cache)
+    return a, b
