@@ -24,8 +24,17 @@ variance falls more slowly than 1/J over J passes: its radius shrinks from batch
 so it falls as J^(-alpha). To reach the render's noise target (relative variance
 eps = target_error^2) it needs J = (v / eps)^(1/alpha) passes where an unbiased one needs
 v / eps, so its efficiency is multiplied by the handicap J'^(1 - 1/alpha), J' = v / eps
-clamped to [1, the batches the render holds at most]. The rule's choices are checked
-against time to relMSE in docs/benchmarks/auto.md.
+clamped to [1, the batches the render holds at most].
+
+Rare hits: a pixel that sees a small light through a mirror once in thousands of samples
+gives whichever candidate's 16 pilot samples hit it a relative variance that swamps the
+rest, a lottery every candidate shares (all trace the camera side alike). So each
+candidate also gets a typical efficiency, from the median of the means of 8 groups of
+pixels, which no single pixel moves. The rule: the highest efficiency wins, unless a
+merging integrator has the highest typical efficiency; then it does. Discounting rare hits
+helps the unbiased candidates most (their fireflies are rare hits too), so a merging
+integrator that wins even so is the faster one. The rule's choices are checked against
+time to relMSE in docs/benchmarks/auto.md.
 
 The choice is measured, so it can differ between runs on different machines or loads:
 it is made once per render (locally, or by `tessera submit` before the job is sent, so
@@ -45,6 +54,7 @@ MERGING_ALPHA = {"vcm": 0.75, "sppm": 2.0 / 3.0}
 PILOT_PIXELS = 64
 PILOT_SPP = 4
 PILOT_REPEATS = 4
+TYPICAL_GROUPS = 8
 
 
 @dataclass
@@ -55,6 +65,10 @@ class PilotRow:
     efficiency: float     # handicap / (rel_variance x seconds)
     scene_seconds: float = 0.0  # of `seconds`, the scene pass's
     handicap: float = 1.0       # J'^(1 - 1/alpha) for merging integrators, else 1
+    # The same from the median of the means of TYPICAL_GROUPS groups of pixels, which a
+    # few lucky pixels do not move (0: not measured).
+    typical_rel_variance: float = 0.0
+    typical_efficiency: float = 0.0
 
 
 @dataclass
@@ -77,10 +91,15 @@ class Pilot:
 
 
 def choose(rows: list[PilotRow]) -> str:
-    """The candidate with the highest efficiency (the first listed on a tie)."""
+    """The candidate with the highest efficiency (the first listed on a tie), unless a
+    merging integrator has the highest typical efficiency: then that one (the module's rule)."""
     if not rows:
         raise ValueError("no pilot measurements to choose from")
-    return max(rows, key=lambda r: (r.efficiency, -rows.index(r))).integrator
+    best = max(rows, key=lambda r: (r.efficiency, -rows.index(r)))
+    typical = max(rows, key=lambda r: (r.typical_efficiency, -rows.index(r)))
+    if best.integrator not in MERGING_ALPHA and typical.integrator in MERGING_ALPHA and typical.typical_efficiency > 0:
+        return typical.integrator
+    return best.integrator
 
 
 def pilot_size(width: int, height: int) -> tuple[int, int]:
@@ -129,7 +148,7 @@ def pilot_image(scene, integrator: str, w: int, h: int, spp: int, seed: int, max
     return image, scene_seconds, time.perf_counter() - start
 
 
-def run_pilot(scene, settings, threads: int = 0) -> Pilot:
+def run_pilot(scene, settings, threads: int = 0, seed: int = 0x51107) -> Pilot:
     """Measures the candidates, each with its default settings, on `scene` (a
     tessera_renderer.Scene) for `settings` (its size, max_depth and pass schedule) and
     returns the choice with the numbers."""
@@ -147,7 +166,7 @@ def run_pilot(scene, settings, threads: int = 0) -> Pilot:
         pilot_image(scene, c, 8, 8, 1, 0, settings.max_depth, threads)
     for k in range(PILOT_REPEATS):
         for c in names:
-            img, ts, tt = pilot_image(scene, c, w, h, PILOT_SPP, 0x51107 + k, settings.max_depth, threads)
+            img, ts, tt = pilot_image(scene, c, w, h, PILOT_SPP, seed + k, settings.max_depth, threads)
             scene_s[c].append(ts)
             tile_s[c].append(tt)
             images[c].append(img.astype(np.float64))
@@ -158,8 +177,19 @@ def run_pilot(scene, settings, threads: int = 0) -> Pilot:
         r.scene_seconds = float(np.mean(scene_s[r.integrator]))
         r.handicap = merging_handicap(r.integrator, r.rel_variance, settings)
         r.efficiency *= r.handicap
+        r.typical_efficiency *= merging_handicap(r.integrator, r.typical_rel_variance, settings)
     reason = "" if set(names) >= set(CANDIDATES) else "a delta light lights a caustic path tracing cannot reach"
     return Pilot(choice=choose(rows), rows=rows, size=(w, h), reason=reason)
+
+
+def typical_mean(per_pixel) -> float:
+    """The median of the means of TYPICAL_GROUPS groups of pixels (a fixed shuffle): the
+    mean of a typical group, which one pixel's rare hit does not move."""
+    import numpy as np
+
+    v = np.asarray(per_pixel, np.float64).reshape(-1)
+    groups = np.array_split(v[np.random.default_rng(0).permutation(len(v))], TYPICAL_GROUPS)
+    return float(np.median([g.mean() for g in groups]))
 
 
 def efficiencies(images: dict[str, list], seconds: dict[str, list[float]],
@@ -173,8 +203,11 @@ def efficiencies(images: dict[str, list], seconds: dict[str, list[float]],
     scale = np.median(np.stack([img for c in images for img in images[c]]), axis=0)
     rows = []
     for c in images:
-        rel = float(np.mean(np.stack(images[c]).var(axis=0, ddof=1) / (scale ** 2 + 0.01)))
+        per_pixel = (np.stack(images[c]).var(axis=0, ddof=1) / (scale ** 2 + 0.01)).mean(axis=-1)
+        rel, typical = float(per_pixel.mean()), typical_mean(per_pixel)
         t = float(np.mean(seconds[c]))
         k = (handicap or {}).get(c, 1.0)
-        rows.append(PilotRow(c, t, rel, k / (rel * t) if rel > 0 and t > 0 else float("inf"), handicap=k))
+        rows.append(PilotRow(c, t, rel, k / (rel * t) if rel > 0 and t > 0 else float("inf"), handicap=k,
+                             typical_rel_variance=typical,
+                             typical_efficiency=k / (typical * t) if typical > 0 and t > 0 else float("inf")))
     return rows

@@ -32,6 +32,22 @@ def test_choose_takes_the_most_efficient_and_the_first_on_a_tie():
         choose([])
 
 
+def test_a_merging_integrator_wins_by_its_typical_efficiency_too():
+    """The rule for rare hits: the highest efficiency wins unless a merging integrator has
+    the highest typical efficiency (the median of pixel groups' means, which one lucky
+    pixel does not move). The numbers are one pilot's on the caustic seen in a mirror, where
+    a pixel seeing the light through the mirror made sppm's mean variance 12.5."""
+    rows = [PilotRow("path", 0.0126, 42.1, 1.89, typical_efficiency=0.5),
+            PilotRow("bdpt", 0.0232, 36.4, 1.18, typical_efficiency=0.2),
+            PilotRow("sppm", 0.0507, 12.5, 0.1, typical_efficiency=12.8)]
+    assert choose(rows) == "sppm"
+    rows[2].typical_efficiency = 0.4  # control: sppm typical below path's
+    assert choose(rows) == "path"
+    # Typical efficiency never promotes an unbiased integrator over the mean's choice.
+    rows = [PilotRow("path", 1, 1, 2.0, typical_efficiency=1.0), PilotRow("bdpt", 1, 1, 1.0, typical_efficiency=9.0)]
+    assert choose(rows) == "path"
+
+
 def test_pilot_keeps_the_render_aspect_on_a_coarse_grid():
     assert pilot_size(1920, 1080) == (64, 36)
     assert pilot_size(100, 400) == (16, 64)
@@ -155,3 +171,18 @@ def test_pilot_on_the_caustic_measures_merging_and_records_its_numbers():
     # target 1e-2: eps = 1e-4, so v / eps = 1350 passes, clamped to the render's 1024 / 16 = 64.
     assert rows["sppm"].handicap == pytest.approx(min(rows["sppm"].rel_variance / 1e-4, 64) ** -0.5)
     assert p.choice == choose(p.rows)
+
+
+def test_typical_mean_is_not_moved_by_one_pixel_but_is_by_a_region():
+    """One pixel of 4096 at 1e4 over 0.1 elsewhere moves the mean to 2.54 and the typical
+    mean not at all; a region of 64 such pixels, spread over every group, moves both."""
+    import numpy as np
+
+    from tessera.pilot import typical_mean
+
+    v = np.full(4096, 0.1)
+    v[5] = 1e4
+    assert v.mean() == pytest.approx(2.5414, rel=1e-3)
+    assert typical_mean(v) == pytest.approx(0.1)
+    v[:64] = 1e4  # control: a region (the pixels of a caustic) is no rare hit
+    assert typical_mean(v) > 100
