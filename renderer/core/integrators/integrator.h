@@ -8,9 +8,10 @@
 // is in its IntegratorInfo, so no caller lists integrators by name.
 #pragma once
 
+#include <algorithm>
+#include <cstdint>
 #include <limits>
 #include <map>
-#include <cstdint>
 #include <memory>
 #include <string>
 #include <string_view>
@@ -129,6 +130,21 @@ const IntegratorInfo* FindIntegrator(std::string_view name);
 // The `auto` rule: the first complete integrator in registry order, among those that find
 // delta-light caustics if the scene has them.
 std::string_view AutoIntegrator(bool scene_has_delta_caustics);
+
+// The batches (of photons, of light paths) iteration `iteration` of a progressive
+// scene-pass integrator traces when the film weighs an iteration by its samples and the
+// passes double (tessera.protocol.pass_range: 1, 1, 2, 4, ... times the first pass's
+// samples): batches [first, first + count), counted from 1, count its share of samples (1
+// for iterations 0 and 1, 2^(k-1) after) but at most `cap`. Each batch then weighs the
+// same in the image, and a radius schedule over batches (sppm, vcm) stays Knaus-Zwicker's.
+struct BatchRange {
+    uint64_t first = 1, count = 1;
+};
+inline BatchRange IterationBatches(uint32_t iteration, uint64_t cap) {
+    if (iteration == 0) return {1, 1};
+    const uint64_t share = uint64_t(1) << (std::min<uint32_t>(iteration, 40) - 1);
+    return {share + 1, std::min(std::max<uint64_t>(cap, 1), share)};
+}
 
 // What an integrator's file hands the registry.
 struct IntegratorEntry {

@@ -82,19 +82,10 @@ public:
     }
     const IntegratorInfo& info() const override { return Info(); }
 
-    // Batches [first, first + count) of iteration `iteration` (batches count from 1): the
-    // iteration's share of samples, 1 for iterations 0 and 1, 2^(k-1) for k >= 1.
-    void Batches(uint32_t iteration, uint64_t* first, uint64_t* count) const {
-        const uint64_t cap = std::max<uint64_t>(1, kMaxPhotonsPerIteration / photons_);
-        const uint64_t share = iteration == 0 ? 1 : uint64_t(1) << (std::min<uint32_t>(iteration, 40) - 1);
-        *first = iteration == 0 ? 1 : share + 1;
-        *count = std::min(cap, share);
-    }
     float BatchRadius(uint64_t batch) const { return radius_ * std::pow(double(batch), (alpha_ - 1.0) / 2.0); }
 
     std::string RunScenePass(const Scene& scene, uint32_t seed, uint32_t iteration, int threads) const override {
-        uint64_t first, count;
-        Batches(iteration, &first, &count);
+        const auto [first, count] = IterationBatches(iteration, kMaxPhotonsPerIteration / photons_);
         std::vector<StoredPhoton> photons;
         PhotonFilter filter;
         filter.min_bounces = 1;  // direct light is next event estimation's

@@ -147,15 +147,13 @@ public:
     }
     const IntegratorInfo& info() const override { return Info(); }
 
-    // The iteration's first batch (from 1) and its light paths (header).
-    uint64_t FirstBatch(uint32_t iteration) const {
-        if (!grow_ || iteration == 0) return uint64_t(iteration) + 1;
-        return (uint64_t(1) << (std::min<uint32_t>(iteration, 40) - 1)) + 1;
+    // The iteration's batches of light paths: the doubling passes' share, or one (grow = 0).
+    BatchRange Batches(uint32_t iteration) const {
+        return grow_ ? IterationBatches(iteration, kMaxLightPathsPerIteration / light_paths_)
+                     : BatchRange{uint64_t(iteration) + 1, 1};
     }
-    uint32_t IterationPaths(uint32_t iteration) const {
-        const uint64_t share = grow_ && iteration > 0 ? uint64_t(1) << (std::min<uint32_t>(iteration, 40) - 1) : 1;
-        return uint32_t(std::max<uint64_t>(light_paths_, std::min(kMaxLightPathsPerIteration, share * light_paths_)));
-    }
+    uint64_t FirstBatch(uint32_t iteration) const { return Batches(iteration).first; }
+    uint32_t IterationPaths(uint32_t iteration) const { return uint32_t(Batches(iteration).count * light_paths_); }
     float IterationRadius(uint32_t iteration) const {
         return radius_ * float(std::pow(double(FirstBatch(iteration)), 0.5 * (alpha_ - 1.0)));
     }
