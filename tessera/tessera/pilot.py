@@ -192,10 +192,9 @@ def typical_mean(per_pixel) -> float:
     return float(np.median([g.mean() for g in groups]))
 
 
-def efficiencies(images: dict[str, list], seconds: dict[str, list[float]],
-                 handicap: dict[str, float] | None = None) -> list[PilotRow]:
-    """Each candidate's row from its repeated images (same size, float64), their seconds
-    and its handicap (default 1)."""
+def efficiencies(images: dict[str, list], seconds: dict[str, list[float]]) -> list[PilotRow]:
+    """Each candidate's row from its repeated images (same size, float64) and their seconds,
+    before any handicap: 1 / (relative variance x seconds), mean and typical."""
     import numpy as np
 
     # The scale of each pixel: the median over every image of every candidate. A
@@ -206,8 +205,7 @@ def efficiencies(images: dict[str, list], seconds: dict[str, list[float]],
         per_pixel = (np.stack(images[c]).var(axis=0, ddof=1) / (scale ** 2 + 0.01)).mean(axis=-1)
         rel, typical = float(per_pixel.mean()), typical_mean(per_pixel)
         t = float(np.mean(seconds[c]))
-        k = (handicap or {}).get(c, 1.0)
-        rows.append(PilotRow(c, t, rel, k / (rel * t) if rel > 0 and t > 0 else float("inf"), handicap=k,
+        rows.append(PilotRow(c, t, rel, 1.0 / (rel * t) if rel > 0 and t > 0 else float("inf"),
                              typical_rel_variance=typical,
-                             typical_efficiency=k / (typical * t) if typical > 0 and t > 0 else float("inf")))
+                             typical_efficiency=1.0 / (typical * t) if typical > 0 and t > 0 else float("inf")))
     return rows
