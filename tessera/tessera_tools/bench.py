@@ -4,8 +4,13 @@ For every scene x series (a renderer and an integrator) x rung of a ladder of sa
 counts, renders the image, times it (wall clock, 2 threads) and measures its error against
 a high-sample reference:
 
-    relMSE = mean over pixels and channels of (x - ref)^2 / (ref^2 + 1e-2)
+    relMSE = mean over pixels and channels of (x - ref)^2 / (ref^2 + 1e-2) - the reference's own
     RMSE   = sqrt(mean over pixels and channels of (x - ref)^2)
+
+The reference's own relMSE (bench_stats.reference_noise, from its two seeds) is subtracted:
+against a reference with relMSE 1e-3 of its own, every curve would otherwise flatten at
+1e-3 and a time to 1e-3 could not be read at all. Points within three standard errors of
+that correction are left out of the fits. (RMSE is reported as measured.)
 
 Repetitions (different seeds) are interleaved: every repetition walks the ladder once and
 renders every series at each rung before moving on, in an order rotated per repetition,
@@ -14,14 +19,16 @@ is fitted to log10(relMSE) against log10(seconds) per series, once over all poin
 once per repetition; the time to reach a relMSE target and the relMSE at a time budget are
 read off the line (interpolated when the target lies within the measured range, else
 extrapolated: the report says which), with the half-range of the per-repetition values as
-their error. Ratios between two series are taken per repetition, then summarised the same
+their error. A time to a target inside the measured range is read between the two points
+that bracket it rather than off the line. Ratios between two series are taken per repetition, then summarised the same
 way: both series' points come from the same run and the same minutes.
 
 References are rendered once and cached outside git (`~/.cache/tessera/references/`, or
 $TESSERA_CACHE_DIR), keyed by a hash of the scene's files, the settings and the renderer
 build. Two references with different seeds are rendered; the image compared against is
 their mean, and their mutual relMSE is reported: the mean's own error is about a quarter
-of it, which must be far below the smallest error measured.
+of it. The uncertainty of the subtracted own relMSE must be far below the smallest error
+measured.
 
 The peer is Mitsuba 3 (optional extra `peer`), built from Tessera's own translation of the
 scene (tessera/tessera_tools/peer_mitsuba.py). Before any speed ratio is quoted, converged images of
@@ -43,8 +50,8 @@ import numpy as np
 
 from .bench_cache import cached_render, scene_digest, tessera_build
 from .bench_report import _markdown, _plots, _write_csv
-from .bench_stats import (TARGETS, UNIT_TOLERANCE, error_at, fit_loglog, region_means, rel_mse, rmse,
-                          spread, time_to, units_agree)
+from .bench_stats import (TARGETS, UNIT_TOLERANCE, error_at, fit_loglog, reference_noise, region_means, rel_mse,
+                          rmse, spread, time_to_measured, units_agree)
 
 REPO = Path(__file__).resolve().parents[2]
 SHARED_SCENES = Path(os.environ.get("TESSERA_SHARED_SCENES", REPO.parent / "shared" / "scenes"))
@@ -103,6 +110,7 @@ class Config:
         "local": (4, 16, 64, 256), "whitted": (4, 16, 64, 256), "mitsuba": (4, 16, 64, 256),
         "photon": (1, 4, 16), "sppm": (4, 16, 64)})
     ref_spp: dict = field(default_factory=lambda: {"path": 4096, "bdpt": 1024, "light": 4096, "sppm": 1024})
+    scene_ladders: dict = field(default_factory=dict)   # {scene: {integrator: ladder}} overrides
     peer_ref_spp: int = 4096
     budget: float = 1.0          # seconds, for the equal-time error
     max_depth: int = 64
@@ -262,15 +270,17 @@ def run(scene_names, integrators, cfg: Config, out: Path, peer_variants=("scalar
             refs.append((img, meta))
         ref = (refs[0][0].astype(np.float64) + refs[1][0]) / 2
         mutual = rel_mse(refs[0][0], refs[1][0])
+        own, own_error = reference_noise(refs[0][0], refs[1][0])
         ra, rb = region_means(refs[0][0]).sum(-1), region_means(refs[1][0]).sum(-1)
         lit = (ra + rb) > 0.04 * (ra + rb).mean()
         region_noise = float(np.max(np.abs(ra - rb)[lit] / (ra + rb)[lit])) if lit.any() else float("nan")
         info["reference"] = {"integrator": ref_int, "spp": ref_spp, "seeds": 2, "mutual_rel_mse": mutual,
                              "region_mean_noise": region_noise,
-                             "estimated_rel_mse_of_mean": mutual / 4,
+                             "estimated_rel_mse_of_mean": own, "own_rel_mse_error": own_error,
                              "seconds": [m["seconds"] for _, m in refs], "cached": [m["cached"] for _, m in refs]}
         log(f"  reference: {ref_int} 2 x {ref_spp} spp, mutual relMSE {mutual:.3g} "
-            f"(the mean's own relMSE ~ {mutual / 4:.2g}); its region means differ by at most "
+            f"(the mean's own relMSE {own:.2g} ± {own_error:.1g}, subtracted from every point); its region means "
+            f"differ by at most "
             f"{region_noise:.2%} between the two seeds")
         if bs.cross_check:
             cc_spp = cfg.ref_spp[bs.cross_check]
@@ -284,7 +294,8 @@ def run(scene_names, integrators, cfg: Config, out: Path, peer_variants=("scalar
                 f"(relMSE {rel_mse(cc, ref):.3g}) -> {'agree' if agree['agree'] else 'DISAGREE'}")
 
         # An integrator without a tuned ladder gets the peer's (the plain one).
-        series = [Series(name, "tessera", i, cfg.ladders.get(i, cfg.ladders["mitsuba"])) for i in integrators
+        ladders = {**cfg.ladders, **cfg.scene_ladders.get(name, {})}
+        series = [Series(name, "tessera", i, ladders.get(i, ladders["mitsuba"])) for i in integrators
                   if bs.integrators is None or i in bs.integrators]
         # Peer: converged images must agree before any ratio is quoted.
         if bs.peer and peers:
@@ -311,7 +322,7 @@ def run(scene_names, integrators, cfg: Config, out: Path, peer_variants=("scalar
                     f"{agree['worst_mean_deviation']:.2%}), worst of {agree['regions_compared']} regions "
                     f"{agree['worst_region_deviation']:.2%} -> {'AGREE' if agree['agree'] else 'DISAGREE'} "
                     f"(tolerance {UNIT_TOLERANCE:.0%})")
-                series.append(Series(name, tag, "path", cfg.ladders["mitsuba"]))
+                series.append(Series(name, tag, "path", ladders["mitsuba"]))
         # Warm-up outside the timings: caches, and for Mitsuba's LLVM variants the kernels,
         # which are compiled per sample count (measured: the first call at a new spp is slow).
         for s in series:
@@ -330,17 +341,21 @@ def run(scene_names, integrators, cfg: Config, out: Path, peer_variants=("scalar
                     start = time.perf_counter()
                     img = _render_series(s, scene, peers, spp, seed, res, cfg)
                     seconds = time.perf_counter() - start
+                    raw = rel_mse(img, ref)
                     row = {"scene": name, "renderer": s.renderer, "integrator": s.integrator, "spp": spp,
                            "rep": rep, "seed": seed, "res": res, "seconds": seconds,
-                           "rel_mse": rel_mse(img, ref), "rmse": rmse(img, ref)}
+                           "rel_mse": raw - own, "rel_mse_raw": raw, "rmse": rmse(img, ref)}
                     rows.append(row)
             log(f"  repetition {rep + 1}/{cfg.reps} done")
-        info["series"] = _summarise(name, series, rows, cfg)
+        # The subtraction's resolution: points within it say nothing about their series.
+        floor = 3 * own_error
+        info["series"] = _summarise(name, series, rows, cfg, floor)
         smallest = min(r["rel_mse"] for r in rows if r["scene"] == name)
         info["reference"]["smallest_measured_rel_mse"] = smallest
-        info["reference"]["ok"] = bool(mutual / 4 < 0.1 * smallest)
-        log(f"  reference check: its own relMSE ~{mutual / 4:.2g} vs smallest measured {smallest:.3g} "
-            f"({smallest / max(mutual / 4, 1e-30):.0f}x) -> {'OK' if info['reference']['ok'] else 'TOO NOISY'}")
+        info["reference"]["ok"] = bool(floor < 0.1 * smallest)
+        log(f"  reference check: the subtracted own relMSE is known to ±{floor:.2g} (3 sigma) vs smallest "
+            f"measured {smallest:.3g} ({smallest / max(floor, 1e-30):.0f}x) -> "
+            f"{'OK' if info['reference']['ok'] else 'TOO NOISY'}")
         info["ratios"] = _ratios(info, cfg)
         result["scenes"][name] = info
     for peer in peers:
@@ -372,10 +387,13 @@ def _render_series(s: Series, scene, peers, spp, seed, res, cfg) -> np.ndarray:
     return peer.render(s.scene, spp, seed)
 
 
-def _summarise(name, series, rows, cfg) -> dict:
+def _summarise(name, series, rows, cfg, floor: float = 0.0) -> dict:
+    """Per series: the log-log fits (overall and per repetition) of the points above `floor`,
+    the rungs' spreads, the times to each target and the error at the budget."""
     out = {}
     for s in series:
-        pts = [r for r in rows if r["scene"] == name and r["renderer"] == s.renderer and r["integrator"] == s.integrator]
+        every = [r for r in rows if r["scene"] == name and r["renderer"] == s.renderer and r["integrator"] == s.integrator]
+        pts = [r for r in every if r["rel_mse"] > floor]
         secs = [r["seconds"] for r in pts]
         errs = [r["rel_mse"] for r in pts]
         fit = fit_loglog(secs, errs)
@@ -385,16 +403,20 @@ def _summarise(name, series, rows, cfg) -> dict:
         entry = {"label": s.label, "renderer": s.renderer, "integrator": s.integrator,
                  "fit": {"intercept": fit[0], "slope": fit[1]}, "rep_fits": rep_fits,
                  "seconds_range": [min(secs), max(secs)], "rel_mse_range": [min(errs), max(errs)],
-                 "rungs": []}
+                 "points_below_resolution": len(every) - len(pts), "rungs": []}
         for spp in s.ladder:
-            at = [r for r in pts if r["spp"] == spp]
+            at = [r for r in every if r["spp"] == spp]
             entry["rungs"].append({"spp": spp, "seconds": spread([r["seconds"] for r in at]),
                                    "rel_mse": spread([r["rel_mse"] for r in at]),
                                    "rmse": spread([r["rmse"] for r in at])})
+        medians = [(r["seconds"]["median"], r["rel_mse"]["median"]) for r in entry["rungs"] if r["rel_mse"]["n"]]
         for target in TARGETS:
-            how = "interpolated" if min(errs) <= target <= max(errs) else "extrapolated"
-            entry[f"time_to_{target:g}"] = {"all": time_to(fit, target), **spread([time_to(f, target) for f in rep_fits]),
-                                            "how": how}
+            per_rep = [time_to_measured([r["seconds"] for r in pts if r["rep"] == k],
+                                        [r["rel_mse"] for r in pts if r["rep"] == k], target, f)
+                       for k, f in zip(reps, rep_fits)]
+            t_all, how = time_to_measured([m[0] for m in medians], [m[1] for m in medians], target, fit)
+            entry[f"time_to_{target:g}"] = {"all": t_all, **spread([t for t, _ in per_rep]), "how": how,
+                                            "reps": [t for t, _ in per_rep]}
         how = "interpolated" if min(secs) <= cfg.budget <= max(secs) else "extrapolated"
         entry["rel_mse_at_budget"] = {"all": error_at(fit, cfg.budget),
                                       **spread([error_at(f, cfg.budget) for f in rep_fits]), "how": how}
@@ -423,10 +445,10 @@ def _ratios(info, cfg) -> dict:
                     pairs.append((mine, label))
     out = {}
     for a, b in pairs:
-        fa, fb = series[a]["rep_fits"], series[b]["rep_fits"]
         entry = {}
         for target in TARGETS:
-            vals = [time_to(x, target) / time_to(y, target) for x, y in zip(fa, fb)]
+            ta, tb = series[a][f"time_to_{target:g}"]["reps"], series[b][f"time_to_{target:g}"]["reps"]
+            vals = [x / y for x, y in zip(ta, tb)]
             ea, eb = series[a][f"time_to_{target:g}"]["how"], series[b][f"time_to_{target:g}"]["how"]
             entry[f"{target:g}"] = {**spread(vals), "how": "interpolated" if ea == eb == "interpolated" else "extrapolated"}
         key = f"{a} / {b}"

@@ -11,12 +11,12 @@ from .bench_stats import TARGETS, fmt
 
 
 def _write_csv(path: Path, rows) -> None:
-    fields = ["scene", "renderer", "integrator", "spp", "rep", "seed", "res", "seconds", "rel_mse", "rmse"]
+    fields = ["scene", "renderer", "integrator", "spp", "rep", "seed", "res", "seconds", "rel_mse", "rel_mse_raw", "rmse"]
     with open(path, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=fields)
         w.writeheader()
         for r in rows:
-            w.writerow({k: (f"{r[k]:.6g}" if isinstance(r[k], float) else r[k]) for k in fields})
+            w.writerow({k: (f"{r[k]:.6g}" if isinstance(r[k], float) else r[k]) for k in fields if k in r})
 
 
 def _plots(result, rows, out: Path) -> None:
@@ -34,16 +34,18 @@ def _plots(result, rows, out: Path) -> None:
             secs = np.array([r["seconds"] for r in pts])
             for ax, key in ((axes[0], "rel_mse"), (axes[1], "rmse")):
                 vals = np.array([r[key] for r in pts])
-                ax.loglog(secs, vals, "o", color=color, ms=3.5, alpha=0.6,
+                # A relMSE with the reference's own subtracted can fall to or below zero.
+                keep = vals > 0
+                ax.loglog(secs[keep], vals[keep], "o", color=color, ms=3.5, alpha=0.6,
                           label=label if key == "rmse" else None)
-                x = np.log10(secs)
-                b, a = np.polyfit(x, np.log10(vals), 1)
+                x = np.log10(secs[keep])
+                b, a = np.polyfit(x, np.log10(vals[keep]), 1)
                 xs = np.linspace(x.min() - 0.3, x.max() + 0.5, 20)
                 ax.loglog(10 ** xs, 10 ** (a + b * xs), "-", color=color, lw=1.2,
                           label=f"{label} (slope {b:.2f})" if key == "rel_mse" else None)
         scene_rows = [r for r in rows if r["scene"] == name]
         for ax, key in ((axes[0], "rel_mse"), (axes[1], "rmse")):
-            vals = [r[key] for r in scene_rows] + (list(TARGETS) if key == "rel_mse" else [])
+            vals = [r[key] for r in scene_rows if r[key] > 0] + (list(TARGETS) if key == "rel_mse" else [])
             ax.set_ylim(min(vals) / 3, max(vals) * 3)
             secs = [r["seconds"] for r in scene_rows] + [budget]
             ax.set_xlim(min(secs) / 2, max(secs) * 4)
@@ -69,20 +71,23 @@ def _markdown(result) -> str:
     L = ["# Error versus time: results", "",
          f"Written by `tessera bench` ({result['tessera']}) on {result['started']}: "
          f"{cfg['res']}x{cfg['res']} px, {cfg['threads']} threads, {cfg['reps']} interleaved repetitions, "
-         f"max depth {cfg['max_depth']}. Values are median ± half-range over the repetitions' own "
-         "log-log fits (relMSE = a · seconds^slope). Raw points: `error-vs-time.csv`; everything: "
+         f"max depth {cfg['max_depth']}. Values are median ± half-range over the repetitions: a time "
+         "to a target inside a repetition's measured range is read between its two bracketing points "
+         "(interpolated), outside it off that repetition's log-log fit (relMSE = a · seconds^slope; "
+         "extrapolated). relMSE has the reference's own subtracted. Raw points: `error-vs-time.csv`; everything: "
          "`error-vs-time.json`. How to read it: `error-vs-time.md`.", ""]
     if "load_average_start" in result:
         L += [f"Load average at start / end: {', '.join(f'{x:.2f}' for x in result['load_average_start'])} / "
               f"{', '.join(f'{x:.2f}' for x in result.get('load_average_end', []))} "
               f"on {result['cpu_count']} cores (other processes share the machine).", ""]
     L += ["## References", "",
-          "| scene | reference | mutual relMSE of the two | mean's own relMSE ≈ | smallest measured relMSE | ok |",
+          "| scene | reference | mutual relMSE of the two | mean's own relMSE (subtracted) | smallest measured relMSE | ok |",
           "|---|---|---|---|---|---|"]
     for name, info in result["scenes"].items():
         r = info["reference"]
         L.append(f"| {name} | {r['integrator']}, 2 × {r['spp']} spp | {r['mutual_rel_mse']:.2g} | "
-                 f"{r['estimated_rel_mse_of_mean']:.2g} | {r['smallest_measured_rel_mse']:.3g} | "
+                 f"{r['estimated_rel_mse_of_mean']:.2g} ± {r.get('own_rel_mse_error', 0.0):.1g} | "
+                 f"{r['smallest_measured_rel_mse']:.3g} | "
                  f"{'yes' if r['ok'] else 'NO'} |")
     for name, info in result["scenes"].items():
         cc = info["reference"].get("cross_check")

@@ -20,6 +20,18 @@ def rel_mse(img: np.ndarray, ref: np.ndarray) -> float:
     return float(np.mean((x - r) ** 2 / (r * r + 1e-2)))
 
 
+def reference_noise(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """The relMSE that the mean of two independent references a and b has on its own, and
+    that estimate's standard error: mean over pixels and channels of (a - b)^2 / 4 /
+    (m^2 + 1e-2), m = (a + b) / 2. For an image x independent of both, E[relMSE(x, m)] is
+    x's own relMSE plus this (the cross term has mean zero), so subtracting it measures
+    errors down to the reference's own instead of stopping at it."""
+    x, y = a[..., :3].astype(np.float64), b[..., :3].astype(np.float64)
+    m = (x + y) / 2
+    d = ((x - y) ** 2 / 4 / (m * m + 1e-2)).reshape(-1)
+    return float(d.mean()), float(d.std(ddof=1) / math.sqrt(d.size))
+
+
 def rmse(img: np.ndarray, ref: np.ndarray) -> float:
     x, r = img[..., :3].astype(np.float64), ref[..., :3].astype(np.float64)
     return float(np.sqrt(np.mean((x - r) ** 2)))
@@ -66,6 +78,20 @@ FLAT_SLOPE = -0.2   # a fit flatter than this cannot be extrapolated to a target
 def time_to(fit, target: float) -> float:
     a, b = fit
     return 10 ** ((math.log10(target) - a) / b) if b < FLAT_SLOPE else float("inf")
+
+
+def time_to_measured(seconds, errors, target: float, fit) -> tuple[float, str]:
+    """Seconds to reach `target` read between the measured points where the curve first
+    crosses it (log-log interpolation between the two neighbours, in order of seconds):
+    a ladder's global line would bend the reading for an integrator whose slope changes
+    along the way (a merging one's bias takes over late). Off the measured range, the
+    line `fit`. Returns (seconds, "interpolated" or "extrapolated")."""
+    pts = sorted(zip(seconds, errors))
+    for (t0, e0), (t1, e1) in zip(pts, pts[1:]):
+        if e0 > target >= e1 > 0:
+            u = (math.log10(target) - math.log10(e0)) / (math.log10(e1) - math.log10(e0))
+            return 10 ** (math.log10(t0) + u * (math.log10(t1) - math.log10(t0))), "interpolated"
+    return time_to(fit, target), "extrapolated"
 
 
 def error_at(fit, seconds: float) -> float:

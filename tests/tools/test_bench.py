@@ -99,6 +99,43 @@ def test_fit_reads_times_and_errors_off_the_line():
     assert bench_stats.error_at(fit, 4.0) == pytest.approx(0.005)
 
 
+def test_reference_noise_is_subtracted_to_one_percent():
+    """An image and a two-seed reference, each with 3 % Gaussian noise about a known truth
+    (relMSE ~9e-4 each, the regime of a time to 1e-3): relMSE against the noisy reference
+    minus reference_noise recovers the relMSE against the truth to 1 %, where the raw value
+    is twice it. Smallest error detected: 2 % (the control, x 1.02, fails)."""
+    rng = np.random.default_rng(7)
+    truth = rng.uniform(0.3, 2.0, (256, 256, 3))
+    noisy = lambda: truth * (1 + 0.03 * rng.standard_normal(truth.shape))  # noqa: E731
+    a, b, x = noisy(), noisy(), noisy()
+    true = float(np.mean((x - truth) ** 2 / (truth ** 2 + 1e-2)))      # closed form, not rel_mse
+    raw = bench_stats.rel_mse(x, (a + b) / 2)
+    own, own_error = bench_stats.reference_noise(a, b)
+    # The expected own relMSE: Var((a + b) / 2) / (truth^2 + 1e-2) = (0.03 truth)^2 / 2 / (...)
+    expected_own = float(np.mean((0.03 * truth) ** 2 / 2 / (truth ** 2 + 1e-2)))
+    assert own == pytest.approx(expected_own, rel=0.01)
+    assert own_error < 0.005 * own
+    corrected = raw - own
+    assert abs(corrected / true - 1) < 0.01
+    assert abs(corrected * 1.02 / true - 1) > 0.01          # control: a 2 % error is seen
+    assert abs(raw / true - 1) > 0.3                        # control: without the subtraction
+
+
+def test_time_to_target_is_read_between_the_bracketing_points():
+    """A curve whose slope changes (relMSE = 0.1/t up to 10 s, then bias-limited 0.01/sqrt(t/10)):
+    the time to 1e-3 lies on the second segment, at 10 * 100 = 1000 s exactly. The global
+    line through all points misreads it by more than 30 % (the control); a target off the
+    measured range falls back to the line and says so."""
+    secs = np.array([0.1, 1.0, 10.0, 100.0, 400.0, 1600.0])
+    errs = np.where(secs <= 10, 0.1 / secs, 0.01 / np.sqrt(secs / 10))
+    fit = bench_stats.fit_loglog(secs, errs)
+    t, how = bench_stats.time_to_measured(secs, errs, 1e-3, fit)
+    assert how == "interpolated" and t == pytest.approx(1000.0, rel=1e-9)
+    assert abs(bench_stats.time_to(fit, 1e-3) / 1000.0 - 1) > 0.3
+    t, how = bench_stats.time_to_measured(secs, errs, 1e-4, fit)
+    assert how == "extrapolated" and t == pytest.approx(bench_stats.time_to(fit, 1e-4))
+
+
 def test_peer_refuses_materials_it_cannot_match(cornell_path):
     from tessera_renderer import load_scene
 
