@@ -540,6 +540,16 @@ NB_MODULE(_core, m) {
                 d["complete"] = info.complete;
                 d["delta_caustics"] = info.delta_caustics;
                 d["shades_curves"] = info.shades_curves;
+                if (!info.iteration_cap.param.empty()) {
+                    nb::dict cap;
+                    cap["param"] = std::string(info.iteration_cap.param);
+                    cap["per_batch"] = info.iteration_cap.per_batch;
+                    cap["max_param"] = std::string(info.iteration_cap.max_param);
+                    cap["max_per_iteration"] = info.iteration_cap.max_per_iteration;
+                    d["iteration_cap"] = cap;
+                } else {
+                    d["iteration_cap"] = nb::none();
+                }
                 for (const IntegratorParam& p : info.params) params[std::string(p.name).c_str()] = std::string(p.description);
                 d["params"] = params;
                 out.append(d);
@@ -547,7 +557,7 @@ NB_MODULE(_core, m) {
             return out;
         },
         "The registered integrators in registry order: dicts of name, description, the capabilities "
-        "(splats, scene_passes, stop_per_tile, complete, delta_caustics, shades_curves; "
+        "(splats, scene_passes, stop_per_tile, complete, delta_caustics, shades_curves, iteration_cap; "
         "integrators/integrator.h) and "
         "params (setting name -> description).");
     m.def(

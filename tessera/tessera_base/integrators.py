@@ -81,6 +81,27 @@ def scene_passes(name: str) -> bool:
     return any(i["scene_passes"] for i in _candidates(name))
 
 
+def iteration_share_cap(name: str, values: dict[str, float]) -> int | None:
+    """The most first-pass shares of samples one pass may hold for `name` with settings
+    `values`, or None (no cap: the passes keep doubling). An integrator whose iterations
+    trace batches of paths (its `iteration_cap`) holds at most `max_per_iteration` paths an
+    iteration (or its setting `max_param`); the cap is the largest power of two of batches within that, at least 1 (the
+    core's IterationShareCap, integrators/integrator.h: both must agree). For `auto`: none
+    (the integrators it picks have no cap)."""
+    if name == AUTO:
+        return None
+    entry = next((i for i in integrators() if i["name"] == name), None)
+    cap = entry.get("iteration_cap") if entry else None
+    if not cap:
+        return None
+    per_batch = float(values.get(cap["param"], cap["per_batch"]))
+    most = float(values.get(cap["max_param"], cap["max_per_iteration"])) if cap["max_param"] else cap["max_per_iteration"]
+    share = 1
+    while per_batch > 0 and share * 2 * per_batch <= most and share < 1 << 40:
+        share *= 2
+    return share
+
+
 def stops_per_tile(name: str) -> bool:
     """Whether a tile may stop on a noise target on its own (else the whole image advances
     in lockstep). For `auto`: only if every integrator it may pick can."""

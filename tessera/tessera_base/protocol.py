@@ -321,14 +321,19 @@ class RenderSettings(BaseModel):
 
 
 def pass_range(settings: RenderSettings, pass_index: int) -> tuple[int, int] | None:
-    """(sample_start, spp) of pass `pass_index`, or None past the last pass."""
+    """(sample_start, spp) of pass `pass_index`, or None past the last pass. Passes double
+    (min_spp, min_spp, 2 min_spp, 4 min_spp, ...) up to max_spp; for an integrator whose
+    iterations trace batches of paths they stop doubling at its cap (iteration_share_cap
+    times min_spp) and stay there, so that every iteration's paths keep up with its samples."""
     if not settings.adaptive:
         return (0, settings.spp) if pass_index == 0 else None
+    cap = integrators.iteration_share_cap(settings.integrator, settings.integrator_params)
+    largest = settings.max_spp if cap is None else cap * settings.min_spp
     start, end = 0, settings.min_spp
     for _ in range(pass_index):
         if end >= settings.max_spp:
             return None
-        start, end = end, min(2 * end, settings.max_spp)
+        start, end = end, min(end + min(end, largest), settings.max_spp)
     return start, end - start
 
 

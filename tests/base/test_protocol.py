@@ -124,6 +124,27 @@ def test_pass_schedule():
     assert ranges == [(0, 16), (16, 16), (32, 32), (64, 36)]  # contiguous, capped at max_spp
 
 
+def test_pass_schedule_stops_doubling_at_a_merging_integrators_cap():
+    """vcm holds at most max_iteration_paths light paths an iteration, light_paths a batch
+    and a first pass's share: 8000 / 2000 = 4 shares, so passes of 2 samples double to 8
+    and stay there. sppm's default (1e5 photons a batch, at most 1e7): 64 shares. path: none."""
+    def ranges(integrator, params, min_spp, max_spp):
+        s = RenderSettings(width=8, height=8, target_error=0.01, min_spp=min_spp, max_spp=max_spp,
+                           integrator=integrator, integrator_params=params)
+        out, p = [], 0
+        while (r := protocol.pass_range(s, p)) is not None:
+            out.append(r)
+            p += 1
+        return out
+
+    assert ranges("vcm", {"light_paths": 2000, "max_iteration_paths": 8000}, 2, 40) == [
+        (0, 2), (2, 2), (4, 4), (8, 8), (16, 8), (24, 8), (32, 8)]
+    assert ranges("vcm", {"light_paths": 3e6}, 1, 4) == [(0, 1), (1, 1), (2, 1), (3, 1)]
+    assert ranges("sppm", {}, 1, 256) == [(0, 1), (1, 1), (2, 2), (4, 4), (8, 8), (16, 16), (32, 32),
+                                          (64, 64), (128, 64), (192, 64)]
+    assert ranges("path", {}, 1, 256)[-1] == (128, 128)
+
+
 def test_result_v2_round_trip_with_variance_and_splat():
     rect = TileRect(index=1, x0=4, y0=2, width=3, height=2)
     rng = np.random.default_rng(2)

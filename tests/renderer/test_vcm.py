@@ -163,3 +163,31 @@ def test_vcm_images_do_not_depend_on_tiling_or_threads():
     other_seed = local.render_image(scene, RenderSettings(**{**form, "seed": 10}, tile_size=32), threads=2,
                                     progress=False, variance=False).rgba
     assert not np.array_equal(whole, other_seed)
+
+
+def test_each_iteration_traces_its_passes_share_of_light_paths_under_the_cap():
+    """The pass schedule (tessera.protocol.pass_range, Python) and the batches the core
+    traces per iteration (IterationBatches, C++) agree: iteration k's product holds
+    light_paths times its pass's share of samples (spp / min_spp) light paths, and merges
+    with the radius of its first batch, r_1 j^((alpha - 1) / 2) with j = 1 + the shares
+    before it, also past the cap (8000 / 2000: four shares) where the passes stop doubling.
+    Headers only (merging 0 traces nothing)."""
+    import struct
+
+    from tessera_base.film import run_scene_pass
+    from tessera_base.protocol import pass_range
+
+    scene = load_scene(str(REPO / "examples" / "caustic" / "caustic.usda"))
+    params = {"light_paths": 2000, "max_iteration_paths": 8000, "merging": 0, "radius": 0.5, "alpha": 0.75}
+    settings = RenderSettings(width=8, height=8, target_error=1e-9, min_spp=2, max_spp=64, integrator="vcm",
+                              integrator_params=params)
+    shares = []
+    for k in range(9):
+        start, spp = pass_range(settings, k)
+        product = run_scene_pass(scene, settings, k, integrator="vcm", threads=1)
+        magic, iteration, light_paths, merging, radius, _slices, paths, grow = struct.unpack_from("<4sIIIfIII", product)
+        assert (magic, iteration, light_paths, merging, grow) == (b"TVC4", k, 2000, 0, 1)
+        assert paths == 2000 * spp // 2, (k, paths, spp)
+        assert radius == pytest.approx(0.5 * (1 + start // 2) ** ((0.75 - 1) / 2), rel=1e-6), k
+        shares.append(spp // 2)
+    assert shares == [1, 1, 2, 4, 4, 4, 4, 4, 4]

@@ -61,3 +61,31 @@ TEST(Registry, SplattingIntegratorsRefuseToRenderWithoutASplatBuffer) {
 }
 
 }  // namespace
+
+// The capped doubling schedule (IterationBatches, IterationShareCap): iteration shares 1, 1,
+// 2, 4, ..., C, C, ... of batches, contiguous from batch 1, with C the largest power of two
+// of batches an iteration may hold. Expected values written out by hand, not recomputed.
+TEST(Registry, IterationBatchesDoubleUpToTheCapThenStay) {
+    EXPECT_EQ(IterationShareCap(1e5, 4e6), 32u);  // 40 batches fit: 32 is the power of two
+    EXPECT_EQ(IterationShareCap(1e5, 1e7), 64u);
+    EXPECT_EQ(IterationShareCap(2000, 8000), 4u);
+    EXPECT_EQ(IterationShareCap(3e6, 4e6), 1u);   // one batch always
+    EXPECT_EQ(IterationShareCap(5e6, 4e6), 1u);
+    const uint64_t first[] = {1, 2, 3, 5, 9, 13, 17};
+    const uint64_t count[] = {1, 1, 2, 4, 4, 4, 4};
+    for (uint32_t k = 0; k < 7; ++k) {
+        const BatchRange b = IterationBatches(k, 4);
+        EXPECT_EQ(b.first, first[k]) << k;
+        EXPECT_EQ(b.count, count[k]) << k;
+    }
+    // Uncapped in practice: the old doubling (first 2^(k-1) + 1, count 2^(k-1)).
+    for (uint32_t k = 1; k < 20; ++k) {
+        EXPECT_EQ(IterationBatches(k, uint64_t(1) << 30).first, (uint64_t(1) << (k - 1)) + 1) << k;
+        EXPECT_EQ(IterationBatches(k, uint64_t(1) << 30).count, uint64_t(1) << (k - 1)) << k;
+    }
+    // Contiguous for every cap.
+    for (uint64_t cap : {1u, 2u, 8u, 32u})
+        for (uint32_t k = 0; k < 40; ++k)
+            EXPECT_EQ(IterationBatches(k, cap).first + IterationBatches(k, cap).count, IterationBatches(k + 1, cap).first)
+                << cap << " " << k;
+}

@@ -41,8 +41,8 @@ constexpr float kDefaultAlpha = 2.f / 3.f;
 // Half the photons aimed at the delta surfaces (when there are any): a small glass object
 // then gets a good share of them, the rest of the scene keeps half.
 constexpr float kDefaultAim = 0.5f;
-// The most photons one iteration's product holds (27 bytes each, stored in Redis); past
-// it an iteration holds fewer batches than its samples' weight and convergence slows.
+// The most photons one iteration's product holds (27 bytes each, stored in Redis): the
+// passes stop doubling at the power of two of batches below it (IterationShareCap).
 constexpr uint64_t kMaxPhotonsPerIteration = 10'000'000;
 constexpr uint64_t kPhotonStreamBase = uint64_t(1) << 40;
 constexpr char kMagic[] = "TSP2";
@@ -77,6 +77,7 @@ public:
                                "0 to 1 (default 0.5; no effect without such surfaces or with motion)"},
                        {"time_slices", "with motion blur, the first batch's slices of the shutter; a visible "
                                        "point merges with photons of its own slice (default 32)"}},
+            .iteration_cap = {"photons", kDefaultPhotons, "", double(kMaxPhotonsPerIteration)},
         };
         return info;
     }
@@ -85,7 +86,7 @@ public:
     float BatchRadius(uint64_t batch) const { return radius_ * std::pow(double(batch), (alpha_ - 1.0) / 2.0); }
 
     std::string RunScenePass(const Scene& scene, uint32_t seed, uint32_t iteration, int threads) const override {
-        const auto [first, count] = IterationBatches(iteration, kMaxPhotonsPerIteration / photons_);
+        const auto [first, count] = IterationBatches(iteration, IterationShareCap(photons_, kMaxPhotonsPerIteration));
         std::vector<StoredPhoton> photons;
         PhotonFilter filter;
         filter.min_bounces = 1;  // direct light is next event estimation's

@@ -38,7 +38,9 @@
 // the radius of its first batch and N their paths: otherwise the camera samples of a late
 // pass would all merge with one batch's light vertices, whose noise no number of samples
 // averages away (relMSE stopped falling at ~0.03 on examples/caustic at 64 x 64). An
-// iteration holds at most 4e6 light paths (a product of ~140 MB there). `grow` = 0 keeps
+// iteration holds at most 4e6 light paths (a product of ~140 MB there): the passes stop
+// doubling at the power of two of batches below that (IterationShareCap: 32 at the
+// default 1e5 a batch), so every iteration keeps its share. `grow` = 0 keeps
 // one batch an iteration (r_k = r_1 (k + 1)^((alpha - 1) / 2)), for iterations of equal
 // samples.
 //
@@ -110,10 +112,11 @@ struct Header {
 
 class VCMIntegrator final : public Integrator {
 public:
-    VCMIntegrator(int max_depth, uint32_t light_paths, float radius, float alpha, bool merging, bool grow,
-                  uint32_t time_slices, const std::string& product)
+    VCMIntegrator(int max_depth, uint32_t light_paths, uint32_t max_iteration_paths, float radius, float alpha,
+                  bool merging, bool grow, uint32_t time_slices, const std::string& product)
         : max_depth_(max_depth),
           light_paths_(light_paths),
+          max_iteration_paths_(max_iteration_paths),
           radius_(radius),
           alpha_(alpha),
           merging_(merging),
@@ -133,15 +136,20 @@ public:
             // Consistent, not unbiased: `auto` does not choose it (yet).
             .complete = false,
             .delta_caustics = true,
-            .params = {{"light_paths", "light subpaths traced per iteration for merging (default 100000)"},
+            .params = {{"light_paths", "light subpaths in a batch; iteration k traces its pass's share of batches (default 100000)"},
                        {"radius", "merging radius of the first iteration in scene units (default: 0.005 of the "
                                   "scene's bounding diameter)"},
                        {"alpha", "radius schedule r_i = r_1 i^((alpha-1)/2), 0 < alpha < 1 (default 0.75)"},
                        {"merging", "1 to merge, 0 for connections only: then exactly bdpt (default 1)"},
                        {"grow", "1: iteration k traces light_paths times its pass's share of samples (1, 1, 2, "
                                 "4, ...), as the passes double (default); 0: light_paths every iteration"},
+                       {"max_iteration_paths", "the most light paths an iteration traces (its product keeps 56 "
+                                               "bytes a merging vertex); the passes stop doubling at the power "
+                                               "of two of batches within it (default 4e6, at most 4e6)"},
                        {"time_slices", "with motion blur, the first iteration's slices of the shutter; a camera "
                                        "vertex merges with light paths of its own slice (default 32)"}},
+            .iteration_cap = {"light_paths", kDefaultLightPaths, "max_iteration_paths",
+                              double(kMaxLightPathsPerIteration)},
         };
         return info;
     }
@@ -149,7 +157,7 @@ public:
 
     // The iteration's batches of light paths: the doubling passes' share, or one (grow = 0).
     BatchRange Batches(uint32_t iteration) const {
-        return grow_ ? IterationBatches(iteration, kMaxLightPathsPerIteration / light_paths_)
+        return grow_ ? IterationBatches(iteration, IterationShareCap(light_paths_, max_iteration_paths_))
                      : BatchRange{uint64_t(iteration) + 1, 1};
     }
     uint64_t FirstBatch(uint32_t iteration) const { return Batches(iteration).first; }
@@ -344,6 +352,7 @@ private:
 
     int max_depth_;
     uint32_t light_paths_;
+    uint32_t max_iteration_paths_;
     float radius_, alpha_;
     bool merging_, grow_;
     uint32_t time_slices_;  // K_1
@@ -361,6 +370,10 @@ IntegratorEntry VCMIntegratorEntry() {
                     throw std::invalid_argument(
                         "vcm light_paths must be a whole number from 1 to 4e6 (each keeps its merging vertices, "
                         "56 bytes each, in a product kept in Redis)");
+                const float max_paths = s.Param("max_iteration_paths", float(kMaxLightPathsPerIteration));
+                if (!(max_paths >= 1.f && max_paths <= float(kMaxLightPathsPerIteration) &&
+                      max_paths == std::floor(max_paths)))
+                    throw std::invalid_argument("vcm max_iteration_paths must be a whole number from 1 to 4e6");
                 const float radius = s.Param("radius", kDefaultRadiusOfDiameter * 2.f * scene.scene_radius());
                 if (!(radius > 0.f && std::isfinite(radius)))
                     throw std::invalid_argument("vcm radius must be a finite number > 0");
@@ -372,7 +385,8 @@ IntegratorEntry VCMIntegratorEntry() {
                 const float grow = s.Param("grow", 1.f);
                 if (grow != 0.f && grow != 1.f) throw std::invalid_argument("vcm grow must be 0 or 1");
                 if (s.max_depth > 65535) throw std::invalid_argument("vcm max_depth must be at most 65535");
-                return std::make_unique<VCMIntegrator>(s.max_depth, uint32_t(paths), radius, alpha, merging == 1.f,
+                return std::make_unique<VCMIntegrator>(s.max_depth, uint32_t(paths), uint32_t(max_paths), radius,
+                                                       alpha, merging == 1.f,
                                                        grow == 1.f, TimeSlicesSetting(s, "vcm"), s.scene_product);
             }};
 }
