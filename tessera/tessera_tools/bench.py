@@ -16,19 +16,19 @@ Repetitions (different seeds) are interleaved: every repetition walks the ladder
 renders every series at each rung before moving on, in an order rotated per repetition,
 so that load from other processes on the machine hits all series alike. A straight line
 is fitted to log10(relMSE) against log10(seconds) per series, once over all points and
-once per repetition; the time to reach a relMSE target and the relMSE at a time budget are
-read off the line (interpolated when the target lies within the measured range, else
-extrapolated: the report says which), with the half-range of the per-repetition values as
-their error. A time to a target inside the measured range is read between the two points
-that bracket it rather than off the line. Ratios between two series are taken per repetition, then summarised the same
-way: both series' points come from the same run and the same minutes.
+once per repetition. The time to reach a relMSE target is read between the two measured
+points that bracket it (interpolated), or off the line where none do (extrapolated: the
+report says which); the relMSE at a time budget is read off the line; the half-range of
+the per-repetition values is their error. Ratios between two series are taken per
+repetition, then summarised the same way: both series' points come from the same run and
+the same minutes.
 
 References are rendered once and cached outside git (`~/.cache/tessera/references/`, or
 $TESSERA_CACHE_DIR), keyed by a hash of the scene's files, the settings and the renderer
 build. Two references with different seeds are rendered; the image compared against is
 their mean, and their mutual relMSE is reported: the mean's own error is about a quarter
-of it. The uncertainty of the subtracted own relMSE must be far below the smallest error
-measured.
+of it. The subtracted own relMSE must be known to a tenth of the finest error read (the
+smallest target, or the smallest error measured if that is larger).
 
 The peer is Mitsuba 3 (optional extra `peer`), built from Tessera's own translation of the
 scene (tessera/tessera_tools/peer_mitsuba.py). Before any speed ratio is quoted, converged images of
