@@ -148,7 +148,9 @@ def job_splats_key(job_id: str) -> str:
 def job_products_key(job_id: str) -> str:
     """Hash: SHA-256 hex -> a scene-pass product (opaque bytes, tessera_base.film.run_scene_pass),
     content-addressed and written once (HSETNX); the job hash's product:<pass> fields say
-    which iteration uses which. Workers fetch a product once and keep it by its hash."""
+    which iteration uses which. Workers fetch a product once and keep it by its hash. A
+    pass's product is deleted when its barrier is decided (decide_pass.lua): at most the
+    current iteration's is held."""
     return f"{_JOB}{job_id}{_PRODUCTS}"
 
 

@@ -79,6 +79,9 @@ def test_farm_image_equals_local(farm, redis_client, tmp_path, integrator, param
         assert_bit_identical(farm_image(farm, job, tmp_path), expected)
         fields = redis_client.hgetall(rdb.job_key(job))
         assert int(fields[b"scene_passes_stored"]) == ITERATIONS
+        # Every iteration stored a product, and each went with its pass's barrier.
+        assert all(rdb.product_field(k).encode() in fields for k in range(ITERATIONS))
+        assert redis_client.hlen(rdb.job_products_key(job)) == 0
         # The photons matter: another photon count is another image.
         other = local_image(form, {**params, "photons": params["photons"] // 2})
         assert not np.array_equal(other, expected)

@@ -71,6 +71,8 @@ def test_farm_vcm_image_equals_local(farm, redis_client, tmp_path, expected):
         assert int(fields[b"scene_passes_stored"]) == ITERATIONS
         digests = {fields[rdb.product_field(p).encode()] for p in range(ITERATIONS)}
         assert len(digests) == ITERATIONS  # fresh light paths and a smaller radius each iteration
+        # Each product went with its pass's barrier: Redis holds at most the current one.
+        assert redis_client.hlen(rdb.job_products_key(job)) == 0
         # Not vacuous: merging is part of the image (without it, it is bdpt's).
         off = RenderSettings(**FORM, integrator_params={**PARAMS, "merging": 0})
         assert not np.array_equal(
@@ -115,3 +117,27 @@ def test_a_worker_killed_mid_iteration_leaves_the_image_unchanged(farm, redis_cl
         assert_bit_identical(farm_image(farm, job, tmp_path), expected)
     finally:
         rescuer.stop()
+
+
+def test_a_late_duplicate_whose_pass_is_decided_is_dropped_not_failed(farm, redis_client):
+    """decide_pass.lua deletes a pass's product with its barrier. A duplicate tile task of
+    that pass that slipped past the worker's stored-tile check (its twin stored the tile
+    meanwhile) then finds no product: the worker drops it, since its pass is complete,
+    where a missing product of an undecided pass still fails the job (the control)."""
+    from tessera_worker.child import Abandoned, RenderFailed
+    from tessera_worker.settings import WorkerSettings
+    from tessera_worker.worker import Worker
+
+    job = "late-duplicate"
+    redis_client.hset(rdb.job_key(job), mapping={"decided_pass": 1, rdb.product_field(1): "ab" * 32})
+    try:
+        task = queue_tasks.TileTask(job_id=job, scene_hash="0" * 64, scene_name="cornell.usda",
+                                    settings=RenderSettings(**FORM, integrator_params=PARAMS),
+                                    tile=protocol.tile_grid(32, 32, 16)[0], pass_index=1)
+        worker = Worker(WorkerSettings(redis_url=farm.redis_url), name="late-duplicate")
+        with pytest.raises(Abandoned, match="pass 1 is complete"):
+            worker._scene_product(task)
+        with pytest.raises(RenderFailed, match="product is missing"):
+            worker._scene_product(task.model_copy(update={"pass_index": 2}))
+    finally:
+        redis_client.delete(rdb.job_key(job))

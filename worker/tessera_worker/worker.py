@@ -234,8 +234,9 @@ class Worker:
         try:
             try:
                 result, seconds = self._render(task)
-            except Abandoned:
-                log.info("job %s ended while tile %d rendered; dropped it", job_id, task.tile.index)
+            except Abandoned as e:
+                log.info("job %s tile %d pass %d dropped: %s", job_id, task.tile.index, task.pass_index,
+                         e or "the job ended while it rendered")
                 self._ack(queue, entry_id)
                 return
             except HandBack:
@@ -399,6 +400,11 @@ class Worker:
         if product is None and digest:
             product = self.redis.hget(rdb.job_products_key(task.job_id), digest)
         if product is None:
+            decided = _text(self.redis.hget(rdb.job_key(task.job_id), "decided_pass"))
+            if decided is not None and int(decided) >= task.pass_index:
+                # A late duplicate of a tile its pass already holds (decide_pass.lua dropped
+                # the pass's product with the barrier): nothing to render.
+                raise Abandoned(f"pass {task.pass_index} is complete")
             raise RenderFailed(f"the scene pass {task.pass_index} product is missing", fatal=True)
         self._products[digest] = self._products.pop(digest, product)  # most recently used last
         while len(self._products) > PRODUCTS_KEPT:

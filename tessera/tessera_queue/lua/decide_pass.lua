@@ -9,6 +9,12 @@ if state and not is_final(state)
    and tonumber(redis.call('HGET', K.job, 'decided_pass') or '-1') < tonumber(ARGV[2]) then
   redis.call('HSET', K.job, 'decided_pass', ARGV[2])
   redis.call('SET', K.passes, ARGV[6])
+  -- Every tile of this pass is stored, so nothing reads its scene-pass product again (the
+  -- next pass's is not computed yet: this barrier queues its scene task). The bytes go,
+  -- the product:<pass> field stays; a late duplicate of one of its tiles finds its tile
+  -- stored, or the pass decided (worker.py), and is dropped.
+  local digest = redis.call('HGET', K.job, 'product:' .. ARGV[2])
+  if digest then redis.call('HDEL', K.products, digest) end
   if ARGV[3] == '1' then
     local total = redis.call('HGET', K.job, 'tiles_total')
     redis.call('HSET', K.job, 'tiles_done', total)
