@@ -70,8 +70,9 @@ def _write_exr(path: Path, img: np.ndarray) -> None:
 
 
 def cached_render(key: dict, render, log) -> tuple[np.ndarray, dict]:
-    """The image for `key` from the cache, or render() -> image, stored with its key and
-    render time. Returns (image, metadata)."""
+    """The image for `key` from the cache, or render() -> image (or (image, extra): a dict
+    of JSON values kept in the metadata), stored with its key and render time. Returns
+    (image, metadata)."""
     digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:24]
     directory = cache_dir()
     exr, meta_path = directory / f"{digest}.exr", directory / f"{digest}.json"
@@ -82,11 +83,13 @@ def cached_render(key: dict, render, log) -> tuple[np.ndarray, dict]:
     log(f"  rendering reference {key['renderer']} {key['integrator']} {key['spp']} spp seed {key['seed']} "
         f"({key['scene']}) ...")
     start = time.perf_counter()
-    img = render()
+    img, extra = render(), {}
+    if isinstance(img, tuple):
+        img, extra = img
     seconds = time.perf_counter() - start
     directory.mkdir(parents=True, exist_ok=True)
     _write_exr(exr, img)
-    meta = {"key": key, "seconds": seconds, "file": str(exr)}
+    meta = {"key": key, "seconds": seconds, "file": str(exr), **extra}
     meta_path.write_text(json.dumps(meta, indent=2) + "\n")
     meta["cached"] = False
     log(f"    {seconds:.1f} s -> {exr}")

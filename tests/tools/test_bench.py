@@ -160,3 +160,32 @@ def bench_args(argv):
     p = argparse.ArgumentParser()
     bench.add_options(p)
     return p.parse_args(argv)
+
+
+def test_units_check_allows_for_each_regions_own_noise():
+    """A region 3 % off is noise where the two images' region means are 1.5 % noisy each
+    (allowed: 1 % + 3 x 1.5 %) and a unit error where they are 0.3 % noisy; the image means
+    still must agree within 1 %."""
+    rng = np.random.default_rng(3)
+    img = rng.uniform(0.2, 1.0, (64, 64, 3)).astype(np.float32)
+    local = img.copy()
+    local[:16, :16] *= 1.03
+    assert bench_stats.units_agree(img, local, noise=np.full((4, 4), 0.015))["agree"]
+    check = bench_stats.units_agree(img, local, noise=np.full((4, 4), 0.003))
+    assert not check["agree"] and check["worst_region_excess"] == pytest.approx(0.03 - 0.009, abs=1e-4)
+    assert not bench_stats.units_agree(img, img * 1.015, noise=np.full((4, 4), 0.05))["agree"]
+
+
+def test_region_noise_from_passes_matches_the_closed_form():
+    """Passes with Gaussian pixel noise sigma about a flat truth t: a region of n pixels and
+    3 channels summed, over k passes, has relative standard error sigma sqrt(3 / n) / (3 t)
+    / sqrt(k). The estimate from 64 passes lands within 25 % of it (its own spread is ~9 %);
+    twice the closed form lies outside (the control)."""
+    rng = np.random.default_rng(4)
+    t, sigma, k = 0.5, 0.2, 64
+    passes = [t + sigma * rng.standard_normal((64, 64, 3)) for _ in range(k)]
+    est = bench_stats.region_noise(pass_images=passes)
+    closed = sigma * np.sqrt(3 / 256) / (3 * t) / np.sqrt(k)
+    assert est.shape == (4, 4)
+    assert np.all(np.abs(est / closed - 1) < 0.25), est / closed
+    assert np.all(np.abs(est / (2 * closed) - 1) > 0.25)
