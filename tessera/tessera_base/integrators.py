@@ -85,9 +85,10 @@ def iteration_share_cap(name: str, values: dict[str, float]) -> int | None:
     """The most first-pass shares of samples one pass may hold for `name` with settings
     `values`, or None (no cap: the passes keep doubling). An integrator whose iterations
     trace batches of paths (its `iteration_cap`) holds at most `max_per_iteration` paths an
-    iteration (or its setting `max_param`); the cap is the largest power of two of batches within that, at least 1 (the
-    core's IterationShareCap, integrators/integrator.h: both must agree). For `auto`: none
-    (the integrators it picks have no cap)."""
+    iteration (or its setting `max_param`); the cap is the largest power of two of batches
+    within that, at least 1 (the core's IterationShareCap, integrators/integrator.h: both
+    must agree, tests/renderer/test_vcm.py checks). For `auto`: none (the integrators it
+    picks have no cap)."""
     if name == AUTO:
         return None
     entry = next((i for i in integrators() if i["name"] == name), None)
