@@ -280,7 +280,8 @@ def run(scene_names, integrators, cfg: Config, out: Path, peer_variants=("scalar
         own, own_error = reference_noise(refs[0][0], refs[1][0])
         ra, rb = region_means(refs[0][0]).sum(-1), region_means(refs[1][0]).sum(-1)
         lit = (ra + rb) > 0.04 * (ra + rb).mean()
-        seed_region_noise = float(np.max(np.abs(ra - rb)[lit] / (ra + rb)[lit])) if lit.any() else float("nan")
+        ref_region_noise = region_noise(halves=(refs[0][0], refs[1][0]))
+        seed_region_noise = float(np.max(ref_region_noise[lit])) if lit.any() else float("nan")
         info["reference"] = {"integrator": ref_int, "spp": ref_spp, "seeds": 2, "mutual_rel_mse": mutual,
                              "region_mean_noise": seed_region_noise,
                              "estimated_rel_mse_of_mean": own, "own_rel_mse_error": own_error,
@@ -325,8 +326,7 @@ def run(scene_names, integrators, cfg: Config, out: Path, peer_variants=("scalar
                 # Tessera's from its two seeds.
                 noise = None
                 if meta.get("region_noise") is not None:
-                    noise = np.hypot(np.asarray(meta["region_noise"], np.float64),
-                                     region_noise(halves=(refs[0][0], refs[1][0])))
+                    noise = np.hypot(np.asarray(meta["region_noise"], np.float64), ref_region_noise)
                 agree = units_agree(ref, mref, noise=noise)
                 info["peer"][tag] = {"reference_spp": cfg.peer_ref_spp * bs.ref_scale, "reference_seconds": meta["seconds"],
                                      "rel_mse_vs_tessera_reference": rel_mse(mref, ref), **agree}
