@@ -235,8 +235,12 @@ class Worker:
             try:
                 result, seconds = self._render(task)
             except Abandoned as e:
-                log.info("job %s tile %d pass %d dropped: %s", job_id, task.tile.index, task.pass_index,
-                         e or "the job ended while it rendered")
+                if str(e):
+                    log.info("job %s tile %d pass %d dropped: %s", job_id, task.tile.index,
+                             task.pass_index, e)
+                else:
+                    log.info("job %s ended while tile %d (pass %d) rendered; dropped it", job_id,
+                             task.tile.index, task.pass_index)
                 self._ack(queue, entry_id)
                 return
             except HandBack:
