@@ -92,6 +92,9 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
     if (uint64_t(options.sample_start) + options.spp > 0xFFFFFFFFull)
         throw std::invalid_argument("sample indices must stay below 2^32");
     if (options.max_depth < 0) throw std::invalid_argument("max_depth must be >= 0");
+    if (!kFullFeatures && (camera.HasLens() || camera.Moves() || aovs.any()))
+        throw std::invalid_argument("this renderer build (TESSERA_LAMBERT_ONLY) renders through a still pinhole "
+                                    "camera and without AOVs only");
 
     const std::unique_ptr<Integrator> integrator =
         Integrator::Create(options.integrator, {options.max_depth, options.integrator_params, options.scene_product},
@@ -107,9 +110,9 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
     // Every integrator's camera samples get their instants, those whose tiles read a scene
     // pass's product too: its photons and light vertices were traced at instants of their
     // own (LightPathInstant), its radiosity solution at mid-shutter (docs/motion.md).
-    const bool sample_time = scene.has_motion() || camera.Moves();
+    const bool sample_time = kFullFeatures && (scene.has_motion() || camera.Moves());
     std::atomic<uint64_t> nonfinite{0}, rejected_splats{0}, closest_rays{0}, shadow_rays{0};
-    const bool want_aovs = aovs.any();
+    const bool want_aovs = kFullFeatures && aovs.any();
     std::mutex first_mutex;
     RenderStats stats;
     const uint32_t n_pixels = tile.width * tile.height;
@@ -133,7 +136,7 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                 Vec2 jitter = sampler.Get2D();
                 // The lens dimensions are drawn only for a lens, so pinhole images keep
                 // their sample streams.
-                const Vec2 u_lens = camera.HasLens() ? sampler.Get2D() : Vec2{0.5f, 0.5f};
+                const Vec2 u_lens = kFullFeatures && camera.HasLens() ? sampler.Get2D() : Vec2{0.5f, 0.5f};
                 // The sample's instant in the shutter (a box shutter): its own dimension,
                 // drawn only when something moves, so static images keep their streams.
                 const float time = sample_time ? sampler.Get1D() : 0.5f;
@@ -141,7 +144,7 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                 // A moving camera, where it is at that instant (for the ray, the AOVs and
                 // every connection the integrator makes to the camera).
                 std::optional<Camera> moved;
-                if (camera.Moves()) moved = camera.At(time);
+                if (kFullFeatures && camera.Moves()) moved = camera.At(time);
                 const Camera& cam = moved ? *moved : camera;
                 Ray ray = cam.GenerateRay(float(x) + jitter.x, float(y) + jitter.y, u_lens);
                 float t_min, t_max;

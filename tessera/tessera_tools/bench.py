@@ -128,6 +128,20 @@ def quick_config() -> Config:
                   quick=True)
 
 
+def bench_scene_data(bs: BenchScene):
+    """The scene's translation as the bench renders it (lambertized for the peer variants),
+    not yet built: a core built for Lambert-only scenes (benchmarks/lambert_only.py) cannot
+    build the authored materials that lambertize replaces."""
+    from tessera_renderer import translate_stage
+
+    from .peer_mitsuba import lambertize
+
+    if not bs.path.is_file():
+        raise FileNotFoundError(f"scene {bs.name}: {bs.path} not found")
+    data = translate_stage(str(bs.path), instancing="auto")
+    return lambertize(data) if bs.lambertize else data
+
+
 def load_bench_scene(bs: BenchScene):
     from tessera_renderer import Scene, load_scene
 

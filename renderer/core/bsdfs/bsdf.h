@@ -25,8 +25,10 @@
 
 #include <cstdint>
 #include <optional>
+#include <type_traits>
 #include <variant>
 
+#include "feature_set.h"
 #include "math.h"
 #include "ggx_albedo.h"
 #include "microfacet.h"
@@ -64,6 +66,7 @@ public:
     std::optional<BSDFSample> Sample_f(Vec3 wo, float uc, Vec2 u) const;
     float PDF(Vec3 wo, Vec3 wi) const;
     uint32_t Flags() const { return IsBlack(r_) ? kBSDFUnset : (kBSDFReflection | kBSDFDiffuse); }
+    bool IsNonSpecular() const { return !IsBlack(r_); }  // as BSDF's, for kernels that shade with it directly
     Color Albedo() const { return r_; }
 
 private:
@@ -229,10 +232,14 @@ private:
 // What the integrator holds per shading point.
 class BSDF {
 public:
+#ifdef TESSERA_LAMBERT_ONLY
+    using Variant = std::variant<DiffuseBSDF>;
+#else
     using Variant = std::variant<DiffuseBSDF, ConductorBSDF, DielectricBSDF, PreviewSurfaceBSDF>;
+#endif
     BSDF() : v_(DiffuseBSDF(Color(0.f))) {}
     template <typename T>
-    BSDF(const T& b) : v_(b) {}
+    BSDF(const T& b) : v_(Hold(b)) {}
 
     Color f(Vec3 wo, Vec3 wi) const {
         return std::visit([&](const auto& b) { return b.f(wo, wi); }, v_);
@@ -259,6 +266,13 @@ public:
     const Variant& variant() const { return v_; }
 
 private:
+    // The Lambert-only build's Scene refuses every material but a Lambertian, so the other
+    // kinds are never made there; they still compile, as black.
+    template <typename T>
+    static Variant Hold(const T& b) {
+        if constexpr (kFullFeatures || std::is_same_v<T, DiffuseBSDF>) return b;
+        else return DiffuseBSDF(Color(0.f));
+    }
     Variant v_;
 };
 

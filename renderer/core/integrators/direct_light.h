@@ -15,8 +15,10 @@ namespace tessera {
 // Scene::SampleLight at (hit.p, hit.ns): a caller weighing BSDF-sampled emitter hits asks
 // Scene::LightPmf at the same point and normal. Inline, as it could be when it shared
 // the path tracer's file: it runs at every vertex of the hot loops.
-inline Color SampleDirectLight(const Scene& scene, const SurfaceHit& hit, const BSDF& bsdf, const Frame& frame, Vec3 wo,
-                               PixelSampler& sampler, bool mis) {
+// `Shading` is BSDF, or one of its kinds when the caller knows which (PathIntegrator).
+template <typename Shading>
+inline Color SampleDirectLight(const Scene& scene, const SurfaceHit& hit, const Shading& bsdf, const Frame& frame,
+                               Vec3 wo, PixelSampler& sampler, bool mis) {
     float pmf = 0.f;
     uint32_t light = 0;
     const bool chosen = scene.SampleLight(sampler.Get1D(), hit.p, hit.ns, &light, &pmf);

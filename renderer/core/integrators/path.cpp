@@ -1,5 +1,7 @@
 #include "path.h"
 
+#include <type_traits>
+
 #include "bsdf.h"
 #include "direct_light.h"
 #include "sampling.h"
@@ -22,6 +24,12 @@ IntegratorEntry PathIntegratorEntry() {
 }
 
 PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const {
+    return scene.all_lambertian() ? Trace<DiffuseBSDF>(scene, ray, sampler, t_min, t_max)
+                                  : Trace<BSDF>(scene, ray, sampler, t_min, t_max);
+}
+
+template <typename Shading>
+PathSample PathIntegrator::Trace(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const {
     PathSample result;
     Color L(0.f), beta(1.f);
     float bsdf_pdf = 0.f;         // solid-angle pdf of the direction that produced `ray`
@@ -57,7 +65,10 @@ PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler
         }
         if (depth >= max_depth_) break;
 
-        const BSDF bsdf = scene.BSDFAt(hit, TransportMode::Radiance);
+        const Shading bsdf = [&] {
+            if constexpr (std::is_same_v<Shading, DiffuseBSDF>) return DiffuseBSDF(scene.LambertianAlbedoAt(hit));
+            else return scene.BSDFAt(hit, TransportMode::Radiance);
+        }();
         if (bsdf.Flags() == kBSDFUnset) break;
         // The frame keeps the wound side: dielectrics tell inside from outside by it.
         const Frame frame = Frame::FromZ(hit.ns);

@@ -24,6 +24,11 @@ public:
                   float t_max = std::numeric_limits<float>::infinity()) const;
 
 private:
+    // The kernel, for shading through BSDF (any scene) or directly with DiffuseBSDF (a
+    // scene whose materials are all Lambertian: no variant dispatch per BSDF call). Both
+    // compute the same image to the bit on such a scene.
+    template <typename Shading>
+    PathSample Trace(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const;
     int max_depth_;
 };
 

@@ -26,6 +26,27 @@ bool IsNonNegativeFinite(Color c) {
     return IsFinite(c) && c.x >= 0.f && c.y >= 0.f && c.z >= 0.f;
 }
 
+// The Lambert-only build (feature_set.h) has no code for anything else: it refuses it.
+void RequireLambertOnly(const SceneDesc& d) {
+    auto refuse = [](const std::string& what) {
+        throw std::invalid_argument("this renderer build (TESSERA_LAMBERT_ONLY) renders Lambertian triangles "
+                                    "under triangle lights only; the scene has " + what);
+    };
+    for (size_t m = 0; m < d.materials.size(); ++m) {
+        const Material& mat = d.materials[m];
+        if (mat.preview) refuse("a UsdPreviewSurface (material " + std::to_string(m) + ")");
+        if (mat.textures != NoTextures()) refuse("textures (material " + std::to_string(m) + ")");
+        if (mat.emission_shaping >= 0) refuse("a shaped light (material " + std::to_string(m) + ")");
+    }
+    if (!d.uvs.empty()) refuse("texture coordinates");
+    if (!d.prototypes.empty() || !d.instance_prototype.empty()) refuse("instances");
+    if (!d.motion_instances.empty() || !d.light_motion_kinds.empty()) refuse("motion");
+    if (!d.curve_segments.empty()) refuse("curves");
+    if (!d.sphere_lights.empty() || !d.point_lights.empty() || !d.distant_lights.empty() ||
+        !IsBlack(d.dome_radiance))
+        refuse("lights other than emissive triangles");
+}
+
 }  // namespace
 
 namespace {
@@ -58,6 +79,7 @@ Scene::Scene(const SceneDesc& desc)
       spheres_(desc.sphere_lights),
       points_(desc.point_lights),
       distants_(desc.distant_lights) {
+    if constexpr (!kFullFeatures) RequireLambertOnly(desc);
     textures_ = TextureSet(desc.images, desc.textures);
     for (size_t m = 0; m < materials_.size(); ++m) {
         if (!IsNonNegativeFinite(materials_[m].albedo) || !IsNonNegativeFinite(materials_[m].emission) ||
@@ -88,6 +110,8 @@ Scene::Scene(const SceneDesc& desc)
                                        : textured_opacity ? pv->opacity_threshold > 0.f
                                                           : IsCutout(*pv, pv->opacity)));
         has_cutouts_ = has_cutouts_ || material_is_cutout_.back();
+        all_lambertian_ = all_lambertian_ && !pv;
+        has_normal_maps_ = has_normal_maps_ || (pv && materials_[m].textures[kSlotNormal] >= 0);
         // An untextured material's BSDF is the same at every hit: built here once per
         // transport mode, copied by BSDFAt (its constructor costs more than the copy).
         for (TransportMode mode : {TransportMode::Radiance, TransportMode::Importance})

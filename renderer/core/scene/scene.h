@@ -260,8 +260,14 @@ public:
     Scene& operator=(const Scene&) = delete;
 
     // Cutout surfaces (opacity below a positive opacityThreshold) are passed through.
+    // Inline: most scenes have neither cutouts nor normal maps, and go straight to Embree.
     bool Intersect(const Ray& ray, SurfaceHit* hit, float t_min = 0.f,
-                   float t_max = std::numeric_limits<float>::infinity()) const;
+                   float t_max = std::numeric_limits<float>::infinity()) const {
+        if (!kFullFeatures || (!has_cutouts_ && !has_normal_maps_)) return IntersectClosest(ray, t_min, t_max, hit);
+        if (!IntersectSurface(ray, hit, t_min, t_max)) return false;
+        ApplyNormalMap(hit);
+        return true;
+    }
     bool Occluded(Vec3 origin, Vec3 dir, float t_far) const;
     // Is the segment between two points free? Each end lies within its error bound of a
     // surface with geometric normal n (n = 0: not on a surface, as a point light or the
@@ -327,6 +333,16 @@ public:
     template <typename Visit>
     void ForEachEnvironmentLight(Vec3 dir, Visit&& visit) const;
     bool has_environment() const { return !environment_lights_.empty(); }
+    // Every material is a plain Lambertian (no UsdPreviewSurface): the BSDF at any hit is
+    // DiffuseBSDF(MaterialAt(hit).albedo), and integrators may shade with it directly
+    // (PathIntegrator's specialised kernel) instead of through BSDF's variant.
+    bool all_lambertian() const { return all_lambertian_; }
+    // The albedo of the DiffuseBSDF at a hit when all_lambertian() (black on a light's own
+    // surface, as BSDFAt's).
+    Color LambertianAlbedoAt(const SurfaceHit& hit) const {
+        const int64_t mi = MaterialIndexAt(hit);
+        return mi < 0 ? Color(0.f) : materials_[size_t(mi)].albedo;
+    }
     // Some material has a delta lobe (a smooth mirror, clear glass): transport radiosity's
     // form factors do not carry (radiosity_product.cpp picks the stochastic solver then).
     bool has_delta_surfaces() const {
@@ -431,7 +447,7 @@ private:
     // The light's transform now for emitter e (nullptr when nothing in the scene's lights
     // moves: static scenes skip the lookup).
     const float* EmitterMotionAt(const Emitter& e, float* scratch, float* n_scratch) const {
-        return light_motion_m_.empty() ? nullptr : LightMotionAt(MotionOf(e), scratch, n_scratch);
+        return !kFullFeatures || light_motion_m_.empty() ? nullptr : LightMotionAt(MotionOf(e), scratch, n_scratch);
     }
     SphereLight SphereAt(uint32_t s) const;  // the sphere at this thread's shutter time
     const LightMotion& MotionOf(const Emitter& e) const;  // a still one for triangles
@@ -466,6 +482,8 @@ private:
     RTCScene scene_ = nullptr;
     size_t num_triangles_ = 0;
     bool IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceHit* hit) const;
+    // IntersectClosest's hit on a sphere light or a curve (kept out of the triangles' way).
+    bool SphereOrCurveHit(const Ray& ray, const RTCRayHit& rh, SurfaceHit* hit) const;
     // Intersect without the normal map (shadow rays through cutouts need no shading).
     bool IntersectSurface(const Ray& ray, SurfaceHit* hit, float t_min, float t_max) const;
     bool IsCutoutHit(const SurfaceHit& hit) const;
@@ -480,6 +498,8 @@ private:
     std::vector<BSDF> material_bsdfs_;  // [2 m + mode]: the BSDF of an untextured material m
     std::vector<uint8_t> material_may_have_delta_;  // some hit of the material has a delta lobe
     bool has_cutouts_ = false;
+    bool has_normal_maps_ = false;
+    bool all_lambertian_ = true;
     std::vector<Material> materials_;
     std::vector<LightShaping> emission_shapings_;
     // The shaping of a triangle emitter's material about its emitting normal n (or the

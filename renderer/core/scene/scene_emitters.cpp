@@ -29,6 +29,7 @@ struct LightFrame {
 }  // namespace
 
 int32_t Scene::EmitterAt(const SurfaceHit& hit) const {
+    if constexpr (!kFullFeatures) return meshes_[0].emitter[hit.prim_id];
     if (hit.geom_id == kCurveGeometry) return kNoEmitter;  // emissive curves come as triangle tubes
     if (hit.geom_id != kTriangleGeometry) return sphere_emitter_[hit.prim_id];
     const int32_t local = meshes_[hit.mesh].emitter[hit.prim_id];
@@ -39,11 +40,11 @@ int32_t Scene::EmitterAt(const SurfaceHit& hit) const {
 Color Scene::Emitted(int32_t emitter, const SurfaceHit& hit, Vec3 wo) const {
     if (emitter < 0) return Color(0.f);
     const Emitter& e = emitters_[emitter];
-    if (e.kind == LightKind::kSphere) return spheres_[e.index].radiance;
+    if (kFullFeatures && e.kind == LightKind::kSphere) return spheres_[e.index].radiance;
     const Material& m = MaterialOf(e.mesh, e.index);
     if (!m.two_sided_emission && !(Dot(hit.ng, wo) > 0.f)) return Color(0.f);
     const Color Le = TriangleEmission(e.mesh, e.index, hit.b1, hit.b2);
-    return m.emission_shaping < 0 ? Le : Le * EmissionShaping(m, Dot(hit.ng, wo) >= 0.f ? hit.ng : -hit.ng, wo);
+    return !kFullFeatures || m.emission_shaping < 0 ? Le : Le * EmissionShaping(m, Dot(hit.ng, wo) >= 0.f ? hit.ng : -hit.ng, wo);
 }
 
 TriangleLight Scene::TriangleLightOf(const Emitter& e) const {
@@ -55,13 +56,16 @@ TriangleLight Scene::TriangleLightOf(const Emitter& e) const {
     t.p2 = tri[2];
     t.area = EmitterArea(e);
     t.two_sided = MaterialOf(e.mesh, e.index).two_sided_emission;
-    t.instanced = e.instance != kNoInstance;
+    t.instanced = kFullFeatures && e.instance != kNoInstance;
     return t;
 }
 
 bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) const {
     const Emitter& e = emitters_[emitter];
     out->is_delta = false;
+    if constexpr (!kFullFeatures)
+        return TriangleLightOf(e).Sample(
+            ref, u, [&](float b1, float b2) { return TriangleEmission(e.mesh, e.index, b1, b2); }, out);
     LightFrame f;
     f.m = EmitterMotionAt(e, f.m_scratch, f.n);
     switch (e.kind) {
@@ -240,12 +244,12 @@ Color Scene::EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const {
 
 float Scene::EmitterPdf(uint32_t emitter, Vec3 ref, const SurfaceHit& hit) const {
     const Emitter& e = emitters_[emitter];
-    if (e.kind == LightKind::kSphere) return SphereAt(e.index).Pdf(ref);
+    if (kFullFeatures && e.kind == LightKind::kSphere) return SphereAt(e.index).Pdf(ref);
     return TriangleLightPdf(ref, hit.p, hit.ng, EmitterArea(e));
 }
 
 float Scene::EmitterArea(const Emitter& e) const {
-    const bool reshaped = e.kind == LightKind::kTriangle &&
+    const bool reshaped = kFullFeatures && has_motion() && e.kind == LightKind::kTriangle &&
                           (meshes_[e.mesh].time_steps > 1 ||
                            (e.instance != kNoInstance && instances_[e.instance].time_steps > 1));
     if (!reshaped) return e.area;

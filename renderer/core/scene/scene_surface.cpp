@@ -76,7 +76,7 @@ const float* Scene::InstanceNormalMatrix(const Instance& in, const float* m, flo
 float Scene::TriangleVertices(uint32_t mesh, uint32_t prim, uint32_t instance, Vec3 p[3]) const {
     const Mesh& m = meshes_[mesh];
     float scratch[12];
-    const float* xf = instance != kNoInstance ? InstanceMatrix(instances_[instance], scratch) : nullptr;
+    const float* xf = kFullFeatures && instance != kNoInstance ? InstanceMatrix(instances_[instance], scratch) : nullptr;
     for (int c = 0; c < 3; ++c) {
         p[c] = MeshVertex(m, prim, c);
         if (xf) p[c] = TransformPoint(xf, p[c]);
@@ -84,7 +84,7 @@ float Scene::TriangleVertices(uint32_t mesh, uint32_t prim, uint32_t instance, V
     // A mirroring instance transform reverses the winding of the transformed corners; the
     // flattened copy reverses its corner order instead, so the side a triangle faces is
     // the same either way: Cross(p1 - p0, p2 - p0) times this sign.
-    return instance != kNoInstance ? instances_[instance].orientation : 1.f;
+    return kFullFeatures && instance != kNoInstance ? instances_[instance].orientation : 1.f;
 }
 
 Vec2 Scene::TriangleST(const Mesh& mesh, uint32_t prim, float b1, float b2) const {
@@ -97,7 +97,7 @@ Vec2 Scene::TriangleST(const Mesh& mesh, uint32_t prim, float b1, float b2) cons
 Color Scene::TriangleEmission(uint32_t mesh, uint32_t prim, float b1, float b2) const {
     const Material& m = MaterialOf(mesh, prim);
     const int32_t t = m.textures[kSlotEmissiveColor];
-    if (t < 0) return m.emission;
+    if (!kFullFeatures || t < 0) return m.emission;
     const Color c = textures_.EvaluateColor(uint32_t(t), TriangleST(meshes_[mesh], prim, b1, b2));
     return {std::max(0.f, c.x), std::max(0.f, c.y), std::max(0.f, c.z)};
 }
@@ -174,14 +174,8 @@ bool Scene::IsCutoutHit(const SurfaceHit& hit) const {
     return t < 0 || IsCutout(*m.preview, textures_.EvaluateFloat(uint32_t(t), hit.st));
 }
 
-bool Scene::Intersect(const Ray& ray, SurfaceHit* hit, float t_min, float t_max) const {
-    if (!IntersectSurface(ray, hit, t_min, t_max)) return false;
-    ApplyNormalMap(hit);
-    return true;
-}
-
 bool Scene::IntersectSurface(const Ray& ray, SurfaceHit* hit, float t_min, float t_max) const {
-    if (!has_cutouts_) return IntersectClosest(ray, t_min, t_max, hit);
+    if (!kFullFeatures || !has_cutouts_) return IntersectClosest(ray, t_min, t_max, hit);
     // Step through cutout surfaces. Each step restarts just past the previous hit, so a
     // ray crosses at most as many cutout layers as lie along it.
     float t_near = t_min;
@@ -191,6 +185,41 @@ bool Scene::IntersectSurface(const Ray& ray, SurfaceHit* hit, float t_min, float
         t_near = NextFloatUp(hit->t) * (1.f + 1e-6f);
     }
     return false;
+}
+
+bool Scene::SphereOrCurveHit(const Ray& ray, const RTCRayHit& rh, SurfaceHit* hit) const {
+    if (rh.hit.geomID == kSphereGeometry) {
+        const SphereLight s = SphereAt(rh.hit.primID);
+        Vec3 p = ray.o + ray.d * rh.ray.tfar;
+        hit->geom_id = kSphereGeometry;
+        hit->mesh = 0;
+        hit->instance = kNoInstance;
+        hit->ng = Normalize(p - s.center);
+        hit->ns = hit->ng;
+        hit->p = s.center + hit->ng * s.radius;
+        hit->p_error = Gamma(5) * (MaxAbsComponent(s.center) + s.radius);
+        hit->st = {};
+        return true;
+    }
+    // A round curve: Embree's Ng is the swept surface's normal there (outward). The
+    // point comes from o + t d; its error bound covers that and Embree's curve test,
+    // which is iterative and far less exact than the triangle test: a thousandth of
+    // the local radius (offsetting by it keeps a reflected ray off the strand it left
+    // without letting it pass through a thin one).
+    const uint32_t first = curve_first_[rh.hit.primID];
+    const float r = curve_radius_[first] * (1.f - rh.hit.u) + curve_radius_[first + 1] * rh.hit.u;
+    const Vec3 p = ray.o + ray.d * rh.ray.tfar;
+    Vec3 ng(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
+    const float len = Length(ng);
+    hit->geom_id = kCurveGeometry;
+    hit->mesh = 0;
+    hit->instance = kNoInstance;
+    hit->ng = len > 0.f && std::isfinite(len) ? ng / len : -ray.d;
+    hit->ns = hit->ng;
+    hit->p = p;
+    hit->p_error = Gamma(5) * (MaxAbsComponent(ray.o) + MaxAbsComponent(ray.d * rh.ray.tfar)) + 1e-3f * r;
+    hit->st = {};
+    return true;
 }
 
 bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceHit* hit) const {
@@ -219,42 +248,10 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceH
     hit->b1 = rh.hit.u;
     hit->b2 = rh.hit.v;
     const uint32_t inst = rh.hit.instID[0];
-    if (inst == RTC_INVALID_GEOMETRY_ID && rh.hit.geomID == kSphereGeometry) {
-        const SphereLight s = SphereAt(rh.hit.primID);
-        Vec3 p = ray.o + ray.d * rh.ray.tfar;
-        hit->geom_id = kSphereGeometry;
-        hit->mesh = 0;
-        hit->instance = kNoInstance;
-        hit->ng = Normalize(p - s.center);
-        hit->ns = hit->ng;
-        hit->p = s.center + hit->ng * s.radius;
-        hit->p_error = Gamma(5) * (MaxAbsComponent(s.center) + s.radius);
-        hit->st = {};
-        return true;
-    }
-    if (inst == RTC_INVALID_GEOMETRY_ID && rh.hit.geomID == kCurveGeometry) {
-        // A round curve: Embree's Ng is the swept surface's normal there (outward). The
-        // point comes from o + t d; its error bound covers that and Embree's curve test,
-        // which is iterative and far less exact than the triangle test: a thousandth of
-        // the local radius (offsetting by it keeps a reflected ray off the strand it left
-        // without letting it pass through a thin one).
-        const uint32_t first = curve_first_[rh.hit.primID];
-        const float r = curve_radius_[first] * (1.f - rh.hit.u) + curve_radius_[first + 1] * rh.hit.u;
-        const Vec3 p = ray.o + ray.d * rh.ray.tfar;
-        Vec3 ng(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
-        const float len = Length(ng);
-        hit->geom_id = kCurveGeometry;
-        hit->mesh = 0;
-        hit->instance = kNoInstance;
-        hit->ng = len > 0.f && std::isfinite(len) ? ng / len : -ray.d;
-        hit->ns = hit->ng;
-        hit->p = p;
-        hit->p_error = Gamma(5) * (MaxAbsComponent(ray.o) + MaxAbsComponent(ray.d * rh.ray.tfar)) + 1e-3f * r;
-        hit->st = {};
-        return true;
-    }
+    if (kFullFeatures && inst == RTC_INVALID_GEOMETRY_ID && rh.hit.geomID != kTriangleGeometry) [[unlikely]]
+        return SphereOrCurveHit(ray, rh, hit);
     hit->geom_id = kTriangleGeometry;
-    hit->instance = inst == RTC_INVALID_GEOMETRY_ID ? kNoInstance : inst - kFirstInstanceGeometry;
+    hit->instance = !kFullFeatures || inst == RTC_INVALID_GEOMETRY_ID ? kNoInstance : inst - kFirstInstanceGeometry;
     hit->mesh = hit->instance == kNoInstance ? 0 : instances_[hit->instance].mesh;
     const Mesh& mesh = meshes_[hit->mesh];
     const uint32_t prim = rh.hit.primID;
@@ -265,7 +262,7 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceH
     Vec3 p = TrianglePoint(p0, p1, p2, u, v, &p_error);
     // A deforming mesh's corners are interpolated between steps (2 products and a sum per
     // coordinate, here and in Embree): Embree's triangle may differ from ours by that much.
-    if (mesh.time_steps > 1)
+    if (kFullFeatures && mesh.time_steps > 1)
         p_error += Gamma(3) * std::max({MaxAbsComponent(p0), MaxAbsComponent(p1), MaxAbsComponent(p2)});
     Vec3 ng = Cross(p1 - p0, p2 - p0);
     Vec3 ns(0.f);
@@ -273,7 +270,7 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceH
         const float* n = &mesh.normals[9 * size_t(prim)];
         ns = Vec3(n[0], n[1], n[2]) * (1.f - u - v) + Vec3(n[3], n[4], n[5]) * u + Vec3(n[6], n[7], n[8]) * v;
     }
-    if (hit->instance != kNoInstance) {
+    if (kFullFeatures && hit->instance != kNoInstance) {
         // Points by the transform, normals by its inverse transpose. With a mirroring
         // transform the inverse transpose keeps the normal on the side the flattened copy
         // (whose winding is reversed) faces.
@@ -295,12 +292,12 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceH
         // Degenerate or non-finite authored normals fall back to the facet's.
         if (len > 1e-6f && std::isfinite(len)) hit->ns = Dot(ns, hit->ng) >= 0.f ? ns / len : -ns / len;
     }
-    hit->st = TriangleST(mesh, prim, u, v);
+    hit->st = kFullFeatures ? TriangleST(mesh, prim, u, v) : Vec2{};
     return true;
 }
 
 bool Scene::Occluded(Vec3 origin, Vec3 dir, float t_far) const {
-    if (has_cutouts_) {
+    if (kFullFeatures && has_cutouts_) {
         SurfaceHit hit;
         return IntersectSurface({origin, dir}, &hit, 0.f, t_far) && hit.t < t_far;
     }
@@ -351,7 +348,8 @@ BSDF Scene::BSDFAt(const SurfaceHit& hit, TransportMode mode) const {
     const int64_t mi = MaterialIndexAt(hit);
     if (mi < 0) return BSDF();
     const Material& m = materials_[mi];
-    if (!m.preview || !material_has_textures_[mi]) return material_bsdfs_[2 * size_t(mi) + size_t(mode)];
+    if (!kFullFeatures || !m.preview || !material_has_textures_[mi])
+        return material_bsdfs_[2 * size_t(mi) + size_t(mode)];
     MaterialParams p = *m.preview;  // a copy on the stack, textured inputs evaluated at st
     ApplyTextures(m, hit.st, &p);
     return MakePreviewSurfaceBSDF(p, mode);
