@@ -444,6 +444,13 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
     }
     light_sampler_ = LightSampler(power);
     BuildLightBVH(power, desc.light_selection);
+    // Triangle lights that stand still, resolved once (corners, area, sidedness): next event
+    // estimation asks for one at every vertex. 48 bytes per emitter.
+    if (motion_m_.empty() && !has_deformation_) {
+        still_triangle_lights_.resize(emitters_.size());
+        for (size_t i = 0; i < emitters_.size(); ++i)
+            if (emitters_[i].kind == LightKind::kTriangle) still_triangle_lights_[i] = ResolveTriangleLight(emitters_[i]);
+    }
 
     // The splat film's unit (splat_film.h): the power of two nearest the radiance the lights
     // can give a diffuse surface, Phi / (pi^2 R^2), so that the fixed point keeps 2^-24 of

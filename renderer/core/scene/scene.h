@@ -453,8 +453,10 @@ private:
     const LightMotion& MotionOf(const Emitter& e) const;  // a still one for triangles
 
     Color EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const;
-    // Emitter e (a triangle) as its light kind sees it, in world space.
+    // Emitter e (a triangle; an element of emitters_) as its light kind sees it, in world
+    // space at this thread's shutter time: from still_triangle_lights_ when nothing moves.
     TriangleLight TriangleLightOf(const Emitter& e) const;
+    TriangleLight ResolveTriangleLight(const Emitter& e) const;
     void BuildMesh(Mesh* mesh, const float* positions, size_t num_vertices, const uint32_t* indices,
                    size_t num_triangles, const std::vector<uint32_t>& material, const std::vector<float>& normals,
                    const std::vector<float>& uvs, const std::vector<float>& motion_positions, RTCScene target,
@@ -522,6 +524,7 @@ private:
     float scene_radius_ = 1.f;
     int splat_exponent_ = 0;  // bounding sphere: the power of lights at infinity
     std::vector<Emitter> emitters_;
+    std::vector<TriangleLight> still_triangle_lights_;  // per emitter (triangles only); empty when something moves
     std::vector<uint32_t> environment_lights_;  // emitter indices of distant cones and the dome
     std::vector<int32_t> sphere_emitter_;
     std::vector<uint32_t> curve_material_;  // per curve segment

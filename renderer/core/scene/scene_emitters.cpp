@@ -48,6 +48,11 @@ Color Scene::Emitted(int32_t emitter, const SurfaceHit& hit, Vec3 wo) const {
 }
 
 TriangleLight Scene::TriangleLightOf(const Emitter& e) const {
+    if (!still_triangle_lights_.empty()) return still_triangle_lights_[size_t(&e - emitters_.data())];
+    return ResolveTriangleLight(e);
+}
+
+TriangleLight Scene::ResolveTriangleLight(const Emitter& e) const {
     TriangleLight t;
     Vec3 tri[3];
     t.orientation = TriangleVertices(e.mesh, e.index, e.instance, tri);
