@@ -2,7 +2,11 @@
 (Scripts run as `python benchmarks/NAME.py`, so this imports as `common`.)"""
 from __future__ import annotations
 
+import json
+import os
 import statistics
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +37,29 @@ if sys.argv[1]:
     _mod = importlib.util.module_from_spec(_spec); sys.modules["tessera_renderer._core"] = _mod
     _spec.loader.exec_module(_mod)
 """
+
+
+class WarmChild:
+    """A Python child process (`python -c script core`) kept warm across measurements: each
+    request is one line on its stdin, each answer one JSON line on its stdout. `core` is a
+    `_core*.so` of another build to load in place of this tree's (LOAD_CORE), or ""."""
+
+    def __init__(self, script: str, core: str = ""):
+        self.p = subprocess.Popen([sys.executable, "-c", script, core], stdin=subprocess.PIPE,
+                                  stdout=subprocess.PIPE, text=True, cwd=REPO,
+                                  env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+
+    def ask(self, *words) -> dict:
+        self.p.stdin.write(" ".join(str(w) for w in words) + "\n")
+        self.p.stdin.flush()
+        line = self.p.stdout.readline()
+        if not line:
+            raise RuntimeError("the benchmark's child process died (its error is above)")
+        return json.loads(line)
+
+    def close(self) -> None:
+        self.p.stdin.close()
+        self.p.wait()
 
 
 # One definition of relMSE for the scripts here and `tessera bench` (tessera/tessera_tools/bench_stats.py).

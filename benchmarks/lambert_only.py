@@ -21,14 +21,13 @@ median ± half-range over repeats. Writes docs/benchmarks/lambert-only.{md,json}
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import platform
 import subprocess
 import sys
 
-from common import LOAD_CORE, OUT, REPO, fmt, summary
+from common import LOAD_CORE, OUT, REPO, WarmChild, fmt, summary
 
 WORK = REPO / "build" / "bench-lambert"
 TARGET = 0.95
@@ -69,24 +68,6 @@ def build(name: str, lambert_only: bool) -> str:
     return str(core)
 
 
-class Side:
-    def __init__(self, core: str):
-        self.p = subprocess.Popen([sys.executable, "-c", CHILD, core], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                  text=True, cwd=REPO, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
-
-    def render(self, integ: str, spp: int, res: int) -> dict:
-        self.p.stdin.write(f"{integ} {spp} {res}\n")
-        self.p.stdin.flush()
-        line = self.p.stdout.readline()
-        if not line:
-            sys.exit("a child process died (see its error above)")
-        return json.loads(line)
-
-    def close(self):
-        self.p.stdin.close()
-        self.p.wait()
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--res", type=int, default=256)
@@ -95,17 +76,17 @@ def main() -> int:
     head = subprocess.run(["git", "-C", str(REPO), "describe", "--always", "--dirty"], check=True,
                           capture_output=True, text=True).stdout.strip()
     print(f"building _core at {head} twice (full, lambert-only) into {WORK}", flush=True)
-    sides = {"full": Side(build("full", False)), "lambert-only": Side(build("only", True))}
+    sides = {"full": WarmChild(CHILD, build("full", False)), "lambert-only": WarmChild(CHILD, build("only", True))}
     for side in sides.values():  # an untimed render of each case: the first one of a process runs slow
         for integ, spp in CASES.items():
-            side.render(integ, spp, args.res)
+            side.ask(integ, spp, args.res)
     load_before = os.getloadavg()[0]
     times = {c: {s: [] for s in sides} for c in CASES}
     speed = {c: [] for c in CASES}
     for r in range(args.reps):
         order = list(sides) if r % 2 == 0 else list(sides)[::-1]
         for integ, spp in CASES.items():
-            got = {s: sides[s].render(integ, spp, args.res) for s in order}
+            got = {s: sides[s].ask(integ, spp, args.res) for s in order}
             if got["full"]["image"] != got["lambert-only"]["image"]:
                 sys.exit(f"{integ}: the two builds' images differ")
             for s in sides:

@@ -18,11 +18,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import time
 
-from common import LOAD_CORE, OUT, REPO, fmt, summary
+from common import LOAD_CORE, OUT, WarmChild, fmt, summary
 
 SCENES = ("cornell-lambert", "caustic")
 
@@ -48,24 +47,6 @@ for line in sys.stdin:
 """
 
 
-class TesseraChild:
-    def __init__(self, core: str):
-        self.p = subprocess.Popen([sys.executable, "-c", CHILD, core], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                  text=True, cwd=REPO, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
-
-    def render(self, name: str, integ: str, spp: int, res: int, seed: int) -> dict:
-        self.p.stdin.write(f"{name} {integ} {spp} {res} {seed}\n")
-        self.p.stdin.flush()
-        line = self.p.stdout.readline()
-        if not line:
-            raise RuntimeError("the Tessera child process died")
-        return json.loads(line)
-
-    def close(self):
-        self.p.stdin.close()
-        self.p.wait()
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--res", type=int, default=256)
@@ -76,16 +57,16 @@ def main() -> int:
 
     from tessera_tools.bench import SCENES as BENCH, Config, MitsubaPeer, load_bench_scene
 
-    builds = {"current": TesseraChild("")}
+    builds = {"current": WarmChild(CHILD)}
     if args.baseline_core:
-        builds["baseline"] = TesseraChild(os.path.abspath(args.baseline_core))
+        builds["baseline"] = WarmChild(CHILD, os.path.abspath(args.baseline_core))
     peer = MitsubaPeer("llvm_ad_rgb", 2)
     cfg = Config(res=args.res)
     for name in SCENES:
         peer.load(name, load_bench_scene(BENCH[name]).data, args.res, cfg)
         peer.render(name, 4, 0)  # JIT compilation happens here, not in the timed renders
         for child in builds.values():
-            child.render(name, "path", 1, 16, 0)
+            child.ask(name, "path", 1, 16, 0)
     bdpt_spp = max(1, args.spp // 4)
     rows: dict = {name: [] for name in SCENES}
     for rep in range(args.reps):
@@ -94,8 +75,8 @@ def main() -> int:
             peer.render(name, args.spp, rep + 1)
             row = {"mitsuba": time.perf_counter() - t}
             for label, child in builds.items():
-                row[f"{label} path"] = child.render(name, "path", args.spp, args.res, rep + 1)
-                row[f"{label} bdpt"] = child.render(name, "bdpt", bdpt_spp, args.res, rep + 1)
+                row[f"{label} path"] = child.ask(name, "path", args.spp, args.res, rep + 1)
+                row[f"{label} bdpt"] = child.ask(name, "bdpt", bdpt_spp, args.res, rep + 1)
             rows[name].append(row)
             print(name, rep, {k: (v if isinstance(v, float) else v["seconds"]) for k, v in row.items()}, flush=True)
     for child in builds.values():
