@@ -39,6 +39,14 @@ if sys.argv[1]:
 """
 
 
+def write_results(stem: str, data: dict, lines: list[str]) -> None:
+    """docs/benchmarks/<stem>.json (the numbers) and <stem>.md (the report, also printed)."""
+    OUT.mkdir(parents=True, exist_ok=True)
+    (OUT / f"{stem}.json").write_text(json.dumps(data, indent=2) + "\n")
+    (OUT / f"{stem}.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
 class WarmChild:
     """A Python child process (`python -c script core`) kept warm across measurements: each
     request is one line on its stdin, each answer one JSON line on its stdout. `core` is a

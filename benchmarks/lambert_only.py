@@ -21,13 +21,12 @@ median ± half-range over repeats. Writes docs/benchmarks/lambert-only.{md,json}
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import subprocess
 import sys
 
-from common import LOAD_CORE, OUT, REPO, WarmChild, fmt, summary
+from common import LOAD_CORE, REPO, WarmChild, fmt, summary, write_results
 
 WORK = REPO / "build" / "bench-lambert"
 TARGET = 0.95
@@ -114,10 +113,7 @@ def main() -> int:
         met = "yes" if v["speed"]["median"] >= TARGET else "no"
         lines.append(f"| {c} | {v['spp']} | {fmt(v['full'])} | {fmt(v['lambert_only'])} | {fmt(v['speed'])} | {met} |")
     lines += ["", f"Load average at the start: {load_before:.2f} ({os.cpu_count()} shared vCPUs)."]
-    OUT.mkdir(parents=True, exist_ok=True)
-    (OUT / "lambert-only.json").write_text(json.dumps(result, indent=2) + "\n")
-    (OUT / "lambert-only.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_results("lambert-only", result, lines)
     return 0
 
 

@@ -16,12 +16,11 @@ sample cast. Writes docs/benchmarks/speed.{md,json}.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
 
-from common import LOAD_CORE, OUT, WarmChild, fmt, summary
+from common import LOAD_CORE, WarmChild, fmt, summary, write_results
 
 SCENES = ("cornell-lambert", "caustic")
 
@@ -121,10 +120,7 @@ def main() -> int:
                 out["scenes"][name]["summary"][f"speedup_{integ}"] = sp
                 lines.append(f"- {name} `{integ}`: {fmt(sp, '×')}")
     lines += ["", f"Load average at the start: {out['load_average']:.2f} (2 shared vCPUs)."]
-    OUT.mkdir(parents=True, exist_ok=True)
-    (OUT / "speed.json").write_text(json.dumps(out, indent=2) + "\n")
-    (OUT / "speed.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_results("speed", out, lines)
     return 0
 
 
