@@ -181,26 +181,31 @@ def render_tessera(scene, integrator: str, spp: int, seed: int, res: int, cfg: C
 
 
 class MitsubaPeer:
-    """One Mitsuba variant with the bench scenes loaded into it."""
+    """One Mitsuba variant with the bench scenes loaded into it. `variant` may name a
+    sampler after a slash ("llvm_ad_rgb/ldsampler"; default: Mitsuba's independent sampler);
+    the whole string labels the peer's series."""
 
     def __init__(self, variant: str, threads: int):
         from . import peer_mitsuba
 
         self.variant = variant
+        self.mi_variant, _, sampler = variant.partition("/")
+        self.sampler = sampler or "independent"
         self.threads = threads
         self.pm = peer_mitsuba
-        self.mi = peer_mitsuba.set_variant(variant, threads)
+        self.mi = peer_mitsuba.set_variant(self.mi_variant, threads)
         self.version = self.mi.__version__
         self.scenes: dict = {}
         self._tmp = tempfile.TemporaryDirectory(prefix="tessera-bench-mi-")
 
     def load(self, name: str, data, res: int, cfg: Config) -> None:
-        self.pm.set_variant(self.variant, self.threads)
-        d = self.pm.scene_dict(data, res, res, Path(self._tmp.name) / name, max_depth=cfg.max_depth)
+        self.pm.set_variant(self.mi_variant, self.threads)
+        d = self.pm.scene_dict(data, res, res, Path(self._tmp.name) / name, max_depth=cfg.max_depth,
+                               sampler=self.sampler)
         self.scenes[name] = self.mi.load_dict(d)
 
     def render(self, name: str, spp: int, seed: int) -> np.ndarray:
-        self.pm.set_variant(self.variant, self.threads)
+        self.pm.set_variant(self.mi_variant, self.threads)
         return self.pm.render(self.scenes[name], spp, seed)
 
     def render_passes(self, name: str, spp: int, seed: int, pass_spp: int = 256) -> tuple[np.ndarray, dict]:
@@ -504,7 +509,8 @@ def add_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--budget", type=float, help="time budget in seconds for the equal-time error")
     p.add_argument("--peer", default=None,
                    help="Mitsuba variants to compare with, comma-separated, '' for none (default "
-                        "scalar_rgb,llvm_ad_rgb; --quick: scalar_rgb). llvm_ad_rgb needs Debian's libllvm19")
+                        "scalar_rgb,llvm_ad_rgb; --quick: scalar_rgb), each optionally with a sampler "
+                        "(llvm_ad_rgb/ldsampler; default independent). llvm_ad_rgb needs Debian's libllvm19")
 
 
 def main(args: argparse.Namespace) -> int:

@@ -173,7 +173,8 @@ def scene_dict(data, width: int, height: int, mesh_dir: str | Path, *, max_depth
                                                        up=[float(x) for x in cam.up]),
             "film": {"type": "hdrfilm", "width": width, "height": height, "pixel_format": "rgb",
                      "component_format": "float32", "rfilter": {"type": "box"}},
-            "sampler": {"type": sampler, "sample_count": 1},
+            # ldsampler wants a square power of two (mi.render overrides it with spp).
+            "sampler": {"type": sampler, "sample_count": 1 if sampler == "independent" else 4},
         },
     }
     positions = data.positions.reshape(-1, 3).astype(np.float32)
