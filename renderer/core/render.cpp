@@ -84,7 +84,8 @@ AOVSample SampleAOVs(const Scene& scene, const Camera& camera, Ray ray, float t_
 }  // namespace
 
 RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOptions& options, TileRect tile,
-                       float* rgba, float* variance, int64_t* splats, const AOVBuffers& aovs) {
+                       float* rgba, float* variance, int64_t* splats, const AOVBuffers& aovs,
+                       const VarianceBatches& batches) {
     if (tile.width == 0 || tile.height == 0) return {};
     if (uint64_t(tile.x0) + tile.width > camera.width || uint64_t(tile.y0) + tile.height > camera.height)
         throw std::invalid_argument("tile lies outside the image");
@@ -103,10 +104,19 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
     if (info.scene_passes && options.scene_product.empty())
         throw std::invalid_argument("integrator '" + options.integrator +
                                     "' renders tiles from its scene pass's product, and none was given");
-    if (info.splats && !splats)
+    if (batches.count && !info.splats)
+        throw std::invalid_argument("variance batches are for integrators that splat; '" + options.integrator +
+                                    "' does not");
+    if (batches.count && (batches.count > options.spp || !batches.splats || !batches.rgb))
+        throw std::invalid_argument("variance batches need 1 to spp batches and their splat and rgb buffers");
+    if (info.splats && !splats && !batches.count)
         throw std::invalid_argument("integrator '" + options.integrator +
                                     "' splats across tiles and needs a full-frame splat buffer");
     SplatFilm film(splats, camera.width, camera.height, scene.splat_exponent());
+    std::vector<SplatFilm> batch_films;
+    for (uint32_t b = 0; b < batches.count; ++b)
+        batch_films.emplace_back(batches.splats + size_t(b) * camera.width * camera.height * 3, camera.width,
+                                 camera.height, scene.splat_exponent());
     // Every integrator's camera samples get their instants, those whose tiles read a scene
     // pass's product too: its photons and light vertices were traced at instants of their
     // own (LightPathInstant), its radiosity solution at mid-shutter (docs/motion.md).
@@ -131,6 +141,12 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
             double sq_r = 0, sq_g = 0, sq_b = 0;
             double aov_albedo[3] = {0, 0, 0}, aov_normal[3] = {0, 0, 0}, aov_depth = 0;
             uint32_t aov_hits = 0;
+            // The batch this sample belongs to, where it ends, and its own sums (in sample
+            // order, as a render of that batch's range alone would add them).
+            uint32_t batch = 0;
+            uint32_t batch_end = options.sample_start +
+                                 (batches.count ? VarianceBatchRange(options.spp, batches.count, 0).second : options.spp);
+            double batch_r = 0, batch_g = 0, batch_b = 0;
             for (uint32_t s = options.sample_start; s < options.sample_start + options.spp; ++s) {
                 PixelSampler sampler(options.seed, pixel_index, s, /*stream=*/0, options.sampler);
                 Vec2 jitter = sampler.Get2D();
@@ -166,7 +182,8 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                     }
                 }
                 const CameraSample cs{ray, t_min, t_max, options.seed, pixel_index, s, options.sampler};
-                const PathSample ps = integrator->Sample(scene, cam, cs, sampler, film, &counters);
+                SplatFilm& sample_film = batches.count ? batch_films[batch] : film;
+                const PathSample ps = integrator->Sample(scene, cam, cs, sampler, sample_film, &counters);
                 if (!IsFinite(ps.radiance)) {
                     if (nonfinite.fetch_add(1) == 0) {
                         std::lock_guard<std::mutex> lock(first_mutex);
@@ -174,15 +191,28 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                         stats.first_nonfinite_pixel_y = y;
                         stats.first_nonfinite_sample = s;
                     }
-                    continue;
+                } else {
+                    sum_r += ps.radiance.x;
+                    sum_g += ps.radiance.y;
+                    sum_b += ps.radiance.z;
+                    sum_a += ps.alpha;
+                    sq_r += double(ps.radiance.x) * ps.radiance.x;
+                    sq_g += double(ps.radiance.y) * ps.radiance.y;
+                    sq_b += double(ps.radiance.z) * ps.radiance.z;
+                    batch_r += ps.radiance.x;
+                    batch_g += ps.radiance.y;
+                    batch_b += ps.radiance.z;
                 }
-                sum_r += ps.radiance.x;
-                sum_g += ps.radiance.y;
-                sum_b += ps.radiance.z;
-                sum_a += ps.alpha;
-                sq_r += double(ps.radiance.x) * ps.radiance.x;
-                sq_g += double(ps.radiance.y) * ps.radiance.y;
-                sq_b += double(ps.radiance.z) * ps.radiance.z;
+                if (batches.count && s + 1 == batch_end) {
+                    const double n = double(VarianceBatchRange(options.spp, batches.count, batch).second);
+                    float* out = batches.rgb + (size_t(batch) * n_pixels + i) * 3;
+                    out[0] = float(batch_r * (1.0 / n));
+                    out[1] = float(batch_g * (1.0 / n));
+                    out[2] = float(batch_b * (1.0 / n));
+                    batch_r = batch_g = batch_b = 0;
+                    if (++batch < batches.count)
+                        batch_end += VarianceBatchRange(options.spp, batches.count, batch).second;
+                }
             }
             const double inv = 1.0 / double(options.spp);
             float* out = rgba + 4 * size_t(i);

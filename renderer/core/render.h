@@ -3,9 +3,11 @@
 // only decide who computes it.
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "camera.h"
@@ -69,6 +71,26 @@ struct AOVBuffers {
     bool any() const { return albedo || normal || depth || samples; }
 };
 
+// Variance batches of a splatting integrator, made in the same pass as the image: the
+// samples [sample_start, sample_start + spp) are split into `count` contiguous ranges
+// (VarianceBatchRange: near-equal sizes, the first spp % count ranges one sample longer;
+// 1 <= count <= spp). Batch b's splats go to `splats` + b * camera.width * camera.height * 3
+// (full frame, zeroed by the caller) instead of RenderTile's `splats`, so the pass's splat
+// layer is their sum (exact: fixed point); each pixel's mean over batch b's samples goes to
+// `rgb` + b * tile.height * tile.width * 3. Both are what RenderTile over batch b's range
+// alone would write, bit for bit, and the image is the same as without batches.
+struct VarianceBatches {
+    uint32_t count = 0;
+    int64_t* splats = nullptr;
+    float* rgb = nullptr;
+};
+
+// Batch b of `count` over `spp` samples: {first sample offset, number of samples}.
+inline std::pair<uint32_t, uint32_t> VarianceBatchRange(uint32_t spp, uint32_t count, uint32_t b) {
+    const uint32_t base = spp / count, extra = spp % count;
+    return {b * base + std::min(b, extra), base + (b < extra ? 1u : 0u)};
+}
+
 // Writes tile.height * tile.width * 4 floats (RGBA, row-major) to `rgba`: the mean of
 // samples [sample_start, sample_start + spp). If `variance` is not null, also writes 3
 // floats per pixel: the unbiased sample variance of each RGB channel over those samples
@@ -81,7 +103,7 @@ struct AOVBuffers {
 // rgba + splats * pixel_count / (SplatScale(scene.splat_exponent()) * total light paths of all tiles).
 RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOptions& options, TileRect tile,
                        float* rgba, float* variance = nullptr, int64_t* splats = nullptr,
-                       const AOVBuffers& aovs = {});
+                       const AOVBuffers& aovs = {}, const VarianceBatches& batches = {});
 
 // The scene-wide pass of iteration `iteration` of options.integrator (one with
 // scene_passes), with options' seed, integrator_params and threads: the product every tile

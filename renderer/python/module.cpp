@@ -270,6 +270,8 @@ void AddExtras(SceneDesc* d, const Extras& x) {
 }
 using DomeImage = nb::ndarray<const float, nb::shape<-1, -1, 3>, nb::c_contig, nb::device::cpu>;
 using SplatArray = nb::ndarray<int64_t, nb::shape<-1, -1, 3>, nb::c_contig, nb::device::cpu>;
+using BatchSplatArray = nb::ndarray<int64_t, nb::shape<-1, -1, -1, 3>, nb::c_contig, nb::device::cpu>;
+using BatchRgbArray = nb::ndarray<float, nb::shape<-1, -1, -1, 3>, nb::c_contig, nb::device::cpu>;
 
 Vec3 ToVec3(const std::array<float, 3>& a) { return {a[0], a[1], a[2]}; }
 
@@ -572,7 +574,8 @@ NB_MODULE(_core, m) {
            uint32_t spp, uint32_t seed, int max_depth, int threads, uint32_t sample_start, bool with_variance,
            const std::string& integrator, std::optional<SplatArray> splats, const std::string& sampler,
            const std::vector<std::string>& aovs, const std::map<std::string, float>& integrator_params,
-           std::optional<nb::bytes> scene_product) {
+           std::optional<nb::bytes> scene_product, std::optional<BatchSplatArray> batch_splats,
+           std::optional<BatchRgbArray> batch_rgb) {
             RenderOptions options{.spp = spp, .seed = seed, .max_depth = max_depth, .threads = threads,
                                   .sample_start = sample_start, .integrator = integrator,
                                   .integrator_params = integrator_params, .sampler = ParseSampler(sampler)};
@@ -582,6 +585,20 @@ NB_MODULE(_core, m) {
                 if (splats->shape(0) != camera.height || splats->shape(1) != camera.width)
                     throw std::invalid_argument("splats must have shape (height, width, 3) of the full image");
                 splat_data = splats->data();
+            }
+            VarianceBatches batches;
+            if (batch_splats || batch_rgb) {
+                if (!batch_splats || !batch_rgb)
+                    throw std::invalid_argument("variance batches need both batch_splats and batch_rgb");
+                batches.count = uint32_t(batch_splats->shape(0));
+                if (batch_splats->shape(1) != camera.height || batch_splats->shape(2) != camera.width)
+                    throw std::invalid_argument("batch_splats must have shape (batches, height, width, 3) of the "
+                                                "full image");
+                if (batch_rgb->shape(0) != batches.count || batch_rgb->shape(1) != height ||
+                    batch_rgb->shape(2) != width)
+                    throw std::invalid_argument("batch_rgb must have shape (batches, tile height, tile width, 3)");
+                batches.splats = batch_splats->data();
+                batches.rgb = batch_rgb->data();
             }
             const size_t n = size_t(width) * height;
             auto pixels = std::make_unique<float[]>(n * 4);
@@ -610,7 +627,7 @@ NB_MODULE(_core, m) {
             {
                 nb::gil_scoped_release release;
                 stats = RenderTile(scene, camera, options, TileRect{x0, y0, width, height}, pixels.get(),
-                                   variance.get(), splat_data, aov);
+                                   variance.get(), splat_data, aov, batches);
             }
             nb::dict info;
             info["samples"] = stats.samples;
@@ -632,6 +649,7 @@ NB_MODULE(_core, m) {
         "threads"_a = 0, "sample_start"_a = 0, "with_variance"_a = false, "integrator"_a = "path",
         "splats"_a = nb::none(), "sampler"_a = "sobol", "aovs"_a = std::vector<std::string>{},
         "integrator_params"_a = std::map<std::string, float>{}, "scene_product"_a = nb::none(),
+        "batch_splats"_a = nb::none(), "batch_rgb"_a = nb::none(),
         "Renders samples [sample_start, sample_start + spp) of a tile; returns (rgba float32 [h, w, 4] mean, "
         "stats dict). With with_variance, stats['variance'] is float32 [h, w, 3]: the per-channel sample "
         "variance. integrator: a name from integrators(), integrator_params its extra settings; one that "
@@ -639,7 +657,10 @@ NB_MODULE(_core, m) {
         "(height, width, 3) full-frame fixed-point buffer (scale 2^24) owned by the caller. sampler: 'sobol' "
         "(padded Owen-scrambled Sobol, default) or 'independent'. aovs: names from AOV_NAMES; each adds "
         "stats[name] (albedo, normal float32 [h, w, 3]; depth, spp float32 [h, w]; see render.h). "
-        "stats['closest_rays'] / stats['shadow_rays']: Embree queries the integrator made.");
+        "stats['closest_rays'] / stats['shadow_rays']: Embree queries the integrator made. batch_splats "
+        "(int64 (K, height, width, 3), zeroed) and batch_rgb (float32 (K, h, w, 3)): a splatting "
+        "integrator's K variance batches made in the same pass (render.h VarianceBatches); its splats then "
+        "go there instead of `splats`.");
 
     m.def(
         "scene_pass",

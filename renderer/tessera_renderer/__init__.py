@@ -211,7 +211,8 @@ class Scene:
                     integrator: str | None = None, splats: np.ndarray | None = None,
                     sampler: str = "sobol", aovs=(), stats: dict | None = None,
                     integrator_params: dict[str, float] | None = None,
-                    scene_product: bytes | None = None, camera: "_core.Camera | None" = None):
+                    scene_product: bytes | None = None, camera: "_core.Camera | None" = None,
+                    batch_splats: np.ndarray | None = None, batch_rgb: np.ndarray | None = None):
         """Renders pixels [x0, x0+w) x [y0, y0+h) of a width x height image, averaging samples
         [sample_start, sample_start + spp) of each pixel. Returns float32 linear RGBA of shape
         (h, w, 4); with return_variance, (rgba, variance) where variance is float32 (h, w, 3),
@@ -228,7 +229,14 @@ class Scene:
         With any, returns (rgba, {name: array}) instead: albedo and normal float32 (h, w, 3),
         depth and spp float32 (h, w), variance (h, w, 3); return_variance then adds
         "variance" to the dict. `stats`, if given, is filled with the renderer's counters
-        (samples, closest_rays, shadow_rays, ...). Releases the GIL."""
+        (samples, closest_rays, shadow_rays, ...).
+
+        batch_splats (int64 (K, height, width, 3), zeroed) and batch_rgb (float32 (K, h, w,
+        3)): a splatting integrator's K variance batches, made in this same pass. The samples
+        are split as convergence.batch_ranges splits them; batch k's splats go to
+        batch_splats[k] instead of `splats` (their sum is the pass's splat layer, exactly)
+        and its camera mean to batch_rgb[k], each what a render of that range alone gives,
+        bit for bit. Releases the GIL."""
         width = width or self.width
         height = height or self.height
         integrator = self.resolve_integrator(integrator or _core.integrators()[0]["name"])
@@ -245,7 +253,7 @@ class Scene:
                                        spp, seed, max_depth, threads, sample_start, want_variance,
                                        integrator, splats, sampler, core_aovs,
                                        {k: float(v) for k, v in (integrator_params or {}).items()},
-                                       scene_product)
+                                       scene_product, batch_splats, batch_rgb)
         if stats is not None:
             stats.update({k: v for k, v in info.items() if not isinstance(v, np.ndarray)})
         if info["rejected_splats"]:

@@ -232,10 +232,19 @@ def render_tile_pass(scene, settings: RenderSettings, rect: TileRect, pass_index
     common = dict(width=settings.width, height=settings.height, seed=settings.seed,
                   max_depth=settings.max_depth, threads=threads, integrator=integrator,
                   integrator_params=dict(settings.integrator_params), scene_product=scene_product)
+    # A splatting integrator's variance batches come from the same pass as the image: its
+    # splats go to one buffer per batch (their sum is the pass's layer, exactly) and each
+    # batch's camera mean is kept beside the image's.
+    ranges = batch_ranges(sample_start, spp) if splatting and batches else []
+    batch_splats = np.zeros((len(ranges), settings.height, settings.width, 3), np.int64) if ranges else None
+    batch_rgb = np.empty((len(ranges), rect.height, rect.width, 3), np.float32) if ranges else None
     started = time.perf_counter()
     out = scene.render_tile(rect.x0, rect.y0, rect.width, rect.height, spp=spp,
                             sample_start=sample_start, return_variance=want_variance,
-                            splats=splats, aovs=core_aovs, **common)
+                            splats=None if ranges else splats, aovs=core_aovs,
+                            batch_splats=batch_splats, batch_rgb=batch_rgb, **common)
+    if ranges:
+        splats = batch_splats.sum(axis=0)
     layers, var = None, None
     if core_aovs:
         rgba, layers = out
@@ -250,16 +259,11 @@ def render_tile_pass(scene, settings: RenderSettings, rect: TileRect, pass_index
         # One light path per sample; the scene's fixed-point unit goes with the layer.
         result.light_paths = rect.width * rect.height * spp
         result.splat_exponent = scene.splat_exponent
-        if batches:
+        if ranges:
             result.batches = []
-            for start, n in batch_ranges(sample_start, spp):
-                buf = np.zeros((settings.height, settings.width, 3), np.int64)
-                cam = scene.render_tile(rect.x0, rect.y0, rect.width, rect.height, spp=n,
-                                        sample_start=start, return_variance=False, splats=buf,
-                                        **common)
-                b_rect, b_layer = splat_layer(buf)
-                result.batches.append(SplatBatch(n, np.ascontiguousarray(cam[..., :3]), b_rect,
-                                                 b_layer, rect.width * rect.height * n))
+            for (_, n), b_splats, b_rgb in zip(ranges, batch_splats, batch_rgb):
+                b_rect, b_layer = splat_layer(b_splats)
+                result.batches.append(SplatBatch(n, b_rgb, b_rect, b_layer, rect.width * rect.height * n))
     return result, time.perf_counter() - started
 
 

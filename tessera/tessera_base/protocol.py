@@ -420,7 +420,8 @@ class TileResult:
 @dataclass
 class SplatBatch:
     """One variance batch of a tile's pass: samples [start, start + spp) of the pass's
-    range (batch_ranges), rendered on their own."""
+    range (batch_ranges), as a render of them alone gives them (made in the pass's own
+    render call: render.h VarianceBatches)."""
     spp: int
     rgb: np.ndarray                     # float32 (h, w, 3): the camera part
     splat_rect: tuple[int, int, int, int]
