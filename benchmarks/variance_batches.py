@@ -3,17 +3,22 @@
     .venv/bin/python benchmarks/variance_batches.py [--res 128] [--reps 5]
 
 A splatting integrator's variance comes from convergence.VARIANCE_BATCHES batches of each
-pass's samples, each a whole image. `tessera render` makes them by default. Three ways of
-rendering the same image with `tessera.local.render_image` on 2 threads, interleaved
-within each repeat in one warm process:
+pass's samples, each a whole image. `tessera render` makes them by default. Ways of
+rendering the same image with `tessera.local.render_image` on 2 threads (and one of
+them without its noise layer, both ways), interleaved within each repeat in one warm
+process:
 - `image`: variance=False, the image alone (what the noise layer is measured against);
 - `one pass` (this tree): the batches come from the pass's own render call, each sample's
-  splats and camera mean routed to its batch (render.h VarianceBatches);
+  splats and camera mean routed to its batch (render.h VarianceBatches), the splats added
+  straight into the job's sums (render_tile_pass `into`);
 - `re-render` (the baseline, the way before 2026-12-07, kept here as it was): the pass
   is rendered, then every batch's sample range again, one render call per batch, each
-  with its own full-frame splat buffer.
-Every repeat checks that the three images and the two ways' batches are the same to the
-bit. Cost = time / the image's time, median ± half-range over repeats. Writes
+  with its own full-frame splat buffer, folded into the job's sums tile by tile.
+`image` is this tree's image without a noise layer; `image, folded` the same the way
+before (a full-frame splat buffer per tile, folded), so that both ways' costs can be read
+against either.
+Every repeat checks that the four images and the two ways' noise layers are the same to
+the bit. Cost = time / the image's time (this tree's), median ± half-range over repeats. Writes
 docs/benchmarks/variance-batches.{md,json}.
 """
 from __future__ import annotations
@@ -32,17 +37,18 @@ CASES = [("cornell", CORNELL, "bdpt", 16), ("cornell", CORNELL, "light", 16),
 
 
 def rerender_tile_pass(scene, settings, rect, pass_index, *, integrator, threads=0, variance=False,
-                       batches=False, scene_product=None):
-    """The baseline: the pass without batches, then each batch's range rendered again."""
+                       batches=False, scene_product=None, into=None):
+    """The baseline: the pass without batches, then each batch's range rendered again, each
+    into a full-frame buffer of its own, folded into the job's sums (`into`) afterwards."""
     from tessera_base import film
     from tessera_base.convergence import batch_ranges
     from tessera_base.protocol import SplatBatch, pass_range
 
     result, seconds = film.render_tile_pass(scene, settings, rect, pass_index, integrator=integrator,
                                             threads=threads, variance=variance, scene_product=scene_product)
-    if not batches:
-        return result, seconds
     started = time.perf_counter()
+    if not batches:
+        return into.fold(result), seconds + time.perf_counter() - started
     sample_start, spp = pass_range(settings, pass_index)
     result.batches = []
     for start, n in batch_ranges(sample_start, spp):
@@ -55,16 +61,17 @@ def rerender_tile_pass(scene, settings, rect, pass_index, *, integrator, threads
         b_rect, b_layer = film.splat_layer(buf)
         result.batches.append(SplatBatch(n, np.ascontiguousarray(cam[..., :3]), b_rect, b_layer,
                                          rect.width * rect.height * n))
-    return result, seconds + time.perf_counter() - started
+    return into.fold(result), seconds + time.perf_counter() - started
 
 
 def timed(scene, settings, way: str):
     from tessera import local
 
-    local.render_tile_pass = rerender_tile_pass if way == "re-render" else ORIGINAL
+    local.render_tile_pass = rerender_tile_pass if way in ("re-render", "image, folded") else ORIGINAL
     try:
         t = time.perf_counter()
-        out = local.render_image(scene, settings, threads=2, progress=False, variance=way != "image")
+        out = local.render_image(scene, settings, threads=2, progress=False,
+                                 variance=way in ("one pass", "re-render"))
         return time.perf_counter() - t, out
     finally:
         local.render_tile_pass = ORIGINAL
@@ -81,7 +88,7 @@ def main() -> int:
     ap.add_argument("--res", type=int, default=128)
     ap.add_argument("--reps", type=int, default=5)
     args = ap.parse_args()
-    ways = ("image", "one pass", "re-render")
+    ways = ("image", "one pass", "re-render", "image, folded")
     out = {"res": args.res, "reps": args.reps, "threads": 2, "tile_size": 64,
            "load_average": os.getloadavg()[0], "cases": {}}
     lines = ["# What a local render's noise layer costs the splatting integrators", "",
@@ -89,11 +96,13 @@ def main() -> int:
              f"{args.res}, tiles of 64, 2 threads, {args.reps} interleaved repeats in one warm process "
              f"(load average at the start {out['load_average']:.2f}). Cost = seconds / the image's "
              "seconds without a noise layer, median ± half-range. `one pass`: this tree, the batches "
-             "made in the pass's own render call; `re-render`: the way before, every batch's "
-             "samples rendered a second time. Every repeat checks the images and the batches' "
-             "variance layers are the same to the bit.", "",
-             "| scene | integrator | spp | image (s) | one pass: cost | re-render: cost | re-render / one pass |",
-             "|---|---|---|---|---|---|---|"]
+             "made in the pass's own render call and every splat added straight into the job's sums; "
+             "`re-render`: the way before, every batch's samples rendered a second time and every "
+             "tile's splats folded from full-frame buffers of its own; `image, folded`: the image "
+             "without a noise layer the way before. Every repeat checks the images and the noise "
+             "layers are the same to the bit.", "",
+             "| scene | integrator | spp | image (s) | one pass: cost | re-render: cost | re-render / one pass "
+             "| image, folded: cost |", "|---|---|---|---|---|---|---|---|"]
     for name, path, integrator, spp in CASES:
         scene = load_scene(path)
         settings = RenderSettings(width=args.res, height=args.res, spp=spp, seed=1, integrator=integrator,
@@ -118,7 +127,8 @@ def main() -> int:
         out["cases"][f"{name}/{integrator}"] = {"spp": spp, "seconds": {w: summary(v) for w, v in seconds.items()},
                                                 "cost": cost, "rerender_over_one_pass": gain}
         lines.append(f"| {name} | `{integrator}` | {spp} | {fmt(summary(seconds['image']))} "
-                     f"| {fmt(cost['one pass'])} | {fmt(cost['re-render'])} | {fmt(gain)} |")
+                     f"| {fmt(cost['one pass'])} | {fmt(cost['re-render'])} | {fmt(gain)} "
+                     f"| {fmt(cost['image, folded'])} |")
         print(lines[-1], flush=True)
     write_results("variance-batches", out, lines)
     return 0

@@ -109,14 +109,14 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                                     "' does not");
     if (batches.count && (batches.count > options.spp || !batches.splats || !batches.rgb))
         throw std::invalid_argument("variance batches need 1 to spp batches and their splat and rgb buffers");
-    if (info.splats && !splats && !batches.count)
+    if (info.splats && !splats)
         throw std::invalid_argument("integrator '" + options.integrator +
                                     "' splats across tiles and needs a full-frame splat buffer");
     SplatFilm film(splats, camera.width, camera.height, scene.splat_exponent());
-    std::vector<SplatFilm> batch_films;
+    std::vector<SplatFilm> batch_films;  // each adds to `splats` and to its batch's buffer
     for (uint32_t b = 0; b < batches.count; ++b)
-        batch_films.emplace_back(batches.splats + size_t(b) * camera.width * camera.height * 3, camera.width,
-                                 camera.height, scene.splat_exponent());
+        batch_films.emplace_back(splats, camera.width, camera.height, scene.splat_exponent(),
+                                 batches.splats + size_t(b) * camera.width * camera.height * 3);
     // Every integrator's camera samples get their instants, those whose tiles read a scene
     // pass's product too: its photons and light vertices were traced at instants of their
     // own (LightPathInstant), its radiosity solution at mid-shutter (docs/motion.md).

@@ -75,8 +75,7 @@ struct AOVBuffers {
 // samples [sample_start, sample_start + spp) are split into `count` contiguous ranges
 // (VarianceBatchRange: near-equal sizes, the first spp % count ranges one sample longer;
 // 1 <= count <= spp). Batch b's splats go to `splats` + b * camera.width * camera.height * 3
-// (full frame, zeroed by the caller) instead of RenderTile's `splats`, so the pass's splat
-// layer is their sum (exact: fixed point); each pixel's mean over batch b's samples goes to
+// (full frame) as well as to RenderTile's `splats`; each pixel's mean over batch b's samples goes to
 // `rgb` + b * tile.height * tile.width * 3. Both are what RenderTile over batch b's range
 // alone would write, bit for bit, and the image is the same as without batches.
 struct VarianceBatches {

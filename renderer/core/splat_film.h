@@ -23,9 +23,10 @@ inline double SplatScale(int exponent) { return std::ldexp(kSplatScale, -exponen
 
 class SplatFilm {
 public:
-    // `data` holds width * height * 3 int64 (RGB), zeroed by the caller.
-    SplatFilm(int64_t* data, uint32_t width, uint32_t height, int exponent = 0)
-        : data_(data), width_(width), height_(height), scale_(SplatScale(exponent)) {}
+    // `data` holds width * height * 3 int64 (RGB), zeroed by the caller. `also`, if not
+    // null, is a second such buffer that receives every splat too (a variance batch's).
+    SplatFilm(int64_t* data, uint32_t width, uint32_t height, int exponent = 0, int64_t* also = nullptr)
+        : data_(data), also_(also), width_(width), height_(height), scale_(SplatScale(exponent)) {}
 
     // Adds `value` at continuous raster position (px, py); safe from many threads.
     // Returns false (adding nothing) for a value that is not finite and >= 0, or too large
@@ -40,9 +41,12 @@ public:
             if (!(v >= 0.0) || !(v < 9.0e18)) return false;  // NaN, negative, or overflow
             q[c] = std::llround(v);
         }
-        int64_t* p = data_ + 3 * (size_t(y) * width_ + x);
-        for (int c = 0; c < 3; ++c)
-            if (q[c]) std::atomic_ref<int64_t>(p[c]).fetch_add(q[c], std::memory_order_relaxed);
+        const size_t at = 3 * (size_t(y) * width_ + x);
+        for (int64_t* buffer : {data_, also_}) {
+            if (!buffer) continue;
+            for (int c = 0; c < 3; ++c)
+                if (q[c]) std::atomic_ref<int64_t>(buffer[at + c]).fetch_add(q[c], std::memory_order_relaxed);
+        }
         return true;
     }
 
@@ -51,6 +55,7 @@ public:
 
 private:
     int64_t* data_;
+    int64_t* also_;
     uint32_t width_, height_;
     double scale_;
 };

@@ -658,9 +658,9 @@ NB_MODULE(_core, m) {
         "(padded Owen-scrambled Sobol, default) or 'independent'. aovs: names from AOV_NAMES; each adds "
         "stats[name] (albedo, normal float32 [h, w, 3]; depth, spp float32 [h, w]; see render.h). "
         "stats['closest_rays'] / stats['shadow_rays']: Embree queries the integrator made. batch_splats "
-        "(int64 (K, height, width, 3), zeroed) and batch_rgb (float32 (K, h, w, 3)): a splatting "
-        "integrator's K variance batches made in the same pass (render.h VarianceBatches); its splats then "
-        "go there instead of `splats`.");
+        "(int64 (K, height, width, 3)) and batch_rgb (float32 (K, h, w, 3)): a splatting "
+        "integrator's K variance batches made in the same pass (render.h VarianceBatches); batch k's "
+        "splats are added to batch_splats[k] as well as to `splats`.");
 
     m.def(
         "scene_pass",

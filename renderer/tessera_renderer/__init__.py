@@ -231,12 +231,12 @@ class Scene:
         "variance" to the dict. `stats`, if given, is filled with the renderer's counters
         (samples, closest_rays, shadow_rays, ...).
 
-        batch_splats (int64 (K, height, width, 3), zeroed) and batch_rgb (float32 (K, h, w,
-        3)): a splatting integrator's K variance batches, made in this same pass. The samples
-        are split as convergence.batch_ranges splits them; batch k's splats go to
-        batch_splats[k] instead of `splats` (their sum is the pass's splat layer, exactly)
-        and its camera mean to batch_rgb[k], each what a render of that range alone gives,
-        bit for bit. Releases the GIL."""
+        batch_splats (int64 (K, height, width, 3)) and batch_rgb (float32 (K, h, w, 3)): a
+        splatting integrator's K variance batches, made in this same pass. The samples are
+        split as convergence.batch_ranges splits them; batch k's splats are added to
+        batch_splats[k] as well as to `splats`, and its camera mean is written to
+        batch_rgb[k], each what a render of that range alone gives, bit for bit. Releases
+        the GIL."""
         width = width or self.width
         height = height or self.height
         integrator = self.resolve_integrator(integrator or _core.integrators()[0]["name"])

@@ -143,8 +143,7 @@ def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, th
             for t in tiles:
                 result, _ = render_tile_pass(scene, settings, t, p, integrator=integrator,
                                              threads=threads, variance=settings.adaptive,
-                                             batches=batches, scene_product=product)
-                result = sums.fold(result)
+                                             batches=batches, scene_product=product, into=sums)
                 per_tile[t.index].append(result)
                 this_pass.append(result)
                 samples += t.width * t.height * spp

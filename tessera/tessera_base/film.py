@@ -114,6 +114,22 @@ class SplatSums:
             self.layers[name] = np.zeros((self.height, self.width, 3), np.int64)
         return self.layers[name]
 
+    def batch_stack(self, pass_index: int, batches: int) -> np.ndarray:
+        """The layers of pass `pass_index`'s batches 0 .. batches-1 as one (batches, height,
+        width, 3) array, for a render call to add them in place (render_tile_pass `into`);
+        its [j] is the field "<pass>:<j>" itself, with what the field already held."""
+        names = [self.batch_field(pass_index, j) for j in range(batches)]
+        first = self.layers.get(names[0])
+        if first is not None and first.base is not None and first.base.shape[0] == batches and all(
+                self.layers.get(n) is not None and self.layers[n].base is first.base for n in names):
+            return first.base
+        stack = np.zeros((batches, self.height, self.width, 3), np.int64)
+        for j, name in enumerate(names):
+            if name in self.layers:
+                stack[j] = self.layers[name]
+            self.layers[name] = stack[j]
+        return stack
+
     def fold(self, result: TileResult) -> TileResult:
         """Adds the result's splat layers (its pass's and its batches') into these sums;
         returns the result with empty layers."""
@@ -216,35 +232,43 @@ def run_scene_pass(scene, settings: RenderSettings, iteration: int, *, integrato
 
 def render_tile_pass(scene, settings: RenderSettings, rect: TileRect, pass_index: int, *,
                      integrator: str, threads: int = 0, variance: bool = False,
-                     batches: bool = False, scene_product: bytes | None = None
-                     ) -> tuple[TileResult, float]:
+                     batches: bool = False, scene_product: bytes | None = None,
+                     into: SplatSums | None = None) -> tuple[TileResult, float]:
     """Pass `pass_index` of one tile: what every renderer of Tessera runs. `integrator` is
     resolved (scene.resolve_integrator); one with scene_passes needs `scene_product`, the
     product of run_scene_pass for iteration pass_index. Returns the TileResult (RGBA; the per-sample
     variance if `variance` or the variance AOV is asked for; settings.aovs; for a
     splatting integrator its splat layer and light paths, and with `batches` its variance
-    batches, convergence.VARIANCE_BATCHES) and the seconds it took."""
+    batches, convergence.VARIANCE_BATCHES) and the seconds it took.
+
+    `into`: the job's SplatSums, for a renderer that sums the whole job itself (the local
+    render). The splats are then added to it directly, and the result comes back as
+    SplatSums.fold would leave it (empty layers): the same sums, without a full-frame
+    buffer per tile to scan and add."""
     sample_start, spp = pass_range(settings, pass_index)
     core_aovs = [a for a in settings.aovs if a in AOV_CHANNELS]
     want_variance = variance or "variance" in settings.aovs
     splatting = integrators.splats(integrator)
-    splats = np.zeros((settings.height, settings.width, 3), np.int64) if splatting else None
+    # A splatting integrator's variance batches come from the same render call as the
+    # image: each sample's splats go to its batch's layer as well as the pass's, and each
+    # batch's camera mean is kept beside the image's.
+    ranges = batch_ranges(sample_start, spp) if splatting and batches else []
+    splats = batch_splats = None
+    if splatting and into is not None:
+        splats = into.layer(SplatSums.pass_field(pass_index))
+        batch_splats = into.batch_stack(pass_index, len(ranges)) if ranges else None
+    elif splatting:
+        splats = np.zeros((settings.height, settings.width, 3), np.int64)
+        batch_splats = np.zeros((len(ranges), settings.height, settings.width, 3), np.int64) if ranges else None
+    batch_rgb = np.empty((len(ranges), rect.height, rect.width, 3), np.float32) if ranges else None
     common = dict(width=settings.width, height=settings.height, seed=settings.seed,
                   max_depth=settings.max_depth, threads=threads, integrator=integrator,
                   integrator_params=dict(settings.integrator_params), scene_product=scene_product)
-    # A splatting integrator's variance batches come from the same pass as the image: its
-    # splats go to one buffer per batch (their sum is the pass's layer, exactly) and each
-    # batch's camera mean is kept beside the image's.
-    ranges = batch_ranges(sample_start, spp) if splatting and batches else []
-    batch_splats = np.zeros((len(ranges), settings.height, settings.width, 3), np.int64) if ranges else None
-    batch_rgb = np.empty((len(ranges), rect.height, rect.width, 3), np.float32) if ranges else None
     started = time.perf_counter()
     out = scene.render_tile(rect.x0, rect.y0, rect.width, rect.height, spp=spp,
                             sample_start=sample_start, return_variance=want_variance,
-                            splats=None if ranges else splats, aovs=core_aovs,
-                            batch_splats=batch_splats, batch_rgb=batch_rgb, **common)
-    if ranges:
-        splats = batch_splats.sum(axis=0)
+                            splats=splats, aovs=core_aovs, batch_splats=batch_splats,
+                            batch_rgb=batch_rgb, **common)
     layers, var = None, None
     if core_aovs:
         rgba, layers = out
@@ -255,15 +279,14 @@ def render_tile_pass(scene, settings: RenderSettings, rect: TileRect, pass_index
         rgba = out
     result = TileResult(rect.x0, rect.y0, rgba, pass_index, sample_start, spp, var, aovs=layers)
     if splatting:
-        result.splat_rect, result.splat = splat_layer(splats)
+        layer_of = (lambda _: (EMPTY_RECT, EMPTY_LAYER)) if into is not None else splat_layer
+        result.splat_rect, result.splat = layer_of(splats)
         # One light path per sample; the scene's fixed-point unit goes with the layer.
         result.light_paths = rect.width * rect.height * spp
         result.splat_exponent = scene.splat_exponent
         if ranges:
-            result.batches = []
-            for (_, n), b_splats, b_rgb in zip(ranges, batch_splats, batch_rgb):
-                b_rect, b_layer = splat_layer(b_splats)
-                result.batches.append(SplatBatch(n, b_rgb, b_rect, b_layer, rect.width * rect.height * n))
+            result.batches = [SplatBatch(n, b_rgb, *layer_of(b_splats), rect.width * rect.height * n)
+                              for (_, n), b_splats, b_rgb in zip(ranges, batch_splats, batch_rgb)]
     return result, time.perf_counter() - started
 
 
