@@ -7,6 +7,8 @@
 #include <limits>
 #include <map>
 #include <stdexcept>
+#include <cstdlib>
+#include <regex>
 #include <string>
 
 #include "ray_counters.h"
@@ -60,8 +62,25 @@ bool MonitorEmbreeMemory(void*, ssize_t bytes, bool) {
 
 RTCDevice EmbreeDevice() {
     static RTCDevice device = [] {
-        RTCDevice d = rtcNewDevice("verbose=0");
-        if (!d) throw std::runtime_error("cannot create the Embree device");
+        // TESSERA_EMBREE_CONFIG adds to Embree's device configuration, e.g. "isa=sse4.2":
+        // Embree picks its SIMD code per CPU, so a farm of mixed CPUs pins one ISA that
+        // way (docs/farm.md, "Determinism").
+        std::string config = "verbose=0";
+        if (const char* extra = std::getenv("TESSERA_EMBREE_CONFIG"); extra && *extra) {
+            // Embree falls back to SSE2 on an ISA name it does not know, silently: refuse it.
+            static const std::regex isa_setting(R"((?:^|[\s,])(?:max_)?isa\s*=\s*([^\s,]*))");
+            static const std::regex known("sse2|sse4\\.2|avx|avx2|avx512|avx512knl|avx512skx");
+            std::string rest = extra;
+            for (std::smatch m; std::regex_search(rest, m, isa_setting); rest = m.suffix())
+                if (!std::regex_match(m[1].str(), known))
+                    throw std::runtime_error("TESSERA_EMBREE_CONFIG: unknown ISA '" + m[1].str() +
+                                             "' (known: sse2, sse4.2, avx, avx2, avx512)");
+            config += std::string(",") + extra;
+        }
+        RTCDevice d = rtcNewDevice(config.c_str());
+        if (!d)
+            throw std::runtime_error("cannot create the Embree device (configuration '" + config +
+                                     "'; TESSERA_EMBREE_CONFIG adds to it)");
         rtcSetDeviceMemoryMonitorFunction(d, MonitorEmbreeMemory, nullptr);
         return d;
     }();
