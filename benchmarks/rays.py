@@ -14,8 +14,12 @@ For each scene, one run is:
    between two random surface points. raw rays/s = all rays / the sum of the three
    casting times.
 The ratio renderer / raw is what the renderer keeps of Embree's ceiling: the rest goes to
-shading, sampling, light selection and bookkeeping. Median ± half-range over the runs
-(benchmarks/common.py). Writes docs/benchmarks/rays.{md,json}.
+shading, sampling, light selection and bookkeeping. The same raw rays are also cast
+through Embree's other interfaces (`trace_rays(interface=...)`): packets of 8 consecutive
+rays (rtcIntersect8 / rtcOccluded8; camera rays with the COHERENT hint, which suits them)
+and streams of 256 (rtcIntersect1M / rtcOccluded1M), with the hit counts checked equal to
+the single rays'. Median ± half-range over the runs (benchmarks/common.py). Writes
+docs/benchmarks/rays.{md,json}.
 """
 from __future__ import annotations
 
@@ -30,6 +34,8 @@ import numpy as np
 from common import CORNELL, OUT, REPO, fmt, summary
 
 SHARED = REPO.parent / "shared" / "scenes"
+INTERFACES = ("packet8", "stream")
+KINDS = ("primary", "bounce", "shadow")
 # Its own camera and a RectLight (frame 27, as tests/renderer/usd/test_real_scenes.py renders it).
 REAL = ("arnoldusd_disk_rect_lights", "test_2439.5/data/rect.usda")
 
@@ -95,12 +101,19 @@ def one_run(scene, res: int, spp: int, seed: int) -> dict:
     rng = np.random.default_rng(seed)
     eps = 1e-4 * float(np.ptp(scene.data.positions.reshape(-1, 3), axis=0).max())
     primary = res * res * spp
-    o, d = camera_rays(scene, res, res, spp, rng)
-    _, t_primary = _core.trace_rays(scene._core, o, d, np.full(len(o), np.inf, np.float32), False, 2)
-    o, d = bounce_rays(scene, max(closest - primary, 0), rng, eps)
-    _, t_bounce = _core.trace_rays(scene._core, o, d, np.full(len(o), np.inf, np.float32), False, 2)
-    o, d, tf = shadow_rays(scene, shadow, rng, eps)
-    _, t_shadow = _core.trace_rays(scene._core, o, d, tf, True, 2)
+    kinds = {"primary": (*camera_rays(scene, res, res, spp, rng), None, False),
+             "bounce": (*bounce_rays(scene, max(closest - primary, 0), rng, eps), None, False),
+             "shadow": (*shadow_rays(scene, shadow, rng, eps), True)}
+    times, other = {}, {}
+    for kind, (o, d, tf, occluded) in kinds.items():
+        tf = np.full(len(o), np.inf, np.float32) if tf is None else tf
+        hits, times[kind] = _core.trace_rays(scene._core, o, d, tf, occluded, 2)
+        for interface in INTERFACES:
+            h, t = _core.trace_rays(scene._core, o, d, tf, occluded, 2, interface, kind == "primary")
+            if h != hits:
+                raise SystemExit(f"{kind} rays: {interface} found {h} hits, single rays {hits}")
+            other[f"raw_{kind}_{interface}_mrays"] = len(o) / t / 1e6 if t > 0 else 0.0
+    t_primary, t_bounce, t_shadow = times["primary"], times["bounce"], times["shadow"]
     raw_seconds = t_primary + t_bounce + t_shadow
     total = closest + shadow
     return {"render_seconds": seconds, "closest_rays": closest, "shadow_rays": shadow, "primary_rays": primary,
@@ -108,7 +121,7 @@ def one_run(scene, res: int, spp: int, seed: int) -> dict:
             "raw_primary_mrays": primary / t_primary / 1e6,
             "raw_bounce_mrays": (closest - primary) / t_bounce / 1e6 if t_bounce > 0 else 0.0,
             "raw_shadow_mrays": shadow / t_shadow / 1e6 if t_shadow > 0 else 0.0,
-            "ratio": (total / seconds) / (total / raw_seconds)}
+            "ratio": (total / seconds) / (total / raw_seconds), **other}
 
 
 def main() -> int:
@@ -140,6 +153,12 @@ def main() -> int:
         s = {k: summary([r[k] for r in runs]) for k in ("renderer_mrays", "raw_mrays", "ratio",
                                                          "raw_primary_mrays", "raw_bounce_mrays",
                                                          "raw_shadow_mrays")}
+        for kind in KINDS:
+            for interface in INTERFACES:
+                key = f"raw_{kind}_{interface}_mrays"
+                s[key] = summary([r[key] for r in runs])
+                s[f"{kind}_{interface}_over_single"] = summary(
+                    [r[key] / r[f"raw_{kind}_mrays"] for r in runs])
         out["scenes"][name] = {"triangles": scene.num_triangles, "runs": runs, **s}
         r0 = runs[0]
         lines.append(f"| {name} | {scene.num_triangles} | {r0['closest_rays']} + {r0['shadow_rays']} "
@@ -161,6 +180,28 @@ def main() -> int:
     for name, s in out["scenes"].items():
         lines.append(f"| {name} | {fmt(s['raw_primary_mrays'])} | {fmt(s['raw_bounce_mrays'])} "
                      f"| {fmt(s['raw_shadow_mrays'])} |")
+    lines += ["", "Embree's packet and stream interfaces on the same rays, as a speed ratio to single rays "
+              "(same runs; camera rays with the COHERENT hint, the others INCOHERENT; hit counts equal):", "",
+              "| scene | interface | camera | bounce | shadow |", "|---|---|---|---|---|"]
+    for name, s in out["scenes"].items():
+        for interface in INTERFACES:
+            lines.append(f"| {name} | {interface} | " + " | ".join(
+                fmt(s[f"{kind}_{interface}_over_single"]) for kind in KINDS) + " |")
+    lines += ["", "What the best interface per ray kind would buy, from the medians: the raw casting "
+              "time it saves, and, since Embree's share of the render is about the renderer / raw ratio, "
+              "the share of the render's time that is:", ""]
+    for name, s in out["scenes"].items():
+        r0 = s["runs"][0]
+        counts = {"primary": r0["primary_rays"], "bounce": r0["closest_rays"] - r0["primary_rays"],
+                  "shadow": r0["shadow_rays"]}
+        single = sum(counts[k] / s[f"raw_{k}_mrays"]["median"] for k in KINDS)
+        best = sum(counts[k] / (s[f"raw_{k}_mrays"]["median"] * max(
+            [1.0] + [s[f"{k}_{i}_over_single"]["median"] for i in INTERFACES])) for k in KINDS)
+        saved = 1 - best / single
+        s["best_interface_saves_raw"] = saved
+        s["best_interface_saves_render"] = saved * s["ratio"]["median"]
+        lines.append(f"- {name}: {100 * saved:.0f} % of Embree's time, about "
+                     f"{100 * saved * s['ratio']['median']:.1f} % of the render's.")
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / "rays.json").write_text(json.dumps(out, indent=2) + "\n")
     (OUT / "rays.md").write_text("\n".join(lines) + "\n")

@@ -686,16 +686,22 @@ NB_MODULE(_core, m) {
         [](const Scene& scene, nb::ndarray<const float, nb::shape<-1, 3>, nb::c_contig, nb::device::cpu> origins,
            nb::ndarray<const float, nb::shape<-1, 3>, nb::c_contig, nb::device::cpu> directions,
            nb::ndarray<const float, nb::shape<-1>, nb::c_contig, nb::device::cpu> t_far, bool occluded,
-           int threads) {
+           int threads, const std::string& interface, bool coherent) {
             const size_t n = origins.shape(0);
             if (directions.shape(0) != n || t_far.shape(0) != n)
                 throw std::invalid_argument("origins, directions and t_far need one row per ray");
+            if (interface != "single" && interface != "packet8" && interface != "stream")
+                throw std::invalid_argument("interface must be 'single', 'packet8' or 'stream'");
             const float* o = origins.data();
             const float* d = directions.data();
             const float* tf = t_far.data();
             RTCScene rtc = scene.embree_scene();
             std::atomic<uint64_t> hits{0};
             double seconds = 0.0;
+            auto ray_at = [&](size_t i) {
+                return RTCRay{o[3 * i], o[3 * i + 1], o[3 * i + 2], 0.f, d[3 * i], d[3 * i + 1], d[3 * i + 2], 0.f,
+                              tf[i], 0xFFFFFFFFu, 0, 0};
+            };
             {
                 nb::gil_scoped_release release;
                 tbb::task_arena arena(threads > 0 ? threads : tbb::this_task_arena::max_concurrency());
@@ -707,20 +713,62 @@ NB_MODULE(_core, m) {
                         uint64_t local_hits = 0;
                         RTCIntersectContext context;
                         rtcInitIntersectContext(&context);
-                        for (size_t i = r.begin(); i != r.end(); ++i) {
-                            if (occluded) {
-                                RTCRay ray{o[3 * i], o[3 * i + 1], o[3 * i + 2], 0.f,
-                                           d[3 * i], d[3 * i + 1], d[3 * i + 2], 0.f, tf[i], 0xFFFFFFFFu, 0, 0};
-                                rtcOccluded1(rtc, &context, &ray);
-                                local_hits += ray.tfar < 0.f;
-                            } else {
-                                RTCRayHit rh;
-                                rh.ray = RTCRay{o[3 * i], o[3 * i + 1], o[3 * i + 2], 0.f,
-                                                d[3 * i], d[3 * i + 1], d[3 * i + 2], 0.f, tf[i], 0xFFFFFFFFu, 0, 0};
+                        context.flags = coherent ? RTC_INTERSECT_CONTEXT_FLAG_COHERENT
+                                                 : RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT;
+                        if (interface == "single") {
+                            for (size_t i = r.begin(); i != r.end(); ++i) {
+                                if (occluded) {
+                                    RTCRay ray = ray_at(i);
+                                    rtcOccluded1(rtc, &context, &ray);
+                                    local_hits += ray.tfar < 0.f;
+                                } else {
+                                    RTCRayHit rh{ray_at(i), {}};
+                                    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+                                    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+                                    rtcIntersect1(rtc, &context, &rh);
+                                    local_hits += rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+                                }
+                            }
+                        } else if (interface == "packet8") {
+                            // Consecutive rays, 8 at a time, in Embree's SoA layout.
+                            for (size_t i = r.begin(); i < r.end(); i += 8) {
+                                alignas(32) int valid[8];
+                                alignas(32) RTCRayHit8 rh;
+                                for (int k = 0; k < 8; ++k) {
+                                    const bool on = i + k < r.end();
+                                    valid[k] = on ? -1 : 0;
+                                    const RTCRay ray = ray_at(on ? i + k : i);
+                                    rh.ray.org_x[k] = ray.org_x, rh.ray.org_y[k] = ray.org_y, rh.ray.org_z[k] = ray.org_z;
+                                    rh.ray.dir_x[k] = ray.dir_x, rh.ray.dir_y[k] = ray.dir_y, rh.ray.dir_z[k] = ray.dir_z;
+                                    rh.ray.tnear[k] = 0.f, rh.ray.tfar[k] = ray.tfar, rh.ray.time[k] = 0.f;
+                                    rh.ray.mask[k] = 0xFFFFFFFFu, rh.ray.id[k] = 0, rh.ray.flags[k] = 0;
+                                    rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+                                    rh.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+                                }
+                                if (occluded) {
+                                    rtcOccluded8(valid, rtc, &context, &rh.ray);
+                                    for (int k = 0; k < 8; ++k) local_hits += valid[k] && rh.ray.tfar[k] < 0.f;
+                                } else {
+                                    rtcIntersect8(valid, rtc, &context, &rh);
+                                    for (int k = 0; k < 8; ++k)
+                                        local_hits += valid[k] && rh.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID;
+                                }
+                            }
+                        } else {
+                            // The whole range as one stream (rtcIntersect1M / rtcOccluded1M).
+                            std::vector<RTCRayHit> stream(r.size());
+                            for (size_t i = r.begin(); i != r.end(); ++i) {
+                                RTCRayHit& rh = stream[i - r.begin()];
+                                rh.ray = ray_at(i);
                                 rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
                                 rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-                                rtcIntersect1(rtc, &context, &rh);
-                                local_hits += rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+                            }
+                            if (occluded) {
+                                rtcOccluded1M(rtc, &context, &stream[0].ray, unsigned(stream.size()), sizeof(RTCRayHit));
+                                for (const RTCRayHit& rh : stream) local_hits += rh.ray.tfar < 0.f;
+                            } else {
+                                rtcIntersect1M(rtc, &context, stream.data(), unsigned(stream.size()), sizeof(RTCRayHit));
+                                for (const RTCRayHit& rh : stream) local_hits += rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
                             }
                         }
                         hits.fetch_add(local_hits, std::memory_order_relaxed);
@@ -732,7 +780,11 @@ NB_MODULE(_core, m) {
             return nb::make_tuple(hits.load(), seconds);
         },
         "scene"_a, "origins"_a, "directions"_a, "t_far"_a, "occluded"_a = false, "threads"_a = 0,
+        "interface"_a = "single", "coherent"_a = false,
         "Raw Embree: casts the given rays (float32 (n, 3) origins and unit directions, (n,) t_far, t_near 0) "
-        "through the scene's BVH with rtcIntersect1 (or rtcOccluded1 with occluded) on `threads` threads, "
-        "doing nothing else. Returns (hits, seconds): the ceiling the renderer's rays/s is measured against.");
+        "through the scene's BVH on `threads` threads, doing nothing else, by `interface`: 'single' "
+        "(rtcIntersect1 / rtcOccluded1 per ray), 'packet8' (consecutive rays 8 at a time, rtcIntersect8 / "
+        "rtcOccluded8) or 'stream' (each range of 256 rays as one rtcIntersect1M / rtcOccluded1M call); "
+        "`coherent` sets Embree's COHERENT context hint instead of INCOHERENT. Returns (hits, seconds): "
+        "the ceiling the renderer's rays/s is measured against.");
 }
