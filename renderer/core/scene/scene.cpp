@@ -8,7 +8,6 @@
 #include <map>
 #include <stdexcept>
 #include <cstdlib>
-#include <regex>
 #include <string>
 
 #include "ray_counters.h"
@@ -60,6 +59,13 @@ bool MonitorEmbreeMemory(void*, ssize_t bytes, bool) {
 }
 }  // namespace
 
+namespace {
+std::string Trim(const std::string& s) {
+    const size_t first = s.find_first_not_of(" \t");
+    return first == std::string::npos ? std::string() : s.substr(first, s.find_last_not_of(" \t") - first + 1);
+}
+}  // namespace
+
 RTCDevice EmbreeDevice() {
     static RTCDevice device = [] {
         // TESSERA_EMBREE_CONFIG adds to Embree's device configuration, e.g. "isa=sse4.2":
@@ -67,15 +73,29 @@ RTCDevice EmbreeDevice() {
         // way (docs/farm.md, "Determinism").
         std::string config = "verbose=0";
         if (const char* extra = std::getenv("TESSERA_EMBREE_CONFIG"); extra && *extra) {
-            // Embree falls back to SSE2 on an ISA name it does not know, silently: refuse it.
-            static const std::regex isa_setting(R"((?:^|[\s,])(?:max_)?isa\s*=\s*([^\s,]*))");
-            static const std::regex known("sse2|sse4\\.2|avx|avx2|avx512|avx512knl|avx512skx");
-            std::string rest = extra;
-            for (std::smatch m; std::regex_search(rest, m, isa_setting); rest = m.suffix())
-                if (!std::regex_match(m[1].str(), known))
-                    throw std::runtime_error("TESSERA_EMBREE_CONFIG: unknown ISA '" + m[1].str() +
+            // Items are passed on as key=value without spaces, which Embree would not read
+            // (it ignores "isa = avx2" without a word), and an ISA name Embree does not know,
+            // on which it falls back to SSE2 silently, is refused.
+            const std::string settings = extra;
+            for (size_t begin = 0; begin <= settings.size();) {
+                const size_t end = std::min(settings.find(',', begin), settings.size());
+                const std::string item = Trim(settings.substr(begin, end - begin));
+                begin = end + 1;
+                if (item.empty()) continue;
+                const size_t eq = item.find('=');
+                if (eq == std::string::npos) {
+                    config += "," + item;
+                    continue;
+                }
+                const std::string key = Trim(item.substr(0, eq)), value = Trim(item.substr(eq + 1));
+                static const char* const known[] = {"sse2", "sse4.2", "avx", "avx2", "avx512", "avx512knl",
+                                                    "avx512skx"};
+                if ((key == "isa" || key == "max_isa") &&
+                    std::find(std::begin(known), std::end(known), value) == std::end(known))
+                    throw std::runtime_error("TESSERA_EMBREE_CONFIG: unknown ISA '" + value +
                                              "' (known: sse2, sse4.2, avx, avx2, avx512)");
-            config += std::string(",") + extra;
+                config += "," + key + "=" + value;
+            }
         }
         RTCDevice d = rtcNewDevice(config.c_str());
         if (!d)
