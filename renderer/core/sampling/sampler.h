@@ -30,16 +30,21 @@ inline uint32_t ReverseBits32(uint32_t v) {
 // Hash-based nested uniform (Owen) scrambling of a 32-bit fixed-point value (Burley 2020,
 // after Laine and Karras 2011): each bit is flipped by a function of the bits above it
 // only, so the scramble maps every aligned dyadic interval onto an aligned dyadic interval
-// of the same size. Applied to the bit-reversed word, where multiplication carries bits
-// upward, i.e. from more significant to less significant bits of the original.
-inline uint32_t OwenScramble(uint32_t v, uint32_t seed) {
-    v = ReverseBits32(v);
+// of the same size. The hash works on the bit-reversed word, where multiplication carries
+// bits upward, i.e. from more significant to less significant bits of the original:
+//   OwenScramble(v, seed) = ReverseBits32(OwenHashReversed(ReverseBits32(v), seed)).
+// The sampler composes the two halves itself, so that reversals which cancel (Sobol's
+// first dimension is itself a reversal) are never computed.
+inline uint32_t OwenHashReversed(uint32_t v, uint32_t seed) {
     v ^= v * 0x3d20adeau;
     v += seed;
     v *= (seed >> 16) | 1u;
     v ^= v * 0x05526c56u;
     v ^= v * 0x53a22864u;
-    return ReverseBits32(v);
+    return v;
+}
+inline uint32_t OwenScramble(uint32_t v, uint32_t seed) {
+    return ReverseBits32(OwenHashReversed(ReverseBits32(v), seed));
 }
 
 // The first two dimensions of the Sobol sequence, a (0, 2)-sequence: the first 2^k points
@@ -52,6 +57,7 @@ inline uint32_t SobolDimension0(uint32_t index) { return ReverseBits32(index); }
 namespace sobol_detail {
 struct Dimension1Table {
     uint32_t t[4][256];
+    uint32_t reversed[4][256];  // the same words bit-reversed (XOR commutes with reversal)
 };
 constexpr Dimension1Table MakeDimension1Table() {
     Dimension1Table table{};
@@ -64,6 +70,9 @@ constexpr Dimension1Table MakeDimension1Table() {
             for (int bit = 0; bit < 8; ++bit)
                 if (byte & (1u << bit)) x ^= v[8 * k + bit];
             table.t[k][byte] = x;
+            uint32_t r = 0;
+            for (int bit = 0; bit < 32; ++bit) r |= ((x >> bit) & 1u) << (31 - bit);
+            table.reversed[k][byte] = r;
         }
     return table;
 }
@@ -72,6 +81,11 @@ inline constexpr Dimension1Table kDimension1 = MakeDimension1Table();
 
 inline uint32_t SobolDimension1(uint32_t index) {
     const auto& t = sobol_detail::kDimension1.t;
+    return t[0][index & 0xFFu] ^ t[1][(index >> 8) & 0xFFu] ^ t[2][(index >> 16) & 0xFFu] ^ t[3][index >> 24];
+}
+// ReverseBits32(SobolDimension1(index)), from the reversed table.
+inline uint32_t SobolDimension1Reversed(uint32_t index) {
+    const auto& t = sobol_detail::kDimension1.reversed;
     return t[0][index & 0xFFu] ^ t[1][(index >> 8) & 0xFFu] ^ t[2][(index >> 16) & 0xFFu] ^ t[3][index >> 24];
 }
 
@@ -88,7 +102,7 @@ public:
                  SamplerKind kind = SamplerKind::kIndependent)
         : pixel_key_(Mix64(Mix64(seed + 0x6A09E667F3BCC909ull + (uint64_t(stream) << 32)) ^ pixel_index)),
           key_(Mix64(pixel_key_ ^ sample_index)),
-          sample_(sample_index),
+          reversed_sample_(ReverseBits32(sample_index)),
           kind_(kind) {}
 
     // Uniform in [0, 1): 24 random bits, so 1.0f is never returned.
@@ -98,8 +112,7 @@ public:
         // Padding: every dimension shuffles the sample index with its own scramble, so
         // dimensions are decorrelated while each keeps its stratification.
         const uint64_t h = Mix64(pixel_key_ + d * 0xD1B54A32D192ED03ull);
-        const uint32_t index = OwenScramble(sample_, uint32_t(h));
-        return ToUnit(OwenScramble(SobolDimension0(index), uint32_t(h >> 32)));
+        return ToUnit(ScrambledDimension0(ShuffledIndex(uint32_t(h)), uint32_t(h >> 32)));
     }
     Vec2 Get2D() {
         if (kind_ == SamplerKind::kIndependent) {
@@ -109,17 +122,24 @@ public:
         const uint64_t d = ++dimension_;
         const uint64_t h = Mix64(pixel_key_ + d * 0xD1B54A32D192ED03ull);
         const uint64_t h2 = Mix64(h);
-        const uint32_t index = OwenScramble(sample_, uint32_t(h));
-        return {ToUnit(OwenScramble(SobolDimension0(index), uint32_t(h >> 32))),
-                ToUnit(OwenScramble(SobolDimension1(index), uint32_t(h2)))};
+        const uint32_t index = ShuffledIndex(uint32_t(h));
+        return {ToUnit(ScrambledDimension0(index, uint32_t(h >> 32))),
+                ToUnit(ReverseBits32(OwenHashReversed(SobolDimension1Reversed(index), uint32_t(h2))))};
     }
     uint32_t dimension() const { return dimension_; }
 
 private:
     static float ToUnit(uint32_t bits) { return float(bits >> 8) * 0x1p-24f; }
+    // OwenScramble(sample index, seed): the padding shuffle of one dimension.
+    uint32_t ShuffledIndex(uint32_t seed) const { return ReverseBits32(OwenHashReversed(reversed_sample_, seed)); }
+    // OwenScramble(SobolDimension0(index), seed): Sobol's first dimension is the bit
+    // reversal of the index, which the scramble's own first reversal undoes.
+    static uint32_t ScrambledDimension0(uint32_t index, uint32_t seed) {
+        return ReverseBits32(OwenHashReversed(index, seed));
+    }
 
     uint64_t pixel_key_, key_;
-    uint32_t sample_;
+    uint32_t reversed_sample_;  // ReverseBits32(sample index): the only form the scrambles read
     uint32_t dimension_ = 0;
     SamplerKind kind_;
 };
