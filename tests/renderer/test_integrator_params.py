@@ -27,11 +27,14 @@ def test_params_are_checked_against_the_registry():
     with pytest.raises(ValidationError, match="has no setting 'reach'.*known: max_distance"):
         settings(integrator="ao", integrator_params={"reach": 2})
     with pytest.raises(ValidationError, match="has no setting 'max_distance'.*it takes none"):
+        settings(integrator="whitted", integrator_params={"max_distance": 2})
+    with pytest.raises(ValidationError, match="has no setting 'max_distance'.*known: rr_depth"):
         settings(integrator="path", integrator_params={"max_distance": 2})
+    assert settings(integrator="path", integrator_params={"rr_depth": 3}).integrator_params == {"rr_depth": 3.0}
     for bad in ("far", True, [1], "nan"):
         with pytest.raises(ValidationError, match="must be a number"):
             settings(integrator="ao", integrator_params={"max_distance": bad})
-    # `auto` takes only what every integrator it may pick takes (none of them take any).
+    # `auto` takes only what every integrator it may pick takes (no setting is common to them).
     assert integrators.params("auto") == {}
     assert set(integrators.params("ao")) == {"max_distance"}
 
@@ -83,3 +86,10 @@ def test_cli_refuses_bad_params_in_the_users_terms(tmp_path, capsys):
                      "--integrator", "ao", "--integrator-param", "reach=1"])
     assert code == 2
     assert "has no setting 'reach'" in capsys.readouterr().err
+    # A value only the integrator can judge is refused before rendering, in its words.
+    out = tmp_path / "rr.exr"
+    code = cli.main(["render", str(CORNELL), "-o", str(out), "--res", "8x8", "-q",
+                     "--integrator", "path", "--integrator-param", "rr_depth=-1"])
+    assert code == 2
+    assert "invalid settings: path rr_depth must be a whole number >= 0" in capsys.readouterr().err
+    assert not out.exists()

@@ -1,5 +1,7 @@
 #include "path.h"
 
+#include <cmath>
+#include <stdexcept>
 #include <type_traits>
 
 #include "bsdf.h"
@@ -13,13 +15,19 @@ const IntegratorInfo& PathIntegrator::Info() {
         .name = "path",
         .description = "path tracing: next event estimation, MIS with BSDF sampling, Russian roulette",
         .complete = true,
+        .params = {{"rr_depth", "vertex index (0 = the first hit) from which Russian roulette may end a path "
+                                "(default 5)"}},
     };
     return info;
 }
 
 IntegratorEntry PathIntegratorEntry() {
     return {PathIntegrator::Info, [](const IntegratorSettings& s, const Scene&) -> std::unique_ptr<Integrator> {
-                return std::make_unique<PathIntegrator>(s.max_depth);
+                const float rr = s.Param("rr_depth", float(PathIntegrator::kDefaultRouletteDepth));
+                if (!(rr >= 0.f && rr <= 1e6f && rr == std::floor(rr)))
+                    throw std::invalid_argument("path rr_depth must be a whole number >= 0 (the vertex index from "
+                                                "which Russian roulette may end a path)");
+                return std::make_unique<PathIntegrator>(s.max_depth, int(rr));
             }};
 }
 
@@ -92,10 +100,10 @@ PathSample PathIntegrator::Trace(const Scene& scene, Ray ray, PixelSampler& samp
         prev_n = hit.ns;
         ray = {OffsetRayOrigin(hit.p, hit.p_error, hit.ng, wi), wi};
 
-        // Russian roulette from the third vertex on: survive with probability equal to the
-        // throughput's largest channel (refraction's radiance scaling removed), then
+        // Russian roulette from vertex roulette_depth_ on: survive with probability equal
+        // to the throughput's largest channel (refraction's radiance scaling removed), then
         // divide, keeping the estimator unbiased.
-        if (depth >= 2) {
+        if (depth >= roulette_depth_) {
             float q = std::min(1.f, MaxComponent(beta) * eta_scale);
             if (sampler.Get1D() >= q) break;
             beta = beta / q;
