@@ -569,6 +569,17 @@ NB_MODULE(_core, m) {
         "the scene has them.");
 
     m.def(
+        "check_integrator",
+        [](const Scene& scene, const std::string& integrator, int max_depth,
+           const std::map<std::string, float>& integrator_params) {
+            if (max_depth < 0) throw std::invalid_argument("max_depth must be >= 0");
+            Integrator::Create(integrator, {max_depth, integrator_params}, scene);
+        },
+        "scene"_a, "integrator"_a, "max_depth"_a, "integrator_params"_a,
+        "Makes the integrator as a render would and discards it: ValueError, in the integrator's own "
+        "words, for a setting value it refuses (before any work is done).");
+
+    m.def(
         "render_tile",
         [](const Scene& scene, const Camera& camera, uint32_t x0, uint32_t y0, uint32_t width, uint32_t height,
            uint32_t spp, uint32_t seed, int max_depth, int threads, uint32_t sample_start, bool with_variance,

@@ -196,6 +196,13 @@ class Scene:
                             motion=None if getattr(c, "motion", None) is None
                             else np.asarray(c.motion, np.float32).reshape(-1, 12))
 
+    def check_integrator(self, integrator: str, *, max_depth: int = 64,
+                         integrator_params: dict[str, float] | None = None) -> None:
+        """ValueError if `integrator` refuses these settings' values on this scene (a render
+        would fail the same way, after its set-up): for checking a job before it starts."""
+        _core.check_integrator(self._core, self.resolve_integrator(integrator), max_depth,
+                               {k: float(v) for k, v in (integrator_params or {}).items()})
+
     def scene_pass(self, integrator: str, iteration: int, *, seed: int = 0, max_depth: int = 64,
                    threads: int = 0, integrator_params: dict[str, float] | None = None) -> bytes:
         """The product of the scene-wide pass of `iteration` of `integrator` (one whose

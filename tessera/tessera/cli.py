@@ -107,6 +107,12 @@ def _render_one(args: argparse.Namespace) -> int:
             return 2
     from tessera_base import integrators
 
+    try:  # the values of the integrator's own settings, which only the integrator can judge
+        scene.check_integrator(settings.integrator, max_depth=settings.max_depth,
+                               integrator_params=settings.integrator_params)
+    except ValueError as exc:
+        print(f"tessera render: invalid settings: {exc}", file=sys.stderr)
+        return 2
     for w in [*scene.warnings, *integrators.scene_warnings(scene.resolve_integrator(settings.integrator),
                                                            curve_segments=scene.num_curve_segments)]:
         print(f"warning: {w}", file=sys.stderr)
