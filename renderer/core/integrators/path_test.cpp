@@ -18,15 +18,13 @@ using namespace tessera_test;
 
 namespace {
 
-struct FurnaceEstimate {
-    std::array<double, 3> mean{}, stderr_mean{};
+struct FurnaceEstimate : ChannelEstimate {
     double closest_rays_per_sample = 0;
 };
 
 // K independent seeds of a whole image; the image means' mean and standard error.
 FurnaceEstimate SeedMeans(const Scene& scene, const Camera& cam, RenderOptions opt, int seeds) {
     std::vector<std::array<double, 3>> per(seeds);
-    FurnaceEstimate e;
     uint64_t rays = 0, samples = 0;
     for (int k = 0; k < seeds; ++k) {
         opt.seed = 100 + uint32_t(k);
@@ -36,14 +34,8 @@ FurnaceEstimate SeedMeans(const Scene& scene, const Camera& cam, RenderOptions o
         samples += st.samples;
         for (int c = 0; c < 3; ++c) per[k][c] = MeanChannel(img, c);
     }
-    for (int c = 0; c < 3; ++c) {
-        double s = 0, s2 = 0;
-        for (const auto& m : per) s += m[c];
-        const double mean = s / seeds;
-        for (const auto& m : per) s2 += (m[c] - mean) * (m[c] - mean);
-        e.mean[c] = mean;
-        e.stderr_mean[c] = std::sqrt(s2 / (seeds - 1) / seeds);
-    }
+    FurnaceEstimate e;
+    static_cast<ChannelEstimate&>(e) = MeanAndStandardError(per);
     e.closest_rays_per_sample = double(rays) / double(samples);
     return e;
 }

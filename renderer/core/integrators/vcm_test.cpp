@@ -27,9 +27,7 @@ namespace {
 using namespace tessera;
 using namespace tessera_test;
 
-struct Estimate {
-    std::array<double, 3> mean{}, stderr_mean{};
-};
+using Estimate = ChannelEstimate;
 
 // Per-iteration means over the image, K iterations of `spp` samples each.
 Estimate IterationMeans(const Scene& scene, const Camera& camera, RenderOptions opt, int iterations) {
@@ -41,16 +39,7 @@ Estimate IterationMeans(const Scene& scene, const Camera& camera, RenderOptions 
         const std::vector<float> img = RenderResolved(scene, camera, opt);
         for (int c = 0; c < 3; ++c) per[k][c] = MeanChannel(img, c);
     }
-    Estimate e;
-    for (int c = 0; c < 3; ++c) {
-        double s = 0, s2 = 0;
-        for (const auto& m : per) s += m[c];
-        const double mean = s / iterations;
-        for (const auto& m : per) s2 += (m[c] - mean) * (m[c] - mean);
-        e.mean[c] = mean;
-        e.stderr_mean[c] = std::sqrt(s2 / (iterations - 1) / iterations);
-    }
-    return e;
+    return MeanAndStandardError(per);
 }
 
 bool Agrees(const Estimate& e, int c, double expected) {

@@ -87,6 +87,23 @@ inline std::vector<float> RenderResolved(const Scene& scene, const Camera& cam, 
     return img;
 }
 
+// Per channel, the mean of K independent estimates (K >= 2) and its standard error.
+struct ChannelEstimate {
+    std::array<double, 3> mean{}, stderr_mean{};
+};
+inline ChannelEstimate MeanAndStandardError(const std::vector<std::array<double, 3>>& runs) {
+    ChannelEstimate e;
+    const double k = double(runs.size());
+    for (int c = 0; c < 3; ++c) {
+        double s = 0, s2 = 0;
+        for (const auto& m : runs) s += m[c];
+        e.mean[c] = s / k;
+        for (const auto& m : runs) s2 += (m[c] - e.mean[c]) * (m[c] - e.mean[c]);
+        e.stderr_mean[c] = std::sqrt(s2 / (k - 1) / k);
+    }
+    return e;
+}
+
 inline double MeanChannel(const std::vector<float>& px, int c) {
     double sum = 0;
     for (size_t i = 0; i < px.size() / 4; ++i) sum += px[4 * i + c];
