@@ -13,11 +13,12 @@ class PathIntegrator final : public Integrator {
 public:
     // Russian roulette may end a path from this vertex index on (0 = the first hit). Earlier
     // roulette shortens paths but its coin flips are noise the sampler's stratification
-    // cannot remove: on the Cornell boxes, starting at the sixth vertex instead of the third
-    // costs 1.4x the time per sample for 1.5-1.6x less error, i.e. 14-16 % less time to an
-    // error; open scenes do not change (docs/benchmarks/russian-roulette.md). Mitsuba 3's
-    // rr_depth is 5 too.
-    static constexpr int kDefaultRouletteDepth = 5;
+    // cannot remove: on the Lambertian Cornell boxes, starting at the sixth vertex (5)
+    // instead of the third (2) costs 1.4x the time per sample for 1.5-1.6x less error,
+    // 14-16 % less time to an error (docs/benchmarks/russian-roulette.md). The default stays
+    // 2: on the Cornell box with a mirror and a glass sphere, 5 gave the ceiling (lit through
+    // them) a heavy tail, one seed in six 6 % bright (tests/renderer/test_radiosity.py).
+    static constexpr int kDefaultRouletteDepth = 2;
     explicit PathIntegrator(int max_depth, int roulette_depth = kDefaultRouletteDepth)
         : max_depth_(max_depth), roulette_depth_(roulette_depth) {}
     static const IntegratorInfo& Info();
