@@ -7,8 +7,9 @@ with Mitsuba's llvm path tracer, Tessera `path` at the same spp and Tessera `bdp
 quarter of it (BDPT's samples cost several path samples; the ratio is per sample). Each
 Tessera render runs in a warm child process per renderer build (the scene loaded once), so
 `--baseline-core` (a `_core*.so` of an older build) measures the current build against that
-one in the same interleaved run. Scenes: `cornell-lambert` (the Cornell box with Lambertian
-materials, the one Mitsuba matches) and `caustic` (glass sphere, small sphere light), as
+one in the same interleaved run. Scenes: `cornell-exported` (the Cornell box as exporters
+write a plain diffuse UsdPreviewSurface, rendered as authored), `cornell-lambert` (the
+authored box with Lambertian materials, the one Mitsuba matches) and `caustic` (glass sphere, small sphere light), as
 `tessera bench` translates them for Mitsuba. Reports median ± half-range of the seconds and
 of each ratio (ratios are taken within a repetition), plus the Embree rays each Tessera
 sample cast. Writes docs/benchmarks/speed.{md,json}.
@@ -22,7 +23,7 @@ import time
 
 from common import LOAD_CORE, WarmChild, fmt, summary, write_results
 
-SCENES = ("cornell-lambert", "caustic")
+SCENES = ("cornell-exported", "cornell-lambert", "caustic")
 
 CHILD = LOAD_CORE + r"""
 import json, time

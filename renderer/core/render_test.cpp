@@ -119,6 +119,39 @@ TEST(Render, LambertianKernelIsTheGeneralKernelBitForBit) {
     EXPECT_NE(0, std::memcmp(fast.data(), other.data(), fast.size() * sizeof(float)));
 }
 
+// A UsdPreviewSurface that equals a Lambertian exactly (specularColor 0 in the specular
+// workflow, as exporters write plain diffuse materials) is rendered as one: the scene keeps
+// the Lambertian kernel and the image is the Lambertian scene's, bit for bit.
+TEST(Render, ExactlyLambertianPreviewSurfacesKeepTheLambertianKernel) {
+    const SceneDesc lambert = SmallCornell();
+    auto as_exported = [&](Color specular) {
+        SceneDesc d = lambert;
+        for (Material& m : d.materials) {
+            MaterialParams p;
+            p.diffuse_color = m.albedo;
+            p.emissive_color = m.emission;
+            p.roughness = 1.f;
+            p.use_specular_workflow = true;
+            p.specular_color = specular;
+            m.preview = p;
+        }
+        return d;
+    };
+    const Scene a(lambert), b(as_exported(Color(0.f)));
+    ASSERT_TRUE(b.all_lambertian());
+    const uint32_t W = 24, H = 16;
+    const Camera cam = LookDownMinusZ({0, 0, 1.5f}, W, H, 0.45f);
+    const RenderOptions opt{16, 7, 8, 2};
+    const auto want = Render(a, cam, opt, {0, 0, W, H});
+    const auto got = Render(b, cam, opt, {0, 0, W, H});
+    ASSERT_EQ(0, std::memcmp(want.data(), got.data(), want.size() * sizeof(float)));
+    // The control: a specular colour of 0.001 is a real (faint) lobe, not a Lambertian.
+    const Scene c(as_exported(Color(1e-3f, 0.f, 0.f)));
+    EXPECT_FALSE(c.all_lambertian());
+    const auto other = Render(c, cam, opt, {0, 0, W, H});
+    EXPECT_NE(0, std::memcmp(want.data(), other.data(), want.size() * sizeof(float)));
+}
+
 TEST(Render, SeedChangesNoiseOnly) {
     Scene scene(SmallCornell());
     Camera cam = LookDownMinusZ({0, 0, 1.5f}, 16, 16, 0.45f);

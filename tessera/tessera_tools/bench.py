@@ -76,6 +76,7 @@ class BenchScene:
 
 
 CORNELL = REPO / "examples" / "cornell" / "cornell.usda"
+CORNELL_EXPORTED = REPO / "examples" / "cornell" / "cornell_exported.usda"
 CAUSTIC = REPO / "examples" / "caustic" / "caustic.usda"
 CAUSTIC_MIRROR = REPO / "examples" / "caustic" / "caustic_mirror.usda"
 
@@ -85,6 +86,9 @@ SCENES = {s.name: s for s in (
                "the Cornell box with every opaque UsdPreviewSurface made Lambertian (same albedo), "
                "the materials Mitsuba can match", lambertize=True, peer=True,
                integrators=("path", "bdpt")),
+    BenchScene("cornell-exported", CORNELL_EXPORTED,
+               "the Cornell box as exporters write a plain diffuse UsdPreviewSurface (specular workflow, "
+               "specularColor 0: exactly Lambertian, rendered as authored)", peer=True, integrators=("path", "bdpt")),
     BenchScene("caustic", CAUSTIC, "glass sphere on a Lambertian floor, small sphere light "
                "(examples/caustic)", reference="bdpt", cross_check="path", peer=True, ref_scale=2),
     # bdpt connects nothing across the mirror (only its s = 0 strategy, path tracing, reaches
@@ -98,7 +102,7 @@ SCENES = {s.name: s for s in (
                / "ni_ni_material_binding_resolution.usda",
                "OpenUSD test scene: nested native instances, 20k triangles, one distant light (shared/scenes)"),
 )}
-DEFAULT_SCENES = ("cornell", "cornell-lambert", "caustic", "dome-glass", "instancing")
+DEFAULT_SCENES = ("cornell", "cornell-exported", "cornell-lambert", "caustic", "dome-glass", "instancing")
 DEFAULT_INTEGRATORS = ("path", "bdpt", "light")
 
 

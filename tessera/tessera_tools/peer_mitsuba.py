@@ -104,10 +104,24 @@ def lambertize(data):
     return replace(data, material_params=params)
 
 
+def exactly_lambertian(p: dict, row: int) -> bool:
+    """Whether a UsdPreviewSurface row is exactly a Lambertian of its diffuseColor: opaque, no
+    clearcoat, no specular Fresnel at any angle (specularColor 0 in the specular workflow,
+    or ior 1 and metallic 0). The core renders such rows as Lambertians
+    (bsdf.h, ExactLambertianAlbedo)."""
+    if float(p["opacity"][row]) < 1.0 or float(p["clearcoat"][row]) > 0.0:
+        return False
+    if bool(p["use_specular_workflow"][row]):
+        return not np.any(np.asarray(p["specular_color"]).reshape(-1, 3)[row] > 0.0)
+    return float(p["metallic"][row]) <= 0.0 and float(p["ior"][row]) == 1.0
+
+
 def _material(data, row: int) -> dict:
     albedo = [float(x) for x in data.albedo.reshape(-1, 3)[row]]
     p = data.material_params
     if not p or "preview_surface" not in p or not bool(p["preview_surface"][row]):
+        return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": albedo}}}
+    if exactly_lambertian(p, row):
         return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": albedo}}}
     rough = float(p["roughness"][row])
     opacity = float(p["opacity"][row])

@@ -5,6 +5,7 @@ missing one is a failure here, not a skip."""
 from __future__ import annotations
 
 import csv
+from dataclasses import replace
 import json
 import os
 import subprocess
@@ -145,6 +146,27 @@ def test_peer_refuses_materials_it_cannot_match(cornell_path):
     matched = peer_mitsuba.lambertize(data)
     assert not matched.material_params["preview_surface"].any()
     assert data.material_params["preview_surface"].all()     # the original is untouched
+
+
+def test_peer_matches_exactly_lambertian_preview_surfaces(cornell_path):
+    """The exported Cornell box (specular workflow, specularColor 0) is exactly Lambertian:
+    the peer builds Mitsuba diffuse BSDFs of the authored diffuseColor for every row, while
+    the authored box (ior 1.5: a real lobe) stays refused."""
+    import mitsuba as mi
+    from tessera_renderer import load_scene
+
+    mi.set_variant("scalar_rgb")
+    data = load_scene(cornell_path.with_name("cornell_exported.usda")).data
+    built = peer_mitsuba.scene_dict(data, 16, 16, "/nonexistent-not-written")
+    diffuse = [v["bsdf"]["bsdf"] for v in built.values()
+               if isinstance(v, dict) and v.get("type") != "perspective" and "bsdf" in v]
+    reflectances = sorted(tuple(round(x, 3) for x in b["reflectance"]["value"]) for b in diffuse)
+    assert {b["type"] for b in diffuse} == {"diffuse"}
+    assert {(0.725, 0.71, 0.68), (0.63, 0.065, 0.05), (0.14, 0.45, 0.091)} <= set(reflectances)
+    params = dict(data.material_params)
+    params["specular_color"] = np.full_like(np.asarray(params["specular_color"]), 1e-3)
+    with pytest.raises(peer_mitsuba.Unmatched):   # a faint specular colour is a real lobe
+        peer_mitsuba.scene_dict(replace(data, material_params=params), 16, 16, "/nonexistent-not-written")
 
 
 def test_bench_without_matplotlib_says_how_to_install(monkeypatch, capsys):

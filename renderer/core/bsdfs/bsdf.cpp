@@ -486,6 +486,23 @@ std::optional<BSDFSample> PreviewSurfaceBSDF::Sample_f(Vec3 wo, float uc, Vec2 u
 
 // ---------------------------------------------------------------------------------------
 
+std::optional<Color> ExactLambertianAlbedo(const MaterialParams& p) {
+    // Opaque at every hit: the BSDF's own opacity rule, and no cutout or presence holes.
+    const bool opaque = p.opacity_threshold == 0.f   ? Clamp01(p.opacity) == 1.f
+                        : p.opacity_threshold > 0.f ? !IsCutout(p, p.opacity)
+                                                    : p.opacity >= 1.f;
+    if (!opaque || Clamp01(p.clearcoat) > 0.f) return std::nullopt;
+    const Color base = Clamp01(p.diffuse_color);
+    if (p.use_specular_workflow) {
+        // F0 = specularColor, F90 = min(1, 50 max F0): both 0 only when F0 is.
+        if (!IsBlack(Clamp01(p.specular_color))) return std::nullopt;
+        return base;
+    }
+    const float ior = std::isfinite(p.ior) && p.ior > 0.f ? p.ior : 1.5f;
+    if (Clamp01(p.metallic) != 0.f || F0FromIor(ior) != 0.f) return std::nullopt;
+    return base;
+}
+
 BSDF MakePreviewSurfaceBSDF(const MaterialParams& p, TransportMode mode) {
     const bool cutout_mode = p.opacity_threshold != 0.f;  // or presence mode: opaque where hit
     const float opacity = cutout_mode ? 1.f : Clamp01(p.opacity);

@@ -283,6 +283,15 @@ private:
 // opacity_threshold > 0 the surface is a cutout (see IsCutout) and otherwise fully opaque.
 BSDF MakePreviewSurfaceBSDF(const MaterialParams& p, TransportMode mode);
 
+// The reflectance of a Lambertian equal to this UsdPreviewSurface, when there is one: an
+// opaque surface without clearcoat whose specular Fresnel is 0 at every angle (F0 = F90 = 0:
+// specularColor 0 in the specular workflow, or ior 1 and metallic 0), as exporters write a
+// plain diffuse material. Then PreviewSurfaceBSDF's specular lobe and its multiple
+// scattering vanish, the diffuse scale 1 - Es is exactly 1, and f = ρ/π with cosine
+// sampling: the same values, bit for bit, at a fraction of the cost (and the scene keeps
+// the Lambertian kernel). Untextured inputs only: the caller checks the texture slots.
+std::optional<Color> ExactLambertianAlbedo(const MaterialParams& p);
+
 // Cutout mode (opacityThreshold > 0): a hit whose opacity (the material's, or a texture's
 // at that point) is below the threshold is not a surface at all; the integrator continues
 // the ray (and shadow rays) through it. Never true when opacity_threshold == 0.

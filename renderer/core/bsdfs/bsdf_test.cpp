@@ -696,3 +696,71 @@ TEST(BsdfPreviewSurface, PureMetalMatchesConductor) {
         }
     }
 }
+
+// specularColor 0 (specular workflow) or ior 1 with metallic 0 leave no specular Fresnel at
+// any angle: the mixture is then exactly a Lambertian of diffuseColor (Scene renders it as
+// one). Bit for bit in f, PDF and Sample_f, for rough and smooth settings and wo on either
+// side; any real lobe (a faint specular colour, ior 1.5, a coat, partial opacity) is not.
+TEST(BsdfPreviewSurface, ExactlyLambertianWhenTheFresnelVanishes) {
+    const Color rho(0.8f, 0.5f, 0.2f);
+    auto exported = [&](float roughness) {
+        MaterialParams p;
+        p.diffuse_color = rho;
+        p.roughness = roughness;
+        p.use_specular_workflow = true;
+        p.specular_color = Color(0.f);
+        return p;
+    };
+    MaterialParams ior1;
+    ior1.diffuse_color = rho;
+    ior1.ior = 1.f;
+    const DiffuseBSDF lambert(rho);
+    for (const MaterialParams& p : {exported(1.f), exported(0.3f), exported(0.f), ior1}) {
+        const std::optional<Color> albedo = ExactLambertianAlbedo(p);
+        ASSERT_TRUE(albedo);
+        ASSERT_EQ(albedo->x, rho.x);
+        ASSERT_EQ(albedo->z, rho.z);
+        const PreviewSurfaceBSDF mix(p, TransportMode::Radiance);
+        for (int i = 0; i < 2000; ++i) {
+            PixelSampler s(5, uint64_t(i), 0);
+            const float side = i % 2 ? 1.f : -1.f;
+            Vec3 wo = Dir(side * std::max(1e-3f, s.Get1D()), 2.f * kPi * s.Get1D());
+            Vec3 wi = Dir((i % 3 ? 1.f : -1.f) * std::max(1e-3f, s.Get1D()), 2.f * kPi * s.Get1D());
+            const Color a = mix.f(wo, wi), b = lambert.f(wo, wi);
+            ASSERT_TRUE(a.x == b.x && a.y == b.y && a.z == b.z) << Str(wo) << Str(wi);
+            ASSERT_EQ(mix.PDF(wo, wi), lambert.PDF(wo, wi));
+            const float uc = s.Get1D();
+            const Vec2 u = s.Get2D();
+            auto sa = mix.Sample_f(wo, uc, u), sb = lambert.Sample_f(wo, uc, u);
+            ASSERT_EQ(bool(sa), bool(sb));
+            if (!sa) continue;
+            ASSERT_TRUE(sa->wi.x == sb->wi.x && sa->wi.y == sb->wi.y && sa->wi.z == sb->wi.z);
+            ASSERT_EQ(sa->pdf, sb->pdf);
+            ASSERT_EQ(sa->f.y, sb->f.y);
+            ASSERT_FALSE(sa->is_specular || sa->is_transmission);
+        }
+    }
+    // Controls: each of these is a different surface, and the rule must say so.
+    MaterialParams faint = exported(1.f);
+    faint.specular_color = Color(1e-3f, 0.f, 0.f);
+    MaterialParams default_ior = ior1;
+    default_ior.ior = 1.5f;
+    MaterialParams coat = exported(1.f);
+    coat.clearcoat = 0.1f;
+    MaterialParams see_through = exported(1.f);
+    see_through.opacity = 0.99f;
+    MaterialParams cutout = exported(1.f);
+    cutout.opacity = 0.4f;
+    cutout.opacity_threshold = 0.5f;
+    MaterialParams metal = ior1;
+    metal.metallic = 0.01f;
+    for (const MaterialParams& p : {faint, default_ior, coat, see_through, cutout, metal})
+        EXPECT_FALSE(ExactLambertianAlbedo(p));
+    // The faintest of them is measurably not Lambertian at grazing angles.
+    const PreviewSurfaceBSDF faint_mix(faint, TransportMode::Radiance);
+    const Vec3 wo = Dir(0.05f, 0.f), wi = Dir(0.05f, kPi);
+    EXPECT_NE(faint_mix.f(wo, wi).x, lambert.f(wo, wi).x);
+    // A cutout whose opacity clears its threshold is opaque everywhere: still Lambertian.
+    cutout.opacity = 0.6f;
+    EXPECT_TRUE(ExactLambertianAlbedo(cutout));
+}

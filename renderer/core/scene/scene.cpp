@@ -27,14 +27,28 @@ bool IsNonNegativeFinite(Color c) {
     return IsFinite(c) && c.x >= 0.f && c.y >= 0.f && c.z >= 0.f;
 }
 
+// A UsdPreviewSurface that equals a Lambertian exactly (bsdf.h, ExactLambertianAlbedo) is
+// made one, so that it costs what it is and a scene of them keeps the Lambertian kernel.
+// An emission texture stays: a Lambertian may carry one.
+void MakeExactLambertian(Material& mat) {
+    if (!mat.preview) return;
+    for (int slot = 0; slot < kNumTextureSlots; ++slot)
+        if (slot != kSlotEmissiveColor && mat.textures[slot] >= 0) return;
+    if (std::optional<Color> rho = ExactLambertianAlbedo(*mat.preview)) {
+        mat.albedo = *rho;
+        mat.preview.reset();
+    }
+}
+
 // The Lambert-only build (feature_set.h) has no code for anything else: it refuses it.
-void RequireLambertOnly(const SceneDesc& d) {
+// `materials` are the scene's, after MakeExactLambertian.
+void RequireLambertOnly(const SceneDesc& d, const std::vector<Material>& materials) {
     auto refuse = [](const std::string& what) {
         throw std::invalid_argument("this renderer build (TESSERA_LAMBERT_ONLY) renders Lambertian triangles "
                                     "under triangle lights only; the scene has " + what);
     };
-    for (size_t m = 0; m < d.materials.size(); ++m) {
-        const Material& mat = d.materials[m];
+    for (size_t m = 0; m < materials.size(); ++m) {
+        const Material& mat = materials[m];
         if (mat.preview) refuse("a UsdPreviewSurface (material " + std::to_string(m) + ")");
         if (mat.textures != NoTextures()) refuse("textures (material " + std::to_string(m) + ")");
         if (mat.emission_shaping >= 0) refuse("a shaped light (material " + std::to_string(m) + ")");
@@ -118,7 +132,8 @@ Scene::Scene(const SceneDesc& desc)
       spheres_(desc.sphere_lights),
       points_(desc.point_lights),
       distants_(desc.distant_lights) {
-    if constexpr (!kFullFeatures) RequireLambertOnly(desc);
+    for (Material& mat : materials_) MakeExactLambertian(mat);
+    if constexpr (!kFullFeatures) RequireLambertOnly(desc, materials_);
     textures_ = TextureSet(desc.images, desc.textures);
     for (size_t m = 0; m < materials_.size(); ++m) {
         if (!IsNonNegativeFinite(materials_[m].albedo) || !IsNonNegativeFinite(materials_[m].emission) ||

@@ -51,8 +51,9 @@ struct Material {
     Color albedo;              // Lambertian reflectance, each channel in [0, 1]
     Color emission;            // emitted radiance (W m^-2 sr^-1, linear RGB)
     bool two_sided_emission = false;  // else emits only on the geometric normal's side
-    // A UsdPreviewSurface; without it the surface is a pure Lambertian of `albedo` (which
-    // UsdPreviewSurface cannot express: its Fresnel lobe never vanishes).
+    // A UsdPreviewSurface; without it the surface is a pure Lambertian of `albedo`. Scene
+    // turns a preview surface that equals a Lambertian exactly (specularColor 0, or ior 1,
+    // opaque, no clearcoat, untextured) into one.
     std::optional<MaterialParams> preview;
     // Texture index per TextureSlot (-1: the constant above). Only preview materials use them.
     std::array<int32_t, kNumTextureSlots> textures = NoTextures();
