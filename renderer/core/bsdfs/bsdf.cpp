@@ -111,10 +111,12 @@ Color MicrofacetReflection::fms(Vec3 wo, Vec3 wi) const {
 }
 
 Color MicrofacetReflection::fms(Vec3 wo, Vec3 wi, GGXAlbedo eo, GGXAlbedo ei) const {
+    return fms(wo, wi, std::max(0.f, 1.f - eo.e1), std::max(0.f, 1.f - ei.e1));
+}
+
+Color MicrofacetReflection::fms(Vec3 wo, Vec3 wi, float loss_o, float loss_i) const {
     if (!(wo.z > 0.f && wi.z > 0.f) || IsBlack(fms_)) return Color(0.f);
-    const float lo = std::max(0.f, 1.f - eo.e1);
-    const float li = std::max(0.f, 1.f - ei.e1);
-    return fms_ * (lo * li * kInvPi / loss_avg_);
+    return fms_ * (loss_o * loss_i * kInvPi / loss_avg_);
 }
 
 bool MicrofacetReflection::Sample(Vec3 wo, Vec2 u, Vec3* wi) const {
@@ -324,6 +326,31 @@ PreviewSurfaceBSDF::PreviewSurfaceBSDF(const MaterialParams& p, TransportMode mo
     flags_ = ComputeFlags();
 }
 
+PreviewSurfaceBSDF::TableNode PreviewSurfaceBSDF::NodeOf(float mu) {
+    // As LookupGGXAlbedo places mu among the GGX tables' nodes.
+    constexpr int n = PreviewSurfaceTable::kNodes;
+    const float t = std::sqrt(std::clamp(mu, 0.f, 1.f)) * float(n - 1);
+    const int i = std::min(int(t), n - 2);
+    return {i, t - float(i)};
+}
+
+PreviewSurfaceTable PreviewSurfaceBSDF::Tabulate() const {
+    PreviewSurfaceBSDF direct = *this;
+    direct.UseTable(nullptr);
+    PreviewSurfaceTable t{};
+    constexpr int n = PreviewSurfaceTable::kNodes;
+    for (int i = 0; i < n; ++i) {
+        const float node = float(i) / float(n - 1);
+        const float mu = node * node;
+        direct.LobeProbabilities(Vec3(0.f, 0.f, mu), t.p[i]);
+        const GGXAlbedo e = spec_.Table(mu);
+        t.diffuse_scale[i] = DiffuseScale(mu, e);
+        t.ms_loss[i] = std::max(0.f, 1.f - e.e1);
+        t.coat_atten[i] = CoatAttenuation(mu);
+    }
+    return t;
+}
+
 float PreviewSurfaceBSDF::CoatAttenuation(float mu) const {
     return clearcoat_ > 0.f ? 1.f - clearcoat_ * coat_.Albedo(mu).x : 1.f;
 }
@@ -361,6 +388,16 @@ void PreviewSurfaceBSDF::LobeProbabilities(Vec3 wo, float p[kNumLobes]) const {
         for (int i = 0; i < kNumLobes; ++i) p[i] = cached_p_[i];
         return;
     }
+    if (table_) {
+        const TableNode n = NodeOf(mu);
+        for (int i = 0; i < kNumLobes; ++i) {
+            const float a = table_->p[n.i][i], b = table_->p[n.i + 1][i];
+            p[i] = a + (b - a) * n.ft;
+        }
+        cached_mu_ = mu;
+        for (int i = 0; i < kNumLobes; ++i) cached_p_[i] = p[i];
+        return;
+    }
     // The cosine lobe carries the diffuse and both multiple-scattering terms.
     const float ac = CoatAttenuation(mu);
     const bool has_coat = clearcoat_ > 0.f;
@@ -386,6 +423,15 @@ Color PreviewSurfaceBSDF::OpaqueF(Vec3 wo, Vec3 wi) const {
     Color base(0.f);
     const bool rough = !spec_.distrib.EffectivelySmooth();
     if (IsBlack(diffuse_) && !rough) return OverCoat(base, wo, wi);
+    if (table_) {
+        const TableNode no = NodeOf(wo.z), ni = NodeOf(wi.z);
+        if (!IsBlack(diffuse_))
+            base = Interpolate(table_->diffuse_scale, no) * Interpolate(table_->diffuse_scale, ni) * diffuse_ * kInvPi;
+        if (rough)
+            base += spec_.f(wo, wi) + spec_.fms(wo, wi, Interpolate(table_->ms_loss, no), Interpolate(table_->ms_loss, ni));
+        if (!(clearcoat_ > 0.f)) return base;
+        return OverCoat(base, wo, wi, Interpolate(table_->coat_atten, no), Interpolate(table_->coat_atten, ni));
+    }
     const GGXAlbedo eo = spec_.Table(wo.z), ei = spec_.Table(wi.z);
     if (!IsBlack(diffuse_)) base = DiffuseScale(wo.z, eo) * DiffuseScale(wi.z, ei) * diffuse_ * kInvPi;
     if (rough) base += spec_.f(wo, wi) + spec_.fms(wo, wi, eo, ei);
@@ -394,7 +440,11 @@ Color PreviewSurfaceBSDF::OpaqueF(Vec3 wo, Vec3 wi) const {
 
 Color PreviewSurfaceBSDF::OverCoat(Color base, Vec3 wo, Vec3 wi) const {
     if (!(clearcoat_ > 0.f)) return base;
-    Color result = base * (CoatAttenuation(wo.z) * CoatAttenuation(wi.z));
+    return OverCoat(base, wo, wi, CoatAttenuation(wo.z), CoatAttenuation(wi.z));
+}
+
+Color PreviewSurfaceBSDF::OverCoat(Color base, Vec3 wo, Vec3 wi, float atten_o, float atten_i) const {
+    Color result = base * (atten_o * atten_i);
     if (!coat_.distrib.EffectivelySmooth()) result += (coat_.f(wo, wi) + coat_.fms(wo, wi)) * clearcoat_;
     return result;
 }

@@ -115,6 +115,8 @@ public:
     Color AverageAlbedo() const;
     Color Fms() const { return fms_; }  // 0 when smooth or when E1_avg is so close to 1 that there is nothing to add
     Color fms(Vec3 wo, Vec3 wi, GGXAlbedo eo, GGXAlbedo ei) const;  // eo = Table(wo.z), ei = Table(wi.z)
+    // The same from the losses max(0, 1 - E1) at wo and wi.
+    Color fms(Vec3 wo, Vec3 wi, float loss_o, float loss_i) const;
 
 private:
     GGXRoughnessRow row_;
@@ -177,6 +179,24 @@ struct MaterialParams {
     float ior = 1.5f;
 };
 
+// What an untextured PreviewSurfaceBSDF computes from the angle to the normal alone,
+// tabulated once per material (Scene does it) at the GGX tables' nodes in t = sqrt(mu)
+// (ggx_albedo.h) and interpolated linearly in t as those tables are: the lobe selection
+// probabilities, the diffuse scale 1 - Es per channel, the compensation's 1 - E1 and the
+// coat's attenuation. The last three are linear in the tables' entries at a fixed
+// roughness, so their interpolant is the tables' own up to rounding; the probabilities
+// become an interpolant of the exact ones, used alike by Sample_f and PDF, so sampling
+// stays exact in expectation. A vertex then pays a square root and a few lerps for what
+// took four bilinear table lookups and the lobe arithmetic.
+struct PreviewSurfaceTable {
+    static constexpr int kNodes = ggx_table::kNumMu;
+    static constexpr int kLobes = 4;
+    float p[kNodes][kLobes];
+    Color diffuse_scale[kNodes];
+    float ms_loss[kNodes];     // max(0, 1 - E1) of the specular lobe
+    float coat_atten[kNodes];  // 1 - c Ec
+};
+
 // The UsdPreviewSurface mixture (see docs/materials.md for the derivation):
 //
 //   f = opacity · f_opaque + (1 - opacity) · f_dielectric(ior, roughness)
@@ -201,13 +221,31 @@ public:
     uint32_t Flags() const { return flags_; }
     Color Albedo() const;
 
+    // The table of this BSDF's angle-only terms (computed directly, as without a table).
+    PreviewSurfaceTable Tabulate() const;
+    // Later calls read `table` (made by Tabulate of an equal BSDF; it must outlive this
+    // BSDF and its copies); nullptr computes every term at each call again.
+    void UseTable(const PreviewSurfaceTable* table) {
+        table_ = table;
+        cached_mu_ = -1.f;
+    }
+
 private:
     enum Lobe { kCoat, kSpec, kDiffuse, kGlass, kNumLobes };
+    static_assert(int(kNumLobes) == PreviewSurfaceTable::kLobes);
+    struct TableNode {
+        int i;
+        float ft;
+    };
+    static TableNode NodeOf(float mu);
+    static float Interpolate(const float* v, TableNode n) { return v[n.i] + (v[n.i + 1] - v[n.i]) * n.ft; }
+    static Color Interpolate(const Color* v, TableNode n) { return v[n.i] + (v[n.i + 1] - v[n.i]) * n.ft; }
     uint32_t ComputeFlags() const;
     // Lobe selection probabilities at wo, proportional to each lobe's estimated reflectance.
     void LobeProbabilities(Vec3 wo, float p[kNumLobes]) const;
     Color OpaqueF(Vec3 wo, Vec3 wi) const;  // both mirrored to the upper hemisphere
     Color OverCoat(Color base, Vec3 wo, Vec3 wi) const;  // the base seen through the clearcoat, plus the coat
+    Color OverCoat(Color base, Vec3 wo, Vec3 wi, float atten_o, float atten_i) const;  // attenuations given
     float LobePdf(int lobe, Vec3 wo, Vec3 wi) const;
 
     float CoatAttenuation(float mu) const;  // Ac = 1 - c Ec(mu)
@@ -227,6 +265,7 @@ private:
     // answer is kept. A BSDF belongs to one thread's shading point, so this is not shared.
     mutable float cached_mu_ = -1.f;
     mutable float cached_p_[kNumLobes] = {};
+    const PreviewSurfaceTable* table_ = nullptr;
 };
 
 // What the integrator holds per shading point.
@@ -264,6 +303,14 @@ public:
         return std::visit([](const auto& b) { return b.Albedo(); }, v_);
     }
     const Variant& variant() const { return v_; }
+    // The PreviewSurfaceBSDF held, or nullptr (Scene attaches its table to it).
+    PreviewSurfaceBSDF* preview_surface() {
+#ifdef TESSERA_LAMBERT_ONLY
+        return nullptr;
+#else
+        return std::get_if<PreviewSurfaceBSDF>(&v_);
+#endif
+    }
 
 private:
     // The Lambert-only build's Scene refuses every material but a Lambertian, so the other

@@ -168,10 +168,16 @@ Scene::Scene(const SceneDesc& desc)
         has_normal_maps_ = has_normal_maps_ || (pv && materials_[m].textures[kSlotNormal] >= 0);
         // An untextured material's BSDF is the same at every hit: built here once per
         // transport mode, copied by BSDFAt (its constructor costs more than the copy).
-        for (TransportMode mode : {TransportMode::Radiance, TransportMode::Importance})
+        // Its angle-only terms are tabulated once too (bsdf.h, PreviewSurfaceTable).
+        for (TransportMode mode : {TransportMode::Radiance, TransportMode::Importance}) {
             material_bsdfs_.push_back(!pv ? BSDF(DiffuseBSDF(materials_[m].albedo))
                                       : material_has_textures_.back() ? BSDF()
                                                                       : MakePreviewSurfaceBSDF(*pv, mode));
+            if (PreviewSurfaceBSDF* ps = material_bsdfs_.back().preview_surface()) {
+                preview_tables_.push_back(std::make_unique<PreviewSurfaceTable>(ps->Tabulate()));
+                ps->UseTable(preview_tables_.back().get());
+            }
+        }
         // A textured material may have a delta lobe where a texture sets its roughness to 0.
         const auto& tex = materials_[m].textures;
         material_may_have_delta_.push_back(

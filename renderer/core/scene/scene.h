@@ -8,6 +8,7 @@
 #include <array>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -499,6 +500,7 @@ private:
     std::vector<uint8_t> material_is_cutout_;
     std::vector<uint8_t> material_has_textures_;  // some slot other than -1: evaluate per hit
     std::vector<BSDF> material_bsdfs_;  // [2 m + mode]: the BSDF of an untextured material m
+    std::vector<std::unique_ptr<PreviewSurfaceTable>> preview_tables_;  // read by material_bsdfs_
     std::vector<uint8_t> material_may_have_delta_;  // some hit of the material has a delta lobe
     bool has_cutouts_ = false;
     bool has_normal_maps_ = false;
