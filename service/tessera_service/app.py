@@ -18,7 +18,7 @@ from tessera_base.process import remove_orphaned_tempdirs
 
 from .auth import AuthGate, parse_networks, require_user
 from .inspection_pool import InspectionPool
-from .redis_acl import redacted
+from .redis_acl import aof_replay_problem, redacted
 from .routers import blobs, compare, farm, jobs, monitor, priority, scaling
 from .schemas import Health, Problem
 from .settings import Settings
@@ -51,6 +51,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 log.warning("removed %s, left by an API process that was killed", path)
         if not store.ping():  # not fatal: /healthz reports it, requests retry
             log.warning("redis at %s is not reachable yet", redacted(settings.redis_url))
+        else:
+            # Refused at once, before any job is accepted that a restart of Redis would lose.
+            problem = aof_replay_problem(store.redis)
+            if problem is not None:
+                log.critical("refusing to start: %s", problem)
+                raise RuntimeError(f"tessera API: {problem}")
         yield
         store.redis.close()
         await aredis.aclose()
