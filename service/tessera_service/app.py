@@ -45,8 +45,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
-        # What a killed API left: uploads (users' scenes), merges and compares in progress.
-        for kind in ("upload", "merge", "compare"):
+        # What a killed API left: uploads (users' scenes), merges and compares in progress,
+        # and the bundles its inspections unpacked.
+        for kind in ("upload", "merge", "compare", "bundle"):
             for path in remove_orphaned_tempdirs(kind):
                 log.warning("removed %s, left by an API process that was killed", path)
         if not store.ping():  # not fatal: /healthz reports it, requests retry
@@ -88,7 +89,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # Added last, so it runs first: nothing reads a body before the user is known.
     app.add_middleware(AuthGate, users=users,
                        allow_anonymous_loopback=settings.allow_anonymous_loopback,
-                       trusted_proxies=trusted_proxies)
+                       trusted_proxies=trusted_proxies, allowed_hosts=settings.allowed_hosts)
 
     @app.get("/healthz", response_model=Health, tags=["health"])
     def healthz() -> JSONResponse:

@@ -105,7 +105,10 @@ def aof_replay_problem(client) -> str | None:
     ACL DRYRUN whether the default user may run what the farm's transactions run; a user
     that may not run ACL DRYRUN (an ACL older than deploy/users.acl) gets a warning
     instead (logged here), since the rules cannot be read."""
-    version = redis_version(client)
+    try:
+        version = redis_version(client)
+    except redis.ResponseError:  # no HELLO: Redis 5 or older, long before the re-check
+        return None
     if version < (7, 0):  # no EXEC re-check at load before 7.0 (and no ACL DRYRUN)
         return None
     key = f"{rdb.PREFIX}:aof-replay-check"

@@ -129,8 +129,9 @@ class Worker:
     # ----------------------------------------------------------------- main loop
     def run(self, stop: threading.Event) -> None:
         self._stop = stop
-        for path in remove_orphaned_tempdirs("worker"):
-            log.warning("removed %s, left by a worker that was killed", path)
+        for kind in ("worker", "blob"):
+            for path in remove_orphaned_tempdirs(kind):
+                log.warning("removed %s, left by a worker or render process that was killed", path)
         self._tmpdir = private_tempdir("worker")
         heartbeat_stop = threading.Event()
         heartbeat = threading.Thread(target=self._heartbeat_loop, args=(heartbeat_stop,),

@@ -357,8 +357,13 @@ async def job_events(job_id: str, request: Request, user: CurrentUser,
     state, owner = await aredis.hmget(job_key, ["state", "owner"])
     if state is None or not user.may_see(owner.decode() if owner is not None else None):
         raise _not_found(job_id)
+    if after is not None and not _is_stream_id(after):
+        # Checked before the 200: Redis refuses an id beyond 64 bits only once the stream
+        # has started, which cut it without a word.
+        raise HTTPException(422, f"after={after[:40]!r} is not an event id: MILLISECONDS or "
+                                 f"MILLISECONDS-SEQUENCE, each at most {_U64_MAX}")
     cursor = after or request.headers.get("last-event-id") or "0"
-    if not _EVENT_ID.match(cursor):
+    if not _is_stream_id(cursor):  # a browser's reconnection header: start over instead
         cursor = "0"
 
     async def stream():
@@ -671,6 +676,16 @@ def _inspection_lock(scene_hash: str):
 
 
 _EVENT_ID = re.compile(r"^\d+(-\d+)?$")
+_U64_MAX = (1 << 64) - 1
+
+
+def _is_stream_id(text: str) -> bool:
+    """A Redis stream id XREAD accepts: one or two unsigned 64-bit numbers."""
+    # (The length first: int() refuses more than 4,300 digits with an error of its own.)
+    return bool(_EVENT_ID.match(text)) and all(len(part) <= 20 and int(part) <= _U64_MAX
+                                               for part in text.split("-"))
+
+
 def _render_settings(**values) -> RenderSettings:
     """RenderSettings from form values; invalid values are a 422 naming the field."""
     try:
