@@ -35,7 +35,14 @@ def triangle_limit(max_triangles: int, memory_bytes: int) -> int:
 
 
 class PreflightRejected(Exception):
-    """The scene is unusable; the message says why (meant for the client)."""
+    """The scene is unusable; the message says why (meant for the client). `lasting`:
+    the file's own fault, remembered for the next upload of it; not for a verdict the
+    server's load may have made (a timeout, a kill from outside), which one user's uploads
+    could otherwise cause for another's scene."""
+
+    def __init__(self, message: str, lasting: bool = True):
+        super().__init__(message)
+        self.lasting = lasting
 
 
 class PreflightBroken(Exception):
@@ -82,7 +89,7 @@ def inspect_scene(path: str, *, timeout: float, memory_bytes: int,
                               stdin=subprocess.DEVNULL, capture_output=True, env=env,
                               timeout=timeout, preexec_fn=_limits(memory_bytes))
     except subprocess.TimeoutExpired:
-        raise PreflightRejected(f"scene inspection timed out after {timeout:g} s") from None
+        raise PreflightRejected(f"scene inspection timed out after {timeout:g} s", lasting=False) from None
     finally:
         # An inspection killed by a signal (a crash, its memory limit, the timeout) cannot
         # remove the bundle it unpacked (203 MB for one upload measured); its pid is gone now.
@@ -113,7 +120,9 @@ def inspect_scene(path: str, *, timeout: float, memory_bytes: int,
     if proc.returncode < 0:
         name = signal.Signals(-proc.returncode).name if -proc.returncode in signal.valid_signals() \
             else f"signal {-proc.returncode}"
-        raise PreflightRejected(f"scene inspection crashed ({name})")
+        # SIGKILL comes from outside (the OOM killer of a loaded host); a SIGSEGV is the file's.
+        raise PreflightRejected(f"scene inspection crashed ({name})",
+                                lasting=-proc.returncode != signal.SIGKILL)
     if "MemoryError" in stderr or "bad_alloc" in stderr:
         raise PreflightRejected("scene inspection ran out of memory "
                                 f"(limit {memory_bytes / (1 << 20):.0f} MiB)")

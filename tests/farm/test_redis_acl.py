@@ -23,7 +23,7 @@ from tessera_service.redis_acl import (API_USER, DEFAULT_RULE, WORKER_USER, Cred
                                       aof_replay_problem, user_rule)
 
 SCENE = rdb.scene_key("0" * 64)
-PREFLIGHT = rdb.preflight_key("0" * 64)
+PREFLIGHT = rdb.preflight_key("0" * 64, ".usda")
 
 
 @pytest.fixture(scope="module")

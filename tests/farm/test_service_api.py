@@ -387,3 +387,33 @@ def test_an_unpacked_bundle_left_by_a_killed_process_is_swept(api, tmp_path):
             h.wait()
         if live_root is not None:
             shutil.rmtree(live_root, ignore_errors=True)
+
+
+def test_a_preflight_verdict_holds_only_for_the_same_suffix(api, tmp_path):
+    """The verdict was remembered by content hash alone. A valid layer's bytes uploaded
+    as .zip were refused, and that refusal then answered the genuine .usda upload 422; a
+    zip whose .usdz reading passes (root: the first member) was then accepted as .zip
+    unseen, although its comment names a broken root. Now each suffix is inspected."""
+    form = {"spp": "1", "tile_size": "256"}
+    layer = CORNELL.read_bytes() + f"\n# {uuid.uuid4().hex}\n".encode()
+    wrong = api.post("/jobs", files={"file": ("poison.zip", layer)}, data=form)
+    assert wrong.status_code == 422, wrong.text
+    genuine = api.post("/jobs", files={"file": ("genuine.usda", layer)}, data=form)
+    assert genuine.status_code == 201, genuine.text
+    api.delete(f"/jobs/{genuine.json()['id']}")
+
+    import zipfile
+
+    archive = tmp_path / "two-roots.zip"
+    with zipfile.ZipFile(archive, "w") as zf:
+        zf.writestr("good.usda", layer)
+        zf.writestr("bad.usda", '#usda 1.0\ndef Mesh "M" {\n  point3f[] points = [(0,0,\n')
+        zf.comment = b"tessera-entry: bad.usda"
+    data = archive.read_bytes()
+    as_package = api.post("/jobs", files={"file": ("scene.usdz", data)}, data=form)
+    assert as_package.status_code == 201, as_package.text  # its root: good.usda
+    api.delete(f"/jobs/{as_package.json()['id']}")
+    for _ in range(2):  # inspected, then refused again from the remembered verdict
+        as_zip = api.post("/jobs", files={"file": ("scene.zip", data)}, data=form)
+        assert as_zip.status_code == 422, as_zip.text
+        assert "bad.usda" in as_zip.json()["detail"], as_zip.text

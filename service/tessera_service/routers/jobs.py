@@ -569,7 +569,7 @@ def _inspect(request: Request, path: Path, scene_hash: str, variants: Sequence[s
     limits = f"{max_triangles}/{settings.preflight_memory_bytes}/{settings.preflight_timeout:g}"
     # Concurrent uploads of one scene wait for a single inspection.
     with _inspection_lock(scene_hash):
-        cached = store.preflight(scene_hash, limits, variants)
+        cached = store.preflight(scene_hash, path.suffix, limits, variants)
         if cached is not None and "error" in cached:
             raise HTTPException(422, f"the scene cannot be rendered: {cached['error']}")
         if cached is not None:  # this exact file was inspected before: skip the child
@@ -583,14 +583,15 @@ def _inspect(request: Request, path: Path, scene_hash: str, variants: Sequence[s
                                          variants=[protocol.parse_variant(v) for v in variants])
                 except PreflightRejected as e:
                     store.count_inspection(rejected=True)
-                    store.remember_rejection(scene_hash, str(e), limits, variants)
+                    if e.lasting:  # (a timeout under load says nothing of the file)
+                        store.remember_rejection(scene_hash, path.suffix, str(e), limits, variants)
                     raise HTTPException(422, f"the scene cannot be rendered: {e}") from None
                 except PreflightBroken as e:  # the server's fault: not remembered
                     raise HTTPException(500, str(e)) from None
         except PoolFull as e:
             raise HTTPException(429, str(e), headers={"Retry-After": "5"}) from None
         store.count_inspection(rejected=False)
-        store.remember_preflight(scene_hash, asdict(info), variants)
+        store.remember_preflight(scene_hash, path.suffix, asdict(info), limits, variants)
         return info
 
 
