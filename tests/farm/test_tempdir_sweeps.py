@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import httpx
+import pytest
 
 from conftest import STARTUP_TIMEOUT, clean_env
 from tessera_service.embedded import free_port
@@ -43,6 +44,7 @@ def test_killing_a_render_process_removes_its_texture_folder():
         shutil.rmtree(live, ignore_errors=True)
 
 
+@pytest.mark.slow  # two embedded farms (Redis, a worker, the API): 5 s
 def test_tessera_serve_removes_what_a_killed_serve_left(tmp_path):
     port = free_port()
     cmd = [sys.executable, "-m", "tessera", "serve", "--port", str(port), "--workers", "1"]
