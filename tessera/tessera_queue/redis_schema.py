@@ -124,6 +124,14 @@ def blob_key(content_hash: str) -> str:
     return f"{PREFIX}:blob:{content_hash}"
 
 
+def blob_owners_key(content_hash: str) -> str:
+    """Set: the API users who sent the bytes of `blob_key(content_hash)` themselves. Only
+    they may use the file in a manifest or hear that the farm has it: a hash is no proof
+    of possession (a user who learnt another's texture's SHA-256 rendered its content).
+    TTL: the blob's. Only the API reads or writes it."""
+    return f"{PREFIX}:blob-owners:{content_hash}"
+
+
 def job_key(job_id: str) -> str:
     """Hash: the job's spec, state, counters and timings (fields: module docstring)."""
     return f"{_JOB}{job_id}"

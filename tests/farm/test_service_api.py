@@ -417,3 +417,41 @@ def test_a_preflight_verdict_holds_only_for_the_same_suffix(api, tmp_path):
         as_zip = api.post("/jobs", files={"file": ("scene.zip", data)}, data=form)
         assert as_zip.status_code == 422, as_zip.text
         assert "bad.usda" in as_zip.json()["detail"], as_zip.text
+
+
+def test_a_blob_is_usable_only_by_users_who_sent_its_bytes(redis_server, tmp_path):
+    """A layer alice PUT to /blobs was usable by bob, who knew only its SHA-256: /blobs/
+    missing said the farm had it and his manifest rendered alice's content. Now bob is
+    told the farm lacks it (409 for the manifest, naming the file) until he sends the
+    bytes himself (stored: false, nothing stored twice); alice's own manifest is the control."""
+    import hashlib
+    import json
+
+    proc, base = start_api(redis_server, tmp_path, api_tokens="alice:a-tok,bob:b-tok")
+    layer = CORNELL.read_bytes() + f"\n# alice's secret {uuid.uuid4().hex}\n".encode()
+    digest = hashlib.sha256(layer).hexdigest()
+    manifest = json.dumps({"entry": "scene.usda", "files": {"scene.usda": digest}}).encode()
+    form = {"spp": "1", "tile_size": "256"}
+    clients = {name: httpx.Client(base_url=base, timeout=60, headers={"Authorization": f"Bearer {tok}"})
+               for name, tok in (("alice", "a-tok"), ("bob", "b-tok"))}
+    alice, bob = clients["alice"], clients["bob"]
+    try:
+        r = alice.put(f"/blobs/{digest}", content=layer)
+        assert r.status_code == 201 and r.json()["stored"] is True, r.text
+        assert alice.post("/blobs/missing", json={"hashes": [digest]}).json()["missing"] == []
+        assert bob.post("/blobs/missing", json={"hashes": [digest]}).json()["missing"] == [digest]
+        r = bob.post("/jobs", files={"manifest": ("m.json", manifest)}, data=form)
+        assert r.status_code == 409 and "scene.usda" in r.json()["detail"], r.text
+        r = alice.post("/jobs", files={"manifest": ("m.json", manifest)}, data=form)
+        assert r.status_code == 201, r.text
+        alice.delete(f"/jobs/{r.json()['id']}")
+        r = bob.put(f"/blobs/{digest}", content=layer)  # the bytes: proof that he has them
+        assert r.status_code == 201 and r.json()["stored"] is False, r.text
+        assert bob.post("/blobs/missing", json={"hashes": [digest]}).json()["missing"] == []
+        r = bob.post("/jobs", files={"manifest": ("m.json", manifest)}, data=form)
+        assert r.status_code == 201, r.text
+        bob.delete(f"/jobs/{r.json()['id']}")
+    finally:
+        for client in clients.values():
+            client.close()
+        proc.stop()

@@ -5,11 +5,17 @@ from __future__ import annotations
 
 import hashlib
 
-from fastapi import APIRouter, HTTPException, Request
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, HTTPException, Request
 from pydantic import BaseModel, Field
 from starlette.concurrency import run_in_threadpool
 
+from ..auth import require_user
 from ..blobs import HASH, MAX_FILES, BlobStore
+from ..users import User
+
+CurrentUser = Annotated[User, Depends(require_user)]
 
 router = APIRouter(prefix="/blobs", tags=["blobs"])
 
@@ -28,18 +34,20 @@ class BlobStored(BaseModel):
     stored: bool = Field(description="false when the farm had these bytes already")
 
 
-def _blobs(request: Request) -> BlobStore:
-    return BlobStore(request.app.state.store.redis, request.app.state.settings.scene_retention)
+def _blobs(request: Request, user: User) -> BlobStore:
+    return BlobStore(request.app.state.store.redis, request.app.state.settings.scene_retention,
+                     user.name)
 
 
 @router.post("/missing", response_model=MissingHashes)
-def missing_blobs(body: HashList, request: Request) -> MissingHashes:
-    """Which of these files the farm lacks. Those it has are kept for another scene
+def missing_blobs(body: HashList, request: Request, user: CurrentUser) -> MissingHashes:
+    """Which of these files the farm lacks for you: a file you have not uploaded yourself
+    counts as lacking, whoever else did. Those it has are kept for another scene
     retention from now."""
     for digest in body.hashes:
         if not HASH.fullmatch(digest):
             raise HTTPException(422, f"{digest[:80]!r} is not a SHA-256 in lower-case hex")
-    return MissingHashes(missing=_blobs(request).missing(body.hashes))
+    return MissingHashes(missing=_blobs(request, user).missing(body.hashes))
 
 
 @router.put("/{digest}", status_code=201, response_model=BlobStored,
@@ -48,7 +56,7 @@ def missing_blobs(body: HashList, request: Request) -> MissingHashes:
             openapi_extra={"requestBody": {"required": True,
                                            "content": {"application/octet-stream": {"schema": {
                                                "type": "string", "format": "binary"}}}}})
-async def put_blob(digest: str, request: Request) -> BlobStored:
+async def put_blob(digest: str, request: Request, user: CurrentUser) -> BlobStored:
     """Stores one file under its SHA-256, which is checked against the bytes received."""
     if not HASH.fullmatch(digest):
         raise HTTPException(422, f"{digest[:80]!r} is not a SHA-256 in lower-case hex")
@@ -68,5 +76,5 @@ async def put_blob(digest: str, request: Request) -> BlobStored:
         raise HTTPException(422, f"the uploaded bytes have SHA-256 {hasher.hexdigest()}, not {digest}: "
                                  f"the file changed or was damaged on the way; nothing was stored")
     # The store is the synchronous client: off the event loop, as the sync routes are.
-    stored = await run_in_threadpool(_blobs(request).put, digest, bytes(data))
+    stored = await run_in_threadpool(_blobs(request, user).put, digest, bytes(data))
     return BlobStored(hash=digest, size=len(data), stored=stored)

@@ -206,7 +206,7 @@ def create_job(
     with tempfile.TemporaryDirectory(prefix=f"tessera-upload-{os.getpid()}-") as tmp:
         path = Path(tmp, protocol.scene_file_name(suffix))
         scene_hash = (_save_upload(file, path, settings.max_upload_bytes) if packed is None
-                      else _assemble(request, packed, path, settings.max_upload_bytes))
+                      else _assemble(request, packed, path, settings.max_upload_bytes, user))
         info = _inspect(request, path, scene_hash, params["variants"] or ())
         if params["camera"] is not None and info.cameras is not None and params["camera"] not in info.cameras:
             raise HTTPException(422, f"camera {params['camera']} is not a Camera prim of the scene "
@@ -719,12 +719,13 @@ def _read_manifest(upload: UploadFile, limit: int):
         raise HTTPException(422, f"manifest: {exc}") from None
 
 
-def _assemble(request: Request, packed, path: Path, limit: int) -> str:
+def _assemble(request: Request, packed, path: Path, limit: int, user: User) -> str:
     """Builds a packed scene's bundle from the stored files; 409 naming the files the farm
     lacks (the client uploads them and posts again)."""
     from ..blobs import BlobsMissing, BlobStore, ManifestError
 
-    blobs = BlobStore(request.app.state.store.redis, request.app.state.settings.scene_retention)
+    blobs = BlobStore(request.app.state.store.redis, request.app.state.settings.scene_retention,
+                      user.name)
     try:
         return blobs.assemble(packed, path, limit)
     except BlobsMissing as exc:
