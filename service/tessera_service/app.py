@@ -1,6 +1,7 @@
 """The FastAPI application. Run with: uvicorn --factory tessera_service.app:create_app"""
 from __future__ import annotations
 
+import asyncio
 import logging
 import math
 from contextlib import asynccontextmanager
@@ -73,6 +74,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.inspections = InspectionPool(settings.preflight_concurrency, settings.preflight_queue,
                                            wait_seconds=settings.preflight_timeout)
     app.state.store = store
+    # Verified blobs being read back and stored in Redis at once (each up to the upload limit).
+    app.state.blob_slots = asyncio.Semaphore(settings.blob_store_concurrency)
     app.state.aredis = aredis  # for the event streams
     errors = {401: {"model": Problem, "description": "missing or invalid bearer token"},
               503: {"model": Problem, "description": "the job store (redis) is unavailable"}}

@@ -41,6 +41,11 @@ class Settings(BaseSettings):
                     "changes something); loopback IP addresses always count. Guards a "
                     "token-less farm against web pages (DNS rebinding, cross-site forms); "
                     "requests with a token are not checked")
+    blob_store_concurrency: int = Field(
+        default=2, ge=1,
+        description="PUT /blobs uploads whose verified bytes are read into the API's memory and "
+                    "stored in Redis at once (each up to max_upload_bytes); the others wait. "
+                    "Uploads stream to disk, so this bounds the API's memory for blobs")
     max_upload_bytes: int = Field(default=256 * MiB, ge=1, description="largest accepted scene file")
     preflight_timeout: float = Field(default=60.0, gt=0,
                                      description="seconds the scene inspection may take")
