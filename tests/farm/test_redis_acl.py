@@ -221,6 +221,7 @@ def test_transactions_survive_a_restart_under_the_shipped_acl(tmp_path, how):
     assert "NOPERM" not in (tmp_path / "redis.log").read_text()
 
 
+@pytest.mark.slow  # two uvicorn processes: 6 s
 @pytest.mark.parametrize("dryrun", [True, False])
 def test_the_api_refuses_a_redis_that_would_drop_its_aof(tmp_path, dryrun):
     """The API's start-up check (ACL DRYRUN as the API user): the old default rule makes

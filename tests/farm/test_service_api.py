@@ -420,6 +420,7 @@ def test_a_preflight_verdict_holds_only_for_the_same_suffix(api, tmp_path):
         assert "bad.usda" in as_zip.json()["detail"], as_zip.text
 
 
+@pytest.mark.slow  # its own API with two users: 4 s
 def test_a_blob_is_usable_only_by_users_who_sent_its_bytes(redis_server, tmp_path):
     """A layer alice PUT to /blobs was usable by bob, who knew only its SHA-256: /blobs/
     missing said the farm had it and his manifest rendered alice's content. Now bob is
@@ -466,6 +467,7 @@ def _peak_rss(pid: int) -> int:
     raise AssertionError("no VmHWM")
 
 
+@pytest.mark.slow  # its own API, 4 x 32 MiB + 32 MiB uploads: 5 s
 def test_blob_uploads_are_not_held_in_the_apis_memory(redis_server, tmp_path):
     """PUT /blobs gathered the body in memory: four concurrent 32 MiB uploads with a wrong
     hash raised the API's peak RSS by 118 MiB (194 MiB at 64 MiB each), for nothing
