@@ -211,7 +211,8 @@ def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
     tmp = None
     rename: dict[str, str] = {}
     if header["files"]:
-        tmp = tempfile.mkdtemp(prefix="tessera-blob-")
+        # The pid in the name lets a worker's next start remove it after a kill.
+        tmp = tempfile.mkdtemp(prefix=f"tessera-blob-{os.getpid()}-")
         for name, spec in header["files"].items():
             target = Path(tmp, *name.split("/"))
             target.parent.mkdir(parents=True, exist_ok=True)

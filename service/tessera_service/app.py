@@ -1,6 +1,7 @@
 """The FastAPI application. Run with: uvicorn --factory tessera_service.app:create_app"""
 from __future__ import annotations
 
+import asyncio
 import logging
 import math
 from contextlib import asynccontextmanager
@@ -18,7 +19,7 @@ from tessera_base.process import remove_orphaned_tempdirs
 
 from .auth import AuthGate, parse_networks, require_user
 from .inspection_pool import InspectionPool
-from .redis_acl import redacted
+from .redis_acl import aof_replay_problem, redacted
 from .routers import blobs, compare, farm, jobs, monitor, priority, scaling
 from .schemas import Health, Problem
 from .settings import Settings
@@ -45,12 +46,19 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
-        # What a killed API left: uploads (users' scenes), merges and compares in progress.
-        for kind in ("upload", "merge", "compare"):
+        # What a killed API left: uploads (users' scenes), merges and compares in progress,
+        # and the bundles its inspections unpacked.
+        for kind in ("upload", "merge", "compare", "bundle"):
             for path in remove_orphaned_tempdirs(kind):
                 log.warning("removed %s, left by an API process that was killed", path)
         if not store.ping():  # not fatal: /healthz reports it, requests retry
             log.warning("redis at %s is not reachable yet", redacted(settings.redis_url))
+        else:
+            # Refused at once, before any job is accepted that a restart of Redis would lose.
+            problem = aof_replay_problem(store.redis)
+            if problem is not None:
+                log.critical("refusing to start: %s", problem)
+                raise RuntimeError(f"tessera API: {problem}")
         yield
         store.redis.close()
         await aredis.aclose()
@@ -66,6 +74,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.inspections = InspectionPool(settings.preflight_concurrency, settings.preflight_queue,
                                            wait_seconds=settings.preflight_timeout)
     app.state.store = store
+    # Verified blobs being read back and stored in Redis at once (each up to the upload limit).
+    app.state.blob_slots = asyncio.Semaphore(settings.blob_store_concurrency)
     app.state.aredis = aredis  # for the event streams
     errors = {401: {"model": Problem, "description": "missing or invalid bearer token"},
               503: {"model": Problem, "description": "the job store (redis) is unavailable"}}
@@ -82,7 +92,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # Added last, so it runs first: nothing reads a body before the user is known.
     app.add_middleware(AuthGate, users=users,
                        allow_anonymous_loopback=settings.allow_anonymous_loopback,
-                       trusted_proxies=trusted_proxies)
+                       trusted_proxies=trusted_proxies, allowed_hosts=settings.allowed_hosts)
 
     @app.get("/healthz", response_model=Health, tags=["health"])
     def healthz() -> JSONResponse:

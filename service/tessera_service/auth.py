@@ -12,6 +12,14 @@ Forwarded / X-Forwarded-For / X-Real-IP is taken to come from wherever those say
 peer is a configured trusted proxy, and from elsewhere (refused) when it is not. A TLS
 proxy on the same host connects over loopback: inferring "local" from the socket alone
 served the world when the tokens were forgotten.
+
+Such an anonymous request must also be addressed to this machine by a name in
+Settings.allowed_hosts (its Host header; loopback IP addresses always do), and one that
+changes something (any method but GET, HEAD, OPTIONS) must not come from a page of another
+origin (its Origin header). Otherwise any web page its user visits could submit jobs
+(a cross-site form or fetch: the browser sends it from this machine) and, by rebinding its
+own DNS name to 127.0.0.1, read them. A request with a token needs neither check: a browser
+never attaches a bearer token by itself.
 """
 from __future__ import annotations
 
@@ -34,6 +42,7 @@ PUBLIC_PATHS = frozenset({"/healthz", "/docs", "/docs/oauth2-redirect", "/redoc"
                           "/", "/monitor/monitor.js", "/monitor/monitor.css"})
 SCOPE_KEY = "tessera.user"
 FORWARDING_HEADERS = (b"forwarded", b"x-forwarded-for", b"x-real-ip")
+SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
 
 Address = ipaddress.IPv4Address | ipaddress.IPv6Address
 Network = ipaddress.IPv4Network | ipaddress.IPv6Network
@@ -56,10 +65,12 @@ class AuthGate:
     headers alone and answers 401/403 without ever calling `receive`."""
 
     def __init__(self, app: ASGIApp, users: UserDirectory, *, allow_anonymous_loopback: bool,
-                 trusted_proxies: list[Network]):
+                 trusted_proxies: list[Network],
+                 allowed_hosts: list[str] = ("localhost", "127.0.0.1", "::1")):
         self.app, self.users = app, users
         self.allow_anonymous_loopback = allow_anonymous_loopback
         self.trusted_proxies = trusted_proxies
+        self.allowed_hosts = frozenset(_normal_host(h) for h in allowed_hosts)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         # Only HTTP is served (no websocket routes); require_user refuses anything that
@@ -110,7 +121,39 @@ class AuthGate:
                                      f"requests from this machine, and this one came from "
                                      f"{origin or 'an unknown address'} (through a proxy, or "
                                      f"an untrusted one): set TESSERA_API_TOKENS")
+        self._check_addressed_here(scope, headers)
         return User(LOCAL_USER, admin=True)
+
+    def _check_addressed_here(self, scope: Scope, headers: dict[bytes, bytes]) -> None:
+        """Refuses an anonymous request that a web page may have made (module docstring)."""
+        raw = headers.get(b"host")  # (none: HTTP/1.0, never a browser)
+        host = _host_of(raw.decode("latin-1")) if raw is not None else ""
+        if raw is not None and not self._host_allowed(host):
+            raise HTTPException(403, f"this server has no API tokens, so it only answers "
+                                     f"requests addressed to this machine by name "
+                                     f"(TESSERA_ALLOWED_HOSTS: {', '.join(sorted(self.allowed_hosts))}, "
+                                     f"or a loopback address), and this one was addressed to "
+                                     f"{host[:100] or 'no host'!r}: a web page rebinding its name "
+                                     f"to this machine looks like that")
+        if scope.get("method") in SAFE_METHODS:
+            return
+        origin = headers.get(b"origin")
+        if origin is None:
+            return  # not a browser's cross-origin request: they always send Origin
+        origin_host = _host_of(origin.decode("latin-1"), url=True)
+        if not self._host_allowed(origin_host):
+            raise HTTPException(403, f"this server has no API tokens, so it refuses a change "
+                                     f"requested by a web page of another site (Origin: "
+                                     f"{origin.decode('latin-1')[:100]!r}): submit from the "
+                                     f"command line, or from a page served by this server")
+
+    def _host_allowed(self, host: str) -> bool:
+        if not host:
+            return False
+        if host in self.allowed_hosts or "*" in self.allowed_hosts:
+            return True
+        address = _ip(host)
+        return address is not None and address.is_loopback
 
     def client_address(self, scope: Scope, headers: dict[bytes, bytes]) -> Address | None:
         """Where the request came from: the peer, or, when the peer is a trusted proxy,
@@ -199,6 +242,38 @@ def _forwarding_chain(headers: dict[bytes, bytes], name: bytes) -> list[Address]
         chain = value.split(",")
     addresses = [_ip(_strip_port(hop)) for hop in chain]
     return None if any(a is None for a in addresses) else addresses
+
+
+def _normal_host(host: str) -> str:
+    """'LOCALHOST.' -> 'localhost', '[::1]' -> '::1'."""
+    host = host.strip().lower().rstrip(".")
+    return host[1:-1] if host.startswith("[") and host.endswith("]") else host
+
+
+def _host_of(value: str, *, url: bool = False) -> str:
+    """The host name of a Host header ('name:port', '[v6]:port') or of an Origin
+    ('scheme://name:port'; 'null' has none): '' when there is none or it is malformed."""
+    if url:
+        scheme, sep, rest = value.strip().partition("://")
+        if not sep or not scheme:
+            return ""
+        value = rest
+    value = value.strip()
+    if not value or any(c in value for c in "/@?#\\ "):
+        return ""
+    if value.startswith("["):
+        host, bracket, port = value[1:].partition("]")
+        if not bracket or (port and not (port.startswith(":") and port[1:].isdigit())):
+            return ""
+    elif value.count(":") == 1:
+        host, _, port = value.partition(":")
+        if not port.isdigit():
+            return ""
+    elif ":" in value:
+        return ""
+    else:
+        host = value
+    return _normal_host(host)
 
 
 def _strip_port(hop: str) -> str:

@@ -13,6 +13,11 @@ is remembered.
 Limits: one file is at most `max_upload_bytes`, as is the whole bundle (a packed scene is
 an upload); a manifest names at most TESSERA_MAX_FILES files (the bundle sandbox's own
 limit, 20 000). Files are kept for the scene retention after their last use.
+
+Ownership: the bytes are stored once, but a user may use a file only after sending its
+bytes themselves (`redis_schema.blob_owners_key`); to another user the farm answers that
+it lacks the file. A user who uploads bytes the farm holds already sends them in full
+(stored: false) and so proves having them.
 """
 from __future__ import annotations
 
@@ -117,26 +122,45 @@ def _member_path(path) -> str:
 class BlobStore:
     """The API's side of content-addressed files in Redis (`redis_schema.blob_key`)."""
 
-    def __init__(self, client: redis.Redis, retention: float):
+    def __init__(self, client: redis.Redis, retention: float, user: str):
         self.redis = client
         self.ttl = int(retention) if retention > 0 else 0
+        self.user = user
+
+    def _owned(self, hashes: list[str]) -> list[bool]:
+        """Whether each file is stored and this user sent its bytes."""
+        with self.redis.pipeline(transaction=False) as pipe:
+            for digest in hashes:
+                pipe.exists(rdb.blob_key(digest))
+                pipe.sismember(rdb.blob_owners_key(digest), self.user)
+            replies = pipe.execute()
+        return [bool(stored and mine) for stored, mine in zip(replies[0::2], replies[1::2])]
+
+    def _renew(self, hashes: list[str]) -> None:
+        if self.ttl:
+            with self.redis.pipeline(transaction=False) as pipe:
+                for digest in hashes:
+                    pipe.expire(rdb.blob_key(digest), self.ttl)
+                    pipe.expire(rdb.blob_owners_key(digest), self.ttl)
+                pipe.execute()
 
     def missing(self, hashes: list[str]) -> list[str]:
-        """Those of `hashes` that are not stored; the stored ones have their retention
-        renewed, so they outlive the upload of the rest."""
+        """Those of `hashes` this user cannot use: not stored, or stored from another
+        user's upload (which is not said); the usable ones have their retention renewed,
+        so they outlive the upload of the rest."""
         unique = list(dict.fromkeys(hashes))
-        with self.redis.pipeline(transaction=False) as pipe:
-            for digest in unique:
-                pipe.expire(rdb.blob_key(digest), self.ttl) if self.ttl else pipe.exists(rdb.blob_key(digest))
-            present = pipe.execute()
-        return [d for d, ok in zip(unique, present) if not ok]
+        owned = self._owned(unique)
+        self._renew([d for d, ok in zip(unique, owned) if ok])
+        return [d for d, ok in zip(unique, owned) if not ok]
 
     def put(self, digest: str, data: bytes) -> bool:
-        """Stores verified bytes; False when they were stored already."""
-        key = rdb.blob_key(digest)
-        stored = self.redis.set(key, data, nx=True, ex=self.ttl or None)
-        if not stored and self.ttl:
-            self.redis.expire(key, self.ttl)
+        """Stores verified bytes and records that this user has them; False when they were
+        stored already."""
+        with self.redis.pipeline(transaction=True) as pipe:
+            pipe.set(rdb.blob_key(digest), data, nx=True, ex=self.ttl or None)
+            pipe.sadd(rdb.blob_owners_key(digest), self.user)
+            stored, _ = pipe.execute()
+        self._renew([digest])
         return bool(stored)
 
     def sizes(self, hashes: list[str]) -> dict[str, int]:
@@ -151,7 +175,8 @@ class BlobStore:
         and the bundle against `limit` bytes before anything is read."""
         unique = list(dict.fromkeys(manifest.files.values()))
         sizes = self.sizes(unique)
-        gone = {p: d for p, d in manifest.files.items() if sizes[d] == 0 and not self.redis.exists(rdb.blob_key(d))}
+        usable = dict(zip(unique, self._owned(unique)))
+        gone = {p: d for p, d in manifest.files.items() if not usable[d]}
         if gone:
             raise BlobsMissing(gone)
         total = sum(sizes[d] for d in manifest.files.values())
@@ -172,11 +197,7 @@ class BlobStore:
                 info.create_system = 3
                 info.external_attr = 0o644 << 16
                 zf.writestr(info, data)
-        if self.ttl:
-            with self.redis.pipeline(transaction=False) as pipe:
-                for digest in unique:
-                    pipe.expire(rdb.blob_key(digest), self.ttl)
-                pipe.execute()
+        self._renew(unique)
         digest = hashlib.sha256()
         with open(out, "rb") as f:
             while chunk := f.read(1 << 20):

@@ -22,7 +22,7 @@ from urllib.parse import urlsplit
 
 import redis
 
-from tessera_base.process import die_with_parent
+from tessera_base.process import die_with_parent, remove_orphaned_tempdirs
 
 from .redis_acl import API_USER, WORKER_USER, Credentials, acl_file
 
@@ -77,7 +77,11 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
     try:
         with ExitStack() as stack:
             if embedded:
-                tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="tessera-serve-"))
+                # A killed serve left its folder, Redis passwords included: the pid in the
+                # name lets the next serve remove it.
+                for leftover in remove_orphaned_tempdirs("serve"):
+                    log.warning("removed %s, left by a tessera serve that was killed", leftover)
+                tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix=f"tessera-serve-{os.getpid()}-"))
                 # Password-protected even on loopback: other users of this machine reach
                 # 127.0.0.1 too.
                 local = stack.enter_context(redis_server(tmp, credentials=Credentials.generate()))

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import resource
 import signal
 import subprocess
@@ -12,7 +13,7 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from tessera_base.process import die_with_parent
+from tessera_base.process import die_with_parent, remove_orphaned_tempdirs
 
 INSPECT_MODULE = "tessera_renderer.inspect"
 
@@ -34,7 +35,14 @@ def triangle_limit(max_triangles: int, memory_bytes: int) -> int:
 
 
 class PreflightRejected(Exception):
-    """The scene is unusable; the message says why (meant for the client)."""
+    """The scene is unusable; the message says why (meant for the client). `lasting`:
+    the file's own fault, remembered for the next upload of it; not for a verdict the
+    server's load may have made (a timeout, a kill from outside), which one user's uploads
+    could otherwise cause for another's scene."""
+
+    def __init__(self, message: str, lasting: bool = True):
+        super().__init__(message)
+        self.lasting = lasting
 
 
 class PreflightBroken(Exception):
@@ -81,23 +89,30 @@ def inspect_scene(path: str, *, timeout: float, memory_bytes: int,
                               stdin=subprocess.DEVNULL, capture_output=True, env=env,
                               timeout=timeout, preexec_fn=_limits(memory_bytes))
     except subprocess.TimeoutExpired:
-        raise PreflightRejected(f"scene inspection timed out after {timeout:g} s") from None
+        raise PreflightRejected(f"scene inspection timed out after {timeout:g} s", lasting=False) from None
+    finally:
+        # An inspection killed by a signal (a crash, its memory limit, the timeout) cannot
+        # remove the bundle it unpacked (203 MB for one upload measured); its pid is gone now.
+        remove_orphaned_tempdirs("bundle")
+
+    def public(text: str) -> str:
+        return bundle_relative(text, os.path.dirname(os.path.abspath(path)))
 
     result = _parse(proc.stdout)
     if result is not None and proc.returncode in (0, 2):
         if not result.get("ok"):
-            raise PreflightRejected(str(result.get("error") or "the scene was rejected"))
+            raise PreflightRejected(public(str(result.get("error") or "the scene was rejected")))
         try:
             return SceneInfo(width=int(result["width"]), height=int(result["height"]),
-                             warnings=[str(w) for w in result.get("warnings", [])],
+                             warnings=[public(str(w)) for w in result.get("warnings", [])],
                              triangles=int(result.get("triangles", 0)),
                              curve_segments=int(result.get("curve_segments", 0)),
                              lights=int(result.get("lights", 0)),
-                             unlit_warnings=([str(w) for w in result["unlit_warnings"]]
+                             unlit_warnings=([public(str(w)) for w in result["unlit_warnings"]]
                                              if result.get("unlit_warnings") is not None else None),
                              cameras=([str(c) for c in result["cameras"]]
                                       if result.get("cameras") is not None else None),
-                             camera_note=(str(result["camera_note"]) if result.get("camera_note") else None))
+                             camera_note=(public(str(result["camera_note"])) if result.get("camera_note") else None))
         except (KeyError, TypeError, ValueError) as e:
             raise PreflightBroken(f"scene inspection returned an unexpected answer: {result!r}") from e
 
@@ -105,13 +120,31 @@ def inspect_scene(path: str, *, timeout: float, memory_bytes: int,
     if proc.returncode < 0:
         name = signal.Signals(-proc.returncode).name if -proc.returncode in signal.valid_signals() \
             else f"signal {-proc.returncode}"
-        raise PreflightRejected(f"scene inspection crashed ({name})")
+        # SIGKILL comes from outside (the OOM killer of a loaded host); a SIGSEGV is the file's.
+        raise PreflightRejected(f"scene inspection crashed ({name})",
+                                lasting=-proc.returncode != signal.SIGKILL)
     if "MemoryError" in stderr or "bad_alloc" in stderr:
         raise PreflightRejected("scene inspection ran out of memory "
                                 f"(limit {memory_bytes / (1 << 20):.0f} MiB)")
     tail = stderr.splitlines()[-5:]
-    raise PreflightBroken(f"scene inspection failed with exit code {proc.returncode}: "
-                          + " | ".join(tail))
+    raise PreflightBroken(public(f"scene inspection failed with exit code {proc.returncode}: "
+                                 + " | ".join(tail)))
+
+
+# A directory the server made for an upload: the API's upload folder, the inspection's
+# unpacked bundle, a worker's (tessera_base.process.private_tempdir and the renderer's
+# mkdtemp prefixes), with whatever absolute path leads to it.
+_SERVER_DIR = re.compile(r"(?:/[^/\s'\"@<>\[\]]+)*?/tessera-(?:upload|bundle|blob|worker)-[^/\s'\"@<>]*(/|\b)")
+
+
+def bundle_relative(text: str, upload_dir: str) -> str:
+    """An inspection's message in the uploader's terms: paths relative to the bundle,
+    without the server's temporary folders (a self-referencing layer's error named
+    /tmp/tessera-upload-<pid>-.../scene.usda; an unpacking error the tessera-bundle-...
+    folder). A bare folder left at the end becomes '.', the bundle's root."""
+    for base in dict.fromkeys((upload_dir, os.path.realpath(upload_dir))):
+        text = text.replace(base.rstrip("/") + "/", "")
+    return _SERVER_DIR.sub(lambda m: "" if m.group(1) == "/" else ".", text)
 
 
 def _parse(stdout: bytes) -> dict | None:

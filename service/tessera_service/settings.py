@@ -34,6 +34,18 @@ class Settings(BaseSettings):
         description="comma-separated addresses or CIDR networks of reverse proxies whose "
                     "Forwarded / X-Forwarded-For headers are believed; from any other peer "
                     "those headers make a request's origin unknown")
+    allowed_hosts: Annotated[list[str], NoDecode] = Field(
+        default_factory=lambda: ["localhost", "127.0.0.1", "::1"],
+        description="comma-separated host names by which anonymous loopback requests may "
+                    "address this server (their Host header, and the Origin of a request that "
+                    "changes something); loopback IP addresses always count. Guards a "
+                    "token-less farm against web pages (DNS rebinding, cross-site forms); "
+                    "requests with a token are not checked")
+    blob_store_concurrency: int = Field(
+        default=2, ge=1,
+        description="PUT /blobs uploads whose verified bytes are read into the API's memory and "
+                    "stored in Redis at once (each up to max_upload_bytes); the others wait. "
+                    "Uploads stream to disk, so this bounds the API's memory for blobs")
     max_upload_bytes: int = Field(default=256 * MiB, ge=1, description="largest accepted scene file")
     preflight_timeout: float = Field(default=60.0, gt=0,
                                      description="seconds the scene inspection may take")
@@ -70,7 +82,7 @@ class Settings(BaseSettings):
         description="/healthz reports degraded when queued or running jobs have shown no "
                     "progress for this long")
 
-    @field_validator("api_tokens", "api_admins", "trusted_proxies", mode="before")
+    @field_validator("api_tokens", "api_admins", "trusted_proxies", "allowed_hosts", mode="before")
     @classmethod
     def _split_tokens(cls, value):
         if isinstance(value, str):

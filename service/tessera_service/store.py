@@ -84,26 +84,31 @@ class JobStore:
         return bool(self.scripts.touch_scene(
             keys=[rdb.scene_key(scene_hash), rdb.scene_jobs_key(scene_hash)], args=[ttl]))
 
-    def preflight(self, scene_hash: str, limits: str, variants: Sequence[str] = ()) -> dict | None:
-        """The remembered pre-flight of a scene (composed with `variants`): its SceneInfo
-        fields, or {"error": why} for a scene that was refused under the same `limits` (a
-        refusal under other limits is forgotten: it may pass now)."""
-        raw = self.redis.get(rdb.preflight_key(scene_hash, variants))
+    def preflight(self, scene_hash: str, suffix: str, limits: str,
+                  variants: Sequence[str] = ()) -> dict | None:
+        """The remembered pre-flight of a scene (these bytes under this `suffix`, composed
+        with `variants`): its SceneInfo fields, or {"error": why} for a refusal, when it was
+        reached under the same `limits` (under others it is forgotten: a refused scene may
+        pass now, a passed one may be over a lowered limit)."""
+        raw = self.redis.get(rdb.preflight_key(scene_hash, suffix, variants))
         if not raw:
             return None
         value = json.loads(raw)
-        if "error" in value:
-            return value if value.get("limits") == limits else None
+        if value.pop("limits", None) != limits:
+            return None
         return value
 
-    def remember_preflight(self, scene_hash: str, info: dict, variants: Sequence[str] = ()) -> None:
+    def remember_preflight(self, scene_hash: str, suffix: str, info: dict, limits: str,
+                           variants: Sequence[str] = ()) -> None:
         ttl = int(self.scene_retention) if self.scene_retention > 0 else None
-        self.redis.set(rdb.preflight_key(scene_hash, variants), json.dumps(info), ex=ttl)
+        self.redis.set(rdb.preflight_key(scene_hash, suffix, variants),
+                       json.dumps({**info, "limits": limits}), ex=ttl)
 
-    def remember_rejection(self, scene_hash: str, error: str, limits: str, variants: Sequence[str] = ()) -> None:
+    def remember_rejection(self, scene_hash: str, suffix: str, error: str, limits: str,
+                           variants: Sequence[str] = ()) -> None:
         """Remembers for the scene retention that this file was refused, so that uploading
         it again is refused at once, without another inspection."""
-        self.remember_preflight(scene_hash, {"error": error, "limits": limits}, variants)
+        self.remember_preflight(scene_hash, suffix, {"error": error}, limits, variants)
 
     def count_inspection(self, rejected: bool) -> None:
         with self.redis.pipeline(transaction=False) as pipe:
@@ -313,8 +318,11 @@ class JobStore:
             newest = ms if newest is None else max(newest, ms)
         if newest is None:
             return None
-        now_s, now_us = self.redis.time()  # the server's clock, as the event ids use
-        return max(0.0, now_s + now_us / 1e6 - newest / 1000.0)
+        # This host's clock against the Redis host's (event ids are its milliseconds): the
+        # API's Redis user may not run TIME (the ACL grants data commands only; asking for
+        # it made /healthz answer 500 whenever there was work). Hosts kept by NTP differ by
+        # far less than the stall threshold (minutes).
+        return max(0.0, time.time() - newest / 1000.0)
 
     def stats(self) -> dict[str, float]:
         return {k.decode(): float(v) for k, v in self.redis.hgetall(rdb.STATS).items()}

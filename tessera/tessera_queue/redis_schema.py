@@ -98,16 +98,21 @@ def translated_field(blob_version: str) -> str:
     return f"translated:{blob_version}"
 
 
-def preflight_key(scene_hash: str, variants: Sequence[str] = ()) -> str:
+def preflight_key(scene_hash: str, suffix: str, variants: Sequence[str] = ()) -> str:
     """String: the pre-flight inspection result (JSON) of a scene, so that a scene that was
-    already validated is not inspected again; for a refused scene {"error", "limits"}, so
-    that it is refused again at once (under the same limits). With `variants` (a job's
-    selections, in order) the stage composes differently: its own key, by their digest.
-    TTL: the scene retention. Only the API reads it."""
+    already validated is not inspected again; for a refused scene {"error", ...}, so that
+    it is refused again at once. Both hold the limits they were reached under, and count
+    only under the same. The same bytes mean another scene under another `suffix` (a
+    .usdz's root is its first member, a .zip's the one its comment names; text bytes are
+    no .usdc): each suffix its own key, so that an upload under a wrong suffix neither
+    passes nor refuses the genuine one. With `variants` (a job's selections, in order)
+    the stage composes differently: its own key, by their digest. TTL: the scene
+    retention. Only the API reads it."""
+    base = f"{PREFIX}:preflight:{scene_hash}:{suffix.lower().lstrip('.')}"
     if not variants:
-        return f"{PREFIX}:preflight:{scene_hash}"
+        return base
     digest = hashlib.sha256("\n".join(variants).encode()).hexdigest()[:16]
-    return f"{PREFIX}:preflight:{scene_hash}:variants:{digest}"
+    return f"{base}:variants:{digest}"
 
 
 def blob_key(content_hash: str) -> str:
@@ -117,6 +122,14 @@ def blob_key(content_hash: str) -> str:
     (`scene_key`). TTL: the scene retention, renewed whenever a client asks for it or a
     manifest uses it. Only the API reads or writes it."""
     return f"{PREFIX}:blob:{content_hash}"
+
+
+def blob_owners_key(content_hash: str) -> str:
+    """Set: the API users who sent the bytes of `blob_key(content_hash)` themselves. Only
+    they may use the file in a manifest or hear that the farm has it: a hash is no proof
+    of possession (a user who learnt another's texture's SHA-256 rendered its content).
+    TTL: the blob's. Only the API reads or writes it."""
+    return f"{PREFIX}:blob-owners:{content_hash}"
 
 
 def job_key(job_id: str) -> str:

@@ -205,7 +205,7 @@ def test_noise_target_decision():
 
 def test_key_layout_is_namespaced():
     keys = [rdb.READY, rdb.ACTIVE, rdb.STATS, rdb.WORKERS, rdb.DEAD_LETTER,
-            rdb.JOB_INDEX, *rdb.job_keys("j"), rdb.preflight_key("h"),
+            rdb.JOB_INDEX, *rdb.job_keys("j"), rdb.preflight_key("h", ".usda"),
             rdb.scene_key("h"), rdb.scene_jobs_key("h"), rdb.worker_key("w")]
     assert all(k.startswith(rdb.PREFIX + ":") for k in keys)
     assert len(set(keys)) == len(keys)

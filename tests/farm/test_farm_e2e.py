@@ -438,3 +438,34 @@ def test_submit_auto_sends_one_measured_choice_that_the_farm_records(farm, tmp_p
     local = render_image(load_scene(str(CORNELL)), RenderSettings(**form), progress=False, variance=False).rgba
     images.write_exr(tmp_path / "local.exr", local)
     assert_bit_identical(images.read_exr(out), images.read_exr(tmp_path / "local.exr"))
+
+
+def test_the_same_bytes_as_usdz_and_zip_render_their_own_roots(farm, redis_client, tmp_path):
+    """One archive, two readings: as .usdz its root is the first member (the Cornell box),
+    as .zip the one its comment names (the box with its emitter off, and no default
+    light: black). Each renders
+    its own root, bit-identical to the local render of that layer: the workers keep the
+    .usdz's translated scene apart from the .zip's (shared by content hash alone, the
+    second job would have rendered the first one's scene)."""
+    import zipfile
+
+    form = dict(width=24, height=16, spp=2, seed=3, max_depth=4, tile_size=8)
+    box = CORNELL.read_text()
+    unlit = box.replace("inputs:emissiveColor = (17, 12, 4)", "inputs:emissiveColor = (0, 0, 0)")
+    assert unlit != box, "the Cornell box's emitter changed: update this test"
+    archive = tmp_path / "roots.zip"
+    with zipfile.ZipFile(archive, "w") as zf:
+        zf.writestr("box.usda", box)
+        zf.writestr("dark.usda", unlit)
+        zf.comment = b"tessera-entry: dark.usda"
+    data = archive.read_bytes()
+    images_by_suffix = {}
+    for name in ("roots.usdz", "roots.zip"):
+        r = farm.post("/jobs", files={"file": (name, data)},
+                      data={k: str(v) for k, v in form.items()} | {"default_light": "false"})
+        assert r.status_code == 201, r.text
+        status = wait_for_job(farm, r.json()["id"], processes=farm.processes, expect="done")
+        images_by_suffix[name] = download_exr(farm, status["id"], tmp_path / f"{name}.exr")
+    assert_bit_identical(images_by_suffix["roots.usdz"], reference(form))
+    assert images_by_suffix["roots.usdz"][..., :3].max() > 0
+    assert images_by_suffix["roots.zip"][..., :3].max() == 0  # lit by nothing

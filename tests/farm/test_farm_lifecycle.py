@@ -424,11 +424,11 @@ def test_preflight_result_is_cached_by_scene_hash(farm, redis_client, tmp_path):
     scene_hash = hashlib.sha256(scene.read_bytes()).hexdigest()
     r = submit(farm, scene, width=16, height=16, spp=1, tile_size=16)
     assert r.status_code == 201
-    cached = json.loads(redis_client.get(rdb.preflight_key(scene_hash)))
+    cached = json.loads(redis_client.get(rdb.preflight_key(scene_hash, ".usda")))
     assert (cached["width"], cached["height"]) == (512, 512)
-    assert 0 < redis_client.ttl(rdb.preflight_key(scene_hash))
+    assert 0 < redis_client.ttl(rdb.preflight_key(scene_hash, ".usda"))
     # Proof that the inspection is skipped: a doctored cache entry is believed.
-    redis_client.set(rdb.preflight_key(scene_hash),
+    redis_client.set(rdb.preflight_key(scene_hash, ".usda"),
                      json.dumps({**cached, "width": 24, "height": 8, "warnings": ["cached!"]}))
     r = submit(farm, scene, spp=1, tile_size=8)
     assert r.status_code == 201

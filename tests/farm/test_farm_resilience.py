@@ -24,7 +24,8 @@ from conftest import (CORNELL, child_pids, clean_env, farm_image, is_running, lo
                       start_worker, submit, wait_for_job)
 from tessera_base import images, protocol
 from tessera_queue import redis_schema as rdb
-from tessera_service.embedded import free_port, redis_server as local_redis
+from tessera_service.embedded import free_port, redis_server as local_redis, stop_processes
+from tessera_service.redis_acl import Credentials
 
 
 
@@ -178,19 +179,24 @@ def test_submit_cli_waits_and_downloads_the_local_image(farm, tmp_path):
 
 
 def test_restarting_redis_api_and_all_workers_loses_nothing(tmp_path):
-    """Redis with an fsynced append-only file is SIGKILLed and restarted mid-job, then the
-    API, then every worker: no accepted job and no finished tile is lost, and the images
-    equal the local render."""
+    """Redis with the shipped ACL (redis_acl: deploy/users.acl's rules) and an fsynced
+    append-only file is SIGKILLed and restarted mid-job, then the API, then every worker:
+    no accepted job and no finished tile is lost, /healthz answers 200 while the jobs run,
+    and the images equal the local render. Then Redis is restarted gracefully: the finished
+    jobs and their images are still there. (With the ACL shipped before, whose default user
+    could not replay MULTI/EXEC, the first restart lost every job.)"""
     form = dict(width=64, height=64, spp=128, seed=7, max_depth=16, tile_size=16)  # 16 tiles
     data = tmp_path / "redis-data"
     data.mkdir()
     port = free_port()
+    credentials = Credentials.generate()
+    restart = dict(port=port, appendonly=True, credentials=credentials)
     with ExitStack() as stack:
-        first = stack.enter_context(local_redis(str(data), port=port, appendonly=True))
-        url = first.url
+        first = stack.enter_context(local_redis(str(data), **restart))
+        url, worker_url = first.url, first.worker_url
         api, base = start_api(url, tmp_path)
         stack.callback(lambda: api.stop())
-        workers = [start_worker(url, f"r-{i}", tmp_path) for i in range(2)]
+        workers = [start_worker(worker_url, f"r-{i}", tmp_path) for i in range(2)]
         stack.callback(lambda: [w.stop() for w in workers])
         client = stack.enter_context(httpx.Client(base_url=base, timeout=60))
         ids = []
@@ -209,29 +215,39 @@ def test_restarting_redis_api_and_all_workers_loses_nothing(tmp_path):
         # 1. Redis dies (SIGKILL, no chance to flush anything more) and comes back.
         first.process.kill()
         first.process.wait()
-        stack.enter_context(local_redis(str(data), port=port, appendonly=True))
+        second = stack.enter_context(local_redis(str(data), **restart))
         rc = stack.enter_context(redis.Redis.from_url(url))
         for job_id in ids:
             assert rc.exists(rdb.job_key(job_id)), "an accepted job was lost"
             assert stored[job_id] <= set(rc.hkeys(rdb.job_tiles_key(job_id))), \
                 "a finished tile was lost"
 
-        # 2. The API dies and a new one takes over.
+        # 2. The API dies and a new one takes over; its probe answers while jobs run.
         os.kill(api.pid, signal.SIGKILL)
         api.popen.wait()
         api, base = start_api(url, tmp_path)
         client = stack.enter_context(httpx.Client(base_url=base, timeout=60))
         assert all(client.get(f"/jobs/{j}").status_code == 200 for j in ids)
+        assert any(client.get(f"/jobs/{j}").json()["state"] in ("queued", "running") for j in ids)
+        r = client.get("/healthz")
+        assert r.status_code == 200, r.text
 
         # 3. Every worker dies mid-job; new ones finish (taking over the dead ones' tiles).
         for w in workers:
             os.kill(w.pid, signal.SIGKILL)
             w.popen.wait()
-        workers[:] = [start_worker(url, f"r-new-{i}", tmp_path) for i in range(2)]
+        workers[:] = [start_worker(worker_url, f"r-new-{i}", tmp_path) for i in range(2)]
         expected = local_reference(form)
         for job_id in ids:
             status = wait_for_job(client, job_id, timeout=180, processes=[api, *workers], expect="done")
             assert status["tiles_done"] == 16
             assert_bit_identical(farm_image(client, job_id, tmp_path), expected, job_id)
 
-
+        # 4. A graceful restart of Redis (SIGTERM: it fsyncs and exits): nothing is lost.
+        stop_processes([second.process], 10.0)
+        stack.enter_context(local_redis(str(data), **restart))
+        for job_id in ids:
+            r = client.get(f"/jobs/{job_id}")
+            assert r.status_code == 200 and r.json()["state"] == "done", r.text
+            assert_bit_identical(farm_image(client, job_id, tmp_path), expected, job_id)
+    assert "NOPERM" not in (data / "redis.log").read_text(errors="replace")

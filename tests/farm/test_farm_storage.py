@@ -190,7 +190,7 @@ def test_a_scene_lives_as_long_as_a_job_needs_it(tmp_path):
                 assert http.post(f"/jobs/{paused}/pause").json()["state"] == "paused"
                 scene_hash = client.hget(rdb.job_key(queued), "scene_hash").decode()
                 scene = rdb.scene_key(scene_hash)
-                wait_until(lambda: not client.exists(rdb.preflight_key(scene_hash)), 30,
+                wait_until(lambda: not client.exists(rdb.preflight_key(scene_hash, ".usda")), 30,
                            "the pre-flight result never expired")
                 assert client.exists(scene), "the scene expired while two jobs need it"
                 assert client.pttl(scene) == -1

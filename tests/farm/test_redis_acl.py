@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import re
 import subprocess
+import sys
 import time
 
 import httpx
@@ -14,13 +15,15 @@ import redis
 from redis.backoff import NoBackoff
 from redis.retry import Retry
 
-from conftest import CORNELL, REPO, STARTUP_TIMEOUT, start_api, start_worker, submit, wait_for_job
+from conftest import (CORNELL, REPO, STARTUP_TIMEOUT, clean_env, start_api, start_worker, submit,
+                      wait_for_job)
 from tessera_queue import redis_schema as rdb
 from tessera_service.embedded import free_port, redis_server, stop_processes
-from tessera_service.redis_acl import API_USER, WORKER_USER, Credentials, user_rule
+from tessera_service.redis_acl import (API_USER, DEFAULT_RULE, WORKER_USER, Credentials,
+                                      aof_replay_problem, user_rule)
 
 SCENE = rdb.scene_key("0" * 64)
-PREFLIGHT = rdb.preflight_key("0" * 64)
+PREFLIGHT = rdb.preflight_key("0" * 64, ".usda")
 
 
 @pytest.fixture(scope="module")
@@ -134,7 +137,7 @@ def test_deploy_users_acl_grants_what_the_code_grants():
     """deploy/users.acl is the same rules with placeholder passwords (an ACL file has no
     comments: deploy/redis.conf and deploy/README.md explain it)."""
     rules = (REPO / "deploy" / "users.acl").read_text().splitlines()
-    assert rules[0] == "user default off resetkeys resetchannels -@all"
+    assert rules[0] == DEFAULT_RULE == "user default off ~* &* +@all"
     for name in (API_USER, WORKER_USER):
         [line] = [r for r in rules if r.startswith(f"user {name} ")]
         password = re.search(r" >(\S+)", line).group(1)
@@ -174,3 +177,133 @@ def test_deploy_redis_conf_starts_and_enforces_the_users(tmp_path):
         worker.close()
     finally:
         stop_processes([proc], 10.0)
+
+
+# Redis 7.0 replays its append-only file as the default user and re-checks ACLs at EXEC;
+# the default user of the shipped ACL must let it (redis_acl's docstring).
+RESTART_KEYS = {"tessera:job:t1": {"state": "queued"}, "tessera:job:t2": {"state": "done"}}
+
+
+def _write_and_restart(workdir, credentials, how: str) -> redis.Redis:
+    """Writes as the API user what the farm writes (a MULTI/EXEC transaction, a Lua
+    script's effects and a plain command) into an fsynced AOF, restarts Redis (`how`:
+    SIGKILL or a graceful SIGTERM) in the same directory with the same ACL, and returns a
+    client of the new server."""
+    port = free_port()
+    with redis_server(str(workdir), port=port, appendonly=True, credentials=credentials) as first:
+        with redis.Redis.from_url(first.url) as api:
+            with api.pipeline(transaction=True) as tx:
+                tx.hset("tessera:job:t1", "state", "queued")
+                tx.rpush("tessera:ready", "t1")
+                tx.execute()
+            api.eval("redis.call('HSET', KEYS[1], 'state', 'done') "
+                     "return redis.call('SADD', KEYS[2], 't2')", 2, "tessera:job:t2", "tessera:active")
+            api.set("tessera:plain", "1")
+        if how == "SIGKILL":
+            first.process.kill()
+            first.process.wait()
+    return redis_server(str(workdir), port=port, appendonly=True, credentials=credentials)
+
+
+@pytest.mark.parametrize("how", ["SIGKILL", "graceful"])
+def test_transactions_survive_a_restart_under_the_shipped_acl(tmp_path, how):
+    """With `user default off -@all` (the ACL shipped before) both drills lost the
+    transaction and the script's effects (Redis logged -NOPERM at load, the plain SET
+    survived); with the shipped default rule every write is back."""
+    credentials = Credentials.generate()
+    with _write_and_restart(tmp_path, credentials, how) as second:
+        with redis.Redis.from_url(second.url) as api:
+            assert api.get("tessera:plain") == b"1"  # the control: replay happened at all
+            assert api.hget("tessera:job:t1", "state") == b"queued", "a transaction was dropped"
+            assert api.lrange("tessera:ready", 0, -1) == [b"t1"]
+            assert api.hget("tessera:job:t2", "state") == b"done", "a script's effects were dropped"
+            assert api.smembers("tessera:active") == {b"t2"}
+    assert "NOPERM" not in (tmp_path / "redis.log").read_text()
+
+
+@pytest.mark.slow  # two uvicorn processes: 6 s
+@pytest.mark.parametrize("dryrun", [True, False])
+def test_the_api_refuses_a_redis_that_would_drop_its_aof(tmp_path, dryrun):
+    """The API's start-up check (ACL DRYRUN as the API user): the old default rule makes
+    the API exit with a message that names the fix; with the shipped rule (the control)
+    the check passes; a user without ACL DRYRUN cannot tell, and the API starts with a
+    warning saying so."""
+    api_rule = user_rule(API_USER, "pw")
+    if not dryrun:
+        api_rule = api_rule.replace(" +acl|dryrun", "")
+    with redis_server(str(tmp_path)) as local:
+        with redis.Redis.from_url(local.url) as admin:
+            admin.execute_command("ACL", "SETUSER", *api_rule.split()[1:])
+            api_url = f"redis://{API_USER}:pw@127.0.0.1:{local.port}/0"
+            with redis.Redis.from_url(api_url) as api:
+                assert aof_replay_problem(api) is None  # default: nopass +@all ~* &*
+                admin.execute_command("ACL", "SETUSER", "default", "off", "resetkeys",
+                                      "resetchannels", "-@all")
+                problem = aof_replay_problem(api)
+        if dryrun:
+            assert problem is not None and "MULTI, EXEC, HSET" in problem and DEFAULT_RULE in problem
+        else:
+            assert problem is None
+        port = free_port()
+        cmd = [sys.executable, "-m", "uvicorn", "--factory", "tessera_service.app:create_app",
+               "--port", str(port), "--log-level", "warning"]
+        env = clean_env(TESSERA_REDIS_URL=api_url, TESSERA_ALLOW_ANONYMOUS_LOOPBACK="1")
+        if dryrun:
+            run = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=60)
+            assert run.returncode != 0
+            assert "refusing to start: Redis 7." in run.stderr and DEFAULT_RULE in run.stderr, run.stderr
+        else:
+            log = tmp_path / "api.log"
+            with open(log, "wb") as out:
+                proc = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT)
+            try:
+                deadline = time.monotonic() + STARTUP_TIMEOUT
+                while True:  # it starts: /healthz answers
+                    assert proc.poll() is None, log.read_text()
+                    try:
+                        if httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=1).status_code == 200:
+                            break
+                    except httpx.TransportError:
+                        pass
+                    assert time.monotonic() < deadline, log.read_text()
+                    time.sleep(0.05)
+            finally:
+                stop_processes([proc], 10.0)
+            assert "may not run ACL DRYRUN" in log.read_text()
+
+
+@pytest.fixture(scope="module")
+def acl_api(acl_redis, tmp_path_factory):
+    """An API process with tokens on the shipped-ACL Redis, as its API user (no workers)."""
+    api, base = start_api(acl_redis.url, tmp_path_factory.mktemp("acl-api"), api_tokens="alice:a-token")
+    with httpx.Client(base_url=base, timeout=60, headers={"Authorization": "Bearer a-token"}) as client:
+        client.api = api
+        yield client
+    api.stop()
+
+
+def test_healthz_answers_while_jobs_are_queued_under_the_shipped_acl(acl_api, api_client):
+    """/healthz (the k8s readiness probe) with a job queued: it answered 500 (the API user
+    may not run TIME). The stall age it reports is the age of the newest event, checked
+    against an event stream rewritten to 1 s after the epoch (the negative control: a
+    fresh job shows no stall)."""
+    job = submit(acl_api, CORNELL, width=16, height=16, spp=1, tile_size=8).json()["id"]
+    try:
+        for _ in range(20):
+            r = acl_api.get("/healthz")
+            assert r.status_code == 200, r.text
+            assert not any("progressed" in p for p in r.json()["problems"]), r.json()
+        events = rdb.job_events_key(job)
+        api_client.delete(events)
+        api_client.xadd(events, {"type": "state"}, id="1000-0")
+        before = time.time()
+        r = acl_api.get("/healthz")
+        after = time.time()
+        assert r.status_code == 200, r.text
+        [stall] = [p for p in r.json()["problems"] if "progressed" in p]
+        seconds = float(re.search(r"for (\d+) s", stall).group(1))
+        assert before - 1 - 1 <= seconds <= after - 1 + 1, (stall, before, after)
+    finally:
+        acl_api.delete(f"/jobs/{job}")
+    assert "NOPERM" not in acl_api.api.log_path.read_text(errors="replace")
+    assert "NoPermissionError" not in acl_api.api.log_path.read_text(errors="replace")

@@ -11,7 +11,7 @@ import sys
 import time
 from multiprocessing.connection import Connection
 
-from tessera_base.process import die_with_parent
+from tessera_base.process import die_with_parent, remove_orphaned_tempdirs
 
 CHILD_START_TIMEOUT = 120.0
 CANCEL_POLL = 0.5          # seconds between looks at the job's state during a render
@@ -124,6 +124,9 @@ class RenderChild:
         if self.proc is not None and self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait()
+            # A killed render process (a cancelled job, a timeout) cannot remove the
+            # texture folder it unpacked its scene into: it is dead now, so remove it here.
+            remove_orphaned_tempdirs("blob")
         self.close()
 
     def close(self) -> None:

@@ -129,8 +129,9 @@ class Worker:
     # ----------------------------------------------------------------- main loop
     def run(self, stop: threading.Event) -> None:
         self._stop = stop
-        for path in remove_orphaned_tempdirs("worker"):
-            log.warning("removed %s, left by a worker that was killed", path)
+        for kind in ("worker", "blob"):
+            for path in remove_orphaned_tempdirs(kind):
+                log.warning("removed %s, left by a worker or render process that was killed", path)
         self._tmpdir = private_tempdir("worker")
         heartbeat_stop = threading.Event()
         heartbeat = threading.Thread(target=self._heartbeat_loop, args=(heartbeat_stop,),
@@ -570,6 +571,10 @@ class Worker:
         # camera to other camera-relative coordinates: each its own blob (and cached Scene),
         # never the default one.
         variant = "" if level is None else f".subdiv{level}"
+        # The same bytes as a .usdz and as a .zip may have different root layers (the
+        # package's first member; the zip's named or only top-level one): never share.
+        if suffix == ".usdz":
+            variant = ".usdz" + variant
         if camera is not None:
             variant += ".cam" + hashlib.sha256(camera.encode()).hexdigest()[:16]
         # Another time code or shutter: other positions and motion steps.

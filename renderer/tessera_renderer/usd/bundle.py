@@ -354,7 +354,9 @@ def open_bundle(path: str | Path, *, root: str | Path | None = None,
     if path.stat().st_size == 0:
         raise SceneError(f"{path.name}: the file is empty")
     if suffix in (".zip", ".usdz"):
-        tmp = tempfile.mkdtemp(prefix="tessera-bundle-")
+        # The pid in the name lets the next API (or this one, once an inspection has
+        # died) remove it when this process is killed (tessera_base.process).
+        tmp = tempfile.mkdtemp(prefix=f"tessera-bundle-{os.getpid()}-")
         try:
             names = unpack_archive(path, Path(tmp), limits)
             rel = _pick_root_layer(names, path.name, suffix == ".usdz", _zip_entry(path))

@@ -206,7 +206,7 @@ def create_job(
     with tempfile.TemporaryDirectory(prefix=f"tessera-upload-{os.getpid()}-") as tmp:
         path = Path(tmp, protocol.scene_file_name(suffix))
         scene_hash = (_save_upload(file, path, settings.max_upload_bytes) if packed is None
-                      else _assemble(request, packed, path, settings.max_upload_bytes))
+                      else _assemble(request, packed, path, settings.max_upload_bytes, user))
         info = _inspect(request, path, scene_hash, params["variants"] or ())
         if params["camera"] is not None and info.cameras is not None and params["camera"] not in info.cameras:
             raise HTTPException(422, f"camera {params['camera']} is not a Camera prim of the scene "
@@ -357,8 +357,13 @@ async def job_events(job_id: str, request: Request, user: CurrentUser,
     state, owner = await aredis.hmget(job_key, ["state", "owner"])
     if state is None or not user.may_see(owner.decode() if owner is not None else None):
         raise _not_found(job_id)
+    if after is not None and not _is_stream_id(after):
+        # Checked before the 200: Redis refuses an id beyond 64 bits only once the stream
+        # has started, which cut it without a word.
+        raise HTTPException(422, f"after={after[:40]!r} is not an event id: MILLISECONDS or "
+                                 f"MILLISECONDS-SEQUENCE, each at most {_U64_MAX}")
     cursor = after or request.headers.get("last-event-id") or "0"
-    if not _EVENT_ID.match(cursor):
+    if not _is_stream_id(cursor):  # a browser's reconnection header: start over instead
         cursor = "0"
 
     async def stream():
@@ -564,7 +569,7 @@ def _inspect(request: Request, path: Path, scene_hash: str, variants: Sequence[s
     limits = f"{max_triangles}/{settings.preflight_memory_bytes}/{settings.preflight_timeout:g}"
     # Concurrent uploads of one scene wait for a single inspection.
     with _inspection_lock(scene_hash):
-        cached = store.preflight(scene_hash, limits, variants)
+        cached = store.preflight(scene_hash, path.suffix, limits, variants)
         if cached is not None and "error" in cached:
             raise HTTPException(422, f"the scene cannot be rendered: {cached['error']}")
         if cached is not None:  # this exact file was inspected before: skip the child
@@ -578,14 +583,15 @@ def _inspect(request: Request, path: Path, scene_hash: str, variants: Sequence[s
                                          variants=[protocol.parse_variant(v) for v in variants])
                 except PreflightRejected as e:
                     store.count_inspection(rejected=True)
-                    store.remember_rejection(scene_hash, str(e), limits, variants)
+                    if e.lasting:  # (a timeout under load says nothing of the file)
+                        store.remember_rejection(scene_hash, path.suffix, str(e), limits, variants)
                     raise HTTPException(422, f"the scene cannot be rendered: {e}") from None
                 except PreflightBroken as e:  # the server's fault: not remembered
                     raise HTTPException(500, str(e)) from None
         except PoolFull as e:
             raise HTTPException(429, str(e), headers={"Retry-After": "5"}) from None
         store.count_inspection(rejected=False)
-        store.remember_preflight(scene_hash, asdict(info), variants)
+        store.remember_preflight(scene_hash, path.suffix, asdict(info), limits, variants)
         return info
 
 
@@ -671,6 +677,16 @@ def _inspection_lock(scene_hash: str):
 
 
 _EVENT_ID = re.compile(r"^\d+(-\d+)?$")
+_U64_MAX = (1 << 64) - 1
+
+
+def _is_stream_id(text: str) -> bool:
+    """A Redis stream id XREAD accepts: one or two unsigned 64-bit numbers."""
+    # (The length first: int() refuses more than 4,300 digits with an error of its own.)
+    return bool(_EVENT_ID.match(text)) and all(len(part) <= 20 and int(part) <= _U64_MAX
+                                               for part in text.split("-"))
+
+
 def _render_settings(**values) -> RenderSettings:
     """RenderSettings from form values; invalid values are a 422 naming the field."""
     try:
@@ -703,12 +719,13 @@ def _read_manifest(upload: UploadFile, limit: int):
         raise HTTPException(422, f"manifest: {exc}") from None
 
 
-def _assemble(request: Request, packed, path: Path, limit: int) -> str:
+def _assemble(request: Request, packed, path: Path, limit: int, user: User) -> str:
     """Builds a packed scene's bundle from the stored files; 409 naming the files the farm
     lacks (the client uploads them and posts again)."""
     from ..blobs import BlobsMissing, BlobStore, ManifestError
 
-    blobs = BlobStore(request.app.state.store.redis, request.app.state.settings.scene_retention)
+    blobs = BlobStore(request.app.state.store.redis, request.app.state.settings.scene_retention,
+                      user.name)
     try:
         return blobs.assemble(packed, path, limit)
     except BlobsMissing as exc:
