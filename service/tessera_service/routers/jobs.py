@@ -207,7 +207,12 @@ def create_job(
         path = Path(tmp, protocol.scene_file_name(suffix))
         scene_hash = (_save_upload(file, path, settings.max_upload_bytes) if packed is None
                       else _assemble(request, packed, path, settings.max_upload_bytes))
-        info = _inspect(request, path, scene_hash, params["variants"] or ())
+        try:
+            info = _inspect(request, path, scene_hash, params["variants"] or ())
+        except HTTPException as exc:
+            if packed is not None or suffix in (".zip", ".usdz") or exc.status_code != 422:
+                raise
+            raise HTTPException(422, _loose_layer_detail(str(exc.detail), path.name, name)) from None
         if params["camera"] is not None and info.cameras is not None and params["camera"] not in info.cameras:
             raise HTTPException(422, f"camera {params['camera']} is not a Camera prim of the scene "
                                      f"(its cameras: {', '.join(info.cameras) or 'none'})")
@@ -551,6 +556,17 @@ def _frame_job(request: Request, sequence_id: str, frame: int, user: User) -> st
     raise HTTPException(404, f"frame {frame} is not one of the frames of {sequence_id} "
                              f"({', '.join(str(f) for f, _, _ in record['frames'][:20])}"
                              f"{', ...' if len(record['frames']) > 20 else ''})")
+
+
+def _loose_layer_detail(detail: str, stored: str, uploaded: str) -> str:
+    """A refusal of a layer uploaded alone, in the uploader's terms: the layer under the name
+    it was sent as (it is stored as `stored`), and, when a file it references is missing,
+    that such an upload carries none of them."""
+    detail = detail.replace(f"{stored}:", f"{uploaded}:")
+    if "is not in the bundle" in detail:
+        detail += ("; a layer uploaded alone brings none of the files it references: upload them "
+                   "with it as a .zip, or send it with `tessera submit`, which packs them")
+    return detail
 
 
 def _inspect(request: Request, path: Path, scene_hash: str, variants: Sequence[str] = ()) -> SceneInfo:
