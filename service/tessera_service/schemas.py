@@ -80,7 +80,8 @@ class JobList(BaseModel):
 
 class JobLog(BaseModel):
     id: str
-    lines: list[str] = Field(description="'<unix time> <message>', oldest first")
+    lines: list[str] = Field(description="'<ISO 8601 UTC time> <message>', oldest first, e.g. "
+                                         "'2026-12-07T15:42:30.327+00:00 job queued ...'")
 
 
 class WorkerStatus(BaseModel):

@@ -2,6 +2,7 @@
 jobs stay queued unless cancelled)."""
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 
@@ -257,3 +258,23 @@ def test_a_job_names_the_curves_its_integrator_cannot_shade(api, tmp_path):
         finally:
             api.delete(f"/jobs/{job['id']}")
 
+
+def test_the_log_shows_iso_times(api, redis_client):
+    """GET /jobs/{id}/log writes each line's time in ISO 8601 UTC (it was the raw epoch
+    float, '1796651350.3275216 job queued ...'): the same instant as the stored line, to the
+    millisecond, and the same message."""
+    from datetime import datetime
+
+    job = submit(api, CORNELL, spp=1, tile_size=256).json()["id"]
+    try:
+        stored = [line.decode() for line in redis_client.lrange(rdb.job_log_key(job), 0, -1)]
+        lines = api.get(f"/jobs/{job}/log").json()["lines"]
+        assert stored and len(lines) == len(stored)
+        for raw, shown in zip(stored, lines):
+            epoch, _, message = raw.partition(" ")
+            stamp, _, rest = shown.partition(" ")
+            assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}\+00:00", stamp), shown
+            assert abs(datetime.fromisoformat(stamp).timestamp() - float(epoch)) <= 0.0005
+            assert rest == message
+    finally:
+        api.delete(f"/jobs/{job}")

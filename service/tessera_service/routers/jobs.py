@@ -323,12 +323,30 @@ def get_log(job_id: str, request: Request, user: CurrentUser) -> JobLog:
         store: JobStore = request.app.state.store
         lines = [(line, f"frame {frame}") for frame, frame_job, job in record["frames"] if job is not None
                  for line in store.log(frame_job)]
-        # '<unix time> <message>': sorted by the time, stable within a frame.
-        lines.sort(key=lambda item: float(item[0].split(" ", 1)[0]))
-        return JobLog(id=job_id, lines=[f"{stamp} {where}: {rest}" for line, where in lines
+        # Stored as '<unix time> <message>': sorted by the time, stable within a frame.
+        lines.sort(key=lambda item: _log_time(item[0]))
+        return JobLog(id=job_id, lines=[_iso_line(f"{stamp} {where}: {rest}") for line, where in lines
                                         for stamp, _, rest in [line.partition(" ")]])
     _job(request, job_id, user)
-    return JobLog(id=job_id, lines=request.app.state.store.log(job_id))
+    return JobLog(id=job_id, lines=[_iso_line(line) for line in request.app.state.store.log(job_id)])
+
+
+def _log_time(line: str) -> float:
+    try:
+        return float(line.split(" ", 1)[0])
+    except ValueError:
+        return 0.0
+
+
+def _iso_line(line: str) -> str:
+    """A stored log line, '<unix time> <message>', as people read it: the time in ISO 8601
+    UTC to the millisecond ('2026-12-07T15:42:30.327+00:00 job queued ...')."""
+    stamp, sep, rest = line.partition(" ")
+    try:
+        when = datetime.fromtimestamp(float(stamp), timezone.utc)
+    except (ValueError, OverflowError, OSError):
+        return line
+    return when.isoformat(timespec="milliseconds") + sep + rest
 
 
 def for_each_frame(request: Request, sequence_id: str, user: User, record: dict, change) -> SequenceStatus:
