@@ -62,3 +62,36 @@ def test_the_layer_with_its_payload_in_a_zip_is_accepted(api):
                  data={"spp": "1", "width": "8", "height": "8"})
     assert r.status_code == 201, r.text
     api.delete(f"/jobs/{r.json()['id']}")
+
+
+MOVING = """#usda 1.0
+(startTimeCode = 1
+ endTimeCode = 5)
+def Xform "Mover" {
+    double3 xformOp:translate.timeSamples = { 1: (0, 0, 0), 5: (0.5, 0, 0) }
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+""" + "\n".join("    " + line for line in MESH.splitlines()) + """
+}
+def DistantLight "Sun" {
+    float inputs:intensity = 1
+}
+"""
+
+
+def test_frames_of_a_still_scene_get_one_warning(api):
+    from conftest import CORNELL
+
+    with open(CORNELL, "rb") as f:
+        r = api.post("/jobs", files={"file": ("cornell.usda", f)},
+                     data={"spp": "1", "width": "8", "height": "8", "frames": "1-5x2"})
+    assert r.status_code == 201, r.text
+    hint = [w for w in r.json()["warnings"] if "no animation" in w]
+    assert hint == ["the scene has no animation (no time samples): every frame of frames 1-5x2 "
+                    "renders the same image"]
+    api.delete(f"/jobs/{r.json()['id']}")
+    # The control: a stage with time samples gets no such warning.
+    r = api.post("/jobs", files={"file": ("moving.usda", MOVING.encode())},
+                 data={"spp": "1", "width": "8", "height": "8", "frames": "1-5x2"})
+    assert r.status_code == 201, r.text
+    assert not any("no animation" in w for w in r.json()["warnings"]), r.json()["warnings"]
+    api.delete(f"/jobs/{r.json()['id']}")

@@ -237,6 +237,9 @@ def create_job(
     warnings = [*warnings, *integrators.scene_warnings(render.integrator, curve_segments=info.curve_segments)]
     if render.camera is not None:  # the inspection's choice of camera is not the job's
         warnings = [w for w in warnings if w != info.camera_note]
+    if frame_list is not None and len(frame_list) > 1 and not info.animated:
+        warnings = [*warnings, f"the scene has no animation (no time samples): every frame of "
+                               f"frames {frames.strip()} renders the same image"]
     if frame_list is not None:
         return _create_sequence(response, store, user, frame_list, scene_hash, name, render, priority,
                                 max_attempts, warnings)
