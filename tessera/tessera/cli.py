@@ -554,6 +554,13 @@ def cmd_submit(args: argparse.Namespace) -> int:
                     raise
                 print(f"tessera submit: cannot download the image: {exc.detail}", file=sys.stderr)
                 return 1
+            if None in images and status.raw.get("reached_error") is not None:
+                # The job's own verdict (GET /jobs/ID), known whether or not the EXR has a
+                # noise layer.
+                images[None].metadata.update({
+                    "tessera:target_error": str(status.raw["settings"]["target_error"]),
+                    "tessera:reached_error": str(status.raw["reached_error"]),
+                    "tessera:spp": str(status.raw["settings"]["max_spp"])})
             for f, image in images.items():
                 if (missed := _target_missed(image.metadata, args.time_limit)) is not None:
                     print(f"warning: {'' if f is None else f'frame {f}: '}{missed}", file=sys.stderr)

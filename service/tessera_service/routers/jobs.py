@@ -30,7 +30,7 @@ from tessera_queue import redis_schema as rdb
 from tessera_base.protocol import FINAL_STATES, JobSpec, JobState, RenderSettings
 
 from ..auth import require_user
-from ..merge import MergeError, denoised_png, encode_image, merge_tiles, read_denoised
+from ..merge import MergeError, denoised_png, encode_image, merge_tiles, read_denoised, reached_noise
 from ..inspection_pool import InspectionPool, PoolFull
 from ..preflight import PreflightBroken, PreflightRejected, SceneInfo, inspect_scene, triangle_limit
 from ..schemas import FrameJob, JobCreated, JobList, JobLog, JobStatus, SequenceStatus
@@ -270,7 +270,17 @@ def get_job(job_id: str, request: Request, user: CurrentUser) -> JobStatus | Seq
     its state)."""
     if (record := _sequence(request, job_id, user)) is not None:
         return sequence_status(job_id, record)
-    return _status(job_id, _job(request, job_id, user))
+    job = _job(request, job_id, user)
+    if job.state == "done" and job.spec.settings.adaptive and job.reached_error is None:
+        store: JobStore = request.app.state.store
+        try:  # once per job: the tiles are merged as for the image, and the number kept
+            value = reached_noise(job.spec, store.tiles(job_id), store.splats(job_id))
+        except MergeError as e:
+            logger.warning("job %s: cannot measure the noise reached: %s", job_id, e)
+        else:
+            store.remember_reached_error(job_id, value)
+            job.reached_error = "none" if value is None else repr(value)
+    return _status(job_id, job)
 
 
 @router.delete("/{job_id}", response_model=JobStatus | SequenceStatus,
@@ -689,7 +699,15 @@ def _status(job_id: str, job: Job) -> JobStatus:
         finished_at=when(job.finished_at),
         elapsed_seconds=round(max(0.0, end - job.created_at), 3),
         render_seconds=round(job.render_seconds, 3),
-        warnings=job.warnings, error=job.error, owner=job.owner)
+        warnings=job.warnings, error=job.error, owner=job.owner, **_noise_reached(job))
+
+
+def _noise_reached(job: Job) -> dict:
+    """reached_error and target_reached of a done noise-target job whose noise was measured."""
+    if not job.reached_error or job.reached_error == "none" or job.spec.settings.target_error is None:
+        return {}
+    value = float(job.reached_error)
+    return {"reached_error": value, "target_reached": value <= job.spec.settings.target_error}
 
 
 _locks_guard = threading.Lock()
