@@ -7,7 +7,7 @@ with, as the render will compose it (the missing layers that matter are the ones
 selection uses).
 
 Prints one JSON object: {"ok": true, "width", "height", "warnings", "triangles", "curve_segments", "lights",
-"cameras", "camera_note", "unlit_warnings"}, the last present for a stage without any light: the warnings of a
+"cameras", "camera_note", "animated", "unlit_warnings"}, the last present for a stage without any light: the warnings of a
 render with default lighting off (the job setting default_light=false),
 and exits 0, or {"ok": false, "error": "..."} and exits 2. A crash of the USD parser takes
 only this process with it.
@@ -72,7 +72,8 @@ def main(argv: list[str] | None = None) -> int:
             "triangles": scene.num_triangles, "curve_segments": scene.num_curve_segments,
             "lights": scene.num_emitters, "cameras": cameras,
             # The warning naming the camera chosen among several: void for a job naming its own.
-            "camera_note": next((w for w in scene.warnings if CAMERA_CHOICE_NOTE in w), None)}
+            "camera_note": next((w for w in scene.warnings if CAMERA_CHOICE_NOTE in w), None),
+            "animated": bool(getattr(scene.data, "animated", True))}
     if scene.lit_by_default:
         info["unlit_warnings"] = scene.unlit_warnings
     print(json.dumps(info))

@@ -20,7 +20,7 @@ from tessera_base.process import remove_orphaned_tempdirs
 from .auth import AuthGate, parse_networks, require_user
 from .inspection_pool import InspectionPool
 from .redis_acl import aof_replay_problem, redacted
-from .routers import blobs, compare, farm, jobs, monitor, priority, scaling
+from .routers import apidocs, blobs, compare, farm, jobs, monitor, priority, scaling
 from .schemas import Health, Problem
 from .settings import Settings
 from .store import JobStore
@@ -63,7 +63,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         store.redis.close()
         await aredis.aclose()
 
+    # /docs is served from the package (routers/apidocs.py), not FastAPI's CDN page; ReDoc
+    # has no packaged bundle, and a page that is blank offline is left out.
     app = FastAPI(title="Tessera", version=tessera_base.__version__, lifespan=lifespan,
+                  docs_url=None, redoc_url=None,
                   description="Render farm: submit a USD scene, get an EXR. Every endpoint "
                               "but /healthz needs `Authorization: Bearer <token>` when the "
                               "server is configured with tokens (TESSERA_API_TOKENS). A token "
@@ -84,6 +87,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(compare.router, dependencies=[Depends(require_user)], responses=errors)
     app.include_router(priority.router, dependencies=[Depends(require_user)], responses=errors)
     app.include_router(monitor.router)  # public static page: AuthGate lets only its paths through
+    app.include_router(apidocs.router)  # public as well: the docs page and its Swagger UI files
     app.include_router(blobs.router, dependencies=[Depends(require_user)], responses=errors)
     app.include_router(scaling.router, dependencies=[Depends(require_user)], responses=errors)
     app.add_middleware(UploadLimit, path="/jobs",

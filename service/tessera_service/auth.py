@@ -37,7 +37,10 @@ from .users import LOCAL_USER, User, UserDirectory
 log = logging.getLogger("tessera.service.auth")
 
 _bearer = HTTPBearer(auto_error=False, description="a token from TESSERA_API_TOKENS")
-PUBLIC_PATHS = frozenset({"/healthz", "/docs", "/docs/oauth2-redirect", "/redoc", "/openapi.json",
+PUBLIC_PATHS = frozenset({"/healthz", "/openapi.json",
+                          # the API's docs page and its Swagger UI files (routers/apidocs.py)
+                          "/docs", "/docs/oauth2-redirect", "/docs/swagger-ui-bundle.js",
+                          "/docs/swagger-ui.css", "/docs/favicon-32x32.png",
                           # the monitor page (routers/monitor.py): static, holds no data
                           "/", "/monitor/monitor.js", "/monitor/monitor.css"})
 SCOPE_KEY = "tessera.user"

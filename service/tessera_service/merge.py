@@ -26,6 +26,44 @@ def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes], *, partial: bool
     with settings.denoise the "denoised" layer (tessera_base.film.add_denoised, as the local
     render adds it; MergedLayers.denoise_warning says why it is missing)."""
     s = spec.settings
+    passes = _decode_passes(spec, tiles)
+    try:
+        sums = SplatSums.from_fields(s.width, s.height, splats or {})
+        image = assemble_image(s, passes, sums, partial=partial, with_aovs=with_aovs)
+    except ValueError as e:
+        raise MergeError(str(e)) from e
+    if not with_aovs:
+        return image.rgba
+    aovs = MergedLayers(image.aovs)
+    aovs.variance_kind = image.variance_kind
+    aovs.denoise_warning = add_denoised(s, image.rgba, aovs)
+    return image.rgba, aovs
+
+
+def reached_noise(spec: JobSpec, tiles: dict[bytes | str, bytes],
+                  splats: dict[bytes | str, bytes] | None = None) -> float | None:
+    """The relative noise a finished job's image reached, as the EXR's tessera:reached_error
+    measures it, from the tiles' own noise estimate whether or not the job asked for the
+    variance AOV (per-sample variance; for splatting integrators the batch estimate, which
+    tiles carry only with that AOV: None without it)."""
+    from tessera_base.exr_header import reached_error
+
+    s = spec.settings
+    try:
+        image = assemble_image(s, _decode_passes(spec, tiles),
+                               SplatSums.from_fields(s.width, s.height, splats or {}))
+    except ValueError as e:
+        raise MergeError(str(e)) from e
+    if image.splatting:
+        if image.batch_variance is None:
+            return None
+        return reached_error(image.rgba, image.batch_variance[0], image.spp,
+                             images.batch_means_kind(image.batch_variance[1]))
+    return reached_error(image.rgba, image.variance, image.spp, images.VARIANCE_PER_SAMPLE)
+
+
+def _decode_passes(spec: JobSpec, tiles: dict[bytes | str, bytes]) -> dict[int, list[TileResult]]:
+    s = spec.settings
     grid = tile_grid(s.width, s.height, s.tile_size)
     passes: dict[int, list[TileResult]] = {}
     for key, data in tiles.items():
@@ -49,17 +87,7 @@ def merge_tiles(spec: JobSpec, tiles: dict[bytes | str, bytes], *, partial: bool
             raise MergeError(f"tile {index}: result of pass {result.pass_index} stored as "
                              f"pass {pass_index}")
         passes.setdefault(index, []).append(result)
-    try:
-        sums = SplatSums.from_fields(s.width, s.height, splats or {})
-        image = assemble_image(s, passes, sums, partial=partial, with_aovs=with_aovs)
-    except ValueError as e:
-        raise MergeError(str(e)) from e
-    if not with_aovs:
-        return image.rgba
-    aovs = MergedLayers(image.aovs)
-    aovs.variance_kind = image.variance_kind
-    aovs.denoise_warning = add_denoised(s, image.rgba, aovs)
-    return image.rgba, aovs
+    return passes
 
 
 class MergedLayers(dict):

@@ -62,6 +62,9 @@ class SceneInfo:
     # The stage's Camera prims (None: an inspection remembered from before they were listed).
     cameras: list[str] | None = None
     camera_note: str | None = None  # the warning naming which of several cameras renders
+    # Whether anything of the stage has time samples (False: every frame is the same image;
+    # an inspection remembered from before this was recorded says True).
+    animated: bool = True
 
 
 def _limits(memory_bytes: int):
@@ -112,7 +115,8 @@ def inspect_scene(path: str, *, timeout: float, memory_bytes: int,
                                              if result.get("unlit_warnings") is not None else None),
                              cameras=([str(c) for c in result["cameras"]]
                                       if result.get("cameras") is not None else None),
-                             camera_note=(public(str(result["camera_note"])) if result.get("camera_note") else None))
+                             camera_note=(public(str(result["camera_note"])) if result.get("camera_note") else None),
+                             animated=bool(result.get("animated", True)))
         except (KeyError, TypeError, ValueError) as e:
             raise PreflightBroken(f"scene inspection returned an unexpected answer: {result!r}") from e
 

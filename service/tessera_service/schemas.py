@@ -72,6 +72,13 @@ class JobStatus(BaseModel):
     warnings: list[str]
     error: str | None = None
     owner: str | None = Field(default=None, description="the user who submitted the job")
+    reached_error: float | None = Field(
+        default=None, description="a done noise-target job (GET /jobs/{id}): the relative noise its "
+                                  "image reached, measured as the EXR's tessera:reached_error; null "
+                                  "otherwise, or when the image has no noise estimate")
+    target_reached: bool | None = Field(
+        default=None, description="whether reached_error is within settings.target_error (false: "
+                                  "max_spp or time_limit stopped the job first); null when not known")
 
 
 class JobList(BaseModel):
@@ -80,7 +87,8 @@ class JobList(BaseModel):
 
 class JobLog(BaseModel):
     id: str
-    lines: list[str] = Field(description="'<unix time> <message>', oldest first")
+    lines: list[str] = Field(description="'<ISO 8601 UTC time> <message>', oldest first, e.g. "
+                                         "'2026-12-07T15:42:30.327+00:00 job queued ...'")
 
 
 class WorkerStatus(BaseModel):

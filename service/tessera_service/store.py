@@ -29,6 +29,9 @@ class Job:
     warnings: list[str]
     error: str | None
     owner: str | None = None
+    # A done noise-target job's reached noise, once measured (remember_reached_error):
+    # the number as text, "none" when the image has no noise estimate; None: not yet.
+    reached_error: str | None = None
 
     @property
     def final(self) -> bool:
@@ -264,6 +267,13 @@ class JobStore:
         """The job's splat sums (redis_schema.job_splats_key), for merging."""
         return self.redis.hgetall(rdb.job_splats_key(job_id))
 
+    def remember_reached_error(self, job_id: str, value: float | None) -> None:
+        """Keeps a done job's measured noise in its hash, so it is merged once; a job that
+        expired or was deleted meanwhile is not brought back as a bare hash."""
+        self.redis.eval("if redis.call('exists', KEYS[1]) == 1 then "
+                        "return redis.call('hset', KEYS[1], ARGV[1], ARGV[2]) end return 0",
+                        1, rdb.job_key(job_id), "reached_error", "none" if value is None else repr(value))
+
     def log(self, job_id: str) -> list[str]:
         return [line.decode(errors="replace")
                 for line in self.redis.lrange(rdb.job_log_key(job_id), 0, -1)]
@@ -360,6 +370,7 @@ def _job(fields: dict[bytes, bytes]) -> Job:
         warnings=json.loads(f.get("warnings") or "[]"),
         error=f.get("error") or None,
         owner=f.get("owner"),
+        reached_error=f.get("reached_error"),
     )
 
 

@@ -28,6 +28,19 @@ def _crop(text: str) -> tuple[int, int, int, int]:
     return x0, y0, x1, y1
 
 
+def _int_range(low: int, high: int):
+    """An argparse type: a whole number from low to high, refused in one line naming both."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must be a whole number from {low} to {high}, not {text!r}")
+        return value
+    return parse
+
+
 def _positive(text: str) -> int:
     value = int(text)
     if value < 1:
@@ -35,8 +48,51 @@ def _positive(text: str) -> int:
     return value
 
 
+# The options that set each RenderSettings / job field, for messages in the user's terms.
+_OPTIONS = {"width": "--res", "height": "--res", "tile_size": "--tile",
+            "integrator_params": "--integrator-param", "variants": "--variant"}
+
+
+def _option(field: str) -> str:
+    return _OPTIONS.get(field, "--" + field.replace("_", "-"))
+
+
+def _settings_error(exc, model=None) -> str:
+    """A pydantic ValidationError of RenderSettings (or `model`) in one line: each problem
+    as `--option: what is wrong (allowed values)`, without pydantic's own framing."""
+    from tessera_base.protocol import RenderSettings
+
+    model = model or RenderSettings
+    parts = []
+    for error in exc.errors(include_url=False):
+        field = str(error["loc"][0]) if error.get("loc") else None
+        message = error["msg"].removeprefix("Value error, ")
+        ctx = error.get("ctx") or {}
+        if field in model.model_fields and ({"ge", "gt", "le", "lt"} & set(ctx)):
+            message = f"must be {_bounds(model.model_fields[field])}, not {error['input']!r}"
+        if field is None:  # a check across fields: its message names them
+            parts.append(message)
+        else:
+            parts.append(f"{_option(field)}: {message}")
+    return "; ".join(dict.fromkeys(parts))
+
+
+def _bounds(info) -> str:
+    """A field's range as its Field(ge=..., le=...) declares it: `0-9`, `> 0 and <= 1`."""
+    low = high = None
+    for m in info.metadata:
+        low = next((f"{op} {getattr(m, a)}" for a, op in (("ge", ">="), ("gt", ">")) if getattr(m, a, None) is not None), low)
+        high = next((f"{op} {getattr(m, a)}" for a, op in (("le", "<="), ("lt", "<")) if getattr(m, a, None) is not None), high)
+    if low and high and low.startswith(">=") and high.startswith("<="):
+        return f"{low[3:]}-{high[3:]}"
+    return " and ".join(b for b in (low, high) if b) or "valid"
+
+
 def cmd_render(args: argparse.Namespace) -> int:
     """One image, or with --frames one numbered image per frame (out.0001.exr, ...)."""
+    if (problem := _output_problem(args.output)) is not None:
+        print(f"tessera render: {problem}", file=sys.stderr)
+        return 2
     if not args.frames:
         return _render_one(args)
     from tessera_base.protocol import numbered_path, parse_frames
@@ -50,10 +106,21 @@ def cmd_render(args: argparse.Namespace) -> int:
     for k, frame in enumerate(frames):
         print(f"frame {frame} ({k + 1} of {len(frames)})", file=sys.stderr)
         code = _render_one(argparse.Namespace(**{**vars(args), "frame": float(frame),
-                                                 "output": numbered_path(output, frame)}))
+                                                 "output": numbered_path(output, frame),
+                                                 "static_hint": k == 0 and len(frames) > 1}))
         if code:
             return code
     return 0
+
+
+def _output_problem(output: str | None) -> str | None:
+    """Why -o cannot name the image (it is a float EXR with layers: a .png cannot hold
+    them), asked before anything is rendered; None when it can."""
+    if output is None or Path(output).suffix.lower() == ".exr":
+        return None
+    preview = Path(output).with_suffix(".png")
+    return (f"-o {output}: the image is a float EXR with its layers, so its name must end in .exr "
+            f"(`-o {Path(output).with_suffix('.exr')}` also writes the PNG preview {preview})")
 
 
 def _render_one(args: argparse.Namespace) -> int:
@@ -81,6 +148,9 @@ def _render_one(args: argparse.Namespace) -> int:
                 if "outside the bundle" in str(exc) and not args.root else "")
         print(f"tessera render: {exc}{hint}", file=sys.stderr)
         return 2
+    if getattr(args, "static_hint", False) and not getattr(scene.data, "animated", True):
+        print(f"warning: {scene_path.name} has no animation (no time samples): every frame of "
+              f"--frames {args.frames} renders the same image", file=sys.stderr)
     width, height = args.res or (scene.width, scene.height)
     if args.crop is not None:
         from tessera_base.images import check_crop
@@ -90,6 +160,9 @@ def _render_one(args: argparse.Namespace) -> int:
         except ValueError as exc:
             print(f"tessera render: --crop: {exc}", file=sys.stderr)
             return 2
+    if (problem := _params_problem(args)) is not None:
+        print(f"tessera render: {problem}", file=sys.stderr)
+        return 2
     try:
         settings = RenderSettings(width=width, height=height, spp=args.spp, seed=args.seed,
                                   max_depth=args.max_depth, tile_size=args.tile,
@@ -97,7 +170,7 @@ def _render_one(args: argparse.Namespace) -> int:
                                   integrator_params=_integrator_params(args),
                                   **({"integrator": args.integrator} if args.integrator else {}))
     except ValidationError as exc:
-        print(f"tessera render: invalid settings: {exc}", file=sys.stderr)
+        print(f"tessera render: {_settings_error(exc)}", file=sys.stderr)
         return 2
     if settings.denoise:  # before rendering, not after an hour of it
         from tessera_base.denoise import unavailable_reason
@@ -151,9 +224,28 @@ def _render_one(args: argparse.Namespace) -> int:
         mean_spp = result["samples"] / (settings.width * settings.height)
         print(f"noise target {settings.target_error:.2%}: {mean_spp:.1f} spp on average, "
               f"{result['passes']} tile passes", file=sys.stderr)
+        if (missed := _target_missed(result, settings.time_limit)) is not None:
+            print(f"warning: {missed}", file=sys.stderr)
     print(f"wrote {output} and {preview} in {result['seconds']:.2f} s "
           f"({result['samples_per_second'] / 1e6:.2f} M samples/s)", file=sys.stderr)
     return 0
+
+
+def _target_missed(header: dict, time_limit: float | None = None) -> str | None:
+    """What a noise-target render fell short by, from its EXR header (the image's measured
+    noise, tessera:reached_error, against tessera:target_error); None when it got there or
+    the image carries no noise estimate."""
+    try:
+        target = float(header["tessera:target_error"])
+        reached = float(header["tessera:reached_error"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    if reached <= target:
+        return None
+    limit = f"--max-spp {header.get('tessera:spp', '?')}" + (f" or --time-limit {time_limit:g} s"
+                                                             if time_limit else "")
+    return (f"noise target {target:.2%} not reached: the image's noise is {reached:.2%}, "
+            f"{reached / target:.1f}x the target (tessera:reached_error); stopped by {limit}")
 
 
 def _local_root(args: argparse.Namespace) -> str:
@@ -189,6 +281,7 @@ class _IntegratorOption(argparse.Action):
         from tessera_base import integrators
         if value == "help":
             print(integrators.help_text())
+            sys.stdout.flush()  # a closed pipe raises here, inside main's handler
             parser.exit(0)
         try:
             setattr(namespace, self.dest, integrators.validate(value))
@@ -335,6 +428,47 @@ def _submit_pilot(args: argparse.Namespace):
     return run_pilot(scene, RenderSettings(width=width, height=height, max_depth=args.max_depth or 64))
 
 
+def _submit_problem(args: argparse.Namespace) -> str | None:
+    """What the farm would refuse in `submit`'s settings, found here before the scene is
+    packed and uploaded (the resolution may be the scene's, unknown until the farm reads it:
+    then only what does not depend on it); None when there is nothing."""
+    from pydantic import ValidationError
+
+    from tessera_base.protocol import RenderSettings, parse_frames
+
+    if args.output and (problem := _output_problem(args.output)) is not None:
+        return problem
+    if args.frames:
+        try:
+            parse_frames(args.frames)
+        except ValueError as exc:
+            return f"--{exc}"
+    if (problem := _params_problem(args)) is not None:
+        return problem
+    width, height = args.res or (16384, 16384)
+    fields = dict(spp=args.spp, seed=args.seed, max_depth=args.max_depth, tile_size=args.tile,
+                  integrator=args.integrator, subdivision_level=args.subdivision_level,
+                  camera=args.camera, frame=args.frame, shutter=args.shutter, variants=args.variants,
+                  crop=args.crop if args.res else None, aovs=args.aovs,
+                  integrator_params=_integrator_params(args), **_noise_target(args))
+    try:
+        RenderSettings(width=width, height=height, **{k: v for k, v in fields.items() if v is not None})
+    except ValidationError as exc:
+        return _settings_error(exc)
+    return None
+
+
+def _params_problem(args: argparse.Namespace) -> str | None:
+    """--integrator-param names the integrator does not take, in the option's terms."""
+    from tessera_base import integrators
+
+    try:
+        integrators.validate_params(args.integrator or integrators.default(), _integrator_params(args))
+    except ValueError as exc:
+        return f"--integrator-param: {exc}"
+    return None
+
+
 def cmd_submit(args: argparse.Namespace) -> int:
     """Uploads a scene to a farm's API (through tessera.Client: a loose layer travels with
     its assets); with --wait follows its progress and downloads the image."""
@@ -353,17 +487,22 @@ def cmd_submit(args: argparse.Namespace) -> int:
                                       variants=",".join(args.variants) if args.variants else None,
                                       crop=",".join(map(str, args.crop)) if args.crop else None,
                                       **_noise_target(args)).items() if v is not None}
+    if (problem := _submit_problem(args)) is not None:  # before anything is packed or sent
+        print(f"tessera submit: {problem}", file=sys.stderr)
+        return 2
     report = lambda line: print(line, file=sys.stderr)  # noqa: E731
-    if args.integrator == "auto":
-        try:
-            pilot = _submit_pilot(args)
-        except (OSError, ValueError) as exc:  # SceneError is a ValueError
-            print(f"tessera submit: --integrator auto: the pilot could not load the scene: {exc}", file=sys.stderr)
-            return 2
-        report(pilot.summary())
-        settings.update(integrator=pilot.choice, auto_pilot=pilot.to_json())
     try:
         with Client(args.server, args.token or os.environ.get("TESSERA_TOKEN")) as farm:
+            if args.integrator == "auto":
+                farm.health()  # a farm that cannot be reached is said before the pilot's seconds
+                try:
+                    pilot = _submit_pilot(args)
+                except (OSError, ValueError) as exc:  # SceneError is a ValueError
+                    print(f"tessera submit: --integrator auto: the pilot could not load the scene: {exc}",
+                          file=sys.stderr)
+                    return 2
+                report(pilot.summary())
+                settings.update(integrator=pilot.choice, auto_pilot=pilot.to_json())
             try:
                 job = farm.submit(scene, res=args.res, aovs=args.aovs.split(",") if args.aovs else (),
                                   integrator_params=_integrator_params(args) or None,
@@ -406,16 +545,25 @@ def cmd_submit(args: argparse.Namespace) -> int:
                 if job.frames:
                     from tessera_base.protocol import numbered_path
 
-                    for f in job.frames:
-                        farm.download_frame(job.id, f, numbered_path(str(output), f))
+                    images = {f: farm.download_frame(job.id, f, numbered_path(str(output), f)) for f in job.frames}
                     output = Path(numbered_path(str(output), next(iter(job.frames))))
                 else:
-                    farm.download(job.id, output)
+                    images = {None: farm.download(job.id, output)}
             except FarmError as exc:
                 if exc.status_code is None:
                     raise
                 print(f"tessera submit: cannot download the image: {exc.detail}", file=sys.stderr)
                 return 1
+            if None in images and status.raw.get("reached_error") is not None:
+                # The job's own verdict (GET /jobs/ID), known whether or not the EXR has a
+                # noise layer.
+                images[None].metadata.update({
+                    "tessera:target_error": str(status.raw["settings"]["target_error"]),
+                    "tessera:reached_error": str(status.raw["reached_error"]),
+                    "tessera:spp": str(status.raw["settings"]["max_spp"])})
+            for f, image in images.items():
+                if (missed := _target_missed(image.metadata, args.time_limit)) is not None:
+                    print(f"warning: {'' if f is None else f'frame {f}: '}{missed}", file=sys.stderr)
             many = f" and {len(job.frames) - 1} more frames" if job.frames and len(job.frames) > 1 else ""
             elapsed = f" ({status.elapsed_seconds:.2f} s on the farm)" if status.elapsed_seconds is not None else ""
             print(f"wrote {output}{many}{elapsed}", file=sys.stderr)
@@ -520,8 +668,16 @@ def cmd_preview(args: argparse.Namespace) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's errors in one line, naming the option (`tessera submit: argument
+    --priority: must be 0-9 ...`), without the usage block the long commands print."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: {message} (`{self.prog} --help` lists the options)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="tessera", description=__doc__)
+    parser = _Parser(prog="tessera", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log more")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -555,9 +711,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "window, the full frame as its display window; the whole frame is "
                         "rendered (light paths from anywhere land in the region)")
     r.add_argument("--no-variance", action="store_true",
-                   help="write no variance layer: light and bdpt then render each sample once "
-                        "instead of twice (their variance comes from a second render in "
-                        "batches), and `tessera compare` cannot judge the image")
+                   help="write no variance and spp layers (a smaller EXR that `tessera compare` "
+                        "cannot judge); it saves little time: the noise estimate comes from the "
+                        "render's own samples, 1-7 %% of the time for light, bdpt and vcm "
+                        "(docs/benchmarks/variance-batches.md)")
     r.set_defaults(func=cmd_render)
 
     from tessera_worker.settings import add_worker_options
@@ -581,9 +738,12 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--seed", type=int)
     m.add_argument("--max-depth", type=_positive)
     m.add_argument("--tile", type=_positive, help="tile size in pixels")
-    m.add_argument("--priority", type=int, help="0-9, higher first (default 5)")
-    m.add_argument("--max-attempts", type=_positive,
-                   help="failed attempts at one tile before the job fails (default 3)")
+    from tessera_base.protocol import DEFAULT_PRIORITY, MAX_PRIORITY, MIN_PRIORITY
+
+    m.add_argument("--priority", type=_int_range(MIN_PRIORITY, MAX_PRIORITY),
+                   help=f"{MIN_PRIORITY}-{MAX_PRIORITY}, higher first (default {DEFAULT_PRIORITY})")
+    m.add_argument("--max-attempts", type=_int_range(1, 100),
+                   help="failed attempts at one tile before the job fails, 1-100 (default 3)")
     m.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     _add_default_light_option(m)
     _add_noise_target_options(m)
@@ -665,7 +825,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    return args.func(args)
+    try:
+        args = build_parser().parse_args(argv)
+        logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                            format="%(asctime)s %(name)s %(levelname)s %(message)s")
+        code = args.func(args)
+        sys.stdout.flush()  # here, where a closed pipe can still be caught
+        return code
+    except BrokenPipeError:
+        # The reader went away (`tessera render --integrator help | head`): what it read is
+        # all it wanted. Point stdout at /dev/null so the interpreter's final flush is quiet.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 1

@@ -148,6 +148,11 @@ class Client:
         report(f"{scene.name}: {sent.summary()} (from {pack.root})")
         return r
 
+    def health(self) -> dict[str, Any]:
+        """GET /healthz: the farm's state (ok or degraded, its workers); FarmError when it
+        cannot be reached or its job store is down. Needs no token."""
+        return self._request("GET", "/healthz").json()
+
     def status(self, job_id: str) -> Job:
         """The job's state, progress, timings, warnings and error."""
         return Job.from_json(self._request("GET", f"/jobs/{job_id}").json())
@@ -234,6 +239,24 @@ class Client:
 
 def _detail(response: httpx.Response) -> str:
     try:
-        return str(response.json().get("detail"))
+        detail = response.json().get("detail")
     except ValueError:
         return response.text[:200]
+    if isinstance(detail, list):  # FastAPI's request validation: one line per field, joined
+        return "; ".join(_field_problem(e) for e in detail)
+    return str(detail)
+
+
+def _field_problem(error: Any) -> str:
+    """One of FastAPI's validation errors ({"loc": ["body", "priority"], "msg": ...,
+    "input": ..., "ctx": {"le": 9}}) as `priority: must be <= 9, not '12'`."""
+    if not isinstance(error, dict):
+        return str(error)
+    loc = [str(part) for part in error.get("loc", []) if part not in ("body", "query", "path")]
+    ctx = error.get("ctx") or {}
+    bounds = [f"{op} {ctx[key]}" for key, op in (("ge", ">="), ("gt", ">"), ("le", "<="), ("lt", "<"))
+              if key in ctx]
+    message = f"must be {' and '.join(bounds)}" if bounds else str(error.get("msg", "invalid"))
+    if "input" in error:
+        message += f", not {error['input']!r}"
+    return f"{'.'.join(loc) or 'request'}: {message}"

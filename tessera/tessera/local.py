@@ -79,8 +79,9 @@ def _tile_passes(scene, settings: RenderSettings, rect: TileRect, threads: int,
 def render_image(scene, settings: RenderSettings, threads: int = 0, progress: bool = True,
                  variance: bool = True) -> LocalRenderResult:
     """Renders all tiles of `settings` with `scene` (a tessera_renderer.Scene). With
-    `variance` (the default) the result carries its noise estimate; for light and bdpt
-    that renders every sample a second time, in batches (convergence.VARIANCE_BATCHES).
+    `variance` (the default) the result carries its noise estimate; for the splatting
+    integrators it comes from batches of the pass's own samples (convergence.VARIANCE_BATCHES),
+    at 1-7 % of the render's time (docs/benchmarks/variance-batches.md).
     With settings.denoise, aovs gets the "denoised" layer (film.add_denoised) as the
     farm's merge adds it."""
     result = _render_image(scene, settings, threads, progress, variance)

@@ -81,8 +81,10 @@ class Pilot:
     reason: str = ""
 
     def summary(self) -> str:
-        parts = ", ".join(f"{r.integrator} {r.efficiency:.3g}/s (rel. variance {r.rel_variance:.3g} in "
-                          f"{r.seconds * 1e3:.0f} ms)" for r in self.rows)
+        # `seconds` is extrapolated from the coarse pilot image, not measured at full size.
+        parts = ", ".join(f"{r.integrator} {r.efficiency:.3g}/s (rel. variance {r.rel_variance:.3g}; "
+                          f"~{r.seconds * 1e3:.0f} ms a {self.spp}-spp pass, extrapolated to full size)"
+                          for r in self.rows)
         return (f"auto chose {self.choice}: pilot of {self.repeats} x {self.spp} spp at "
                 f"{self.size[0]}x{self.size[1]}: efficiency {parts}" + (f"; {self.reason}" if self.reason else ""))
 

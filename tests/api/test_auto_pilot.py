@@ -110,6 +110,10 @@ def test_cli_auto_reports_the_pilot_and_records_it_in_the_exr(tmp_path, cornell_
     assert pilot["choice"] == choose(rows)  # the recorded numbers give the recorded choice
     assert spec.getattribute("tessera:integrator") == pilot["choice"]
     assert f"auto chose {pilot['choice']}" in r.stderr
+    # Its seconds are extrapolated from the coarse pilot, and the line says so.
+    for row in rows:
+        assert (f"~{row.seconds * 1e3:.0f} ms a {pilot['spp']}-spp pass, extrapolated to full size"
+                in r.stderr), r.stderr
 
 
 def test_merging_candidates_join_for_mirrors_or_glass_in_a_progressive_render(cornell_path):

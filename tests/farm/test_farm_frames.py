@@ -5,6 +5,7 @@ and `tessera submit --frames --wait` writes numbered EXRs."""
 from __future__ import annotations
 
 import json
+from datetime import datetime
 import subprocess
 import sys
 
@@ -130,5 +131,5 @@ def test_a_frame_range_is_paused_resumed_reprioritised_logged_and_followed_as_on
         lines = farm.get(f"/jobs/{seq}/log").json()["lines"]
         for f in (1, 2, 3):
             assert any(f" frame {f}: " in line and "paused" in line for line in lines), lines
-        stamps = [float(line.split(" ", 1)[0]) for line in lines]
+        stamps = [datetime.fromisoformat(line.split(" ", 1)[0]) for line in lines]
         assert stamps == sorted(stamps)

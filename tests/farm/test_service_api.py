@@ -3,6 +3,7 @@ jobs stay queued unless cancelled)."""
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -499,3 +500,25 @@ def test_blob_uploads_are_not_held_in_the_apis_memory(redis_server, tmp_path):
             assert valid >= size // 2, f"peak RSS rose only {valid / 2**20:.0f} MiB for a stored blob"
     finally:
         proc.stop()
+
+
+def test_the_log_shows_iso_times(api, redis_client):
+    """GET /jobs/{id}/log writes each line's time in ISO 8601 UTC (it was the raw epoch
+    float, '1796651350.3275216 job queued ...'): the stored line's instant truncated to the
+    millisecond, and the same message."""
+    from datetime import datetime
+
+    job = submit(api, CORNELL, spp=1, tile_size=256).json()["id"]
+    try:
+        stored = [line.decode() for line in redis_client.lrange(rdb.job_log_key(job), 0, -1)]
+        lines = api.get(f"/jobs/{job}/log").json()["lines"]
+        assert stored and len(lines) == len(stored)
+        for raw, shown in zip(stored, lines):
+            epoch, _, message = raw.partition(" ")
+            stamp, _, rest = shown.partition(" ")
+            assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}\+00:00", stamp), shown
+            # Truncated to the millisecond (a line's time never moves later).
+            assert 0 <= float(epoch) - datetime.fromisoformat(stamp).timestamp() < 0.001 + 1e-6
+            assert rest == message
+    finally:
+        api.delete(f"/jobs/{job}")

@@ -263,7 +263,7 @@ def test_endpoint_refuses_what_cannot_be_compared(api, renders):
 
 
 def test_no_variance_renders_once_and_compare_refuses_it(tmp_path, capsys):
-    """`--no-variance` writes no variance layer (light and bdpt skip their batch render),
+    """`--no-variance` writes no variance layer (light and bdpt keep no batches),
     and compare says it cannot judge such an image instead of guessing."""
     a = _render(CORNELL, tmp_path / "a.exr", 0, "--integrator", "bdpt", "--no-variance")
     b = _render(CORNELL, tmp_path / "b.exr", 1, "--integrator", "bdpt")

@@ -426,6 +426,8 @@ def preflight(bundle: Bundle) -> None:
             if not os.path.exists(probe) or member_missing:
                 if is_layer and authored.startswith(("./", "../")) and "[" not in target:
                     bundle.unresolved_layers.append((authored, target, where))
+                elif is_layer and _names_itself(layer, authored):
+                    continue  # assetInfo's identifier (`@Teapot.usd@`): nothing opens it
                 elif is_layer:
                     # Refused even when unused: USD would look such a path up relative to
                     # the working directory (outside the bundle) when composing.
@@ -451,6 +453,35 @@ def preflight(bundle: Bundle) -> None:
     if problems:
         unique = list(dict.fromkeys(problems))
         raise SceneError("; ".join(unique[:5]) + (f" (and {len(unique) - 5} more)" if len(unique) > 5 else ""))
+
+
+def _names_itself(layer, authored: str) -> bool:
+    """Whether `authored` is only a prim's assetInfo identifier in `layer` (how an asset
+    names itself, `identifier = @Teapot.usd@`) and no sublayer, reference or payload: an
+    upload stored under another name would otherwise be refused for naming its own file.
+    Value clips and the like, which USD does open, are not exempt."""
+    from pxr import Sdf
+
+    if authored in layer.GetCompositionAssetDependencies():
+        return False
+    identifiers: set[str] = set()
+
+    def visit(path) -> None:
+        if path.IsPrimPath():
+            spec = layer.GetPrimAtPath(path)
+            ident = (spec.assetInfo or {}).get("identifier") if spec else None
+            if ident is not None:
+                identifiers.add(getattr(ident, "path", str(ident)))
+
+    layer.Traverse(Sdf.Path.absoluteRootPath, visit)
+    return authored in identifiers and not _has_clips(layer, authored)
+
+
+def _has_clips(layer, authored: str) -> bool:
+    """Whether `authored` appears in the layer's text where it is more than an identifier
+    (clip asset paths, attribute values): counted occurrences beyond the identifiers'."""
+    text = layer.ExportToString()
+    return text.count(f"@{authored}@") > text.count(f"identifier = @{authored}@")
 
 
 def _check_dependency(bundle: Bundle, layer, authored: str, where: str) -> str | None:

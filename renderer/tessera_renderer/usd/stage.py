@@ -106,6 +106,9 @@ class SceneData:
     # in absolute time codes (None: no motion blur).
     time_code: float | None = None
     shutter: tuple[float, float] | None = None
+    # Whether anything of the stage can change with time (stage_is_animated); False: every
+    # frame renders the same image.
+    animated: bool = True
     meters_per_unit: float = 0.01
     up_axis: str = "Y"
     # The world-space position of this data's origin: a translated stage is moved so that
@@ -541,11 +544,20 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
                      curves=_curve_arrays(tr.curves),
                      motion_transforms=motion_transforms,
                      time_code=None if time.IsDefault() else float(time.GetValue()),
-                     shutter=None if tr.shutter is None else (tr.shutter.open, tr.shutter.close))
+                     shutter=None if tr.shutter is None else (tr.shutter.open, tr.shutter.close),
+                     animated=stage_is_animated(stage))
     if default_light:
         apply_default_lighting(data)
     data._native_prototype_lights = tr.native_prototype_lights
     return data
+
+
+def stage_is_animated(stage) -> bool:
+    """Whether a layer the stage uses holds time samples. Without any no attribute varies
+    with time (skinning, velocities and the camera all read time samples), so every frame
+    renders the same image. Value clips count: the stage lists their clip layers among the
+    used ones from the moment it opens."""
+    return any(layer.ListAllTimeSamples() for layer in stage.GetUsedLayers())
 
 
 def _visible_cameras(stage, time) -> list:

@@ -30,7 +30,7 @@ from tessera_queue import redis_schema as rdb
 from tessera_base.protocol import FINAL_STATES, JobSpec, JobState, RenderSettings
 
 from ..auth import require_user
-from ..merge import MergeError, denoised_png, encode_image, merge_tiles, read_denoised
+from ..merge import MergeError, denoised_png, encode_image, merge_tiles, read_denoised, reached_noise
 from ..inspection_pool import InspectionPool, PoolFull
 from ..preflight import PreflightBroken, PreflightRejected, SceneInfo, inspect_scene, triangle_limit
 from ..schemas import FrameJob, JobCreated, JobList, JobLog, JobStatus, SequenceStatus
@@ -207,7 +207,12 @@ def create_job(
         path = Path(tmp, protocol.scene_file_name(suffix))
         scene_hash = (_save_upload(file, path, settings.max_upload_bytes) if packed is None
                       else _assemble(request, packed, path, settings.max_upload_bytes, user))
-        info = _inspect(request, path, scene_hash, params["variants"] or ())
+        try:
+            info = _inspect(request, path, scene_hash, params["variants"] or ())
+        except HTTPException as exc:
+            if packed is not None or suffix in (".zip", ".usdz") or exc.status_code != 422:
+                raise
+            raise HTTPException(422, _loose_layer_detail(str(exc.detail), path.name, name)) from None
         if params["camera"] is not None and info.cameras is not None and params["camera"] not in info.cameras:
             raise HTTPException(422, f"camera {params['camera']} is not a Camera prim of the scene "
                                      f"(its cameras: {', '.join(info.cameras) or 'none'})")
@@ -232,6 +237,9 @@ def create_job(
     warnings = [*warnings, *integrators.scene_warnings(render.integrator, curve_segments=info.curve_segments)]
     if render.camera is not None:  # the inspection's choice of camera is not the job's
         warnings = [w for w in warnings if w != info.camera_note]
+    if frame_list is not None and len(frame_list) > 1 and not info.animated:
+        warnings = [*warnings, f"the scene has no animation (no time samples): every frame of "
+                               f"frames {frames.strip()} renders the same image"]
     if frame_list is not None:
         return _create_sequence(response, store, user, frame_list, scene_hash, name, render, priority,
                                 max_attempts, warnings)
@@ -262,7 +270,17 @@ def get_job(job_id: str, request: Request, user: CurrentUser) -> JobStatus | Seq
     its state)."""
     if (record := _sequence(request, job_id, user)) is not None:
         return sequence_status(job_id, record)
-    return _status(job_id, _job(request, job_id, user))
+    job = _job(request, job_id, user)
+    if job.state == "done" and job.spec.settings.adaptive and job.reached_error is None:
+        store: JobStore = request.app.state.store
+        try:  # once per job: the tiles are merged as for the image, and the number kept
+            value = reached_noise(job.spec, store.tiles(job_id), store.splats(job_id))
+        except MergeError as e:
+            logger.warning("job %s: cannot measure the noise reached: %s", job_id, e)
+        else:
+            store.remember_reached_error(job_id, value)
+            job.reached_error = "none" if value is None else repr(value)
+    return _status(job_id, job)
 
 
 @router.delete("/{job_id}", response_model=JobStatus | SequenceStatus,
@@ -318,12 +336,30 @@ def get_log(job_id: str, request: Request, user: CurrentUser) -> JobLog:
         store: JobStore = request.app.state.store
         lines = [(line, f"frame {frame}") for frame, frame_job, job in record["frames"] if job is not None
                  for line in store.log(frame_job)]
-        # '<unix time> <message>': sorted by the time, stable within a frame.
-        lines.sort(key=lambda item: float(item[0].split(" ", 1)[0]))
-        return JobLog(id=job_id, lines=[f"{stamp} {where}: {rest}" for line, where in lines
+        # Stored as '<unix time> <message>': sorted by the time, stable within a frame.
+        lines.sort(key=lambda item: _log_time(item[0]))
+        return JobLog(id=job_id, lines=[_iso_line(f"{stamp} {where}: {rest}") for line, where in lines
                                         for stamp, _, rest in [line.partition(" ")]])
     _job(request, job_id, user)
-    return JobLog(id=job_id, lines=request.app.state.store.log(job_id))
+    return JobLog(id=job_id, lines=[_iso_line(line) for line in request.app.state.store.log(job_id)])
+
+
+def _log_time(line: str) -> float:
+    try:
+        return float(line.split(" ", 1)[0])
+    except ValueError:
+        return 0.0
+
+
+def _iso_line(line: str) -> str:
+    """A stored log line, '<unix time> <message>', as people read it: the time in ISO 8601
+    UTC to the millisecond ('2026-12-07T15:42:30.327+00:00 job queued ...')."""
+    stamp, sep, rest = line.partition(" ")
+    try:
+        when = datetime.fromtimestamp(float(stamp), timezone.utc)
+    except (ValueError, OverflowError, OSError):
+        return line
+    return when.isoformat(timespec="milliseconds") + sep + rest
 
 
 def for_each_frame(request: Request, sequence_id: str, user: User, record: dict, change) -> SequenceStatus:
@@ -558,6 +594,17 @@ def _frame_job(request: Request, sequence_id: str, frame: int, user: User) -> st
                              f"{', ...' if len(record['frames']) > 20 else ''})")
 
 
+def _loose_layer_detail(detail: str, stored: str, uploaded: str) -> str:
+    """A refusal of a layer uploaded alone, in the uploader's terms: the layer under the name
+    it was sent as (it is stored as `stored`), and, when a file it references is missing,
+    that such an upload carries none of them."""
+    detail = detail.replace(f"{stored}:", f"{uploaded}:")
+    if "is not in the bundle" in detail:
+        detail += ("; a layer uploaded alone brings none of the files it references: upload them "
+                   "with it as a .zip, or send it with `tessera submit`, which packs them")
+    return detail
+
+
 def _inspect(request: Request, path: Path, scene_hash: str, variants: Sequence[str] = ()) -> SceneInfo:
     """The scene's pre-flight, composed with the job's variant selections: remembered
     (passed or refused) for this exact file and selection, else inspected in a slot of the
@@ -658,7 +705,15 @@ def _status(job_id: str, job: Job) -> JobStatus:
         finished_at=when(job.finished_at),
         elapsed_seconds=round(max(0.0, end - job.created_at), 3),
         render_seconds=round(job.render_seconds, 3),
-        warnings=job.warnings, error=job.error, owner=job.owner)
+        warnings=job.warnings, error=job.error, owner=job.owner, **_noise_reached(job))
+
+
+def _noise_reached(job: Job) -> dict:
+    """reached_error and target_reached of a done noise-target job whose noise was measured."""
+    if not job.reached_error or job.reached_error == "none" or job.spec.settings.target_error is None:
+        return {}
+    value = float(job.reached_error)
+    return {"reached_error": value, "target_reached": value <= job.spec.settings.target_error}
 
 
 _locks_guard = threading.Lock()

@@ -133,6 +133,37 @@ def _(b, out):
     return b / "scene.usda", {}
 
 
+def _names_itself(prim_meta: str = "") -> str:
+    """A prim whose assetInfo names its asset's file (`identifier = @Teapot.usd@`, as the
+    USD working group's teapot does) in a layer stored under another name, as an upload is."""
+    return ('def Xform "Teapot" (\n    assetInfo = { asset identifier = @Teapot.usd@ }\n'
+            f'{prim_meta})\n{{\n{MESH}}}\n')
+
+
+@case("asset_info_identifier_names_itself", "ok")
+def _(b, out):
+    (b / "scene.usda").write_text(layer(_names_itself()))
+    return b / "scene.usda", {}
+
+
+@case("asset_info_identifier_and_a_missing_payload", "error",
+      "layer './Teapot_Payload.usd' is not in the bundle")
+def _(b, out):
+    # The payload is what is missing, and the message must name it, not the identifier.
+    (b / "scene.usda").write_text(layer(_names_itself("    prepend payload = @./Teapot_Payload.usd@\n")))
+    return b / "scene.usda", {}
+
+
+@case("asset_info_identifier_also_a_clip", "error", "layer 'Teapot.usd' is not in the bundle",
+      "search-path lookups are not allowed")
+def _(b, out):
+    # Named as an identifier AND as a value clip, which USD does open: still refused.
+    clips = ('    clips = { dictionary default = { asset[] assetPaths = [@Teapot.usd@]\n'
+             '        string primPath = "/Clip"\n        double2[] active = [(0, 0)] } }\n')
+    (b / "scene.usda").write_text(layer(_names_itself(clips)))
+    return b / "scene.usda", {}
+
+
 @case("value_clip_escapes", "error", "../outside/secret.usda")
 def _(b, out):
     (b / "scene.usda").write_text(layer(textwrap.dedent("""\
