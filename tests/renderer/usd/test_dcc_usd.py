@@ -266,7 +266,9 @@ def test_textures_of_a_usdz_referenced_from_a_layer(tmp_path):
     layer = _red_asset_layer(tmp_path / "src")
     _usdz(tmp_path / "asset.usdz", [(layer, "asset.usda"), (layer.parent / "tex.png", "tex.png")])
     path = _set_referencing(tmp_path / "set.usda", "./asset.usdz")
-    scene = load_scene(path)
+    # Unlit: the red emission alone (1.0) is under the threshold that makes emission
+    # lighting (docs/scene-translation.md), and only the texture is checked here.
+    scene = load_scene(path, default_light=False)
     assert not any("missing" in w for w in scene.warnings), scene.warnings
     _centre_is_red(scene)
     # The same set as a farm bundle (.zip of set + package) through the blob.
@@ -274,7 +276,7 @@ def test_textures_of_a_usdz_referenced_from_a_layer(tmp_path):
     with zipfile.ZipFile(bundle, "w") as zf:
         zf.write(path, "set.usda")
         zf.write(tmp_path / "asset.usdz", "asset.usdz")
-    _centre_is_red(scene_from_blob(translate_to_blob(bundle)))
+    _centre_is_red(scene_from_blob(translate_to_blob(bundle), default_light=False))
 
 
 def test_textures_of_a_package_nested_in_a_package(tmp_path):
@@ -283,11 +285,11 @@ def test_textures_of_a_package_nested_in_a_package(tmp_path):
     outer_layer = tmp_path / "src" / "outer.usda"
     _set_referencing(outer_layer, "./inner.usdz")
     _usdz(tmp_path / "outer.usdz", [(outer_layer, "outer.usda"), (inner, "inner.usdz")])
-    scene = load_scene(_set_referencing(tmp_path / "set.usda", "./outer.usdz"))
+    scene = load_scene(_set_referencing(tmp_path / "set.usda", "./outer.usdz"), default_light=False)
     assert not any("missing" in w or "composition" in w for w in scene.warnings), scene.warnings
     _centre_is_red(scene)
     # Submitted as the bundle itself, the outer package is unpacked; the inner stays a package.
-    _centre_is_red(load_scene(tmp_path / "outer.usdz"))
+    _centre_is_red(load_scene(tmp_path / "outer.usdz", default_light=False))
 
 
 def test_package_members_obey_the_sandbox(tmp_path):
