@@ -54,6 +54,8 @@ class SceneInfo:
     # The stage's Camera prims (None: an inspection remembered from before they were listed).
     cameras: list[str] | None = None
     camera_note: str | None = None  # the warning naming which of several cameras renders
+    # The scene's brightest light as a black image's warning names it (SceneData.brightest_light).
+    brightest_light: str | None = None
 
 
 def _limits(memory_bytes: int):
@@ -97,7 +99,9 @@ def inspect_scene(path: str, *, timeout: float, memory_bytes: int,
                                              if result.get("unlit_warnings") is not None else None),
                              cameras=([str(c) for c in result["cameras"]]
                                       if result.get("cameras") is not None else None),
-                             camera_note=(str(result["camera_note"]) if result.get("camera_note") else None))
+                             camera_note=(str(result["camera_note"]) if result.get("camera_note") else None),
+                             brightest_light=(str(result["brightest_light"]) if result.get("brightest_light")
+                                              else None))
         except (KeyError, TypeError, ValueError) as e:
             raise PreflightBroken(f"scene inspection returned an unexpected answer: {result!r}") from e
 

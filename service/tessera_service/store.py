@@ -29,6 +29,7 @@ class Job:
     warnings: list[str]
     error: str | None
     owner: str | None = None
+    brightest_light: str | None = None  # what a black image's warning names
 
     @property
     def final(self) -> bool:
@@ -113,7 +114,8 @@ class JobStore:
             pipe.execute()
 
     # ------------------------------------------------------------------ jobs
-    def create_job(self, spec: JobSpec, warnings: list[str], owner: str | None = None) -> int:
+    def create_job(self, spec: JobSpec, warnings: list[str], owner: str | None = None,
+                   brightest_light: str | None = None) -> int:
         """Creates the job (owned by the API user `owner`; None: by nobody, so that only
         admins see it), its queue with the first pass
         of every tile, and its place in the schedule, in one transaction: workers never see
@@ -138,6 +140,7 @@ class JobStore:
                 "retention": int(self.retention),
                 "warnings": json.dumps(warnings),
                 **({"owner": owner} if owner is not None else {}),
+                **({"brightest_light": brightest_light} if brightest_light else {}),
             })
             pipe.zadd(rdb.JOB_INDEX, {spec.job_id: now})
             if owner is not None:
@@ -259,6 +262,28 @@ class JobStore:
         """The job's splat sums (redis_schema.job_splats_key), for merging."""
         return self.redis.hgetall(rdb.job_splats_key(job_id))
 
+    def add_warning(self, job_id: str, warning: str) -> bool:
+        """Adds a warning found once the job's image exists (a black image) to its
+        warnings and its log, once; False when it was there already or the job is gone."""
+        key = rdb.job_key(job_id)
+        with self.redis.pipeline(transaction=True) as pipe:
+            while True:
+                try:
+                    pipe.watch(key)
+                    raw = pipe.hget(key, "warnings")
+                    if raw is None:
+                        return False
+                    warnings = json.loads(raw)
+                    if warning in warnings:
+                        return False
+                    pipe.multi()
+                    pipe.hset(key, "warnings", json.dumps([*warnings, warning]))
+                    pipe.rpush(rdb.job_log_key(job_id), f"{time.time()!r} warning: {warning}")
+                    pipe.execute()
+                    return True
+                except redis.WatchError:
+                    continue
+
     def log(self, job_id: str) -> list[str]:
         return [line.decode(errors="replace")
                 for line in self.redis.lrange(rdb.job_log_key(job_id), 0, -1)]
@@ -352,6 +377,7 @@ def _job(fields: dict[bytes, bytes]) -> Job:
         warnings=json.loads(f.get("warnings") or "[]"),
         error=f.get("error") or None,
         owner=f.get("owner"),
+        brightest_light=f.get("brightest_light") or None,
     )
 
 

@@ -141,6 +141,8 @@ def _render_one(args: argparse.Namespace) -> int:
     result = image.metadata
     preview = output.with_suffix(".png")
     write_png_preview(preview, image.rgba)
+    if result.get("black_warning"):
+        print(f"warning: {result['black_warning']}", file=sys.stderr)
     if result["denoise_warning"]:
         print(f"warning: {result['denoise_warning']}", file=sys.stderr)
     elif settings.denoise:
