@@ -250,13 +250,17 @@ AxisRanges WrapRanges(int64_t i0, int64_t i1, int64_t n, WrapMode mode) {
             one(a, n - 1);
             one(0, b);
         }
-    } else {  // mirror: one reflected copy when both ends lie in the same half period
-        const int64_t a = FloorMod(i0, 2 * n), b = FloorMod(i1, 2 * n);
-        if (a <= b && (b < n || a >= n)) {
-            const int64_t wa = WrapIndex(i0, n, mode), wb = WrapIndex(i1, n, mode);
+    } else {  // mirror: cut where the reflection turns (multiples of n); each piece is a run
+        const int64_t cut = (i0 >= 0 ? i0 / n + 1 : -((-i0 - 1) / n)) * n;  // first multiple of n above i0
+        auto piece = [&](int64_t a, int64_t b) {
+            const int64_t wa = WrapIndex(a, n, mode), wb = WrapIndex(b, n, mode);
             one(std::min(wa, wb), std::max(wa, wb));
-        } else {
-            one(0, n - 1);
+        };
+        if (cut > i1) {
+            piece(i0, i1);
+        } else {  // shorter than n: at most one cut
+            piece(i0, cut - 1);
+            piece(cut, i1);
         }
     }
     return r;

@@ -211,6 +211,24 @@ def test_dark_parts_of_an_emissive_map_make_no_emitters(tmp_path):
     assert load_scene(path, default_light=False).num_emitters == 2 * N * N
 
 
+@pytest.mark.parametrize("wrap", ["repeat", "clamp", "mirror"])
+def test_a_lit_column_at_the_edge_reaches_across_as_the_wrap_mode_reads(tmp_path, wrap):
+    """The map's first texel column lit: every quad of columns 0 and 1 reads it, and the
+    last column's quads read it across the edge under repeat (texel N wraps to 0) but not
+    under clamp or mirror (texel N is N - 1). Counted from the layout: 2 N (2 or 3)."""
+    img = np.zeros((N, N, 3), np.uint8)
+    img[:, 0] = 255
+    _write_png(tmp_path / "edge.png", img)
+    stage = new_stage(tmp_path / "edge.usda")
+    mat = _emission_texture(stage, "/A/Looks/M", "./edge.png")
+    tex = UsdShade.Shader(stage.GetPrimAtPath("/A/Looks/M/emissive_texture"))
+    for name in ("wrapS", "wrapT"):
+        tex.CreateInput(name, Sdf.ValueTypeNames.Token).Set(wrap)
+    _grid(stage, "/A/Mesh", N, 1.0, mat)
+    scene = load_scene(_save(stage), default_light=False)
+    assert scene.num_emitters == 2 * N * (3 if wrap == "repeat" else 2)
+
+
 def test_the_lit_patch_still_shows_its_authored_radiance(tmp_path):
     """Camera rays see the patch's emission, the authored white texel (sRGB 1 -> 1.0 x
     emissiveFactor 3), at pixels wholly inside it; the black rest shows nothing."""
