@@ -838,3 +838,43 @@ def test_materialx_math_on_an_image_folds_into_the_texture(tmp_path):
         np.testing.assert_allclose(img[8, 8, :3], want, atol=0.01, err_msg=name)
     warnings = translate_stage(scene_with("square", squared)).warnings
     assert any("two images is not evaluated" in w for w in warnings), warnings
+
+
+def _two_looks_mtlx(path):
+    """A MaterialX document as Houdini writes an asset's looks: two standard_surface
+    materials, "Red" and "Blue", with authored base colours."""
+    import MaterialX as mx
+
+    doc = mx.createDocument()
+    for name, color in (("Red", (0.7, 0.1, 0.05)), ("Blue", (0.05, 0.2, 0.6))):
+        shader = doc.addNode("standard_surface", f"SR_{name}", "surfaceshader")
+        shader.setInputValue("base_color", mx.Color3(*color))
+        doc.addMaterialNode(name, shader)
+    mx.writeToXmlFile(doc, str(path))
+
+
+@pytest.mark.parametrize("arc", ["reference", "payload", "sublayer"])
+def test_mtlx_layers_referenced_payloaded_or_sublayered_bind_as_the_file_binds_them(tmp_path, arc):
+    """Issue 43: `references = @./asset_mat.mtlx@</MaterialX/Materials>` on a scope (or a
+    payload, or the document as a sublayer): usd-core composes no prim there, the meshes'
+    bindings dangle; Tessera reads each bound material from the document. A binding to a
+    material the document lacks is named in the one grey line (negative control)."""
+    _two_looks_mtlx(tmp_path / "asset_mat.mtlx")
+    stage = new_stage(tmp_path / "asset.usda")
+    if arc == "sublayer":
+        stage.GetRootLayer().subLayerPaths.append("./asset_mat.mtlx")
+        looks = "/MaterialX/Materials"
+    else:
+        scope = stage.DefinePrim("/Asset/Materials", "Scope")
+        (scope.GetReferences().AddReference if arc == "reference" else scope.GetPayloads().AddPayload)(
+            "./asset_mat.mtlx", "/MaterialX/Materials")
+        looks = "/Asset/Materials"
+    for k, (name, look) in enumerate((("A", "Red"), ("B", "Blue"), ("C", "Green"))):
+        mesh = _quad(stage, f"/Asset/Geo/{name}", z=float(k))
+        UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).GetDirectBindingRel().SetTargets([f"{looks}/{look}"])
+    data = translate_stage(_save(stage))
+    for authored in ((0.7, 0.1, 0.05), (0.05, 0.2, 0.6)):  # standard_surface: base 1 x base_color
+        assert any(np.allclose(a, authored, atol=1e-6) for a in data.albedo), (authored, data.albedo)
+    lines = [w for w in data.warnings if "grey" in w]
+    assert lines == [f"1 material(s) fell back to the default grey: {looks}/Green (no material 'Green' in "
+                     f"asset_mat.mtlx)"], data.warnings
