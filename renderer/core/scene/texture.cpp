@@ -310,10 +310,15 @@ bool TextureSet::ZeroOverImage(const ZeroGrid& g, const Image& im, float s0, flo
                                WrapMode ws, WrapMode wt) const {
     // Texel centres at half-integers, rows top to bottom (Bilinear): a lookup at x reads
     // floor(x) and floor(x) + 1.
+    // Widened by a margin for float rounding: lookups interpolate st and scale it to
+    // texels in float, which may land a hair outside the corners' box.
     const double w = im.width, h = im.height;
-    const int64_t x0 = int64_t(std::floor(double(s0) * w - 0.5)), x1 = int64_t(std::floor(double(s1) * w - 0.5)) + 1;
-    const int64_t y0 = int64_t(std::floor((1.0 - double(t1)) * h - 0.5));
-    const int64_t y1 = int64_t(std::floor((1.0 - double(t0)) * h - 0.5)) + 1;
+    const double mx = 0.01 + 1e-6 * w * std::max(std::abs(double(s0)), std::abs(double(s1)));
+    const double my = 0.01 + 1e-6 * h * std::max(std::abs(double(t0)), std::abs(double(t1)));
+    const int64_t x0 = int64_t(std::floor(double(s0) * w - 0.5 - mx));
+    const int64_t x1 = int64_t(std::floor(double(s1) * w - 0.5 + mx)) + 1;
+    const int64_t y0 = int64_t(std::floor((1.0 - double(t1)) * h - 0.5 - my));
+    const int64_t y1 = int64_t(std::floor((1.0 - double(t0)) * h - 0.5 + my)) + 1;
     const AxisRanges xs = WrapRanges(x0, x1, im.width, ws), ys = WrapRanges(y0, y1, im.height, wt);
     for (int i = 0; i < xs.count; ++i)
         for (int j = 0; j < ys.count; ++j)
@@ -336,14 +341,18 @@ bool TextureSet::ZeroOverTriangle(uint32_t texture, const Vec2 st[3]) const {
             s = p.m[0] * st[k].x + p.m[1] * st[k].y + p.m[4];
             t = p.m[2] * st[k].x + p.m[3] * st[k].y + p.m[5];
         }
-        if (!std::isfinite(s) || !std::isfinite(t) || std::abs(s) > 1e6f || std::abs(t) > 1e6f) return false;
+        if (!std::isfinite(s) || !std::isfinite(t) || std::abs(s) > 1e4f || std::abs(t) > 1e4f) return false;
         s0 = std::min(s0, s), s1 = std::max(s1, s), t0 = std::min(t0, t), t1 = std::max(t1, t);
     }
     int32_t image = d.image;
     WrapMode ws = d.wrap_s, wt = d.wrap_t;
     if (!d.udim_tiles.empty()) {
         const float fu = std::floor(s0), fv = std::floor(t0);
-        if (fu != std::floor(s1) || fv != std::floor(t1) || fu < 0.f || fu > 9.f || fv < 0.f || fv > 9.f) return false;
+        // Within one tile by a margin: a lookup's rounding must not carry it to the next.
+        const float e = 1e-5f;
+        if (fu != std::floor(s1) || fv != std::floor(t1) || fu < 0.f || fu > 9.f || fv < 0.f || fv > 9.f ||
+            s0 - fu < e || fu + 1.f - s1 < e || t0 - fv < e || fv + 1.f - t1 < e)
+            return false;
         image = d.udim_tiles[size_t(fv) * 10 + size_t(fu)];
         s0 -= fu, s1 -= fu, t0 -= fv, t1 -= fv;
         ws = wt = WrapMode::kClamp;

@@ -326,8 +326,9 @@ def apply_default_lighting(data: SceneData) -> SceneData:
 
 
 def _emits(rows: list[dict], tri_material: np.ndarray, prototypes: list[dict]) -> bool:
-    """Whether any triangle's material emits: a constant emissiveColor above 0, or an
-    emissiveColor texture (whose constant is only its fallback, often 0)."""
+    """Whether any triangle's material may emit: a constant emissiveColor above 0, or an
+    emissiveColor texture (whose constant is only its fallback, often 0). A cheap first
+    test: usd/emission.py measures what it emits."""
     used = set(np.unique(tri_material).tolist())
     for proto in prototypes:
         used.update(np.unique(proto["triangle_material"]).tolist())

@@ -30,7 +30,8 @@ from .camera import (CameraDesc, _camera_from_prim, _default_camera, _find_rende
                      select_camera)
 from .errors import SceneError, local_to_world
 from .instancing import _InstanceReader, _instance_corners
-from .lights import DEFAULT_LIGHTING_NAME, NO_LIGHT_WARNING, _LightReader, _emits, apply_default_lighting, default_lighting
+from .lights import (DEFAULT_LIGHTING_NAME, NO_LIGHT_WARNING, _LightReader, _emits, apply_default_lighting,
+                     default_lighting)
 from .materials import _COLOR_INPUTS, _MaterialReader, _MaterialTable, _SCALAR_INPUTS, _as_tuple
 from .meshes import _Chunk, _MeshReader, _face_normals, _normalized
 from .motion import Shutter, _MotionReader, render_time, shutter_interval
@@ -114,7 +115,8 @@ class SceneData:
     world_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # Lights for a stage that has none (see default_lighting), not yet part of the light
     # tables above; Scene adds them unless default lighting is switched off. None when the
-    # stage has a light (emissive geometry counts) or they were applied already.
+    # stage has a UsdLux light or emission strong enough to light it (usd/emission.py), or
+    # they were applied already.
     default_lights: dict | None = None
     # The light a black image's warning names: the UsdLux light with the largest authored
     # intensity x 2^exposure x luminance(color), as "path (type, intensity I)"; for a
@@ -594,7 +596,7 @@ def _emission_lights(tr, rows, positions, indices, tri_material, prototypes, ins
     if power <= 0:
         return False, None  # provably zero: nothing to say beyond the light-less line
     share = power / reference if reference > 0 else 0.0
-    return False, (f"the scene's only emission ({count} emissive triangles, power {power:.3g}) is "
+    return False, (f"the scene's only emission ({count} triangles of emissive materials, power {power:.3g}) is "
                    f"{100 * share:.2g} % of what the default lighting gives it ({reference:.3g}), below "
                    f"the {100 * emission.EMISSION_LIGHTS_FRACTION:.0f} % that counts as lighting: the "
                    f"emission still shows, the default lighting lights the rest")
