@@ -15,6 +15,9 @@ import numpy as np
 # 0.03 over a surface of 2.5 pi R^2) about 3 %.
 EMISSION_LIGHTS_FRACTION = 0.05
 REC709 = np.array([0.2126, 0.7152, 0.0722])
+# The end of the line a weakly emitting stage gets, lit by default or (job setting) not.
+EMISSION_DEFAULT_LIT = "the emission still shows, the default lighting lights the rest"
+EMISSION_UNLIT = "with default lighting off, the emission alone lights it (dimly)"
 
 
 def default_lighting_power(radius: float, dome_radiance: float, key_illuminance: float) -> float:

@@ -598,8 +598,8 @@ def _emission_lights(tr, rows, positions, indices, tri_material, prototypes, ins
     share = power / reference if reference > 0 else 0.0
     return False, (f"the scene's only emission ({count} triangles of emissive materials, power {power:.3g}) is "
                    f"{100 * share:.2g} % of what the default lighting gives it ({reference:.3g}), below "
-                   f"the {100 * emission.EMISSION_LIGHTS_FRACTION:.0f} % that counts as lighting: the "
-                   f"emission still shows, the default lighting lights the rest")
+                   f"the {100 * emission.EMISSION_LIGHTS_FRACTION:.0f} % that counts as lighting: "
+                   f"{emission.EMISSION_DEFAULT_LIT}")
 
 
 def _visible_cameras(stage, time) -> list:

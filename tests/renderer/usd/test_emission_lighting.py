@@ -163,6 +163,10 @@ def test_faint_emissive_map_gets_default_lighting_and_its_power_is_measured(tmp_
     lines = _light_lines(data.warnings)
     assert lines[0] == NO_LIGHT_WARNING and len(lines) == 2
     assert f"{2 * N * N} triangles of emissive materials" in lines[1]
+    assert "default lighting lights the rest" in lines[1]
+    unlit = load_scene(_helmet(tmp_path, name="unlit.usda"), default_light=False)
+    assert [w for w in unlit.warnings if "only emission" in w][0].endswith(
+        "with default lighting off, the emission alone lights it (dimly)")
     power, reference = _note_power(data.warnings)
     # Closed forms from the authored file: the quad (area 4) emits pi * 4 * (white texel
     # share); the default lighting gives pi 0.5 * 4 pi R^2 + 0.8 pi * pi R^2, R = sqrt 2.
