@@ -413,6 +413,10 @@ def cmd_submit(args: argparse.Namespace) -> int:
                     output = Path(numbered_path(str(output), next(iter(job.frames))))
                 else:
                     farm.download(job.id, output)
+                    # Found once the image is merged (a black image): not in the submit answer.
+                    for w in farm.status(job.id).warnings:
+                        if w not in job.warnings:
+                            print(f"warning: {w}", file=sys.stderr)
             except FarmError as exc:
                 if exc.status_code is None:
                     raise

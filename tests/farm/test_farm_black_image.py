@@ -4,7 +4,10 @@ brightest light its pre-flight found, as a local render prints it
 (tests/renderer/test_black_image_warning.py)."""
 from __future__ import annotations
 
-from conftest import api_client, farm_image, start_worker, submit, wait_for_job
+import subprocess
+import sys
+
+from conftest import api_client, clean_env, farm_image, start_worker, submit, wait_for_job
 from tessera_base.film import BLACK_PIXEL, BLACK_SHARE
 
 # A Blender export's hair scene: one SphereLight of intensity 10 (the exporter's value,
@@ -60,5 +63,13 @@ def test_a_black_farm_image_names_its_brightest_light(redis_server, tmp_path):
                     assert len(log) == 1, log
                 else:
                     assert warnings == [] and log == []
+                # `tessera submit --wait` prints it once the image it downloads is merged.
+                proc = subprocess.run([sys.executable, "-m", "tessera", "submit", str(scene), "--server",
+                                       str(farm.base_url), "--wait", "-q", "-o", str(tmp_path / "cli.exr"),
+                                       "--res", "24x24", "--spp", "2", "--tile", "16"],
+                                      env=clean_env(), capture_output=True, text=True, timeout=300)
+                assert proc.returncode == 0, proc.stderr
+                printed = [ln for ln in proc.stderr.splitlines() if "black for its exposure" in ln]
+                assert len(printed) == (1 if black else 0), proc.stderr
         finally:
             worker.stop()
