@@ -596,8 +596,8 @@ def _emission_lights(tr, rows, positions, indices, tri_material, prototypes, ins
     if power <= 0:
         return False, None  # provably zero: nothing to say beyond the light-less line
     share = power / reference if reference > 0 else 0.0
-    return False, (f"the scene's only emission ({count} triangles of emissive materials, power {power:.3g}) is "
-                   f"{100 * share:.2g} % of what the default lighting gives it ({reference:.3g}), below "
+    return False, (f"the scene's only emission ({count} triangles of emissive materials, power {power:.4g}) is "
+                   f"{100 * share:.2g} % of what the default lighting gives it ({reference:.4g}), below "
                    f"the {100 * emission.EMISSION_LIGHTS_FRACTION:.0f} % that counts as lighting: "
                    f"{emission.EMISSION_DEFAULT_LIT}")
 

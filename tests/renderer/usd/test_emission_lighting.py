@@ -269,3 +269,25 @@ def test_the_bundled_cornell_box_keeps_its_emissive_ceiling_light(cornell_path):
     lighting's power, above the threshold, so it stays the scene's only light."""
     data = translate_stage(str(cornell_path))
     assert data.default_lights is None and not _light_lines(data.warnings)
+
+
+@pytest.mark.parametrize("instancing", ["auto", "flatten"])
+def test_instanced_emitters_count_each_instance_with_its_scale(tmp_path, instancing):
+    """A PointInstancer of four unit quads emitting 0.1, scaled 2: pi x 4 x (2 x 2) x 0.1
+    whether the instances stay Embree instances (area x |det|^(2/3)) or are flattened."""
+    stage = new_stage(tmp_path / "inst.usda")
+    glow = add_material(stage, "/Looks/G", (0, 0, 0), emissive=(0.1, 0.1, 0.1))
+    points = UsdGeom.PointInstancer.Define(stage, "/P")
+    quad = UsdGeom.Mesh.Define(stage, "/P/Protos/Q")
+    quad.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)])
+    quad.CreateFaceVertexCountsAttr([4])
+    quad.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    UsdShade.MaterialBindingAPI.Apply(quad.GetPrim()).Bind(glow)
+    points.CreatePrototypesRel().SetTargets([quad.GetPath()])
+    points.CreateProtoIndicesAttr([0] * 4)
+    points.CreatePositionsAttr([Gf.Vec3f(2 * i, 0, 0) for i in range(4)])
+    points.CreateScalesAttr([Gf.Vec3f(2, 2, 2)] * 4)
+    data = translate_stage(_save(stage), instancing=instancing)
+    assert (len(data.instances) == 4) is (instancing == "auto")
+    power, _ = _note_power(data.warnings)
+    assert power == pytest.approx(math.pi * 16 * 0.1, rel=1e-3)
