@@ -204,22 +204,24 @@ class _MaterialReader:
 
         from . import mtlx
 
-        name = target.name
         where = str(target)
         reason = "no material at the bound path"
-        arcs = []
-        path = target.GetParentPath()
+        arcs = []  # (layer, asset path, material name)
+        path = target
         while not path.isEmpty and path != path.absoluteRootPath:
             prim = stage.GetPrimAtPath(path)
             if prim:
                 for spec in prim.GetPrimStack():
-                    arcs += [(spec.layer, arc.assetPath)
-                             for arc in list(spec.referenceList.GetAddedOrExplicitItems()) +
-                             list(spec.payloadList.GetAddedOrExplicitItems())]
+                    for arc in list(spec.referenceList.GetAddedOrExplicitItems()) + \
+                            list(spec.payloadList.GetAddedOrExplicitItems()):
+                        # On the bound prim itself (typeless: its arc did not compose), the
+                        # arc names the material; above it, the bound path's last element.
+                        own = path == target and not arc.primPath.isEmpty
+                        arcs.append((spec.layer, arc.assetPath, arc.primPath.name if own else target.name))
             path = path.GetParentPath()
         for layer in stage.GetLayerStack(includeSessionLayers=False):
-            arcs += [(layer, sub) for sub in layer.subLayerPaths]
-        for layer, asset in arcs:
+            arcs += [(layer, sub, target.name) for sub in layer.subLayerPaths]
+        for layer, asset, name in arcs:
             if not asset.lower().endswith(".mtlx"):
                 continue
             anchor = os.path.dirname(layer.realPath)

@@ -853,7 +853,7 @@ def _two_looks_mtlx(path):
     mx.writeToXmlFile(doc, str(path))
 
 
-@pytest.mark.parametrize("arc", ["reference", "payload", "sublayer"])
+@pytest.mark.parametrize("arc", ["reference", "payload", "sublayer", "bound prim"])
 def test_mtlx_layers_referenced_payloaded_or_sublayered_bind_as_the_file_binds_them(tmp_path, arc):
     """Issue 43: `references = @./asset_mat.mtlx@</MaterialX/Materials>` on a scope (or a
     payload, or the document as a sublayer): usd-core composes no prim there, the meshes'
@@ -861,9 +861,15 @@ def test_mtlx_layers_referenced_payloaded_or_sublayered_bind_as_the_file_binds_t
     material the document lacks is named in the one grey line (negative control)."""
     _two_looks_mtlx(tmp_path / "asset_mat.mtlx")
     stage = new_stage(tmp_path / "asset.usda")
+    prefix = ""
     if arc == "sublayer":
         stage.GetRootLayer().subLayerPaths.append("./asset_mat.mtlx")
         looks = "/MaterialX/Materials"
+    elif arc == "bound prim":  # typeless prims, each referencing the material its arc names
+        looks, prefix = "/Asset/Looks", "M_"
+        for look in ("Red", "Blue", "Green"):
+            stage.OverridePrim(f"{looks}/{prefix}{look}").GetReferences().AddReference(
+                "./asset_mat.mtlx", f"/MaterialX/Materials/{look}")
     else:
         scope = stage.DefinePrim("/Asset/Materials", "Scope")
         (scope.GetReferences().AddReference if arc == "reference" else scope.GetPayloads().AddPayload)(
@@ -871,10 +877,10 @@ def test_mtlx_layers_referenced_payloaded_or_sublayered_bind_as_the_file_binds_t
         looks = "/Asset/Materials"
     for k, (name, look) in enumerate((("A", "Red"), ("B", "Blue"), ("C", "Green"))):
         mesh = _quad(stage, f"/Asset/Geo/{name}", z=float(k))
-        UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).GetDirectBindingRel().SetTargets([f"{looks}/{look}"])
+        UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).GetDirectBindingRel().SetTargets([f"{looks}/{prefix}{look}"])
     data = translate_stage(_save(stage))
     for authored in ((0.7, 0.1, 0.05), (0.05, 0.2, 0.6)):  # standard_surface: base 1 x base_color
         assert any(np.allclose(a, authored, atol=1e-6) for a in data.albedo), (authored, data.albedo)
     lines = [w for w in data.warnings if "grey" in w]
-    assert lines == [f"1 material(s) fell back to the default grey: {looks}/Green (no material 'Green' in "
+    assert lines == [f"1 material(s) fell back to the default grey: {looks}/{prefix}Green (no material 'Green' in "
                      f"asset_mat.mtlx)"], data.warnings
