@@ -22,6 +22,14 @@ def add_material(stage, path: str, diffuse=(0.5, 0.5, 0.5), emissive=(0.0, 0.0, 
     return mat
 
 
+def emission_only(stage, path: str = "/EmissionOnly") -> None:
+    """Marks a test rig whose emitters are its only light: a UsdLux light makes a stage lit
+    whatever its emission, and one of intensity 0 adds nothing (no emitter), so the rig
+    renders as authored instead of getting the default lighting a stage gets when its
+    emission is weak against the scene's size (docs/scene-translation.md)."""
+    UsdLux.DistantLight.Define(stage, path).CreateIntensityAttr(0.0)
+
+
 def add_mesh(stage, path: str, points, counts, indices, material=None, double_sided=False):
     mesh = UsdGeom.Mesh.Define(stage, path)
     mesh.CreatePointsAttr([Gf.Vec3f(*p) for p in points])

@@ -14,6 +14,7 @@ import numpy as np
 from . import _core
 from .usd import (NO_LIGHT_OFF_WARNING, NO_LIGHT_WARNING, SceneData, SceneError, apply_default_lighting,
                   translate_stage)
+from .usd.emission import EMISSION_DEFAULT_LIT, EMISSION_UNLIT
 
 __all__ = ["Scene", "SceneError", "load_scene", "NonFiniteSampleError", "AOV_NAMES", "integrators"]
 
@@ -291,7 +292,8 @@ def _with_default_lighting(data: SceneData, on: bool) -> SceneData:
     copy.__dict__.update(extra)
     if on:
         return apply_default_lighting(copy)
-    copy.warnings = [NO_LIGHT_OFF_WARNING if w == NO_LIGHT_WARNING else w for w in copy.warnings]
+    copy.warnings = [NO_LIGHT_OFF_WARNING if w == NO_LIGHT_WARNING else
+                     w.replace(EMISSION_DEFAULT_LIT, EMISSION_UNLIT) for w in copy.warnings]
     copy.default_lights = None
     return copy
 

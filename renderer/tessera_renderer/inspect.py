@@ -74,6 +74,8 @@ def main(argv: list[str] | None = None) -> int:
             # The warning naming the camera chosen among several: void for a job naming its own.
             "camera_note": next((w for w in scene.warnings if CAMERA_CHOICE_NOTE in w), None),
             "animated": bool(getattr(scene.data, "animated", True))}
+    # What a black image's warning names (the service finishes images without the renderer).
+    info["brightest_light"] = getattr(scene.data, "brightest_light", None)
     if scene.lit_by_default:
         info["unlit_warnings"] = scene.unlit_warnings
     print(json.dumps(info))

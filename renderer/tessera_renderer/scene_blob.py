@@ -54,8 +54,10 @@ BLOB_VERSION = 1
 # shaped Rect and Disk lights (material_shaping); 10: IES tables by vertical and horizontal
 # angle (SceneData.ies_tables; shaping columns 14: the table index and the +X axis),
 # shaped Cylinder lights (about their -Z) and Distant lights (along their direction),
-# still curves of the world as Embree round curves (SceneData.curves).
-TRANSLATOR_VERSION = 10
+# still curves of the world as Embree round curves (SceneData.curves); 11: light-lessness
+# by UsdLux lights and the measured power of material emission (usd/emission.py), and
+# SceneData.brightest_light.
+TRANSLATOR_VERSION = 11
 _ALIGN = 64
 _LIGHT_MOTION_FIELDS = ("light_motion_kinds", "light_motion_indices", "light_motion_time_steps",
                         "light_motion_transforms")
@@ -156,6 +158,7 @@ def scene_data_to_blob(data: SceneData) -> bytes:
         "material_textures": [[m, name, t] for (m, name), t in data.material_textures.items()],
         "dome_light": dome, "meters_per_unit": data.meters_per_unit, "up_axis": data.up_axis,
         "world_offset": list(data.world_offset), "default_lights": data.default_lights,
+        "brightest_light": data.brightest_light,
         "prototypes": len(data.prototypes), "translator_version": TRANSLATOR_VERSION,
         "time_code": data.time_code, "shutter": None if data.shutter is None else list(data.shutter),
     }
@@ -248,6 +251,7 @@ def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
         prototypes=prototypes, instances=arrays["instances"], instance_transforms=arrays["instance_transforms"],
         meters_per_unit=meta["meters_per_unit"], up_axis=meta["up_axis"],
         world_offset=tuple(meta["world_offset"]), default_lights=meta.get("default_lights"),
+        brightest_light=meta.get("brightest_light"),
         motion_instances=arrays.get("motion_instances", np.zeros(0, np.uint32)),
         motion_time_steps=arrays.get("motion_time_steps", np.zeros(0, np.uint32)),
         motion_transforms=arrays.get("motion_transforms", np.zeros((0, 4, 4), np.float32)),

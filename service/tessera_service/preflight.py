@@ -65,6 +65,8 @@ class SceneInfo:
     # Whether anything of the stage has time samples (False: every frame is the same image;
     # an inspection remembered from before this was recorded says True).
     animated: bool = True
+    # The scene's brightest light as a black image's warning names it (SceneData.brightest_light).
+    brightest_light: str | None = None
 
 
 def _limits(memory_bytes: int):
@@ -116,7 +118,9 @@ def inspect_scene(path: str, *, timeout: float, memory_bytes: int,
                              cameras=([str(c) for c in result["cameras"]]
                                       if result.get("cameras") is not None else None),
                              camera_note=(public(str(result["camera_note"])) if result.get("camera_note") else None),
-                             animated=bool(result.get("animated", True)))
+                             animated=bool(result.get("animated", True)),
+                             brightest_light=(str(result["brightest_light"]) if result.get("brightest_light")
+                                              else None))
         except (KeyError, TypeError, ValueError) as e:
             raise PreflightBroken(f"scene inspection returned an unexpected answer: {result!r}") from e
 

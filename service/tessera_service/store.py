@@ -32,6 +32,7 @@ class Job:
     # A done noise-target job's reached noise, once measured (remember_reached_error):
     # the number as text, "none" when the image has no noise estimate; None: not yet.
     reached_error: str | None = None
+    brightest_light: str | None = None  # what a black image's warning names
 
     @property
     def final(self) -> bool:
@@ -121,7 +122,8 @@ class JobStore:
             pipe.execute()
 
     # ------------------------------------------------------------------ jobs
-    def create_job(self, spec: JobSpec, warnings: list[str], owner: str | None = None) -> int:
+    def create_job(self, spec: JobSpec, warnings: list[str], owner: str | None = None,
+                   brightest_light: str | None = None) -> int:
         """Creates the job (owned by the API user `owner`; None: by nobody, so that only
         admins see it), its queue with the first pass
         of every tile, and its place in the schedule, in one transaction: workers never see
@@ -146,6 +148,7 @@ class JobStore:
                 "retention": int(self.retention),
                 "warnings": json.dumps(warnings),
                 **({"owner": owner} if owner is not None else {}),
+                **({"brightest_light": brightest_light} if brightest_light else {}),
             })
             pipe.zadd(rdb.JOB_INDEX, {spec.job_id: now})
             if owner is not None:
@@ -274,6 +277,28 @@ class JobStore:
                         "return redis.call('hset', KEYS[1], ARGV[1], ARGV[2]) end return 0",
                         1, rdb.job_key(job_id), "reached_error", "none" if value is None else repr(value))
 
+    def add_warning(self, job_id: str, warning: str) -> bool:
+        """Adds a warning found once the job's image exists (a black image) to its
+        warnings and its log, once; False when it was there already or the job is gone."""
+        key = rdb.job_key(job_id)
+        with self.redis.pipeline(transaction=True) as pipe:
+            while True:
+                try:
+                    pipe.watch(key)
+                    raw = pipe.hget(key, "warnings")
+                    if raw is None:
+                        return False
+                    warnings = json.loads(raw)
+                    if warning in warnings:
+                        return False
+                    pipe.multi()
+                    pipe.hset(key, "warnings", json.dumps([*warnings, warning]))
+                    pipe.rpush(rdb.job_log_key(job_id), f"{time.time()!r} warning: {warning}")
+                    pipe.execute()
+                    return True
+                except redis.WatchError:
+                    continue
+
     def log(self, job_id: str) -> list[str]:
         return [line.decode(errors="replace")
                 for line in self.redis.lrange(rdb.job_log_key(job_id), 0, -1)]
@@ -371,6 +396,7 @@ def _job(fields: dict[bytes, bytes]) -> Job:
         error=f.get("error") or None,
         owner=f.get("owner"),
         reached_error=f.get("reached_error"),
+        brightest_light=f.get("brightest_light") or None,
     )
 
 

@@ -214,6 +214,8 @@ def _render_one(args: argparse.Namespace) -> int:
     result = image.metadata
     preview = output.with_suffix(".png")
     write_png_preview(preview, image.rgba)
+    if result.get("black_warning"):
+        print(f"warning: {result['black_warning']}", file=sys.stderr)
     if result["denoise_warning"]:
         print(f"warning: {result['denoise_warning']}", file=sys.stderr)
     elif settings.denoise:
@@ -549,6 +551,10 @@ def cmd_submit(args: argparse.Namespace) -> int:
                     output = Path(numbered_path(str(output), next(iter(job.frames))))
                 else:
                     images = {None: farm.download(job.id, output)}
+                    # Found once the image is merged (a black image): not in the submit answer.
+                    for w in farm.status(job.id).warnings:
+                        if w not in job.warnings:
+                            print(f"warning: {w}", file=sys.stderr)
             except FarmError as exc:
                 if exc.status_code is None:
                     raise

@@ -15,7 +15,7 @@ import numpy as np
 from tqdm import tqdm
 
 from tessera_base import images, integrators
-from tessera_base.film import SplatSums, add_denoised, assemble_image, pass_image, render_tile_pass, run_scene_pass
+from tessera_base.film import SplatSums, add_denoised, assemble_image, black_image_warning, pass_image, render_tile_pass, run_scene_pass
 from tessera_base.convergence import PassAccumulator, combine_passes, image_finished, tile_finished
 from tessera_base.protocol import RenderSettings, TileRect, TileResult, pass_range, tile_grid
 
@@ -38,6 +38,8 @@ class LocalRenderResult:
     integrator: str = ""  # the integrator that rendered it (`auto` resolved)
     # settings.denoise: why aovs has no "denoised" layer (film.add_denoised), else None.
     denoise_warning: str | None = None
+    # film.black_image_warning: the image is black for its exposure, else None.
+    black_warning: str | None = None
 
     @property
     def samples_per_second(self) -> float:
@@ -86,6 +88,8 @@ def render_image(scene, settings: RenderSettings, threads: int = 0, progress: bo
     farm's merge adds it."""
     result = _render_image(scene, settings, threads, progress, variance)
     result.denoise_warning = add_denoised(settings, result.rgba, result.aovs)
+    data = getattr(scene, "data", None)
+    result.black_warning = black_image_warning(result.rgba, getattr(data, "brightest_light", None))
     return result
 
 

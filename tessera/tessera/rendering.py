@@ -167,7 +167,7 @@ def render_scene(scene, settings, *, scene_name: str, threads: int = 0, progress
                     warnings=[*getattr(scene, "warnings", []),
                               *integrators.scene_warnings(result.integrator,
                                                           curve_segments=getattr(scene, "num_curve_segments", 0))],
-                    denoise_warning=result.denoise_warning)
+                    denoise_warning=result.denoise_warning, black_warning=result.black_warning)
     if pilot is not None:
         metadata["tessera:auto"] = pilot.to_json()
         metadata["auto_pilot"] = pilot.summary()

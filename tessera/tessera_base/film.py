@@ -436,3 +436,30 @@ def add_denoised(settings: RenderSettings, rgba: np.ndarray, aovs: dict[str, np.
     except DenoiseError as e:
         return f"no denoised layer: {e}"
     return None
+
+
+# ------------------------------------------------------------------ black images
+# An image is black for its exposure when this share of its pixels stays below this
+# fraction of display white (1.0: Tessera applies no exposure, the PNG preview maps 1.0 to
+# white). A dim file (a Blender export's one SphereLight of intensity 10 far away) renders
+# so; the user deserves one line saying it is the file, with the light to turn up.
+BLACK_PIXEL = 0.01
+BLACK_SHARE = 0.99
+
+
+def black_image_warning(rgba: np.ndarray, brightest_light: str | None) -> str | None:
+    """One warning line when `rgba` (h, w, >= 3) is black for its exposure, naming the
+    scene's brightest light (SceneData.brightest_light); None otherwise. Local renders and
+    the service's merge both finish images through it."""
+    rgb = np.asarray(rgba)[..., :3]
+    if rgb.size == 0:
+        return None
+    # A pixel is dark when its brightest channel is; NaN (never written) counts as dark.
+    dark = ~(np.nanmax(np.where(np.isfinite(rgb), rgb, 0.0), axis=-1) >= BLACK_PIXEL)
+    share = float(dark.mean())
+    if share < BLACK_SHARE:
+        return None
+    light = brightest_light or "none: the scene has no light and no emission"
+    return (f"the image is black for its exposure: {100 * share:.1f} % of its pixels are below "
+            f"{100 * BLACK_PIXEL:g} % of display white (mean {float(np.nanmean(rgb)):.3g}); its brightest light "
+            f"is {light}; raise its intensity or exposure")

@@ -447,11 +447,28 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
         power.push_back(double(Luminance(emission_estimate[mi])) * area * kPi *
                         (materials_[mi].two_sided_emission ? 2.0 : 1.0));
     };
+    // Textured emission black over a triangle's whole st footprint (an emissive map's dark
+    // regions: a converted asset's trims glow, the rest is black) makes no emitter: such a
+    // triangle emits exactly nothing, so leaving it out of the light sampler and of hits'
+    // emission changes no expectation and saves an entry per triangle.
+    auto emits_nothing = [&](const Mesh& mesh, uint32_t t) {
+        if constexpr (!kFullFeatures) return false;
+        const int32_t tex = materials_[mesh.material[t]].textures[kSlotEmissiveColor];
+        if (tex < 0) return false;
+        Vec2 st[3] = {};
+        if (!mesh.uvs.empty())
+            for (int c = 0; c < 3; ++c) st[c] = {mesh.uvs[6 * size_t(t) + 2 * c], mesh.uvs[6 * size_t(t) + 2 * c + 1]};
+        return textures_.ZeroOverTriangle(uint32_t(tex), st);
+    };
+    if constexpr (kFullFeatures)
+        for (size_t m = 0; m < materials_.size(); ++m)
+            if (materials_[m].textures[kSlotEmissiveColor] >= 0 && !IsBlack(emission_estimate[m]))
+                textures_.PrepareZeroTest(uint32_t(materials_[m].textures[kSlotEmissiveColor]));
     for (size_t k = 0; k < meshes_.size(); ++k) {
         Mesh& mesh = meshes_[k];
         mesh.emitter.assign(mesh.num_triangles, kNoEmitter);
         for (uint32_t t = 0; t < mesh.num_triangles; ++t) {
-            if (IsBlack(emission_estimate[mesh.material[t]])) continue;
+            if (IsBlack(emission_estimate[mesh.material[t]]) || emits_nothing(mesh, t)) continue;
             Vec3 p[3];
             TriangleVertices(uint32_t(k), t, kNoInstance, p);
             if (!(Length(Cross(p[1] - p[0], p[2] - p[0])) > 0.f)) continue;  // degenerate: never hit, never sampled
@@ -463,6 +480,7 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
             }
         }
     }
+    textures_.ReleaseZeroTests();
     // Every instance of a prototype with emissive triangles is a light of its own.
     for (uint32_t i = 0; i < instances_.size(); ++i) {
         const Mesh& mesh = meshes_[instances_[i].mesh];

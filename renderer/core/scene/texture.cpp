@@ -1,5 +1,6 @@
 #include "texture.h"
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -215,6 +216,151 @@ Color TextureSet::MeanColor(uint32_t texture) const {
     RGBA mean;
     for (int c = 0; c < 4; ++c) mean[c] = float(sum[c] / double(count));
     return ToColor(mean, d.output);
+}
+
+namespace {
+
+// The texel indices [i0, i1] of one axis as read under a wrap mode: up to two ranges in
+// [0, n - 1] (count 0: nothing read, i.e. all outside a black border).
+struct AxisRanges {
+    int count = 0;
+    int64_t lo[2], hi[2];
+};
+
+int64_t FloorMod(int64_t i, int64_t n) { return ((i % n) + n) % n; }
+
+AxisRanges WrapRanges(int64_t i0, int64_t i1, int64_t n, WrapMode mode) {
+    AxisRanges r;
+    auto one = [&](int64_t a, int64_t b) {
+        r.lo[r.count] = a;
+        r.hi[r.count] = b;
+        ++r.count;
+    };
+    if (mode == WrapMode::kClamp) {
+        one(std::clamp<int64_t>(i0, 0, n - 1), std::clamp<int64_t>(i1, 0, n - 1));
+    } else if (mode == WrapMode::kBlack) {
+        if (i1 >= 0 && i0 <= n - 1) one(std::max<int64_t>(i0, 0), std::min<int64_t>(i1, n - 1));
+    } else if (i1 - i0 + 1 >= n) {
+        one(0, n - 1);
+    } else if (mode == WrapMode::kRepeat) {
+        const int64_t a = FloorMod(i0, n), b = FloorMod(i1, n);
+        if (a <= b) {
+            one(a, b);
+        } else {
+            one(a, n - 1);
+            one(0, b);
+        }
+    } else {  // mirror: cut where the reflection turns (multiples of n); each piece is a run
+        const int64_t cut = (i0 >= 0 ? i0 / n + 1 : -((-i0 - 1) / n)) * n;  // first multiple of n above i0
+        auto piece = [&](int64_t a, int64_t b) {
+            const int64_t wa = WrapIndex(a, n, mode), wb = WrapIndex(b, n, mode);
+            one(std::min(wa, wb), std::max(wa, wb));
+        };
+        if (cut > i1) {
+            piece(i0, i1);
+        } else {  // shorter than n: at most one cut
+            piece(i0, cut - 1);
+            piece(cut, i1);
+        }
+    }
+    return r;
+}
+
+}  // namespace
+
+bool TextureSet::ZeroGrid::Any(int64_t x0, int64_t x1, int64_t y0, int64_t y1) const {
+    const int64_t cx0 = x0 / cell, cx1 = x1 / cell + 1, cy0 = y0 / cell, cy1 = y1 / cell + 1;
+    const auto at = [&](int64_t x, int64_t y) { return int64_t(sat[size_t(y) * (cw + 1) + size_t(x)]); };
+    return at(cx1, cy1) - at(cx0, cy1) - at(cx1, cy0) + at(cx0, cy0) > 0;
+}
+
+void TextureSet::PrepareZeroTest(uint32_t texture) {
+    const TextureDesc& d = textures_[texture].desc;
+    std::vector<int32_t> used = d.udim_tiles;
+    if (used.empty()) used.push_back(d.image);
+    const int channels[2] = {d.output == TextureOutput::kRGB ? 0 : int(d.output),
+                             d.output == TextureOutput::kRGB ? 2 : int(d.output)};
+    for (int32_t i : used) {
+        if (i < 0 || zero_grids_.count({texture, i})) continue;
+        const Image& im = images_[i];
+        ZeroGrid g;
+        g.cell = std::max<uint32_t>(1, (std::max(im.width, im.height) + 1023) / 1024);
+        g.cw = (im.width + g.cell - 1) / g.cell;
+        g.ch = (im.height + g.cell - 1) / g.cell;
+        std::vector<uint8_t> positive(size_t(g.cw) * g.ch, 0);
+        for (uint32_t y = 0; y < im.height; ++y)
+            for (uint32_t x = 0; x < im.width; ++x) {
+                const RGBA v = Texel(im, x, y);
+                bool any = false;
+                for (int c = channels[0]; c <= channels[1]; ++c) any = any || v[c] * d.scale[c] + d.bias[c] > 0.f;
+                if (any) positive[size_t(y / g.cell) * g.cw + x / g.cell] = 1;
+            }
+        g.sat.assign(size_t(g.cw + 1) * (g.ch + 1), 0);
+        for (uint32_t y = 0; y < g.ch; ++y)
+            for (uint32_t x = 0; x < g.cw; ++x)
+                g.sat[size_t(y + 1) * (g.cw + 1) + x + 1] = positive[size_t(y) * g.cw + x] +
+                                                              g.sat[size_t(y) * (g.cw + 1) + x + 1] +
+                                                              g.sat[size_t(y + 1) * (g.cw + 1) + x] -
+                                                              g.sat[size_t(y) * (g.cw + 1) + x];
+        zero_grids_.emplace(std::make_pair(texture, i), std::move(g));
+    }
+}
+
+bool TextureSet::ZeroOverImage(const ZeroGrid& g, const Image& im, float s0, float s1, float t0, float t1,
+                               WrapMode ws, WrapMode wt) const {
+    // Texel centres at half-integers, rows top to bottom (Bilinear): a lookup at x reads
+    // floor(x) and floor(x) + 1.
+    // Widened by a margin for float rounding: lookups interpolate st and scale it to
+    // texels in float, which may land a hair outside the corners' box.
+    const double w = im.width, h = im.height;
+    const double mx = 0.01 + 1e-6 * w * std::max(std::abs(double(s0)), std::abs(double(s1)));
+    const double my = 0.01 + 1e-6 * h * std::max(std::abs(double(t0)), std::abs(double(t1)));
+    const int64_t x0 = int64_t(std::floor(double(s0) * w - 0.5 - mx));
+    const int64_t x1 = int64_t(std::floor(double(s1) * w - 0.5 + mx)) + 1;
+    const int64_t y0 = int64_t(std::floor((1.0 - double(t1)) * h - 0.5 - my));
+    const int64_t y1 = int64_t(std::floor((1.0 - double(t0)) * h - 0.5 + my)) + 1;
+    const AxisRanges xs = WrapRanges(x0, x1, im.width, ws), ys = WrapRanges(y0, y1, im.height, wt);
+    for (int i = 0; i < xs.count; ++i)
+        for (int j = 0; j < ys.count; ++j)
+            if (g.Any(xs.lo[i], xs.hi[i], ys.lo[j], ys.hi[j])) return false;
+    return true;
+}
+
+bool TextureSet::ZeroOverTriangle(uint32_t texture, const Vec2 st[3]) const {
+    const Prepared& p = textures_[texture];
+    const TextureDesc& d = p.desc;
+    const int c0 = d.output == TextureOutput::kRGB ? 0 : int(d.output), c1 = d.output == TextureOutput::kRGB ? 2 : c0;
+    // A positive bias lifts texels and the black border alike; a black border's missing
+    // weight leaves bias x (1 - weights), at most 0 only when the bias is.
+    for (int c = c0; c <= c1; ++c)
+        if (d.bias[c] > 0.f) return false;
+    float s0 = INFINITY, s1 = -INFINITY, t0 = INFINITY, t1 = -INFINITY;
+    for (int k = 0; k < 3; ++k) {
+        float s = st[k].x, t = st[k].y;
+        if (p.has_transform) {
+            s = p.m[0] * st[k].x + p.m[1] * st[k].y + p.m[4];
+            t = p.m[2] * st[k].x + p.m[3] * st[k].y + p.m[5];
+        }
+        if (!std::isfinite(s) || !std::isfinite(t) || std::abs(s) > 1e4f || std::abs(t) > 1e4f) return false;
+        s0 = std::min(s0, s), s1 = std::max(s1, s), t0 = std::min(t0, t), t1 = std::max(t1, t);
+    }
+    int32_t image = d.image;
+    WrapMode ws = d.wrap_s, wt = d.wrap_t;
+    if (!d.udim_tiles.empty()) {
+        const float fu = std::floor(s0), fv = std::floor(t0);
+        // Within one tile by a margin: a lookup's rounding must not carry it to the next.
+        const float e = 1e-5f;
+        if (fu != std::floor(s1) || fv != std::floor(t1) || fu < 0.f || fu > 9.f || fv < 0.f || fv > 9.f ||
+            s0 - fu < e || fu + 1.f - s1 < e || t0 - fv < e || fv + 1.f - t1 < e)
+            return false;
+        image = d.udim_tiles[size_t(fv) * 10 + size_t(fu)];
+        s0 -= fu, s1 -= fu, t0 -= fv, t1 -= fv;
+        ws = wt = WrapMode::kClamp;
+    }
+    if (image < 0) return false;  // the fallback: a constant the caller weighs
+    const auto it = zero_grids_.find({texture, image});
+    if (it == zero_grids_.end()) return false;
+    return ZeroOverImage(it->second, images_[image], s0, s1, t0, t1, ws, wt);
 }
 
 }  // namespace tessera

@@ -14,6 +14,8 @@
 
 #include <array>
 #include <cstdint>
+#include <map>
+#include <utility>
 #include <vector>
 
 #include "math.h"
@@ -66,7 +68,25 @@ public:
     // applied): what light selection uses as a textured emitter's mean radiance.
     Color MeanColor(uint32_t texture) const;
 
+    // Whether a texture emits nothing over a triangle: at every st inside the bounds of its
+    // corners `st` (transform applied), each texel a bilinear lookup reads has an output
+    // (scale and bias applied, the texture's output channels) of at most 0. False when it
+    // cannot tell (non-finite st, a positive bias, a UDIM box across tiles). The test runs
+    // on a grid of cells of up to 1024 per side, each "some texel positive": conservative,
+    // never wrong. PrepareZeroTest(texture) first; ReleaseZeroTests() frees the grids.
+    void PrepareZeroTest(uint32_t texture);
+    bool ZeroOverTriangle(uint32_t texture, const Vec2 st[3]) const;
+    void ReleaseZeroTests() { zero_grids_.clear(); }
+
 private:
+    // Per image of a prepared texture: a summed-area table of cells holding a positive texel.
+    struct ZeroGrid {
+        uint32_t cell = 1, cw = 0, ch = 0;
+        std::vector<uint32_t> sat;  // (cw + 1) x (ch + 1)
+        bool Any(int64_t x0, int64_t x1, int64_t y0, int64_t y1) const;  // texel ranges, inclusive
+    };
+    bool ZeroOverImage(const ZeroGrid& g, const Image& im, float s0, float s1, float t0, float t1, WrapMode ws,
+                       WrapMode wt) const;
     struct Prepared {
         TextureDesc desc;
         float m[6];  // st' = (m0 s + m1 t + m4, m2 s + m3 t + m5)
@@ -76,6 +96,7 @@ private:
     RGBA Texel(const Image& image, int64_t x, int64_t y) const;  // in range
     std::vector<Image> images_;
     std::vector<Prepared> textures_;
+    std::map<std::pair<uint32_t, int32_t>, ZeroGrid> zero_grids_;  // (texture, image)
 };
 
 }  // namespace tessera

@@ -214,3 +214,67 @@ TEST(Texture, RejectsBadInputWithAClearError) {
     TextureSet set({Grey(1, 1, {std::numeric_limits<float>::infinity()})}, {Tex(0)});
     EXPECT_EQ(set.EvaluateFloat(0, {0.5f, 0.5f}), 0.f);
 }
+
+// ZeroOverTriangle is a proof: wherever it says a triangle emits nothing, every lookup in
+// the triangle must give 0. Checked against dense lookups over random triangles of a
+// sparse image under every wrap mode, with a transform and on UDIM tiles; and it must
+// find the black triangles a hand count says are black (it is not trivially "false").
+TEST(Texture, ZeroOverTriangleNeverClaimsAnEmittingTriangle) {
+    const uint32_t w = 16, h = 8;
+    std::vector<float> v(w * h, 0.f);
+    v[3 * w + 5] = 1.f;   // one lit texel, row 3, column 5
+    v[7 * w + 15] = 0.5f;  // and one at the bottom-right corner (reached across edges)
+    std::vector<TextureDesc> descs;
+    for (WrapMode m : {WrapMode::kRepeat, WrapMode::kClamp, WrapMode::kMirror, WrapMode::kBlack})
+        descs.push_back(Tex(0, m, m));
+    TextureDesc xf = Tex(0);
+    xf.st_scale[0] = 1.7f;
+    xf.st_rotation_degrees = 33.f;
+    xf.st_translation[1] = 0.3f;
+    descs.push_back(xf);
+    TextureDesc udim = Tex(-1);
+    udim.udim_tiles.assign(100, -1);
+    udim.udim_tiles[0] = 0;
+    udim.udim_tiles[11] = 0;
+    descs.push_back(udim);
+    TextureSet set({Grey(w, h, v)}, descs);
+    uint64_t state = 12345;
+    auto uniform = [&] {
+        state = state * 6364136223846793005ULL + 1442695040888963407ULL;
+        return float(state >> 40) / float(1ULL << 24);
+    };
+    for (uint32_t t = 0; t < descs.size(); ++t) {
+        set.PrepareZeroTest(t);
+        int claimed = 0;
+        for (int k = 0; k < 3000; ++k) {
+            const float size = k % 3 == 0 ? 0.02f : (k % 3 == 1 ? 0.15f : 0.6f);
+            const Vec2 c{-1.5f + 4.f * uniform(), -1.5f + 4.f * uniform()};
+            const Vec2 st[3] = {c, {c.x + size * uniform(), c.y + size * uniform()},
+                                {c.x + size * uniform(), c.y - size * uniform()}};
+            if (!set.ZeroOverTriangle(t, st)) continue;
+            ++claimed;
+            for (int i = 0; i <= 12; ++i)
+                for (int j = 0; i + j <= 12; ++j) {
+                    const float b1 = i / 12.f, b2 = j / 12.f, b0 = 1.f - b1 - b2;
+                    const Vec2 p{b0 * st[0].x + b1 * st[1].x + b2 * st[2].x, b0 * st[0].y + b1 * st[1].y + b2 * st[2].y};
+                    ASSERT_LE(set.EvaluateFloat(t, p), 0.f) << "texture " << t << " at " << p.x << " " << p.y;
+                }
+        }
+        EXPECT_GT(claimed, 100) << "texture " << t << ": the test proves few triangles black";
+    }
+    // By hand, repeat: st box [0.05, 0.1] x [0.1, 0.2] reads columns 0..2, rows 5..7
+    // (texel centres at half-integers, rows from the top): no lit texel, black; a box over
+    // column 5 row 3 (s 0.34, t 0.56) is not.
+    const Vec2 black[3] = {{0.05f, 0.1f}, {0.1f, 0.1f}, {0.05f, 0.2f}};
+    const Vec2 lit[3] = {{0.33f, 0.55f}, {0.35f, 0.55f}, {0.33f, 0.57f}};
+    EXPECT_TRUE(set.ZeroOverTriangle(0, black));
+    EXPECT_FALSE(set.ZeroOverTriangle(0, lit));
+    // A positive bias lifts everything; non-finite st proves nothing.
+    TextureDesc biased = Tex(0);
+    biased.bias = {0.01f, 0.01f, 0.01f, 0.f};
+    TextureSet lifted({Grey(w, h, v)}, {biased});
+    lifted.PrepareZeroTest(0);
+    EXPECT_FALSE(lifted.ZeroOverTriangle(0, black));
+    const Vec2 nan_st[3] = {{std::numeric_limits<float>::quiet_NaN(), 0.f}, {0.1f, 0.1f}, {0.05f, 0.2f}};
+    EXPECT_FALSE(set.ZeroOverTriangle(0, nan_st));
+}

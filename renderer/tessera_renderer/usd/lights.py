@@ -38,6 +38,12 @@ class _LightReader:
             radiance = radiance / area
         if not np.isfinite(radiance).all() or (radiance < 0).any():
             raise SceneError(f"{prim.GetPath()}: light radiance {radiance.tolist()} must be finite and >= 0")
+        # What a black image's warning names: the light its author made brightest.
+        brightness = float(intensity * 2.0 ** exposure * (color @ np.array([0.2126, 0.7152, 0.0722])))
+        if self.brightest_light is None or brightness > self.brightest_light[0]:
+            where = f"{prim.GetPath()} ({prim.GetTypeName()}, intensity {intensity:g}" + \
+                (f", exposure {exposure:g}" if exposure else "") + ")"
+            self.brightest_light = (brightness, where)
         return radiance
 
     def add_light(self, prim, type_name: str) -> None:
@@ -92,6 +98,7 @@ class _LightReader:
         ShapingAPI (light_shaping) shapes the emission about the emitting normal ("normal":
         flat lights, whose normal is their -Z) or about the light's -Z ("axis": a cylinder,
         whose normals turn around it)."""
+        self.area_lights += 1
         m = self.world_matrix(prim)
         surface = {"values": {**self.defaults, "diffuseColor": (0.0, 0.0, 0.0),
                               "emissiveColor": tuple(float(x) for x in radiance)}, "textures": {}}
@@ -284,6 +291,7 @@ NO_LIGHT_WARNING = ("the scene has no lights: lit by the default lighting (a whi
                     "0.5 and a key light from above and left of the camera; --no-default-light or "
                     "the job setting default_light=false renders it unlit, i.e. black)")
 NO_LIGHT_OFF_WARNING = "the scene has no lights and default lighting is off: it renders black"
+DEFAULT_LIGHTING_NAME = "the default lighting (a dome of radiance 0.5 and a key light of illuminance 0.8 pi)"
 DEFAULT_DOME_RADIANCE = 0.5
 # The key light's illuminance on a surface facing it, and its angular diameter (degrees):
 # a white surface facing it reflects E / pi = 0.8 on top of the dome's 0.5.
@@ -318,8 +326,9 @@ def apply_default_lighting(data: SceneData) -> SceneData:
 
 
 def _emits(rows: list[dict], tri_material: np.ndarray, prototypes: list[dict]) -> bool:
-    """Whether any triangle's material emits: a constant emissiveColor above 0, or an
-    emissiveColor texture (whose constant is only its fallback, often 0)."""
+    """Whether any triangle's material may emit: a constant emissiveColor above 0, or an
+    emissiveColor texture (whose constant is only its fallback, often 0). A cheap first
+    test: usd/emission.py measures what it emits."""
     used = set(np.unique(tri_material).tolist())
     for proto in prototypes:
         used.update(np.unique(proto["triangle_material"]).tolist())

@@ -71,7 +71,15 @@ class _MaterialReader:
                 self._count_note("primvars:displayColor values that are not colours are ignored")
             if rows is not None and len(rows) > 0:
                 display = tuple(float(x) for x in rows[0])
-        if not material:
+        target = None if material else self._dangling_binding(bind_prim)
+        if target is not None:
+            # Bound to a path where no Material composed: a look in a .mtlx layer (usd-core
+            # has no usdMtlx plugin), read with the MaterialX reader, or named as grey.
+            key = (str(target), display)
+            if key not in self._surface_cache:
+                self._surface_cache[key] = self._mtlx_layer_surface(bind_prim.GetStage(), target, display)
+            surface = self._surface_cache[key]
+        elif not material:
             surface = self._plain_surface(display, str(geom_prim.GetPath()))
         else:
             mprim = material.GetPrim()
@@ -171,6 +179,63 @@ class _MaterialReader:
             values["opacityThreshold"] = (PRESENCE_MODE,)
         return {"values": values, "textures": {k: self.materials.add_texture(t) for k, t in textures.items()},
                 "preview": True}
+
+    @staticmethod
+    def _dangling_binding(bind_prim):
+        """The path a prim's direct binding (its own or its nearest bound ancestor's) names
+        when no Material stands there, else None."""
+        from pxr import UsdShade
+
+        prim = bind_prim
+        while prim and not prim.IsPseudoRoot():
+            rel = UsdShade.MaterialBindingAPI(prim).GetDirectBindingRel()
+            targets = rel.GetForwardedTargets() if rel else []
+            if targets:
+                bound = prim.GetStage().GetPrimAtPath(targets[0])
+                return None if bound and bound.IsA(UsdShade.Material) else targets[0]
+            prim = prim.GetParent()
+        return None
+
+    def _mtlx_layer_surface(self, stage, target, display) -> dict:
+        """The surface of a material bound at `target` that lives in a .mtlx document
+        referenced or payloaded by one of its ancestors (the document's material named
+        as the path's last element), or sublayered; grey, named, when there is none."""
+        import os
+
+        from . import mtlx
+
+        where = str(target)
+        reason = "no material at the bound path"
+        arcs = []  # (layer, asset path, material name)
+        path = target
+        while not path.isEmpty and path != path.absoluteRootPath:
+            prim = stage.GetPrimAtPath(path)
+            if prim:
+                for spec in prim.GetPrimStack():
+                    for arc in list(spec.referenceList.GetAddedOrExplicitItems()) + \
+                            list(spec.payloadList.GetAddedOrExplicitItems()):
+                        # On the bound prim itself (typeless: its arc did not compose), the
+                        # arc names the material; above it, the bound path's last element.
+                        own = path == target and not arc.primPath.isEmpty
+                        arcs.append((spec.layer, arc.assetPath, arc.primPath.name if own else target.name))
+            path = path.GetParentPath()
+        for layer in stage.GetLayerStack(includeSessionLayers=False):
+            arcs += [(layer, sub, target.name) for sub in layer.subLayerPaths]
+        for layer, asset, name in arcs:
+            if not asset.lower().endswith(".mtlx"):
+                continue
+            anchor = os.path.dirname(layer.realPath)
+            file = self.bundle.check_asset(asset, anchor, what=f"{where}: {asset}") if self.bundle is not None \
+                else os.path.join(anchor, asset)
+            if not os.path.isfile(file):
+                reason = f"{asset} missing"
+                continue
+            node, why = mtlx.read_mtlx_material(str(file), name, f"{where}: {asset}", exact=True)
+            if node is not None and node.category in mtlx.SURFACE_CATEGORIES:
+                return self._mtlx_surface(node, where)
+            reason = why or (f"MaterialX {node.category}" if node is not None else reason)
+        self.grey_materials[where] = reason
+        return self._plain_surface(display, where)
 
     def _referenced_mtlx(self, material):
         """(MxNode of the surface, None) for a Material prim that references or payloads a

@@ -172,8 +172,9 @@ class MxNode:
         return inp.getResolvedValueString(), self.doc_dir, inp.getActiveColorSpace() or ""
 
 
-def read_mtlx_material(path: str, material_name: str | None, where: str):
-    """The surface shader node (MxNode) of a material in a .mtlx file, or (None, reason)."""
+def read_mtlx_material(path: str, material_name: str | None, where: str, exact: bool = False):
+    """The surface shader node (MxNode) of a material in a .mtlx file, or (None, reason).
+    Without `exact`, a document of one material gives it whatever its name."""
     import MaterialX as mx
 
     doc = mx.createDocument()
@@ -186,7 +187,8 @@ def read_mtlx_material(path: str, material_name: str | None, where: str):
         return None, f"cannot read {os.path.basename(path)} ({exc})"
     doc.setSourceUri(os.path.basename(path))
     materials = doc.getMaterialNodes()
-    chosen = [m for m in materials if m.getName() == material_name] or (materials if len(materials) == 1 else [])
+    chosen = [m for m in materials if m.getName() == material_name] or \
+        (materials if len(materials) == 1 and not exact else [])
     if not chosen:
         return None, f"no material {material_name!r} in {os.path.basename(path)}"
     shaders = mx.getShaderNodes(chosen[0])

@@ -30,7 +30,8 @@ from .camera import (CameraDesc, _camera_from_prim, _default_camera, _find_rende
                      select_camera)
 from .errors import SceneError, local_to_world
 from .instancing import _InstanceReader, _instance_corners
-from .lights import NO_LIGHT_WARNING, _LightReader, _emits, apply_default_lighting, default_lighting
+from .lights import (DEFAULT_LIGHTING_NAME, NO_LIGHT_WARNING, _LightReader, _emits, apply_default_lighting,
+                     default_lighting)
 from .materials import _COLOR_INPUTS, _MaterialReader, _MaterialTable, _SCALAR_INPUTS, _as_tuple
 from .meshes import _Chunk, _MeshReader, _face_normals, _normalized
 from .motion import Shutter, _MotionReader, render_time, shutter_interval
@@ -117,8 +118,13 @@ class SceneData:
     world_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # Lights for a stage that has none (see default_lighting), not yet part of the light
     # tables above; Scene adds them unless default lighting is switched off. None when the
-    # stage has a light (emissive geometry counts) or they were applied already.
+    # stage has a UsdLux light or emission strong enough to light it (usd/emission.py), or
+    # they were applied already.
     default_lights: dict | None = None
+    # The light a black image's warning names: the UsdLux light with the largest authored
+    # intensity x 2^exposure x luminance(color), as "path (type, intensity I)"; for a
+    # light-less stage the default lighting (or its emission), None without either.
+    brightest_light: str | None = None
 
 
 class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _MotionReader):
@@ -144,6 +150,10 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
         self.curves: dict[str, list[np.ndarray]] = {"points": [], "segments": [], "flags": [], "material": []}
         self.distant_lights: list[list[float]] = []
         self.dome_light: dict | None = None
+        # UsdLux area lights (emissive triangles of their own): what makes a stage lit,
+        # unlike material emission, which is weighed (usd/emission.py).
+        self.area_lights = 0
+        self.brightest_light: tuple[float, str] | None = None  # (brightness, description)
         self.prototypes: list[dict] = []
         self._proto_index: dict[str, int] = {}
         self.instances: list[np.ndarray] = []
@@ -517,8 +527,11 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     else:
         point = np.array(tr.point_lights, np.float32).reshape(-1, 6)
     dome = tr.dome_light
-    has_light = bool(_emits(rows, tri_material, prototypes) or len(sphere_lights) or len(distant)
-                     or len(point) or dome)
+    has_light = bool(tr.area_lights or len(sphere_lights) or len(distant) or len(point) or dome)
+    emission_note = None
+    if not has_light and _emits(rows, tri_material, prototypes):
+        has_light, emission_note = _emission_lights(tr, rows, positions, indices, tri_material, prototypes,
+                                                    instances, instance_xforms, sphere_lights)
     default_lights = None
     if len(indices) == 0 and len(sphere_lights) == 0 and len(instances) == 0 and not tr.curves["segments"]:
         warn("the scene has no renderable geometry")
@@ -528,6 +541,13 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
         # built, so one translation serves renders with and without it.
         default_lights = default_lighting(view)
         warn(NO_LIGHT_WARNING)
+        if emission_note:
+            warn(emission_note)
+    brightest = tr.brightest_light[1] if tr.brightest_light else None
+    if default_lights is not None:
+        brightest = DEFAULT_LIGHTING_NAME
+    elif brightest is None and has_light:
+        brightest = "the scene's emissive materials (no UsdLux light)"
     data = SceneData(positions=positions, indices=indices, triangle_material=tri_material,
                      albedo=albedo, emission=emission, two_sided_emission=two_sided,
                      sphere_lights=sphere_lights, camera=view, resolution=resolution,
@@ -537,7 +557,7 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
                      distant_lights=distant, point_lights=point, dome_light=dome,
                      prototypes=prototypes, instances=instances, instance_transforms=instance_xforms,
                      meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)), up_axis=str(up_axis),
-                     world_offset=camera_offset, default_lights=default_lights,
+                     world_offset=camera_offset, default_lights=default_lights, brightest_light=brightest,
                      motion_instances=motion_instances, motion_time_steps=motion_time_steps, **light_motion,
                      material_shaping=material_shaping,
                      ies_tables=np.stack(tr.ies_tables) if tr.ies_tables else None,
@@ -558,6 +578,40 @@ def stage_is_animated(stage) -> bool:
     renders the same image. Value clips count: the stage lists their clip layers among the
     used ones from the moment it opens."""
     return any(layer.ListAllTimeSamples() for layer in stage.GetUsedLayers())
+
+
+def _emission_lights(tr, rows, positions, indices, tri_material, prototypes, instances, instance_xforms,
+                     sphere_lights) -> tuple[bool, str | None]:
+    """(whether the stage's material emission lights it, the line saying why not). The
+    rule (docs/scene-translation.md): measured emitted power against what the default
+    lighting would deliver to the scene's bounding sphere."""
+    from . import emission
+    from .lights import DEFAULT_DOME_RADIANCE, DEFAULT_KEY_ILLUMINANCE
+
+    meshes = [(positions, indices, tri_material, np.ones(1))]
+    for k, proto in enumerate(prototypes):
+        mats = np.asarray(instance_xforms, np.float64)[np.asarray(instances) == k]
+        if len(mats):
+            scales = np.abs(np.linalg.det(mats[:, :3, :3])) ** (2.0 / 3.0)
+            meshes.append((proto["positions"], proto["indices"], proto["triangle_material"], scales))
+    power, count = emission.emitted_power(rows, tr.materials.textures, meshes)
+    corners = [np.asarray(positions, np.float64).reshape(-1, 3)]
+    corners += [_instance_corners(proto["chunks"], np.asarray(instance_xforms, np.float64)[np.asarray(instances) == k])
+                for k, proto in enumerate(tr.prototypes)
+                if (np.asarray(instances) == k).any() and any(len(c.points) for c in proto["chunks"])]
+    corners += [np.asarray(sphere_lights, np.float64)[:, :3]]
+    pts = np.concatenate(corners)
+    radius = 0.5 * float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0))) if len(pts) else 0.0
+    reference = emission.default_lighting_power(radius, DEFAULT_DOME_RADIANCE, DEFAULT_KEY_ILLUMINANCE)
+    if reference > 0 and power >= emission.EMISSION_LIGHTS_FRACTION * reference:
+        return True, None
+    if power <= 0:
+        return False, None  # provably zero: nothing to say beyond the light-less line
+    share = power / reference if reference > 0 else 0.0
+    return False, (f"the scene's only emission ({count} triangles of emissive materials, power {power:.4g}) is "
+                   f"{100 * share:.2g} % of what the default lighting gives it ({reference:.4g}), below "
+                   f"the {100 * emission.EMISSION_LIGHTS_FRACTION:.0f} % that counts as lighting: "
+                   f"{emission.EMISSION_DEFAULT_LIT}")
 
 
 def _visible_cameras(stage, time) -> list:

@@ -27,6 +27,7 @@ from pydantic import ValidationError
 
 from tessera_base import integrators, protocol
 from tessera_queue import redis_schema as rdb
+from tessera_base.film import black_image_warning
 from tessera_base.protocol import FINAL_STATES, JobSpec, JobState, RenderSettings
 
 from ..auth import require_user
@@ -240,12 +241,14 @@ def create_job(
     if frame_list is not None and len(frame_list) > 1 and not info.animated:
         warnings = [*warnings, f"the scene has no animation (no time samples): every frame of "
                                f"frames {frames.strip()} renders the same image"]
+    # Unlit by the job's setting, a light-less stage has no light to name.
+    brightest = info.brightest_light if render.default_light or info.unlit_warnings is None else None
     if frame_list is not None:
         return _create_sequence(response, store, user, frame_list, scene_hash, name, render, priority,
-                                max_attempts, warnings)
+                                max_attempts, warnings, brightest)
     spec = JobSpec(job_id=uuid.uuid4().hex, scene_hash=scene_hash, scene_name=name,
                    settings=render, priority=priority, max_attempts=max_attempts)
-    tiles_total = store.create_job(spec, warnings, owner=user.name)
+    tiles_total = store.create_job(spec, warnings, owner=user.name, brightest_light=brightest)
     response.headers["Location"] = f"/jobs/{spec.job_id}"
     return JobCreated(id=spec.job_id, state="queued", tiles_total=tiles_total,
                       width=render.width, height=render.height, priority=priority,
@@ -549,7 +552,7 @@ def get_frame_preview(job_id: str, frame: int, request: Request, user: CurrentUs
 # ---------------------------------------------------------------------------- helpers
 def _create_sequence(response: Response, store: JobStore, user: User, frame_list: list[int], scene_hash: str,
                      name: str, render: RenderSettings, priority: int, max_attempts: int,
-                     warnings: list[str]) -> JobCreated:
+                     warnings: list[str], brightest: str | None = None) -> JobCreated:
     """One job per frame (its settings' frame set), then the record that lists them; a
     failure half-way cancels the frames already queued."""
     sequence_id = uuid.uuid4().hex
@@ -560,7 +563,7 @@ def _create_sequence(response: Response, store: JobStore, user: User, frame_list
             spec = JobSpec(job_id=uuid.uuid4().hex, scene_hash=scene_hash, scene_name=name,
                            settings=render.model_copy(update={"frame": float(f)}), priority=priority,
                            max_attempts=max_attempts)
-            tiles_total += store.create_job(spec, warnings, owner=user.name)
+            tiles_total += store.create_job(spec, warnings, owner=user.name, brightest_light=brightest)
             created.append((f, spec.job_id))
         store.create_sequence(sequence_id, created, name, warnings, owner=user.name)
     except BaseException:
@@ -687,6 +690,9 @@ def _image(request: Request, job_id: str, fmt: str, user: User) -> bytes:
             raise HTTPException(500, f"cannot assemble the image of job {job_id}: {e}") from None
         if aovs.denoise_warning:
             logger.warning("job %s: %s", job_id, aovs.denoise_warning)
+        black = black_image_warning(rgba, job.brightest_light)
+        if black and store.add_warning(job_id, black):
+            logger.warning("job %s: %s", job_id, black)
         data = encode_image(rgba, job.spec, fmt, aovs=aovs)
         store.cache_image(job_id, fmt, data)
     return data

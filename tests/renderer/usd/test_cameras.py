@@ -10,7 +10,7 @@ from pxr import Gf, Sdf, UsdGeom
 from tessera import render
 from tessera_renderer import SceneError, load_scene
 from tessera_renderer.usd import translate_stage
-from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, new_stage
+from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, emission_only, new_stage
 
 W = H = 64
 
@@ -33,6 +33,7 @@ def _square_scene(path, *, camera_z=8.0, projection="perspective", offsets=(0.0,
         cam.CreateClippingRangeAttr(Gf.Vec2f(0.01, 1000.0))
         cams.append(cam)
     add_render_settings(stage, cams[0], (W, H))
+    emission_only(stage)
     stage.GetRootLayer().Save()
     return stage, cams
 

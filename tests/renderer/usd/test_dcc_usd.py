@@ -266,7 +266,9 @@ def test_textures_of_a_usdz_referenced_from_a_layer(tmp_path):
     layer = _red_asset_layer(tmp_path / "src")
     _usdz(tmp_path / "asset.usdz", [(layer, "asset.usda"), (layer.parent / "tex.png", "tex.png")])
     path = _set_referencing(tmp_path / "set.usda", "./asset.usdz")
-    scene = load_scene(path)
+    # Unlit: the red emission alone (1.0) is under the threshold that makes emission
+    # lighting (docs/scene-translation.md), and only the texture is checked here.
+    scene = load_scene(path, default_light=False)
     assert not any("missing" in w for w in scene.warnings), scene.warnings
     _centre_is_red(scene)
     # The same set as a farm bundle (.zip of set + package) through the blob.
@@ -274,7 +276,7 @@ def test_textures_of_a_usdz_referenced_from_a_layer(tmp_path):
     with zipfile.ZipFile(bundle, "w") as zf:
         zf.write(path, "set.usda")
         zf.write(tmp_path / "asset.usdz", "asset.usdz")
-    _centre_is_red(scene_from_blob(translate_to_blob(bundle)))
+    _centre_is_red(scene_from_blob(translate_to_blob(bundle), default_light=False))
 
 
 def test_textures_of_a_package_nested_in_a_package(tmp_path):
@@ -283,11 +285,11 @@ def test_textures_of_a_package_nested_in_a_package(tmp_path):
     outer_layer = tmp_path / "src" / "outer.usda"
     _set_referencing(outer_layer, "./inner.usdz")
     _usdz(tmp_path / "outer.usdz", [(outer_layer, "outer.usda"), (inner, "inner.usdz")])
-    scene = load_scene(_set_referencing(tmp_path / "set.usda", "./outer.usdz"))
+    scene = load_scene(_set_referencing(tmp_path / "set.usda", "./outer.usdz"), default_light=False)
     assert not any("missing" in w or "composition" in w for w in scene.warnings), scene.warnings
     _centre_is_red(scene)
     # Submitted as the bundle itself, the outer package is unpacked; the inner stays a package.
-    _centre_is_red(load_scene(tmp_path / "outer.usdz"))
+    _centre_is_red(load_scene(tmp_path / "outer.usdz", default_light=False))
 
 
 def test_package_members_obey_the_sandbox(tmp_path):
@@ -836,3 +838,49 @@ def test_materialx_math_on_an_image_folds_into_the_texture(tmp_path):
         np.testing.assert_allclose(img[8, 8, :3], want, atol=0.01, err_msg=name)
     warnings = translate_stage(scene_with("square", squared)).warnings
     assert any("two images is not evaluated" in w for w in warnings), warnings
+
+
+def _two_looks_mtlx(path):
+    """A MaterialX document as Houdini writes an asset's looks: two standard_surface
+    materials, "Red" and "Blue", with authored base colours."""
+    import MaterialX as mx
+
+    doc = mx.createDocument()
+    for name, color in (("Red", (0.7, 0.1, 0.05)), ("Blue", (0.05, 0.2, 0.6))):
+        shader = doc.addNode("standard_surface", f"SR_{name}", "surfaceshader")
+        shader.setInputValue("base_color", mx.Color3(*color))
+        doc.addMaterialNode(name, shader)
+    mx.writeToXmlFile(doc, str(path))
+
+
+@pytest.mark.parametrize("arc", ["reference", "payload", "sublayer", "bound prim"])
+def test_mtlx_layers_referenced_payloaded_or_sublayered_bind_as_the_file_binds_them(tmp_path, arc):
+    """Issue 43: `references = @./asset_mat.mtlx@</MaterialX/Materials>` on a scope (or a
+    payload, or the document as a sublayer): usd-core composes no prim there, the meshes'
+    bindings dangle; Tessera reads each bound material from the document. A binding to a
+    material the document lacks is named in the one grey line (negative control)."""
+    _two_looks_mtlx(tmp_path / "asset_mat.mtlx")
+    stage = new_stage(tmp_path / "asset.usda")
+    prefix = ""
+    if arc == "sublayer":
+        stage.GetRootLayer().subLayerPaths.append("./asset_mat.mtlx")
+        looks = "/MaterialX/Materials"
+    elif arc == "bound prim":  # typeless prims, each referencing the material its arc names
+        looks, prefix = "/Asset/Looks", "M_"
+        for look in ("Red", "Blue", "Green"):
+            stage.OverridePrim(f"{looks}/{prefix}{look}").GetReferences().AddReference(
+                "./asset_mat.mtlx", f"/MaterialX/Materials/{look}")
+    else:
+        scope = stage.DefinePrim("/Asset/Materials", "Scope")
+        (scope.GetReferences().AddReference if arc == "reference" else scope.GetPayloads().AddPayload)(
+            "./asset_mat.mtlx", "/MaterialX/Materials")
+        looks = "/Asset/Materials"
+    for k, (name, look) in enumerate((("A", "Red"), ("B", "Blue"), ("C", "Green"))):
+        mesh = _quad(stage, f"/Asset/Geo/{name}", z=float(k))
+        UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).GetDirectBindingRel().SetTargets([f"{looks}/{prefix}{look}"])
+    data = translate_stage(_save(stage))
+    for authored in ((0.7, 0.1, 0.05), (0.05, 0.2, 0.6)):  # standard_surface: base 1 x base_color
+        assert any(np.allclose(a, authored, atol=1e-6) for a in data.albedo), (authored, data.albedo)
+    lines = [w for w in data.warnings if "grey" in w]
+    assert lines == [f"1 material(s) fell back to the default grey: {looks}/{prefix}Green (no material 'Green' in "
+                     f"asset_mat.mtlx)"], data.warnings

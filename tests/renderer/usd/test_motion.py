@@ -17,7 +17,7 @@ from tessera_renderer import SceneError, load_scene
 from tessera_renderer.scene_blob import scene_from_blob, translate_to_blob
 from tessera_renderer.usd import translate_stage
 from tessera_renderer.usd.motion import MAX_TIME_STEPS, MOTION_TOLERANCE
-from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, new_stage
+from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, emission_only, new_stage
 
 W = H = 16
 LE = 2.0
@@ -53,6 +53,7 @@ def _sliding_quad(path, *, keys=None, shutter=(-0.5, 0.5)):
     add_mesh(stage, "/Mover/Quad", [(0, -1, -3), (1, -1, -3), (1, 1, -3), (0, 1, -3)], [4], [0, 1, 2, 3], glow)
     add_mesh(stage, "/Back", [(-50, -50, -6), (50, -50, -6), (50, 50, -6), (-50, 50, -6)], [4], [0, 1, 2, 3], black)
     add_render_settings(stage, _ortho_camera(stage, shutter=shutter), (W, H))
+    emission_only(stage)
     stage.GetRootLayer().Save()
     return path
 
@@ -276,6 +277,7 @@ def test_moving_lights_follow_usd_relative_to_the_camera(tmp_path):
     it, less the camera offset; a turning DistantLight's direction turns as USD's does."""
     path = _sliding_quad(tmp_path / "slide.usda")
     stage = Usd.Stage.Open(str(path))
+    stage.RemovePrim("/EmissionOnly")  # its own lights below are the ones checked
     cam = UsdGeom.Xformable(stage.GetPrimAtPath("/Cam"))
     cam.GetOrderedXformOps()[0].Set(Gf.Vec3d(0.1, 0, 0), 0.5)
     cam.GetOrderedXformOps()[0].Set(Gf.Vec3d(0.3, 0, 0), 1.5)
@@ -565,6 +567,7 @@ def _stretching_quad(path, *, slide: float = 0.0, mid_key=None):
         quad.GetPointsAttr().Set([(-1, -1, -3), (r, -1, -3), (r, 1, -3), (-1, 1, -3)], t)
     add_mesh(stage, "/Back", [(-50, -50, -6), (50, -50, -6), (50, 50, -6), (-50, 50, -6)], [4], [0, 1, 2, 3], black)
     add_render_settings(stage, _ortho_camera(stage), (W, H))
+    emission_only(stage)
     stage.GetRootLayer().Save()
     return path
 
