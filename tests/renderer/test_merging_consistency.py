@@ -143,3 +143,43 @@ def test_error_keeps_falling_with_iterations(name, integrator):
         frozen = [rel_mse(x, a, b) for x in checkpoints(name, "vcm", {"grow": 0})]
         print(f"vcm with grow = 0: relMSE " + ", ".join(f"{e:.2e}" for e in frozen))
         assert not keeps_falling(frozen), frozen
+
+
+def fixed_spp_errors(integrator: str, a: np.ndarray, b: np.ndarray) -> list[float]:
+    """relMSE of `tessera render --spp N` (a fixed spp, tessera.local as the CLI renders)
+    for N = 1, 2, 4, ..., 64 on the caustic."""
+    from tessera import local
+
+    scene = load_scene(str(SCENES["caustic"][0]))
+    errs = []
+    for k in range(CHECKPOINTS):
+        settings = RenderSettings(width=W, height=H, spp=2 ** k, seed=9, max_depth=MAX_DEPTH, tile_size=16,
+                                  integrator=integrator, integrator_params=PARAMS[integrator])
+        image = local.render_image(scene, settings, threads=2, progress=False, variance=False).rgba
+        errs.append(rel_mse(image[..., :3].astype(np.float64), a, b))
+    return errs
+
+
+@pytest.mark.parametrize("integrator", ["sppm", "vcm"])
+def test_a_fixed_spp_render_keeps_converging(integrator, monkeypatch):
+    """Issue 46: `tessera render --spp N` with sppm or vcm stopped converging after ~16
+    samples, because a fixed spp was one pass: one iteration, one batch of photons or light
+    paths, one radius, whose noise and kernel bias no number of camera samples averages
+    away. A fixed spp now runs the passes of a noise target from one sample (1, 1, 2, 4, ...
+    up to the cap, all of them: protocol.pass_range), so the error keeps falling with the
+    samples asked for: the same check as test_error_keeps_falling_with_iterations (falling
+    from N = 8 on, slope below -0.75 over N = 8 ... 64). Negative control: the iteration
+    frozen (one pass, what a fixed spp did before) must fail it."""
+    from tessera_base import integrators
+
+    a, b = reference("caustic")
+    errs = fixed_spp_errors(integrator, a, b)
+    print(f"{integrator}, fixed spp 1 ... 64: relMSE " + ", ".join(f"{e:.2e}" for e in errs) +
+          f"; slope over the last four {slope([2 ** k for k in range(3, len(errs))], errs[3:]):.2f}")
+    assert keeps_falling(errs), errs
+    monkeypatch.setattr(integrators, "progressive", lambda name: False)
+    frozen = fixed_spp_errors(integrator, a, b)
+    print(f"{integrator}, fixed spp in one pass (before): relMSE " + ", ".join(f"{e:.2e}" for e in frozen) +
+          f"; slope over the last four {slope([2 ** k for k in range(3, len(frozen))], frozen[3:]):.2f}")
+    assert not keeps_falling(frozen), frozen
+    assert frozen[-1] > 2 * errs[-1]
