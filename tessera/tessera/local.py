@@ -122,7 +122,8 @@ def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, th
     """The whole image pass after pass, as the farm schedules lockstep jobs and splatting
     integrators: every tile's splats are folded into the job's SplatSums as they come;
     after each pass the pass's whole-image estimate goes into a PassAccumulator and
-    `image_finished` decides on another pass for every tile (fixed spp: one pass). The
+    `image_finished` decides on another pass for every tile (fixed spp: one pass, or for
+    a progressive integrator all of pass_range's). The
     image is assembled from the same results and sums as the farm's merge assembles it."""
     height, width = settings.height, settings.width
     splatting = integrators.splats(integrator)
@@ -153,10 +154,12 @@ def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, th
                 this_pass.append(result)
                 samples += t.width * t.height * spp
                 bar.update(t.width * t.height)
-            if not settings.adaptive:
+            if pass_range(settings, p + 1) is None:
                 break
             acc = acc.add(pass_image(width, height, this_pass, sums), spp)
-            if image_finished(settings, p, acc) or (deadline is not None and time.monotonic() >= deadline):
+            # A time limit belongs to the noise target: a fixed spp renders every pass.
+            if image_finished(settings, p, acc) or (settings.adaptive and deadline is not None
+                                                    and time.monotonic() >= deadline):
                 break
             p += 1
     image = assemble_image(settings, per_tile, sums, with_aovs=True)

@@ -136,8 +136,10 @@ def pilot_image(scene, integrator: str, w: int, h: int, spp: int, seed: int, max
     from tessera_base.film import assemble_image, render_tile_pass, run_scene_pass
     from tessera_base.protocol import RenderSettings, TileRect
 
-    st = RenderSettings(width=w, height=h, spp=spp, seed=seed, max_depth=max_depth,
-                        tile_size=max(8, w, h), integrator=integrator)
+    # One pass of `spp` samples for every candidate: a noise target whose first pass is the
+    # whole pilot (a fixed spp would run sppm and vcm in passes from one sample).
+    st = RenderSettings(width=w, height=h, target_error=1.0, min_spp=spp, max_spp=spp, seed=seed,
+                        max_depth=max_depth, tile_size=max(8, w, h), integrator=integrator)
     product, scene_seconds = None, 0.0
     if integrators.scene_passes(integrator):
         start = time.perf_counter()

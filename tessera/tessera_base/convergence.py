@@ -213,5 +213,7 @@ def image_finished(settings: RenderSettings, pass_index: int, acc: PassAccumulat
     passes 0..pass_index."""
     if pass_range(settings, pass_index + 1) is None:
         return True
+    if not settings.adaptive:  # a fixed spp in passes (a progressive integrator): all of them
+        return False
     error = acc.error()
     return error is not None and error <= settings.target_error

@@ -103,6 +103,14 @@ def iteration_share_cap(name: str, values: dict[str, float]) -> int | None:
     return share
 
 
+def progressive(name: str) -> bool:
+    """Whether `name`'s iterations trace batches of paths (its `iteration_cap`: sppm, vcm):
+    its estimate converges only as iterations add batches and shrink the radius, so even a
+    fixed-spp render runs in passes (protocol.pass_range). For `auto`: no (the integrators
+    it may pick in a fixed-spp render have no such cap)."""
+    return iteration_share_cap(name, {}) is not None
+
+
 def stops_per_tile(name: str) -> bool:
     """Whether a tile may stop on a noise target on its own (else the whole image advances
     in lockstep). For `auto`: only if every integrator it may pick can."""

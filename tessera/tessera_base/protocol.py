@@ -114,10 +114,11 @@ def parse_variant(text: str) -> tuple[str, str, str]:
 class RenderSettings(BaseModel):
     """What to render. Resolution is final here (scene defaults already applied).
 
-    With `target_error` unset every tile gets `spp` samples in one pass. With it set the
-    image is rendered to a noise target: tiles get passes of min_spp, then doubling up to
-    max_spp samples, until their relative noise (see `tile_error`) is at most target_error,
-    or until `time_limit` seconds after the job started."""
+    With `target_error` unset every tile gets `spp` samples in one pass (a progressive
+    integrator, sppm or vcm: in passes of 1, 1, 2, 4, ... samples, see `pass_range`). With it
+    set the image is rendered to a noise target: tiles get passes of min_spp, then doubling
+    up to max_spp samples, until their relative noise (see `tile_error`) is at most
+    target_error, or until `time_limit` seconds after the job started."""
 
     width: int = Field(ge=1, le=16384)
     height: int = Field(ge=1, le=16384)
@@ -316,24 +317,39 @@ class RenderSettings(BaseModel):
         weights assume every pixel has as many camera samples as there are light paths per
         pixel, which per-tile stopping would break. `auto` may resolve to such an integrator,
         and a farm cannot know before it loads the scene, so it is scheduled the same way
-        (local renders follow the same rule, so farm and local images stay identical)."""
-        return self.adaptive and not integrators.stops_per_tile(self.integrator)
+        (local renders follow the same rule, so farm and local images stay identical).
+        A fixed-spp render of a progressive integrator (sppm, vcm) has several passes too,
+        each with its scene pass, and advances the same way to its last."""
+        if not self.adaptive:
+            return integrators.progressive(self.integrator)
+        return not integrators.stops_per_tile(self.integrator)
 
 
 def pass_range(settings: RenderSettings, pass_index: int) -> tuple[int, int] | None:
     """(sample_start, spp) of pass `pass_index`, or None past the last pass. Passes double
     (min_spp, min_spp, 2 min_spp, 4 min_spp, ...) up to max_spp; for an integrator whose
     iterations trace batches of paths they stop doubling at its cap (iteration_share_cap
-    times min_spp) and stay there, so that every iteration's paths keep up with its samples."""
-    if not settings.adaptive:
+    times min_spp) and stay there, so that every iteration's paths keep up with its samples.
+
+    A fixed spp is one pass, except for a progressive integrator (sppm, vcm): its iterations
+    (fresh photons or light paths, a smaller radius) must grow with the samples asked for,
+    or its error stops falling where one iteration's paths leave it. Its passes are then
+    those of a noise target with min_spp = 1 and max_spp = spp, all of them: 1, 1, 2, 4, ...
+    samples, at most the cap's, up to spp (SmallVCM's loop of one sample a pixel per
+    iteration, with doubling iterations)."""
+    if settings.adaptive:
+        first, last = settings.min_spp, settings.max_spp
+    elif integrators.progressive(settings.integrator):
+        first, last = 1, settings.spp
+    else:
         return (0, settings.spp) if pass_index == 0 else None
     cap = integrators.iteration_share_cap(settings.integrator, settings.integrator_params)
-    largest = settings.max_spp if cap is None else cap * settings.min_spp
-    start, end = 0, settings.min_spp
+    largest = last if cap is None else cap * first
+    start, end = 0, min(first, last)
     for _ in range(pass_index):
-        if end >= settings.max_spp:
+        if end >= last:
             return None
-        start, end = end, min(end + min(end, largest), settings.max_spp)
+        start, end = end, min(end + min(end, largest), last)
     return start, end - start
 
 

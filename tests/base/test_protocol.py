@@ -145,6 +145,28 @@ def test_pass_schedule_stops_doubling_at_a_merging_integrators_cap():
     assert ranges("path", {}, 1, 256)[-1] == (128, 128)
 
 
+def test_a_fixed_spp_of_a_progressive_integrator_runs_the_noise_target_passes_from_one_sample():
+    """sppm and vcm converge only as iterations add photons or light paths (issue 46: a
+    fixed spp was one pass and plateaued): a fixed spp runs the passes of a noise target
+    with min_spp 1 and max_spp = spp, all of them; other integrators keep one pass."""
+    def ranges(integrator, spp, params=None):
+        s = RenderSettings(width=8, height=8, spp=spp, integrator=integrator, integrator_params=params or {})
+        out, p = [], 0
+        while (r := protocol.pass_range(s, p)) is not None:
+            out.append(r)
+            p += 1
+        return out
+
+    assert ranges("vcm", 40, {"light_paths": 2000, "max_iteration_paths": 8000}) == [
+        (0, 1), (1, 1), (2, 2), (4, 4), (8, 4), (12, 4), (16, 4), (20, 4), (24, 4), (28, 4), (32, 4), (36, 4)]
+    assert ranges("sppm", 256) == [(0, 1), (1, 1), (2, 2), (4, 4), (8, 8), (16, 16), (32, 32), (64, 64),
+                                   (128, 64), (192, 64)]
+    assert ranges("sppm", 1) == [(0, 1)]
+    assert ranges("vcm", 3) == [(0, 1), (1, 1), (2, 1)]
+    for integrator in ("path", "bdpt", "photon_direct", "auto"):
+        assert ranges(integrator, 256) == [(0, 256)], integrator
+
+
 def test_result_v2_round_trip_with_variance_and_splat():
     rect = TileRect(index=1, x0=4, y0=2, width=3, height=2)
     rng = np.random.default_rng(2)
@@ -259,14 +281,20 @@ def test_splat_unit_exponent_round_trips_and_scales_the_image():
 
 def test_integrators_that_cannot_stop_per_tile_take_noise_targets_in_lockstep():
     """Lockstep follows the registry's stop_per_tile capability; `auto` is scheduled in
-    lockstep because one of the integrators it may pick cannot stop per tile."""
+    lockstep because one of the integrators it may pick cannot stop per tile. A fixed spp
+    is lockstep only for the progressive integrators (an iteration_cap: sppm, vcm), whose
+    fixed spp runs in passes."""
     from tessera_renderer import _core
     registry = _core.integrators()
     assert {i["stop_per_tile"] for i in registry} == {True, False}  # both kinds are exercised
+    progressive = {i["name"] for i in registry if i.get("iteration_cap")}
+    assert progressive == {"sppm", "vcm"}
     for info in registry:
         s = protocol.RenderSettings(width=8, height=8, target_error=0.05, integrator=info["name"])
         assert s.adaptive and s.lockstep == (not info["stop_per_tile"]), info["name"]
-        assert not protocol.RenderSettings(width=8, height=8, integrator=info["name"]).lockstep
+        fixed = protocol.RenderSettings(width=8, height=8, integrator=info["name"])
+        assert fixed.lockstep == (info["name"] in progressive), info["name"]
+    assert not protocol.RenderSettings(width=8, height=8, integrator="auto").lockstep
     auto_picks = {_core.auto_integrator(False), _core.auto_integrator(True)}
     assert not all(i["stop_per_tile"] for i in registry if i["name"] in auto_picks)
     assert protocol.RenderSettings(width=8, height=8, target_error=0.05, integrator="auto").lockstep

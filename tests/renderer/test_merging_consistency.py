@@ -16,12 +16,16 @@ last four (a plateau's is 0, unbiased Monte Carlo's -1), and the reference's sub
 noise is resolved (its standard error below a third of the last checkpoint). The renders
 are deterministic (fixed seeds, any thread count), so the numbers below are what every run
 sees. Measured: sppm on the caustic 1.2e-1 ... 2.5e-3, slope -0.91; vcm on the caustic
-5.5e-1 ... 8.2e-3, slope -1.08; vcm on the mirror 7.8e-1 ... 8.1e-3, slope -0.91.
+2.4e-1 ... 3.5e-3, slope -1.00; vcm on the mirror 7.2e-1 ... 7.7e-3, slope -0.87 (vcm
+without direct merging, issue 46; with it 5.5e-1 ... 8.2e-3 and 7.8e-1 ... 8.1e-3).
 
 Negative controls: a plateau (the checkpoints frozen after the fourth) fails; and vcm
 tracing one batch of light paths a pass (`grow` = 0, what it did before: a late pass's
-samples then all merge with one batch's light vertices) fails, with a slope of -0.63 and
-three times the final error on both scenes.
+samples then all merge with one batch's light vertices) fails, with slopes near -0.5 and
+-0.7 and 3.9 and 2.0 times the final error (1.4e-2 on the caustic, 1.6e-2 on the mirror).
+
+A fixed spp (`tessera render --spp N`) runs the same passes (test_a_fixed_spp_render_keeps_
+converging: the same numbers, and its one-pass control plateaus).
 """
 from __future__ import annotations
 
@@ -105,11 +109,11 @@ CAPPED = {"light_paths": 8000, "max_iteration_paths": 16000}
 def test_error_keeps_falling_past_the_light_path_cap(monkeypatch):
     """vcm whose iterations reach their light-path cap early: the passes stop doubling at
     the cap (2 samples), so every iteration's light paths keep up with its samples, and the
-    error keeps falling: measured 1.4e-1, 7.4e-2, 3.3e-2, 2.3e-2 at 8 ... 64 samples, slope
-    -0.91. Control: the same cap under passes that keep doubling (what Tessera did before:
+    error keeps falling: measured 9.5e-2, 5.5e-2, 2.8e-2, 1.6e-2 at 8 ... 64 samples, slope
+    -0.86. Control: the same cap under passes that keep doubling (what Tessera did before:
     a pass of 32 samples merged with 16000 light paths where its share was 256000; at 64 x
     64 pixels and 2048 spp the default vcm's relMSE stopped at 2.5e-3) must fail: measured
-    slope -0.66 and 1.75 times the final error."""
+    1.1e-1, 7.5e-2, 6.3e-2, 3.9e-2 (2.4 times the final error)."""
     from tessera_base import integrators
 
     a, b = reference("caustic")
@@ -143,3 +147,43 @@ def test_error_keeps_falling_with_iterations(name, integrator):
         frozen = [rel_mse(x, a, b) for x in checkpoints(name, "vcm", {"grow": 0})]
         print(f"vcm with grow = 0: relMSE " + ", ".join(f"{e:.2e}" for e in frozen))
         assert not keeps_falling(frozen), frozen
+
+
+def fixed_spp_errors(integrator: str, a: np.ndarray, b: np.ndarray) -> list[float]:
+    """relMSE of `tessera render --spp N` (a fixed spp, tessera.local as the CLI renders)
+    for N = 1, 2, 4, ..., 64 on the caustic."""
+    from tessera import local
+
+    scene = load_scene(str(SCENES["caustic"][0]))
+    errs = []
+    for k in range(CHECKPOINTS):
+        settings = RenderSettings(width=W, height=H, spp=2 ** k, seed=9, max_depth=MAX_DEPTH, tile_size=16,
+                                  integrator=integrator, integrator_params=PARAMS[integrator])
+        image = local.render_image(scene, settings, threads=2, progress=False, variance=False).rgba
+        errs.append(rel_mse(image[..., :3].astype(np.float64), a, b))
+    return errs
+
+
+@pytest.mark.parametrize("integrator", ["sppm", "vcm"])
+def test_a_fixed_spp_render_keeps_converging(integrator, monkeypatch):
+    """Issue 46: `tessera render --spp N` with sppm or vcm stopped converging after ~16
+    samples, because a fixed spp was one pass: one iteration, one batch of photons or light
+    paths, one radius, whose noise and kernel bias no number of camera samples averages
+    away. A fixed spp now runs the passes of a noise target from one sample (1, 1, 2, 4, ...
+    up to the cap, all of them: protocol.pass_range), so the error keeps falling with the
+    samples asked for: the same check as test_error_keeps_falling_with_iterations (falling
+    from N = 8 on, slope below -0.75 over N = 8 ... 64). Negative control: the iteration
+    frozen (one pass, what a fixed spp did before) must fail it."""
+    from tessera_base import integrators
+
+    a, b = reference("caustic")
+    errs = fixed_spp_errors(integrator, a, b)
+    print(f"{integrator}, fixed spp 1 ... 64: relMSE " + ", ".join(f"{e:.2e}" for e in errs) +
+          f"; slope over the last four {slope([2 ** k for k in range(3, len(errs))], errs[3:]):.2f}")
+    assert keeps_falling(errs), errs
+    monkeypatch.setattr(integrators, "progressive", lambda name: False)
+    frozen = fixed_spp_errors(integrator, a, b)
+    print(f"{integrator}, fixed spp in one pass (before): relMSE " + ", ".join(f"{e:.2e}" for e in frozen) +
+          f"; slope over the last four {slope([2 ** k for k in range(3, len(frozen))], frozen[3:]):.2f}")
+    assert not keeps_falling(frozen), frozen
+    assert frozen[-1] > 2 * errs[-1]

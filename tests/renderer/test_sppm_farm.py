@@ -90,6 +90,27 @@ def test_farm_image_equals_local(farm, redis_client, tmp_path, integrator, param
             w.stop()
 
 
+def test_a_fixed_spp_job_runs_every_iteration_and_equals_local(farm, redis_client, tmp_path):
+    """A fixed spp of sppm (8 samples) runs the passes of a noise target from one sample,
+    1, 1, 2 and 4 (issue 46: it was one pass, one photon batch, and stopped converging): four
+    iterations on the farm as locally. The farm's image equals the local one bit for bit, and
+    both equal the noise-target render that runs to its max_spp (FORM)."""
+    fixed = {k: v for k, v in FORM.items() if k not in ("target_error", "min_spp", "max_spp")}
+    fixed["spp"] = 8
+    assert RenderSettings(**fixed).lockstep
+    workers = [start_worker(farm.redis_url, f"sppm-fixed-{i}", farm.log_dir) for i in range(2)]
+    try:
+        job = submit_job(farm, CAUSTIC, fixed, PARAMS)
+        wait_for_job(farm, job, timeout=180, processes=workers, expect="done")
+        expected = local_image(fixed, PARAMS)
+        assert_bit_identical(farm_image(farm, job, tmp_path), expected)
+        assert int(redis_client.hget(rdb.job_key(job), "scene_passes_stored")) == ITERATIONS
+        assert_bit_identical(local_image(FORM, PARAMS), expected)
+    finally:
+        for w in workers:
+            w.stop()
+
+
 @pytest.mark.parametrize("target", ["scene", "2"])
 def test_a_worker_killed_mid_iteration_changes_nothing(farm, redis_client, tmp_path, target):
     """The victim hangs in the first scene task, or in the first pass of tile 2 (after the

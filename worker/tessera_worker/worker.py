@@ -491,7 +491,7 @@ class Worker:
         acc = acc.add(film.pass_image(s.width, s.height, results, sums), results[0].spp)
         del results
         finished = convergence.image_finished(s, p, acc)
-        if not finished and s.time_limit is not None:
+        if not finished and s.adaptive and s.time_limit is not None:  # a fixed spp renders every pass
             if started_at is None:
                 started_at = _float(self.redis.hget(key, "started_at"))
             finished = started_at is not None and time.time() - started_at >= s.time_limit

@@ -3,6 +3,7 @@
 // here is inline, as it was when it lived in bdpt.cpp: the hot path is unchanged.
 #pragma once
 
+#include <algorithm>
 #include <limits>
 
 #include "bsdf.h"
@@ -269,10 +270,12 @@ public:
     // It is read in place, not copied into the subpath (a vertex is 400 bytes and this
     // runs for every strategy); its densities are changed and restored on return.
     // `merge_eta` > 0 (vcm: light paths merged per camera sample times the merging disk's
-    // area) also counts vertex merging at every interior non-delta surface vertex, whose
-    // density relative to the connection with that vertex first on the camera side is
-    // its light-side density times merge_eta (Georgiev et al. 2012); 0 is plain BDPT.
-    float MISWeight(Vertex* light, Vertex* camera, Vertex& sampled, int s, int t, float merge_eta = 0.f) const {
+    // area) also counts vertex merging at every interior non-delta surface vertex y_j with
+    // j >= `first_merge` (y_0 the light's vertex), whose density relative to the
+    // connection with that vertex first on the camera side is its light-side density
+    // times merge_eta (Georgiev et al. 2012); 0 is plain BDPT.
+    float MISWeight(Vertex* light, Vertex* camera, Vertex& sampled, int s, int t, float merge_eta = 0.f,
+                    int first_merge = 1) const {
         if (s + t == 2) return 1.f;
         // Vertex i of each subpath as this strategy sees it.
         auto light_at = [&](int i) -> Vertex& { return s == 1 && i == 0 ? sampled : light[i]; };
@@ -297,8 +300,9 @@ public:
         float sum = 0.f, r = 1.f;
         for (int i = t - 1; i > 0; --i) {
             const Vertex& ci = camera_at(i);
-            // Merging at camera[i] (not at the light's own vertex, which s = 0 puts last).
-            if (merge_eta > 0.f && Mergeable(ci) && !(s == 0 && i == t - 1)) {
+            // Merging at camera[i], which is y_{s + t - 1 - i} (never the light's own vertex,
+            // which s = 0 puts last).
+            if (merge_eta > 0.f && Mergeable(ci) && s + t - 1 - i >= std::max(first_merge, 1)) {
                 const float m = r * Remap0(ci.pdf_rev) * merge_eta;
                 sum += m * m;
             }
@@ -311,7 +315,7 @@ public:
             r *= Remap0(li.pdf_rev) / Remap0(li.pdf_fwd);
             bool delta_before = i > 0 ? light_at(i - 1).delta : li.delta_light;
             if (!li.delta && !delta_before) sum += r * r;
-            if (merge_eta > 0.f && i > 0 && Mergeable(li)) {
+            if (merge_eta > 0.f && i >= std::max(first_merge, 1) && Mergeable(li)) {
                 const float m = r * Remap0(li.pdf_fwd) * merge_eta;
                 sum += m * m;
             }

@@ -132,6 +132,8 @@ TEST(VCM, TheProductIsAPureFunctionOfSeedAndIteration) {
     d.point_lights.push_back({{0.f, 1.f, 0.f}, Color(1.f)});
     const Scene scene(d);
     RenderOptions opt = VCMOptions(1, 5000.f, 0.1f);
+    // Merging direct light too, so that the floor's vertices are stored.
+    opt.integrator_params["direct_merging"] = 1.f;
     const std::string a = RunScenePass(scene, opt, 3);
     opt.threads = 1;
     EXPECT_EQ(RunScenePass(scene, opt, 3), a);  // the thread count only decides who computes it
@@ -141,6 +143,10 @@ TEST(VCM, TheProductIsAPureFunctionOfSeedAndIteration) {
     // About half the paths go down and land on the floor (the rest escape): one vertex each.
     EXPECT_GT(a.size(), 2000u * 56u);
     EXPECT_LT(a.size(), 3000u * 56u + 20000u * 4u);
+    // By default direct light is not merged, and the floor is all there is to hit: no
+    // vertex is stored.
+    opt.integrator_params["direct_merging"] = 0.f;
+    EXPECT_LT(RunScenePass(scene, opt, 3).size(), 64u + 20000u * 4u);
     // Without merging there is nothing to store.
     opt.integrator_params["merging"] = 0.f;
     EXPECT_LT(RunScenePass(scene, opt, 3).size(), 64u);
@@ -164,7 +170,8 @@ TEST(VCM, TilesRefuseAForeignProductAndBadSettings) {
     EXPECT_THROW(RenderTile(scene, camera, opt, {0, 0, 4, 4}, out.data(), nullptr, splats.data()),
                  std::invalid_argument);
     for (auto [name, value] : std::vector<std::pair<std::string, float>>{
-             {"alpha", 1.f}, {"alpha", 0.f}, {"radius", -1.f}, {"light_paths", 0.5f}, {"merging", 2.f}})
+             {"alpha", 1.f}, {"alpha", 0.f}, {"radius", -1.f}, {"light_paths", 0.5f}, {"merging", 2.f},
+             {"direct_merging", 0.5f}})
         EXPECT_THROW(Integrator::Create("vcm", {64, {{name, value}}}, scene), std::invalid_argument) << name;
     const IntegratorInfo* info = FindIntegrator("vcm");
     ASSERT_NE(info, nullptr);

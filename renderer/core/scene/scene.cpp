@@ -62,6 +62,22 @@ void RequireLambertOnly(const SceneDesc& d, const std::vector<Material>& materia
         refuse("lights other than emissive triangles");
 }
 
+// A sphere light is seen, and blocks rays, from outside only: UsdLux sphere lights emit
+// outward, and a ray leaving a point inside one (a camera or an object within its radius)
+// passes through it. Embree reports such a ray's exit through the inside of the sphere, a
+// hit whose normal faces along the ray: it is rejected here (closest and occlusion
+// queries alike), so the ray goes on. A ray from outside meets the outside first and is
+// stopped there as before. Light sampling agrees: from inside there is none (SphereLight::Sample).
+void SphereOutsideOnly(const RTCFilterFunctionNArguments* args) {
+    for (unsigned i = 0; i < args->N; ++i) {
+        if (args->valid[i] != -1) continue;
+        const float dot = RTCHitN_Ng_x(args->hit, args->N, i) * RTCRayN_dir_x(args->ray, args->N, i) +
+                          RTCHitN_Ng_y(args->hit, args->N, i) * RTCRayN_dir_y(args->ray, args->N, i) +
+                          RTCHitN_Ng_z(args->hit, args->N, i) * RTCRayN_dir_z(args->ray, args->N, i);
+        if (dot > 0.f) args->valid[i] = 0;
+    }
+}
+
 }  // namespace
 
 namespace {
@@ -326,6 +342,8 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
                 vb[4 * s + 3] = spheres_[s].radius;
             }
         }
+        rtcSetGeometryIntersectFilterFunction(geom, SphereOutsideOnly);
+        rtcSetGeometryOccludedFilterFunction(geom, SphereOutsideOnly);
         rtcCommitGeometry(geom);
         rtcAttachGeometryByID(scene_, geom, kSphereGeometry);
         rtcReleaseGeometry(geom);
