@@ -108,3 +108,30 @@ def write_rect_light_facing_camera(path: Path, *, width=2.0, height=3.0, intensi
     stage.GetRootLayer().Save()
     return path
 
+
+# A Blender export's hair scene: one SphereLight of intensity 10 (the exporter's value,
+# W-less) 40 units above a grey floor in a scene of metres: its image is dim, not wrong.
+DIM_SPHERE_LIGHT_USDA = """#usda 1.0
+(upAxis = "Y")
+def Camera "Cam" {
+    double3 xformOp:translate = (0, 1, 6)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}
+def SphereLight "Light" {
+    float inputs:radius = 0.1
+    float inputs:intensity = INTENSITY
+    double3 xformOp:translate = (0, 40, 0)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}
+def SphereLight "Fill" {
+    float inputs:radius = 0.1
+    float inputs:intensity = 2
+    double3 xformOp:translate = (3, 40, 0)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}
+def Mesh "Floor" {
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+    point3f[] points = [(-50, 0, -50), (-50, 0, 50), (50, 0, 50), (50, 0, -50)]
+}
+"""

@@ -9,33 +9,7 @@ import sys
 
 from conftest import api_client, clean_env, farm_image, start_worker, submit, wait_for_job
 from tessera_base.film import BLACK_PIXEL, BLACK_SHARE
-
-# A Blender export's hair scene: one SphereLight of intensity 10 (the exporter's value,
-# W-less) 40 units above a grey floor in a scene of metres: its image is dim, not wrong.
-DIM = """#usda 1.0
-(upAxis = "Y")
-def Camera "Cam" {
-    double3 xformOp:translate = (0, 1, 6)
-    uniform token[] xformOpOrder = ["xformOp:translate"]
-}
-def SphereLight "Light" {
-    float inputs:radius = 0.1
-    float inputs:intensity = INTENSITY
-    double3 xformOp:translate = (0, 40, 0)
-    uniform token[] xformOpOrder = ["xformOp:translate"]
-}
-def SphereLight "Fill" {
-    float inputs:radius = 0.1
-    float inputs:intensity = 2
-    double3 xformOp:translate = (3, 40, 0)
-    uniform token[] xformOpOrder = ["xformOp:translate"]
-}
-def Mesh "Floor" {
-    int[] faceVertexCounts = [4]
-    int[] faceVertexIndices = [0, 1, 2, 3]
-    point3f[] points = [(-50, 0, -50), (-50, 0, 50), (50, 0, 50), (50, 0, -50)]
-}
-"""
+from usd_fixtures import DIM_SPHERE_LIGHT_USDA
 
 
 FORM = {"spp": 2, "tile_size": 16, "integrator": "path", "width": 24, "height": 24}
@@ -48,7 +22,7 @@ def test_a_black_farm_image_names_its_brightest_light(redis_server, tmp_path):
         try:
             for intensity, black in ((10, True), (1000000, False)):  # the second: negative control
                 scene = tmp_path / f"dim{intensity}.usda"
-                scene.write_text(DIM.replace("INTENSITY", str(intensity)))
+                scene.write_text(DIM_SPHERE_LIGHT_USDA.replace("INTENSITY", str(intensity)))
                 r = submit(farm, scene, **FORM)
                 assert r.status_code == 201, r.text
                 job = r.json()["id"]

@@ -8,33 +8,7 @@ import numpy as np
 import pytest
 
 from tessera_base.film import BLACK_PIXEL, BLACK_SHARE, black_image_warning
-
-# A Blender export's hair scene: one SphereLight of intensity 10 (the exporter's value,
-# W-less) 40 units above a grey floor in a scene of metres: its image is dim, not wrong.
-DIM = """#usda 1.0
-(upAxis = "Y")
-def Camera "Cam" {
-    double3 xformOp:translate = (0, 1, 6)
-    uniform token[] xformOpOrder = ["xformOp:translate"]
-}
-def SphereLight "Light" {
-    float inputs:radius = 0.1
-    float inputs:intensity = INTENSITY
-    double3 xformOp:translate = (0, 40, 0)
-    uniform token[] xformOpOrder = ["xformOp:translate"]
-}
-def SphereLight "Fill" {
-    float inputs:radius = 0.1
-    float inputs:intensity = 2
-    double3 xformOp:translate = (3, 40, 0)
-    uniform token[] xformOpOrder = ["xformOp:translate"]
-}
-def Mesh "Floor" {
-    int[] faceVertexCounts = [4]
-    int[] faceVertexIndices = [0, 1, 2, 3]
-    point3f[] points = [(-50, 0, -50), (-50, 0, 50), (50, 0, 50), (50, 0, -50)]
-}
-"""
+from usd_fixtures import DIM_SPHERE_LIGHT_USDA
 
 
 def test_the_rule_at_its_edges():
@@ -56,7 +30,7 @@ def _render(tmp_path, intensity, capsys):
     from tessera.cli import main
 
     scene = tmp_path / f"dim{intensity}.usda"
-    scene.write_text(DIM.replace("INTENSITY", str(intensity)))
+    scene.write_text(DIM_SPHERE_LIGHT_USDA.replace("INTENSITY", str(intensity)))
     out = tmp_path / f"dim{intensity}.exr"
     assert main(["render", str(scene), "--res", "24x24", "--spp", "4", "-q", "-o", str(out)]) == 0
     return [ln for ln in capsys.readouterr().err.splitlines() if "black for its exposure" in ln]
