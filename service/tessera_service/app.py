@@ -73,6 +73,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.users = users
     app.state.inspections = InspectionPool(settings.preflight_concurrency, settings.preflight_queue,
                                            wait_seconds=settings.preflight_timeout)
+    # Each comparison's child may use compare_memory_bytes: bound how many run at once.
+    app.state.comparisons = InspectionPool(settings.compare_concurrency, settings.preflight_queue,
+                                           wait_seconds=settings.compare_timeout,
+                                           activity="comparing {n} other image pair(s)")
     app.state.store = store
     # Verified blobs being read back and stored in Redis at once (each up to the upload limit).
     app.state.blob_slots = asyncio.Semaphore(settings.blob_store_concurrency)

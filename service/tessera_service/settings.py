@@ -62,6 +62,22 @@ class Settings(BaseSettings):
     preflight_queue: int = Field(
         default=4, ge=0,
         description="uploads that may wait for an inspection slot; beyond: 429 at once")
+    compare_max_pixels: int = Field(
+        default=1 << 23, ge=1,
+        description="largest image POST /compare accepts, in pixels (checked from the EXR "
+                    "headers before decoding; larger: 413). A comparison takes about 800 "
+                    "bytes a pixel (2048x2048: 3.2 GB resident, under 4 GiB of address "
+                    "space); 8 Mpx (3840x2160 fits) stays within compare_memory_bytes")
+    compare_memory_bytes: int = Field(
+        default=8192 * MiB, ge=0,
+        description="address-space limit of the child process that runs a comparison (0: no "
+                    "limit); the API process itself reads no pixel of a compared image")
+    compare_timeout: float = Field(default=120.0, gt=0,
+                                   description="seconds a comparison may take")
+    compare_concurrency: int = Field(
+        default=1, ge=1,
+        description="comparisons that may run at once; others wait up to compare_timeout, "
+                    "and beyond preflight_queue waiting ones: 429")
     max_tiles: int = Field(default=1 << 16, ge=1, description="most tiles one job may have")
     max_frames: int = Field(default=10_000, ge=1, description="most frames one frame range may have")
     job_retention: float = Field(
@@ -88,3 +104,4 @@ class Settings(BaseSettings):
         if isinstance(value, str):
             return [t.strip() for t in value.split(",") if t.strip()]
         return value
+
