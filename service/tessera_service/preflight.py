@@ -62,6 +62,8 @@ class SceneInfo:
     # The stage's Camera prims (None: an inspection remembered from before they were listed).
     cameras: list[str] | None = None
     camera_note: str | None = None  # the warning naming which of several cameras renders
+    # Size of the translated scene the workers share through Redis (0: not measured).
+    translated_bytes: int = 0
 
 
 def _limits(memory_bytes: int):
@@ -112,7 +114,8 @@ def inspect_scene(path: str, *, timeout: float, memory_bytes: int,
                                              if result.get("unlit_warnings") is not None else None),
                              cameras=([str(c) for c in result["cameras"]]
                                       if result.get("cameras") is not None else None),
-                             camera_note=(public(str(result["camera_note"])) if result.get("camera_note") else None))
+                             camera_note=(public(str(result["camera_note"])) if result.get("camera_note") else None),
+                             translated_bytes=int(result.get("translated_bytes", 0)))
         except (KeyError, TypeError, ValueError) as e:
             raise PreflightBroken(f"scene inspection returned an unexpected answer: {result!r}") from e
 

@@ -57,6 +57,20 @@ class Settings(BaseSettings):
         default=16_000_000, ge=1,
         description="most triangles a scene may have (the renderer's TESSERA_MAX_TRIANGLES, "
                     "lowered to what preflight_memory_bytes can translate)")
+    user_max_triangles: int = Field(
+        default=4_000_000, ge=1,
+        description="most triangles one user's scene may declare (counted from its face counts "
+                    "before it is built; a per-user limit under max_triangles). 10^7 declared "
+                    "triangles in an 82 KB file cost the farm 9 GB")
+    user_max_translated_bytes: int = Field(
+        default=256 * MiB, ge=1,
+        description="largest translated scene (the blob workers share through Redis, textures "
+                    "included) one user's scene may make, measured by the pre-flight")
+    user_limits: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description="per-user overrides of user_max_triangles and user_max_translated_bytes, "
+                    "comma-separated `user:triangles=N:translated=BYTES` entries (either part "
+                    "may be left out)")
     preflight_concurrency: int = Field(
         default=2, ge=1, description="scene inspections that may run at once (across scenes)")
     preflight_queue: int = Field(
@@ -98,10 +112,41 @@ class Settings(BaseSettings):
         description="/healthz reports degraded when queued or running jobs have shown no "
                     "progress for this long")
 
-    @field_validator("api_tokens", "api_admins", "trusted_proxies", "allowed_hosts", mode="before")
+    @field_validator("api_tokens", "api_admins", "trusted_proxies", "allowed_hosts", "user_limits",
+                     mode="before")
     @classmethod
     def _split_tokens(cls, value):
         if isinstance(value, str):
             return [t.strip() for t in value.split(",") if t.strip()]
         return value
 
+    @field_validator("user_limits")
+    @classmethod
+    def _check_user_limits(cls, value: list[str]) -> list[str]:
+        for entry in value:
+            _parse_user_limit(entry)
+        return value
+
+    def scene_limits(self, user: str) -> tuple[int, int]:
+        """(triangles, translated bytes) that `user`'s scenes may have."""
+        triangles, translated = self.user_max_triangles, self.user_max_translated_bytes
+        for entry in self.user_limits:
+            name, limits = _parse_user_limit(entry)
+            if name == user:
+                triangles = limits.get("triangles", triangles)
+                translated = limits.get("translated", translated)
+        return triangles, translated
+
+
+def _parse_user_limit(entry: str) -> tuple[str, dict[str, int]]:
+    name, *parts = entry.split(":")
+    limits = {}
+    for part in parts:
+        key, _, number = part.partition("=")
+        if key not in ("triangles", "translated") or not number.isdigit() or int(number) < 1:
+            raise ValueError(f"user_limits entry {entry!r}: expected "
+                             f"user:triangles=N:translated=BYTES (positive integers)")
+        limits[key] = int(number)
+    if not name:
+        raise ValueError(f"user_limits entry {entry!r} names no user")
+    return name, limits
