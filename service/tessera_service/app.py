@@ -18,6 +18,7 @@ import tessera_base
 from tessera_base.process import remove_orphaned_tempdirs
 
 from .auth import AuthGate, parse_networks, require_user
+from .http_guard import accept_error_handler
 from .inspection_pool import InspectionPool
 from .redis_acl import aof_replay_problem, redacted
 from .routers import blobs, compare, farm, jobs, monitor, priority, scaling
@@ -46,6 +47,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
+        # A failed accept (out of descriptors) is one log line a minute, not a traceback each.
+        asyncio.get_running_loop().set_exception_handler(accept_error_handler)
         # What a killed API left: uploads (users' scenes), merges and compares in progress,
         # and the bundles its inspections unpacked.
         for kind in ("upload", "merge", "compare", "bundle"):

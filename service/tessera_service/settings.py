@@ -92,6 +92,18 @@ class Settings(BaseSettings):
         default=1, ge=1,
         description="comparisons that may run at once; others wait up to compare_timeout, "
                     "and beyond preflight_queue waiting ones: 429")
+    http_header_timeout: float = Field(
+        default=10.0, gt=0,
+        description="seconds a connection may take to send a request's headers, from its "
+                    "first byte (or its opening); then it is closed (tessera serve)")
+    http_body_idle_timeout: float = Field(
+        default=30.0, gt=0,
+        description="seconds a request body may go without a byte before the connection is "
+                    "closed (tessera serve)")
+    http_max_connections: int = Field(
+        default=2048, ge=1,
+        description="open connections the API keeps at most (lowered to its descriptor limit "
+                    "less 256); beyond, a new one gets 503 and is closed (tessera serve)")
     max_tiles: int = Field(default=1 << 16, ge=1, description="most tiles one job may have")
     max_frames: int = Field(default=10_000, ge=1, description="most frames one frame range may have")
     job_retention: float = Field(
