@@ -46,6 +46,11 @@ class Settings(BaseSettings):
         description="PUT /blobs uploads whose verified bytes are read into the API's memory and "
                     "stored in Redis at once (each up to max_upload_bytes); the others wait. "
                     "Uploads stream to disk, so this bounds the API's memory for blobs")
+    user_blob_quota_bytes: int = Field(
+        default=1024 * MiB, ge=1,
+        description="bytes of packed-scene files (PUT /blobs) one user may keep stored; an "
+                    "upload past it gets 413 (six 250 MiB uploads of one user filled the "
+                    "deploy Redis)")
     max_upload_bytes: int = Field(default=256 * MiB, ge=1, description="largest accepted scene file")
     preflight_timeout: float = Field(default=60.0, gt=0,
                                      description="seconds the scene inspection may take")
