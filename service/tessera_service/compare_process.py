@@ -70,5 +70,8 @@ def compare_in_child(test: Path, reference: Path, *, alpha: float, method: str, 
         raise CompareRefused(413, "the images are too large to compare within the comparison's "
                                   f"memory limit ({memory_bytes >> 20} MiB, "
                                   "TESSERA_COMPARE_MEMORY_BYTES)")
+    if "failed to map segment" in stderr:  # a library could not even be loaded
+        raise RuntimeError(f"the comparison's memory limit ({memory_bytes >> 20} MiB, "
+                           f"TESSERA_COMPARE_MEMORY_BYTES) is too small to start it")
     tail = " | ".join(stderr.strip().splitlines()[-3:])
     raise RuntimeError(f"the comparison process failed (exit {proc.returncode}): {tail}")

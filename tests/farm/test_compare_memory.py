@@ -92,3 +92,19 @@ def test_an_image_over_the_pixel_limit_is_refused_before_decoding(api, exrs):
     # One pixel fewer is compared (the limit is inclusive).
     assert _post(api, exrs["same"], exrs["reference"]).status_code == 200
     assert _peak_mib(api.api.pid) - before < API_GROWTH_MIB
+
+
+def test_a_comparison_past_its_memory_limit_is_413(tmp_path):
+    """Two 2048² renders need about 3.2 GB; in a child limited to 1.5 GiB of address space
+    (enough to start: 768 MiB is) the comparison is refused with 413 naming the setting."""
+    from tessera_service.compare_process import CompareRefused, compare_in_child
+
+    a, b = _render(tmp_path / "a.exr", 1.0, 2048, 2048), _render(tmp_path / "b.exr", 1.0, 2048, 2048)
+    with pytest.raises(CompareRefused) as refused:
+        compare_in_child(a, b, alpha=0.01, method="bh", flip=False, max_pixels=1 << 24,
+                         memory_bytes=1536 * MiB, timeout=120)
+    assert refused.value.status == 413 and "TESSERA_COMPARE_MEMORY_BYTES" in str(refused.value)
+    # Control: the same pair within 6 GiB is compared (the refusal was the limit's).
+    report = compare_in_child(a, b, alpha=0.01, method="bh", flip=False, max_pixels=1 << 24,
+                              memory_bytes=6144 * MiB, timeout=120)
+    assert report["verdict"] == "same" and report["width"] == 2048
