@@ -66,3 +66,21 @@ def test_the_translated_size_limit_refuses_what_the_triangle_limit_lets_through(
     # Carol may have both: the same file (its remembered inspection) becomes a job.
     r = _submit(api, declares, "carol-token")
     assert r.status_code == 201, r.text
+
+
+def test_the_issues_file_is_refused_under_the_default_limits(redis_server, tmp_path):
+    """The issue's case with no limit configured: a small .usdc declaring 10^7 triangles
+    (was accepted, 520 MB translated, 9 GB of farm RSS) is refused from its face counts by
+    the default per-user limit (4,000,000), which its message names."""
+    path = write_mesh(tmp_path / "ten_million.usdc", 10_000_000, sides=4)
+    assert path.stat().st_size < 100_000
+    (tmp_path / "api").mkdir()
+    proc, base = start_api(redis_server, tmp_path / "api", api_tokens="dave:dave-token")
+    try:
+        with httpx.Client(base_url=base, timeout=120) as client:
+            r = _submit(client, path, "dave-token")
+    finally:
+        proc.stop()
+    assert r.status_code == 422, r.text
+    assert "limit of 4000000 triangles" in r.json()["detail"]  # 5 M faces: the mesh alone is over it
+    assert "TESSERA_USER_MAX_TRIANGLES" in r.json()["detail"]
