@@ -26,7 +26,7 @@ STARTUP_TIMEOUT = 30.0
 # (API, workers, Redis restarts, network namespaces), the bench, the fuzz campaign or
 # long statistical renders; a test elsewhere may carry @pytest.mark.slow itself.
 SLOW_MODULES = {"test_farm_e2e", "test_farm_lifecycle", "test_farm_resilience", "test_farm_netns",
-                "test_farm_openapi", "test_farm_storage", "test_farm_auth", "test_farm_users", "test_bundles_farm", "test_packing_farm", "test_bench", "test_fuzz", "test_caustic", "test_compare_integrators",
+                "test_farm_openapi", "test_farm_storage", "test_farm_auth", "test_farm_users", "test_compare_memory", "test_user_scene_limits", "test_slowloris", "test_bundles_farm", "test_packing_farm", "test_bench", "test_fuzz", "test_caustic", "test_compare_integrators",
                 "test_integrators", "test_scene_passes"}
 
 

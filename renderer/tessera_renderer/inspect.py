@@ -7,7 +7,7 @@ with, as the render will compose it (the missing layers that matter are the ones
 selection uses).
 
 Prints one JSON object: {"ok": true, "width", "height", "warnings", "triangles", "curve_segments", "lights",
-"cameras", "camera_note", "animated", "unlit_warnings"}, the last present for a stage without any light: the warnings of a
+"cameras", "camera_note", "animated", "translated_bytes" (scene_blob.blob_size), "unlit_warnings"}, the last present for a stage without any light: the warnings of a
 render with default lighting off (the job setting default_light=false),
 and exits 0, or {"ok": false, "error": "..."} and exits 2. A crash of the USD parser takes
 only this process with it.
@@ -45,6 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     from .usd.census import take_census
     from .usd import translate_stage
     from .usd.camera import CAMERA_CHOICE_NOTE, camera_paths
+    from .scene_blob import blob_size
 
     try:
         bundle = open_bundle(argv[0])
@@ -57,7 +58,10 @@ def main(argv: list[str] | None = None) -> int:
             raise SceneError("the scene's face counts are too large to count within the "
                              f"pre-flight's memory (triangle limit {bundle.limits.triangles})") from None
         bundle.warnings[:] = warnings  # translate_stage opens the stage again and adds its own
-        scene = Scene(translate_stage(argv[0], bundle=bundle, instancing="auto", variants=variants))
+        data = translate_stage(argv[0], bundle=bundle, instancing="auto", variants=variants)
+        translated_bytes = blob_size(data)
+        scene = Scene(data)
+        del data
         cameras = camera_paths(stage)
         del stage
     except SceneError as exc:
@@ -70,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     info = {"ok": True, "width": scene.width, "height": scene.height, "warnings": scene.warnings,
             "triangles": scene.num_triangles, "curve_segments": scene.num_curve_segments,
-            "lights": scene.num_emitters, "cameras": cameras,
+            "lights": scene.num_emitters, "cameras": cameras, "translated_bytes": translated_bytes,
             # The warning naming the camera chosen among several: void for a job naming its own.
             "camera_note": next((w for w in scene.warnings if CAMERA_CHOICE_NOTE in w), None),
             "animated": bool(getattr(scene.data, "animated", True))}

@@ -93,7 +93,19 @@ def translate_to_blob(path: str | Path, frame: float | None = None, *, root: str
             bundle.cleanup()
 
 
-def scene_data_to_blob(data: SceneData) -> bytes:
+def blob_size(data: SceneData) -> int:
+    """The size of scene_data_to_blob(data) without building it, but for its JSON header
+    (a few KB): what the farm will keep of this scene in Redis, for the pre-flight's limit."""
+    arrays, files = _blob_arrays(data), _blob_files(data)[0]
+    size = 0
+    for a in arrays.values():
+        size = _aligned(size + a.nbytes)
+    for _, src in files:
+        size = _aligned(size + os.path.getsize(src))
+    return size
+
+
+def _blob_arrays(data: SceneData) -> dict[str, np.ndarray]:
     arrays: dict[str, np.ndarray] = {
         "positions": data.positions, "indices": data.indices, "triangle_material": data.triangle_material,
         "albedo": data.albedo, "emission": data.emission, "two_sided_emission": data.two_sided_emission,
@@ -120,7 +132,12 @@ def scene_data_to_blob(data: SceneData) -> bytes:
         for f in _PROTO_FIELDS:
             if proto.get(f) is not None:
                 arrays[f"prototypes.{i}.{f}"] = proto[f]
+    return arrays
 
+
+def _blob_files(data: SceneData) -> tuple[list[tuple[str, str]], list[dict], dict | None]:
+    """The texture files the blob carries (blob name, source path), and the textures and
+    dome light with their files renamed to those names."""
     # Texture files, each once, named by their index in the blob.
     files: list[tuple[str, str]] = []   # (blob name, source path)
     by_source: dict[str, str] = {}
@@ -148,7 +165,12 @@ def scene_data_to_blob(data: SceneData) -> bytes:
             by_source[src] = f"f{len(by_source)}/{os.path.basename(src)}"
             files.append((by_source[src], src))
         dome["texture"] = by_source[src]
+    return files, textures, dome
 
+
+def scene_data_to_blob(data: SceneData) -> bytes:
+    arrays = _blob_arrays(data)
+    files, textures, dome = _blob_files(data)
     c = data.camera
     meta = {
         "camera": {k: (v if math.isfinite(v) else None) if isinstance(v, float) else v

@@ -18,6 +18,7 @@ import tessera_base
 from tessera_base.process import remove_orphaned_tempdirs
 
 from .auth import AuthGate, parse_networks, require_user
+from .http_guard import accept_error_handler
 from .inspection_pool import InspectionPool
 from .redis_acl import aof_replay_problem, redacted
 from .routers import apidocs, blobs, compare, farm, jobs, monitor, priority, scaling
@@ -46,6 +47,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
+        # A failed accept (out of descriptors) is one log line a minute, not a traceback each.
+        asyncio.get_running_loop().set_exception_handler(accept_error_handler)
         # What a killed API left: uploads (users' scenes), merges and compares in progress,
         # and the bundles its inspections unpacked.
         for kind in ("upload", "merge", "compare", "bundle"):
@@ -76,6 +79,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.users = users
     app.state.inspections = InspectionPool(settings.preflight_concurrency, settings.preflight_queue,
                                            wait_seconds=settings.preflight_timeout)
+    # Each comparison's child may use compare_memory_bytes: bound how many run at once.
+    app.state.comparisons = InspectionPool(settings.compare_concurrency, settings.preflight_queue,
+                                           wait_seconds=settings.compare_timeout,
+                                           activity="comparing {n} other image pair(s)")
     app.state.store = store
     # Verified blobs being read back and stored in Redis at once (each up to the upload limit).
     app.state.blob_slots = asyncio.Semaphore(settings.blob_store_concurrency)

@@ -12,7 +12,8 @@ is remembered.
 
 Limits: one file is at most `max_upload_bytes`, as is the whole bundle (a packed scene is
 an upload); a manifest names at most TESSERA_MAX_FILES files (the bundle sandbox's own
-limit, 20 000). Files are kept for the scene retention after their last use.
+limit, 20 000). Files are kept for the scene retention after their last use, or until
+their user deletes them; each user may keep `user_blob_quota_bytes` of files.
 
 Ownership: the bytes are stored once, but a user may use a file only after sending its
 bytes themselves (`redis_schema.blob_owners_key`); to another user the farm answers that
@@ -44,6 +45,10 @@ _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
 
 class ManifestError(ValueError):
     """A manifest the service refuses; the message is for the user."""
+
+
+class QuotaExceeded(Exception):
+    """The upload would take the user past their blob quota; the message is for the user."""
 
 
 class BlobsMissing(ManifestError):
@@ -153,15 +158,77 @@ class BlobStore:
         self._renew([d for d, ok in zip(unique, owned) if ok])
         return [d for d, ok in zip(unique, owned) if not ok]
 
-    def put(self, digest: str, data: bytes) -> bool:
+    def usage(self) -> int:
+        """Bytes of the blobs this user sent that are still stored; drops the entries of
+        those that expired."""
+        usage_key = rdb.blob_usage_key(self.user)
+        sizes = {d.decode(): int(n) for d, n in self.redis.hgetall(usage_key).items()}
+        if not sizes:
+            return 0
+        owned = dict(zip(sizes, self._owned(list(sizes))))
+        if gone := [d for d, ok in owned.items() if not ok]:
+            self.redis.hdel(usage_key, *gone)
+        return sum(n for d, n in sizes.items() if owned[d])
+
+    def put(self, digest: str, data: bytes, quota: int | None = None) -> bool:
         """Stores verified bytes and records that this user has them; False when they were
-        stored already."""
+        stored already. QuotaExceeded when bytes the user does not have yet would take
+        them past `quota` (checked against their usage now: concurrent uploads of one user
+        may pass it by what they upload at once, at most blob_store_concurrency files per
+        API process)."""
+        if quota is not None and not self._owned([digest])[0]:
+            used = self.usage()
+            if used + len(data) > quota:
+                raise QuotaExceeded(
+                    f"this file ({len(data)} bytes) would take your stored files to "
+                    f"{used + len(data)} bytes, more than your quota of {quota} bytes "
+                    f"(TESSERA_USER_BLOB_QUOTA_BYTES): delete files you no longer need "
+                    f"(DELETE /blobs/<sha256>, or DELETE /blobs for all of yours), or wait for "
+                    f"them to expire")
+        usage_key = rdb.blob_usage_key(self.user)
         with self.redis.pipeline(transaction=True) as pipe:
             pipe.set(rdb.blob_key(digest), data, nx=True, ex=self.ttl or None)
             pipe.sadd(rdb.blob_owners_key(digest), self.user)
-            stored, _ = pipe.execute()
+            pipe.hset(usage_key, digest, len(data))
+            if self.ttl:
+                pipe.expire(usage_key, self.ttl)
+            stored = pipe.execute()[0]
         self._renew([digest])
         return bool(stored)
+
+    def delete(self, digest: str) -> int | None:
+        """Forgets that this user has the file, and the file itself once no other user
+        sent it; its size, or None when this user has no such file. Jobs are not
+        affected: a submitted packed scene is a scene of its own (assembled at submission)."""
+        owners, blob = rdb.blob_owners_key(digest), rdb.blob_key(digest)
+        with self.redis.pipeline(transaction=True) as pipe:
+            while True:
+                try:
+                    pipe.watch(owners)  # another user's upload of these bytes meanwhile: retry
+                    if not pipe.sismember(owners, self.user) or not pipe.exists(blob):
+                        pipe.unwatch()
+                        self.redis.hdel(rdb.blob_usage_key(self.user), digest)
+                        return None
+                    size = int(pipe.strlen(blob))
+                    last = int(pipe.scard(owners)) == 1
+                    pipe.multi()
+                    pipe.srem(owners, self.user)
+                    pipe.hdel(rdb.blob_usage_key(self.user), digest)
+                    if last:
+                        pipe.delete(blob, owners)
+                    pipe.execute()
+                    return size
+                except redis.WatchError:
+                    continue
+
+    def delete_all(self) -> tuple[int, int]:
+        """Deletes every file this user sent (as `delete`); (files, bytes)."""
+        files = total = 0
+        for digest in self.redis.hkeys(rdb.blob_usage_key(self.user)):
+            size = self.delete(digest.decode())
+            if size is not None:
+                files, total = files + 1, total + size
+        return files, total
 
     def sizes(self, hashes: list[str]) -> dict[str, int]:
         with self.redis.pipeline(transaction=False) as pipe:

@@ -44,6 +44,7 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
     import uvicorn
 
     from .app import create_app
+    from .http_guard import connection_cap, guarded_protocol
     from .settings import Settings
 
     # Uvicorn handles SIGINT/SIGTERM while it runs and re-raises the signal once it has
@@ -97,8 +98,11 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
             # is off: it would replace the peer address with a header's value for any
             # request from 127.0.0.1, and AuthGate decides whom to believe.
             app = create_app(Settings(redis_url=redis_url, **anonymous))
+            limits = app.state.settings
+            cap = connection_cap(limits.http_max_connections)
+            protocol = guarded_protocol(limits.http_header_timeout, limits.http_body_idle_timeout, cap)
             server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level=log_level,
-                                                   proxy_headers=False))
+                                                   proxy_headers=False, http=protocol))
             phase = "running"
             server.run()
             phase = "stopping"

@@ -18,7 +18,9 @@ class PoolFull(Exception):
 
 
 class InspectionPool:
-    def __init__(self, running: int, waiting: int, wait_seconds: float):
+    def __init__(self, running: int, waiting: int, wait_seconds: float,
+                 activity: str = "inspecting {n} other scene(s)"):
+        self.activity = activity
         self.capacity, self.queue_capacity, self.wait_seconds = running, waiting, wait_seconds
         self._cond = threading.Condition()
         self.running = 0
@@ -49,5 +51,5 @@ class InspectionPool:
                 self._cond.notify()
 
     def _busy(self, what: str) -> str:
-        return (f"the server is inspecting {self.running} other scene(s) already, {what}: "
+        return (f"the server is {self.activity.format(n=self.running)} already, {what}: "
                 f"try again shortly")

@@ -6,14 +6,13 @@ from __future__ import annotations
 import json
 import os
 import re
-import resource
 import signal
 import subprocess
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from tessera_base.process import die_with_parent, remove_orphaned_tempdirs
+from tessera_base.process import limited_child, remove_orphaned_tempdirs
 
 INSPECT_MODULE = "tessera_renderer.inspect"
 
@@ -67,15 +66,8 @@ class SceneInfo:
     animated: bool = True
     # The scene's brightest light as a black image's warning names it (SceneData.brightest_light).
     brightest_light: str | None = None
-
-
-def _limits(memory_bytes: int):
-    def apply() -> None:  # runs in the child between fork and exec: keep it minimal
-        die_with_parent(signal.SIGKILL)  # a killed API must not leave a 5 GB inspection running
-        if memory_bytes > 0:
-            resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
-        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
-    return apply
+    # Size of the translated scene the workers share through Redis (0: not measured).
+    translated_bytes: int = 0
 
 
 def inspect_scene(path: str, *, timeout: float, memory_bytes: int,
@@ -92,7 +84,7 @@ def inspect_scene(path: str, *, timeout: float, memory_bytes: int,
         proc = subprocess.run([sys.executable, "-m", INSPECT_MODULE, path,
                                *([json.dumps([list(v) for v in variants])] if variants else [])],
                               stdin=subprocess.DEVNULL, capture_output=True, env=env,
-                              timeout=timeout, preexec_fn=_limits(memory_bytes))
+                              timeout=timeout, preexec_fn=limited_child(memory_bytes))
     except subprocess.TimeoutExpired:
         raise PreflightRejected(f"scene inspection timed out after {timeout:g} s", lasting=False) from None
     finally:
@@ -120,7 +112,8 @@ def inspect_scene(path: str, *, timeout: float, memory_bytes: int,
                              camera_note=(public(str(result["camera_note"])) if result.get("camera_note") else None),
                              animated=bool(result.get("animated", True)),
                              brightest_light=(str(result["brightest_light"]) if result.get("brightest_light")
-                                              else None))
+                                              else None),
+                             translated_bytes=int(result.get("translated_bytes", 0)))
         except (KeyError, TypeError, ValueError) as e:
             raise PreflightBroken(f"scene inspection returned an unexpected answer: {result!r}") from e
 

@@ -46,6 +46,11 @@ class Settings(BaseSettings):
         description="PUT /blobs uploads whose verified bytes are read into the API's memory and "
                     "stored in Redis at once (each up to max_upload_bytes); the others wait. "
                     "Uploads stream to disk, so this bounds the API's memory for blobs")
+    user_blob_quota_bytes: int = Field(
+        default=1024 * MiB, ge=1,
+        description="bytes of packed-scene files (PUT /blobs) one user may keep stored; an "
+                    "upload past it gets 413 (six 250 MiB uploads of one user filled the "
+                    "deploy Redis)")
     max_upload_bytes: int = Field(default=256 * MiB, ge=1, description="largest accepted scene file")
     preflight_timeout: float = Field(default=60.0, gt=0,
                                      description="seconds the scene inspection may take")
@@ -57,11 +62,53 @@ class Settings(BaseSettings):
         default=16_000_000, ge=1,
         description="most triangles a scene may have (the renderer's TESSERA_MAX_TRIANGLES, "
                     "lowered to what preflight_memory_bytes can translate)")
+    user_max_triangles: int = Field(
+        default=4_000_000, ge=1,
+        description="most triangles one user's scene may declare (counted from its face counts "
+                    "before it is built; a per-user limit under max_triangles). 10^7 declared "
+                    "triangles in an 82 KB file cost the farm 9 GB")
+    user_max_translated_bytes: int = Field(
+        default=256 * MiB, ge=1,
+        description="largest translated scene (the blob workers share through Redis, textures "
+                    "included) one user's scene may make, measured by the pre-flight")
+    user_limits: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description="per-user overrides of user_max_triangles and user_max_translated_bytes, "
+                    "comma-separated `user:triangles=N:translated=BYTES` entries (either part "
+                    "may be left out)")
     preflight_concurrency: int = Field(
         default=2, ge=1, description="scene inspections that may run at once (across scenes)")
     preflight_queue: int = Field(
         default=4, ge=0,
         description="uploads that may wait for an inspection slot; beyond: 429 at once")
+    compare_max_pixels: int = Field(
+        default=1 << 23, ge=1,
+        description="largest image POST /compare accepts, in pixels (checked from the EXR "
+                    "headers before decoding; larger: 413). A comparison takes about 800 "
+                    "bytes a pixel (2048x2048: 3.2 GB resident, under 4 GiB of address "
+                    "space); 8 Mpx (3840x2160 fits) stays within compare_memory_bytes")
+    compare_memory_bytes: int = Field(
+        default=8192 * MiB, ge=0,
+        description="address-space limit of the child process that runs a comparison (0: no "
+                    "limit); the API process itself reads no pixel of a compared image")
+    compare_timeout: float = Field(default=120.0, gt=0,
+                                   description="seconds a comparison may take")
+    compare_concurrency: int = Field(
+        default=1, ge=1,
+        description="comparisons that may run at once; others wait up to compare_timeout, "
+                    "and beyond preflight_queue waiting ones: 429")
+    http_header_timeout: float = Field(
+        default=10.0, gt=0,
+        description="seconds a connection may take to send a request's headers, from its "
+                    "first byte (or its opening); then it is closed (tessera serve)")
+    http_body_idle_timeout: float = Field(
+        default=30.0, gt=0,
+        description="seconds a request body may go without a byte before the connection is "
+                    "closed (tessera serve)")
+    http_max_connections: int = Field(
+        default=2048, ge=1,
+        description="open connections the API keeps at most (lowered to its descriptor limit "
+                    "less 256); beyond, a new one gets 503 and is closed (tessera serve)")
     max_tiles: int = Field(default=1 << 16, ge=1, description="most tiles one job may have")
     max_frames: int = Field(default=10_000, ge=1, description="most frames one frame range may have")
     job_retention: float = Field(
@@ -82,9 +129,41 @@ class Settings(BaseSettings):
         description="/healthz reports degraded when queued or running jobs have shown no "
                     "progress for this long")
 
-    @field_validator("api_tokens", "api_admins", "trusted_proxies", "allowed_hosts", mode="before")
+    @field_validator("api_tokens", "api_admins", "trusted_proxies", "allowed_hosts", "user_limits",
+                     mode="before")
     @classmethod
     def _split_tokens(cls, value):
         if isinstance(value, str):
             return [t.strip() for t in value.split(",") if t.strip()]
         return value
+
+    @field_validator("user_limits")
+    @classmethod
+    def _check_user_limits(cls, value: list[str]) -> list[str]:
+        for entry in value:
+            _parse_user_limit(entry)
+        return value
+
+    def scene_limits(self, user: str) -> tuple[int, int]:
+        """(triangles, translated bytes) that `user`'s scenes may have."""
+        triangles, translated = self.user_max_triangles, self.user_max_translated_bytes
+        for entry in self.user_limits:
+            name, limits = _parse_user_limit(entry)
+            if name == user:
+                triangles = limits.get("triangles", triangles)
+                translated = limits.get("translated", translated)
+        return triangles, translated
+
+
+def _parse_user_limit(entry: str) -> tuple[str, dict[str, int]]:
+    name, *parts = entry.split(":")
+    limits = {}
+    for part in parts:
+        key, _, number = part.partition("=")
+        if key not in ("triangles", "translated") or not number.isdigit() or int(number) < 1:
+            raise ValueError(f"user_limits entry {entry!r}: expected "
+                             f"user:triangles=N:translated=BYTES (positive integers)")
+        limits[key] = int(number)
+    if not name:
+        raise ValueError(f"user_limits entry {entry!r} names no user")
+    return name, limits

@@ -30,6 +30,20 @@ def die_with_parent(sig: int = signal.SIGTERM) -> None:
         _prctl(_PR_SET_PDEATHSIG, int(sig))
 
 
+def limited_child(memory_bytes: int):
+    """A preexec_fn for a child that must not outlive the API nor exceed `memory_bytes` of
+    address space (0: no limit), and writes no core file (a pre-flight inspection, a
+    comparison). It runs between fork and exec, so it does as little as it can."""
+    import resource
+
+    def apply() -> None:
+        die_with_parent(signal.SIGKILL)  # a killed API must not leave a 5 GB child running
+        if memory_bytes > 0:
+            resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
+        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+    return apply
+
+
 def private_tempdir(kind: str) -> str:
     """A fresh directory tessera-<kind>-<pid>-XXXX in the temporary directory: the pid in
     its name lets the next process of that kind remove it if this one is killed."""

@@ -132,6 +132,14 @@ def blob_owners_key(content_hash: str) -> str:
     return f"{PREFIX}:blob-owners:{content_hash}"
 
 
+def blob_usage_key(user: str) -> str:
+    """Hash: the blobs an API user sent (sha256 -> size in bytes), for the user's quota
+    (Settings.user_blob_quota_bytes) and DELETE /blobs. Entries whose blob expired are
+    pruned when the quota is checked. TTL: the scene retention, renewed with the user's
+    uploads. Only the API reads or writes it."""
+    return f"{PREFIX}:blob-usage:{user}"
+
+
 def job_key(job_id: str) -> str:
     """Hash: the job's spec, state, counters and timings (fields: module docstring)."""
     return f"{_JOB}{job_id}"

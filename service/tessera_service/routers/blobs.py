@@ -14,7 +14,7 @@ from pydantic import BaseModel, Field
 from starlette.concurrency import run_in_threadpool
 
 from ..auth import require_user
-from ..blobs import HASH, MAX_FILES, BlobStore
+from ..blobs import HASH, MAX_FILES, BlobStore, QuotaExceeded
 from ..users import User
 
 CurrentUser = Annotated[User, Depends(require_user)]
@@ -53,7 +53,8 @@ def missing_blobs(body: HashList, request: Request, user: CurrentUser) -> Missin
 
 
 @router.put("/{digest}", status_code=201, response_model=BlobStored,
-            responses={413: {"description": "larger than the upload limit"},
+            responses={413: {"description": "larger than the upload limit, or past the user's "
+                                             "quota of stored files"},
                        422: {"description": "the bytes do not have this hash"}},
             openapi_extra={"requestBody": {"required": True,
                                            "content": {"application/octet-stream": {"schema": {
@@ -86,10 +87,40 @@ async def put_blob(digest: str, request: Request, user: CurrentUser) -> BlobStor
                                      f"the file changed or was damaged on the way; nothing was stored")
         async with request.app.state.blob_slots:
             # The store is the synchronous client: off the event loop, as the sync routes are.
-            stored = await run_in_threadpool(_store_file, _blobs(request, user), digest, path)
+            try:
+                stored = await run_in_threadpool(_store_file, _blobs(request, user), digest, path,
+                                                 request.app.state.settings.user_blob_quota_bytes)
+            except QuotaExceeded as exc:
+                raise HTTPException(413, str(exc)) from None
     return BlobStored(hash=digest, size=size, stored=stored)
 
 
-def _store_file(blobs: BlobStore, digest: str, path: str) -> bool:
+def _store_file(blobs: BlobStore, digest: str, path: str, quota: int) -> bool:
     with open(path, "rb") as f:
-        return blobs.put(digest, f.read())
+        return blobs.put(digest, f.read(), quota)
+
+
+class BlobsDeleted(BaseModel):
+    files: int = Field(description="files of yours deleted")
+    bytes: int = Field(description="their total size")
+    quota: int = Field(description="your quota of stored files in bytes")
+
+
+@router.delete("/{digest}", response_model=BlobsDeleted,
+               responses={404: {"description": "you have no file with this hash"}})
+def delete_blob(digest: str, request: Request, user: CurrentUser) -> BlobsDeleted:
+    """Deletes one of your stored files (freeing your quota; the bytes stay while another
+    user who sent them keeps them). Submitted jobs are not affected."""
+    if not HASH.fullmatch(digest):
+        raise HTTPException(422, f"{digest[:80]!r} is not a SHA-256 in lower-case hex")
+    size = _blobs(request, user).delete(digest)
+    if size is None:
+        raise HTTPException(404, f"you have no stored file {digest}")
+    return BlobsDeleted(files=1, bytes=size, quota=request.app.state.settings.user_blob_quota_bytes)
+
+
+@router.delete("", response_model=BlobsDeleted)
+def delete_blobs(request: Request, user: CurrentUser) -> BlobsDeleted:
+    """Deletes all of your stored files. Submitted jobs are not affected."""
+    files, size = _blobs(request, user).delete_all()
+    return BlobsDeleted(files=files, bytes=size, quota=request.app.state.settings.user_blob_quota_bytes)

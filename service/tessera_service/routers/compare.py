@@ -10,8 +10,10 @@ from fastapi import APIRouter, File, Form, HTTPException, Request, Response, Upl
 from fastapi.routing import APIRoute
 from starlette.types import Message
 
-from tessera_tools.compare import ALPHA, CompareError, CompareReport, compare_files
+from tessera_tools.compare import ALPHA, CompareReport
 
+from ..compare_process import CompareRefused, compare_in_child
+from ..inspection_pool import InspectionPool, PoolFull
 from ..settings import Settings
 from .jobs import _save_upload, upload_too_large
 
@@ -54,7 +56,10 @@ router = APIRouter(tags=["compare"], route_class=_LimitedBody)
 
 
 @router.post("/compare", response_model=CompareReport,
-             responses={413: {"description": "an upload is larger than the limit"},
+             responses={413: {"description": "an upload is larger than the limit, an image has "
+                                             "more pixels than compare_max_pixels, or the "
+                                             "comparison ran out of its memory limit"},
+                        429: {"description": "too many comparisons running and waiting"},
                         422: {"description": "not comparable: unreadable EXR, sizes differ, no "
                                              "variance channels, bad alpha"}})
 def compare(
@@ -78,10 +83,17 @@ def compare(
             path = Path(tmp, f"{role}.exr")
             _save_upload(upload, path, settings.max_upload_bytes)
             paths.append(path)
+        pool: InspectionPool = request.app.state.comparisons
         try:
-            return compare_files(*paths, alpha=alpha, method=method, flip=flip).report
-        except CompareError as exc:
+            with pool.slot():
+                return CompareReport(**compare_in_child(
+                    *paths, alpha=alpha, method=method, flip=flip,
+                    max_pixels=settings.compare_max_pixels,
+                    memory_bytes=settings.compare_memory_bytes, timeout=settings.compare_timeout))
+        except PoolFull as exc:
+            raise HTTPException(429, str(exc), headers={"Retry-After": "5"}) from None
+        except CompareRefused as exc:
             # The temporary names mean nothing to the client: name the uploads instead.
             message = str(exc).replace(str(paths[0]), test.filename or "test") \
                               .replace(str(paths[1]), reference.filename or "reference")
-            raise HTTPException(422, message) from None
+            raise HTTPException(exc.status, message) from None

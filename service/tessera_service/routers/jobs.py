@@ -209,7 +209,7 @@ def create_job(
         scene_hash = (_save_upload(file, path, settings.max_upload_bytes) if packed is None
                       else _assemble(request, packed, path, settings.max_upload_bytes, user))
         try:
-            info = _inspect(request, path, scene_hash, params["variants"] or ())
+            info = _inspect(request, path, scene_hash, params["variants"] or (), user)
         except HTTPException as exc:
             if packed is not None or suffix in (".zip", ".usdz") or exc.status_code != 422:
                 raise
@@ -608,20 +608,43 @@ def _loose_layer_detail(detail: str, stored: str, uploaded: str) -> str:
     return detail
 
 
-def _inspect(request: Request, path: Path, scene_hash: str, variants: Sequence[str] = ()) -> SceneInfo:
+def _inspect(request: Request, path: Path, scene_hash: str, variants: Sequence[str], user: User) -> SceneInfo:
     """The scene's pre-flight, composed with the job's variant selections: remembered
     (passed or refused) for this exact file and selection, else inspected in a slot of the
-    bounded pool (429 when it is full)."""
+    bounded pool (429 when it is full); then held to `user`'s limits on declared triangles
+    and translated size."""
     settings: Settings = request.app.state.settings
     store: JobStore = request.app.state.store
     pool: InspectionPool = request.app.state.inspections
-    max_triangles = triangle_limit(settings.max_triangles, settings.preflight_memory_bytes)
-    limits = f"{max_triangles}/{settings.preflight_memory_bytes}/{settings.preflight_timeout:g}"
+    farm_triangles = triangle_limit(settings.max_triangles, settings.preflight_memory_bytes)
+    user_triangles, user_translated = settings.scene_limits(user.name)
+    max_triangles = min(farm_triangles, user_triangles)
+    # The user's triangle limit is the one that refused: name its setting (not in the
+    # remembered verdict, which other users with the same limit share).
+    why = (f" (the per-user limit: TESSERA_USER_MAX_TRIANGLES or TESSERA_USER_LIMITS)"
+           if user_triangles < farm_triangles else "")
+    # "/t": verdicts remembered before they carried translated_bytes are not reused.
+    limits = f"{max_triangles}/{settings.preflight_memory_bytes}/{settings.preflight_timeout:g}/t"
+    info = _inspect_limited(request, path, scene_hash, variants, max_triangles, limits, why)
+    if info.translated_bytes > user_translated:
+        raise HTTPException(422, f"the scene cannot be rendered: it translates to "
+                                 f"{_size(info.translated_bytes)}, more than the "
+                                 f"{_size(user_translated)} a scene of yours may "
+                                 f"(TESSERA_USER_MAX_TRANSLATED_BYTES or TESSERA_USER_LIMITS)")
+    return info
+
+
+def _inspect_limited(request: Request, path: Path, scene_hash: str, variants: Sequence[str],
+                     max_triangles: int, limits: str, why: str) -> SceneInfo:
+    settings: Settings = request.app.state.settings
+    store: JobStore = request.app.state.store
+    pool: InspectionPool = request.app.state.inspections
     # Concurrent uploads of one scene wait for a single inspection.
     with _inspection_lock(scene_hash):
         cached = store.preflight(scene_hash, path.suffix, limits, variants)
         if cached is not None and "error" in cached:
-            raise HTTPException(422, f"the scene cannot be rendered: {cached['error']}")
+            raise HTTPException(422, f"the scene cannot be rendered: {cached['error']}"
+                                     + (why if str(max_triangles) in cached["error"] else ""))
         if cached is not None:  # this exact file was inspected before: skip the child
             return SceneInfo(**cached)
         try:
@@ -635,7 +658,8 @@ def _inspect(request: Request, path: Path, scene_hash: str, variants: Sequence[s
                     store.count_inspection(rejected=True)
                     if e.lasting:  # (a timeout under load says nothing of the file)
                         store.remember_rejection(scene_hash, path.suffix, str(e), limits, variants)
-                    raise HTTPException(422, f"the scene cannot be rendered: {e}") from None
+                    raise HTTPException(422, f"the scene cannot be rendered: {e}"
+                                             + (why if str(max_triangles) in str(e) else "")) from None
                 except PreflightBroken as e:  # the server's fault: not remembered
                     raise HTTPException(500, str(e)) from None
         except PoolFull as e:

@@ -422,3 +422,21 @@ def test_normal_map_without_the_spec_scale_and_bias_warns(tmp_path):
         "scale": (Sdf.ValueTypeNames.Float4, Gf.Vec4f(2, 2, 2, 1)),
         "bias": (Sdf.ValueTypeNames.Float4, Gf.Vec4f(-1, -1, -1, 0))})
     assert not any("normal maps without scale" in w for w in load_scene(proper).warnings)
+
+
+def test_blob_size_is_the_blob_but_its_header(tmp_path):
+    """scene_blob.blob_size (the pre-flight's translated-size limit) is the blob's length
+    less its 16-byte preamble and JSON header, 64-byte aligned (the format in scene_blob's
+    docstring), for a scene with UDIM texture files and one with prototypes."""
+    import struct
+    from tessera_renderer.scene_blob import blob_size, scene_data_to_blob
+
+    write_image(tmp_path / "u.1001.png", np.full((4, 4, 3), 40, np.uint8))
+    write_image(tmp_path / "u.1002.png", np.full((4, 4, 3), 200, np.uint8))
+    for path in (textured_floor(tmp_path, "udim", "./u.<UDIM>.png", center_st=(1.5, 0.5)),
+                 _instancer_scene(tmp_path)):
+        data = translate_stage(str(path), instancing="auto")
+        blob = scene_data_to_blob(data)
+        header = struct.unpack("<I", blob[12:16])[0]
+        start = -(-(16 + header) // 64) * 64
+        assert blob_size(data) == len(blob) - start > 0

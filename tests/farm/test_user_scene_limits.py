@@ -1,0 +1,86 @@
+"""Per-user limits on what a scene may cost the farm, at pre-flight (issue 42, item 13: an
+82 KB .usdc declaring 10^7 triangles was accepted and cost the farm 9 GB). Real uvicorn
+API with three users' tokens, real inspection processes, redis-server: a small .usdc
+declaring more triangles than a user's limit is refused from its face counts, naming the
+limit and its setting; a user allowed more triangles but a smaller translated size is
+refused by that; a user allowed both gets the job."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import httpx
+import pytest
+
+from conftest import start_api
+from test_preflight_limits import write_mesh
+
+DECLARED = 400_000                  # triangles the file declares (200,000 quads)
+DEFAULT_TRIANGLES = DECLARED - 1    # every user's limit: one triangle short
+# The translated scene holds at least its triangle indices (3 x 4 bytes a triangle,
+# 4.8 MB here): a limit of 1 MB is well under it, 1 GB well over it.
+SMALL_TRANSLATED, LARGE_TRANSLATED = 1 << 20, 1 << 30
+
+
+@pytest.fixture(scope="module")
+def api(redis_server, tmp_path_factory):
+    proc, base = start_api(
+        redis_server, tmp_path_factory.mktemp("api"),
+        api_tokens="alice:alice-token,bob:bob-token,carol:carol-token",
+        user_max_triangles=str(DEFAULT_TRIANGLES),
+        user_limits=f"bob:triangles={DECLARED}:translated={SMALL_TRANSLATED},"
+                    f"carol:triangles={DECLARED}:translated={LARGE_TRANSLATED}")
+    with httpx.Client(base_url=base, timeout=120) as client:
+        yield client
+    proc.stop()
+
+
+@pytest.fixture(scope="module")
+def declares(tmp_path_factory) -> Path:
+    path = write_mesh(tmp_path_factory.mktemp("scene") / "declares.usdc", DECLARED, sides=4)
+    assert path.stat().st_size < 100_000  # a small file that declares many triangles
+    return path
+
+
+def _submit(api, scene: Path, token: str) -> httpx.Response:
+    return api.post("/jobs", files={"file": (scene.name, scene.read_bytes())},
+                    data={"width": "16", "height": "16", "spp": "1"},
+                    headers={"Authorization": f"Bearer {token}"})
+
+
+def test_a_scene_over_a_users_triangle_limit_is_refused_naming_the_setting(api, declares):
+    r = _submit(api, declares, "alice-token")
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"]
+    assert f"more than {DEFAULT_TRIANGLES} triangles" in detail
+    assert "TESSERA_USER_MAX_TRIANGLES" in detail
+    # The remembered refusal (the same file again) names it too.
+    again = _submit(api, declares, "alice-token")
+    assert again.status_code == 422 and "TESSERA_USER_MAX_TRIANGLES" in again.json()["detail"]
+
+
+def test_the_translated_size_limit_refuses_what_the_triangle_limit_lets_through(api, declares):
+    r = _submit(api, declares, "bob-token")
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"]
+    assert "TESSERA_USER_MAX_TRANSLATED_BYTES" in detail and f"({SMALL_TRANSLATED} bytes)" in detail, detail
+    # Carol may have both: the same file (its remembered inspection) becomes a job.
+    r = _submit(api, declares, "carol-token")
+    assert r.status_code == 201, r.text
+
+
+def test_the_issues_file_is_refused_under_the_default_limits(redis_server, tmp_path):
+    """The issue's case with no limit configured: a small .usdc declaring 10^7 triangles
+    (was accepted, 520 MB translated, 9 GB of farm RSS) is refused from its face counts by
+    the default per-user limit (4,000,000), which its message names."""
+    path = write_mesh(tmp_path / "ten_million.usdc", 10_000_000, sides=4)
+    assert path.stat().st_size < 100_000
+    (tmp_path / "api").mkdir()
+    proc, base = start_api(redis_server, tmp_path / "api", api_tokens="dave:dave-token")
+    try:
+        with httpx.Client(base_url=base, timeout=120) as client:
+            r = _submit(client, path, "dave-token")
+    finally:
+        proc.stop()
+    assert r.status_code == 422, r.text
+    assert "limit of 4000000 triangles" in r.json()["detail"]  # 5 M faces: the mesh alone is over it
+    assert "TESSERA_USER_MAX_TRIANGLES" in r.json()["detail"]
