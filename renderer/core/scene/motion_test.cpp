@@ -702,11 +702,12 @@ TEST(Motion, VCMMergesWithLightVerticesOfItsOwnTimeSlice) {
     ASSERT_GT(peak, 0.5);
     // A radius small beside the columns (0.25 wide), so the kernel's own bias at the
     // quad's edges stays well under 1 %; a million light paths so that merging, not only
-    // the connections, carries part of the light in the default 32 slices.
+    // the connections, carries part of the light in the default 32 slices. The light here
+    // is direct (point light, quad, camera), which vcm merges only with direct_merging on.
     auto vcm = [&](float slices) {
         RenderOptions v = o;
         v.spp = 384;
-        v.integrator_params = {{"light_paths", 1e6f}, {"radius", 0.02f}};
+        v.integrator_params = {{"light_paths", 1e6f}, {"radius", 0.02f}, {"direct_merging", 1.f}};
         if (slices > 0.f) v.integrator_params["time_slices"] = slices;
         return ColumnProfile([&](uint32_t seed) { return RenderWith(moving, cam, v, "vcm", seed); }, 101, K, 4, 12);
     };
