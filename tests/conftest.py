@@ -77,9 +77,9 @@ class Process:
         self._log.close()
 
 
-@pytest.fixture(scope="module")
-def browser():
-    """Debian's chromium, headless, driven by selenium (a real browser for web pages)."""
+def chromium_driver(*extra_args: str):
+    """Debian's chromium, headless, driven by selenium (a real browser for web pages), with
+    `extra_args` added to its command line. The caller quits it."""
     webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is in the test extras")
     chromium, chromedriver = "/usr/bin/chromium", "/usr/bin/chromedriver"
     assert shutil.which(chromium) and shutil.which(chromedriver), (
@@ -87,10 +87,15 @@ def browser():
     options = webdriver.ChromeOptions()
     options.binary_location = chromium
     for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu",
-                "--window-size=1280,1400", "--force-color-profile=srgb", "--no-first-run"):
+                "--window-size=1280,1400", "--no-first-run", *extra_args):
         options.add_argument(arg)
-    driver = webdriver.Chrome(options=options,
-                              service=webdriver.ChromeService(executable_path=chromedriver))
+    return webdriver.Chrome(options=options, service=webdriver.ChromeService(executable_path=chromedriver))
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Debian's chromium, headless, driven by selenium (a real browser for web pages)."""
+    driver = chromium_driver("--force-color-profile=srgb")
     yield driver
     driver.quit()
 

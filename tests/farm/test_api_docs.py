@@ -6,13 +6,12 @@ Swagger UI from a CDN, is the negative control of each check."""
 from __future__ import annotations
 
 import re
-import shutil
 
 import httpx
 import pytest
 from fastapi.openapi.docs import get_swagger_ui_html
 
-from conftest import start_api
+from conftest import chromium_driver, start_api
 from tessera_service.auth import PUBLIC_PATHS
 from tessera_service.routers.apidocs import ASSETS, PAGE_PATHS
 
@@ -67,18 +66,7 @@ def test_the_docs_page_loads_only_files_this_server_serves(base):
 def offline_browser():
     """Debian's chromium, headless, resolving no host name but this machine's address: a
     page that needs anything from the internet cannot get it."""
-    webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is in the test extras")
-    chromium, chromedriver = "/usr/bin/chromium", "/usr/bin/chromedriver"
-    assert shutil.which(chromium) and shutil.which(chromedriver), (
-        "the browser tests need Debian's chromium and chromium-driver (scripts/setup.sh)")
-    options = webdriver.ChromeOptions()
-    options.binary_location = chromium
-    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu",
-                "--window-size=1280,1400", "--no-first-run",
-                "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1"):
-        options.add_argument(arg)
-    driver = webdriver.Chrome(options=options,
-                              service=webdriver.ChromeService(executable_path=chromedriver))
+    driver = chromium_driver("--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1")
     yield driver
     driver.quit()
 
