@@ -86,6 +86,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.store = store
     # Verified blobs being read back and stored in Redis at once (each up to the upload limit).
     app.state.blob_slots = asyncio.Semaphore(settings.blob_store_concurrency)
+    # Uploads in flight per user (routers/blobs.py, upload_slot); one event loop, no lock.
+    app.state.uploads_in_flight = {}
     app.state.aredis = aredis  # for the event streams
     errors = {401: {"model": Problem, "description": "missing or invalid bearer token"},
               503: {"model": Problem, "description": "the job store (redis) is unavailable"}}

@@ -46,6 +46,14 @@ class Settings(BaseSettings):
         description="PUT /blobs uploads whose verified bytes are read into the API's memory and "
                     "stored in Redis at once (each up to max_upload_bytes); the others wait. "
                     "Uploads stream to disk, so this bounds the API's memory for blobs")
+    user_upload_concurrency: int = Field(
+        default=4, ge=1,
+        description="PUT /blobs uploads one user may have in flight at once; one more gets 429 "
+                    "with Retry-After (each streams to a temporary file of up to "
+                    "max_upload_bytes, so this bounds what one user puts on the API's disk)")
+    upload_concurrency: int = Field(
+        default=16, ge=1,
+        description="PUT /blobs uploads in flight at once for all users together; beyond: 429")
     user_blob_quota_bytes: int = Field(
         default=1024 * MiB, ge=1,
         description="bytes of packed-scene files (PUT /blobs) one user may keep stored; an "

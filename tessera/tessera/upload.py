@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -75,14 +76,32 @@ def _upload_missing(client: httpx.Client, files: dict[str, Path], hashes: dict[s
         if digest not in missing:
             continue
         missing.discard(digest)  # one upload per content, however many paths share it
-        with open(files[rel], "rb") as f:
-            put = client.put(f"/blobs/{digest}", content=f,
-                             headers={"Content-Type": "application/octet-stream"})
+        put = _put_file(client, digest, files[rel])
         if put.status_code not in (200, 201):
             raise UploadError(f"{rel}: the server refused the file ({put.status_code}): {_detail(put)}")
         report.uploaded_files += 1
         report.uploaded_bytes += put.json()["size"]
         report.uploaded.append(rel)
+
+
+# A farm whose uploads in flight are at their bound answers 429 with Retry-After (the
+# user's or the farm's TESSERA_*UPLOAD_CONCURRENCY): wait as told, a bounded number of times.
+UPLOAD_RETRIES = 60
+MAX_RETRY_WAIT = 5.0
+
+
+def _put_file(client: httpx.Client, digest: str, path: Path) -> httpx.Response:
+    for attempt in range(UPLOAD_RETRIES + 1):
+        with open(path, "rb") as f:
+            put = client.put(f"/blobs/{digest}", content=f, headers={"Content-Type": "application/octet-stream"})
+        if put.status_code != 429 or attempt == UPLOAD_RETRIES:
+            return put
+        try:
+            wait = float(put.headers.get("retry-after", "1"))
+        except ValueError:
+            wait = 1.0
+        time.sleep(min(max(wait, 0.1), MAX_RETRY_WAIT))
+    return put
 
 
 def _detail(response: httpx.Response) -> str:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
-
+from contextlib import contextmanager
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, HTTPException, Request
@@ -55,6 +55,8 @@ def missing_blobs(body: HashList, request: Request, user: CurrentUser) -> Missin
 @router.put("/{digest}", status_code=201, response_model=BlobStored,
             responses={413: {"description": "larger than the upload limit, or past the user's "
                                              "quota of stored files"},
+                       429: {"description": "too many uploads in flight (the user's or the farm's); "
+                                            "Retry-After says when to try again"},
                        422: {"description": "the bytes do not have this hash"}},
             openapi_extra={"requestBody": {"required": True,
                                            "content": {"application/octet-stream": {"schema": {
@@ -68,6 +70,37 @@ async def put_blob(digest: str, request: Request, user: CurrentUser) -> BlobStor
     length = request.headers.get("content-length")
     if length is not None and length.isdigit() and int(length) > limit:
         raise too_large
+    with upload_slot(request, user):
+        return await _receive_blob(digest, request, user, limit, too_large)
+
+
+@contextmanager
+def upload_slot(request: Request, user: User):
+    """One of the user's and the farm's uploads in flight, or 429 with Retry-After. Without
+    a bound, one user's many slow uploads each held a temporary file of up to the upload
+    limit (and a connection) for as long as they liked."""
+    settings = request.app.state.settings
+    in_flight: dict[str, int] = request.app.state.uploads_in_flight
+    mine, total = in_flight.get(user.name, 0), sum(in_flight.values())
+    if mine >= settings.user_upload_concurrency or total >= settings.upload_concurrency:
+        which = (f"you have {mine} uploads in flight, the most one user may have "
+                 f"(TESSERA_USER_UPLOAD_CONCURRENCY)" if mine >= settings.user_upload_concurrency
+                 else f"the farm has {total} uploads in flight, the most it takes (TESSERA_UPLOAD_CONCURRENCY)")
+        raise HTTPException(429, f"{which}: send this file when one of them has finished",
+                            headers={"Retry-After": "1"})
+    in_flight[user.name] = mine + 1
+    try:
+        yield
+    finally:
+        left = in_flight[user.name] - 1
+        if left:
+            in_flight[user.name] = left
+        else:
+            del in_flight[user.name]
+
+
+async def _receive_blob(digest: str, request: Request, user: User, limit: int,
+                        too_large: HTTPException) -> BlobStored:
     # Streamed to disk and hashed on the way: held in memory, 8 concurrent 250 MiB PUTs
     # with a wrong hash took the API to 2,157 MiB. Only verified bytes are read back, for
     # Redis, in one of a few slots (settings.blob_store_concurrency).
