@@ -146,12 +146,19 @@ def start_api(redis_url: str, log_dir: Path, host: str = "127.0.0.1",
                                    "tessera_service.app:create_app", "--host", host,
                                    "--port", str(port), "--log-level", "warning"], log_dir, env)
     base = f"http://{public_host or host}:{port}"
+    wait_until_ready(proc, base)
+    return proc, base
+
+
+def wait_until_ready(proc: Process, base: str) -> None:
+    """Returns once the API at `base` answers /healthz with 200; fails with its log if the
+    process exits or STARTUP_TIMEOUT passes first."""
     deadline = time.monotonic() + STARTUP_TIMEOUT
     while True:
         assert proc.alive(), "the API exited at startup\n" + proc.log()
         try:
             if httpx.get(f"{base}/healthz", timeout=1).status_code == 200:
-                return proc, base
+                return
         except httpx.TransportError:
             pass
         assert time.monotonic() < deadline, "the API did not become ready\n" + proc.log()

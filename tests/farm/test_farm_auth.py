@@ -6,12 +6,11 @@ from __future__ import annotations
 
 import socket
 import sys
-import time
 
 import httpx
 import pytest
 
-from conftest import STARTUP_TIMEOUT, Process, clean_env, start_api
+from conftest import STARTUP_TIMEOUT, Process, clean_env, start_api, wait_until_ready
 from tessera_service.embedded import free_port
 
 TOKEN = "tok-alice-1"
@@ -59,16 +58,8 @@ def _serve(tmp_path, redis_url: str, *args: str, **env: str) -> tuple[Process, s
                                      "--redis-url", redis_url, *args], tmp_path,
                    clean_env(**{f"TESSERA_{k.upper()}": v for k, v in env.items()}))
     base = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + STARTUP_TIMEOUT
-    while True:
-        assert proc.alive(), proc.log()
-        try:
-            if httpx.get(f"{base}/healthz", timeout=1).status_code == 200:
-                return proc, base
-        except httpx.TransportError:
-            pass
-        assert time.monotonic() < deadline, proc.log()
-        time.sleep(0.05)
+    wait_until_ready(proc, base)
+    return proc, base
 
 
 def test_serve_with_a_redis_url_needs_tokens_or_insecure_local(redis_server, tmp_path):

@@ -15,7 +15,7 @@ import time
 import httpx
 import pytest
 
-from conftest import STARTUP_TIMEOUT, Process, clean_env
+from conftest import Process, clean_env, wait_until_ready
 from tessera_service.embedded import free_port
 
 HEADER_TIMEOUT = 4.0   # seconds (TESSERA_HTTP_HEADER_TIMEOUT of the server under test)
@@ -35,17 +35,7 @@ def server(redis_server, tmp_path_factory):
                    clean_env(TESSERA_HTTP_HEADER_TIMEOUT=str(HEADER_TIMEOUT),
                              TESSERA_HTTP_BODY_IDLE_TIMEOUT=str(BODY_IDLE_TIMEOUT),
                              TESSERA_HTTP_MAX_CONNECTIONS=str(CAP)))
-    base = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + STARTUP_TIMEOUT
-    while True:
-        assert proc.alive(), proc.log()
-        try:
-            if httpx.get(f"{base}/healthz", timeout=1).status_code == 200:
-                break
-        except httpx.TransportError:
-            pass
-        assert time.monotonic() < deadline, proc.log()
-        time.sleep(0.05)
+    wait_until_ready(proc, f"http://127.0.0.1:{port}")
     yield proc, port
     proc.stop()
 
