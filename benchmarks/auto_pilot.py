@@ -9,7 +9,7 @@ settings (64 x 64, passes of 1, 1, 2, ... up to 4096 samples, so merging integra
 candidates where the scene has mirrors or glass); the check is which of its candidates
 reached that relMSE first in the bench's runs: docs/benchmarks/caustics/
 (benchmarks/caustics.py: the caustic and the mirror scene, all five integrators, Mitsuba
-beside) and docs/benchmarks/error-vs-time.json (`tessera bench`: the Cornell box, path and
+beside) and docs/benchmarks/error-vs-time/error-vs-time.json (`tessera bench`: the Cornell box, path and
 bdpt). Writes docs/benchmarks/auto.{md,json}. The handicaps of the merging candidates
 are in the JSON rows.
 """
@@ -24,7 +24,7 @@ import time
 import numpy as np
 from common import OUT, REPO
 
-SCENES = {"cornell": (REPO / "examples" / "cornell" / "cornell.usda", OUT / "error-vs-time.json"),
+SCENES = {"cornell": (REPO / "examples" / "cornell" / "cornell.usda", OUT / "error-vs-time" / "error-vs-time.json"),
           "caustic": (REPO / "examples" / "caustic" / "caustic.usda", OUT / "caustics" / "error-vs-time.json"),
           "caustic-mirror": (REPO / "examples" / "caustic" / "caustic_mirror.usda",
                              OUT / "caustics" / "error-vs-time.json")}
@@ -59,7 +59,7 @@ def main() -> int:
              f"{args.reps} times per scene and noise target for a render of the bench's settings: 64 x 64, passes "
              "of 1, 1, 2, ... up to 4096 samples. A noise target e is relMSE e^2; a merging integrator's handicap "
              "is (v / e^2)^(1 - 1/alpha). The check is the bench's time to that relMSE among the same candidates "
-             "(docs/benchmarks/caustics/ for the caustic scenes, docs/benchmarks/error-vs-time.json for the "
+             "(docs/benchmarks/caustics/ for the caustic scenes, docs/benchmarks/error-vs-time/error-vs-time.json for the "
              "Cornell box; its 1e-3 times are extrapolated), and the cost of the pilot's choice: the bench's time "
              "of the chosen integrator over the fastest's. 2 threads.", "",
              "Each run has its own pilot seeds.", "",

@@ -507,7 +507,7 @@ def add_options(p: argparse.ArgumentParser) -> None:
                    help="comma-separated tessera integrators (default path,bdpt,light; local and whitted "
                         "estimate only a subset of light paths, so their error does not vanish)")
     p.add_argument("--quick", action="store_true", help="tiny sizes and ladders (a test, seconds)")
-    p.add_argument("--out", help="output directory (default docs/benchmarks; --quick: out/bench-quick)")
+    p.add_argument("--out", help="output directory (default docs/benchmarks/error-vs-time; --quick: out/bench-quick)")
     p.add_argument("--res", type=int, help="image width and height in pixels")
     p.add_argument("--reps", type=int, help="interleaved repetitions (seeds)")
     p.add_argument("--budget", type=float, help="time budget in seconds for the equal-time error")
@@ -542,7 +542,7 @@ def main(args: argparse.Namespace) -> int:
     if bad:
         print(f"tessera bench: unknown integrator(s) {', '.join(bad)}", file=sys.stderr)
         return 2
-    out = Path(args.out) if args.out else (REPO / "out" / "bench-quick" if args.quick else REPO / "docs" / "benchmarks")
+    out = Path(args.out) if args.out else (REPO / "out" / "bench-quick" if args.quick else REPO / "docs" / "benchmarks" / "error-vs-time")
     peer_arg = args.peer if args.peer is not None else ("scalar_rgb" if args.quick else "scalar_rgb,llvm_ad_rgb")
     peers = tuple(v for v in peer_arg.split(",") if v)
     try:
