@@ -9,35 +9,15 @@
 # (none is allowed unless the report is provably inside Embree or TBB; add them to
 # scripts/sanitize.supp with a comment saying why).
 #
-# Left out under the sanitizers, to keep CI time small: the long statistical tests
-# (BsdfChiSquare.SampleFollowsPdfForEveryBSDF, BsdfFurnace.WhiteMaterialsReflectAtMostOne:
-# about 50 s plain, 2.5 min under ASan; the energy furnace over every roughness, ior and
-# angle, the emitting-box furnace and the two path/light/bdpt agreement renders: 15-24 s
-# each under ASan). They run the BSDF, sampling and integrator code that the other tests
-# (reciprocity, robustness at extremes, per-lobe chi-square, the small furnaces and
-# agreement scenes) run under the sanitizers too, only with many more samples; the plain
-# ctest run still runs them (so does the shaped area light's path/light/bdpt agreement,
-# whose API-level sibling runs here). Likewise the five motion-blur renders (the sliding
-# emitter's, the sliding camera's and the deforming emitters' ramps, the moving lights'
-# irradiance and the blurred shadow, 3-27 s plain): Motion.IntegratorsWithAScenePass...
-# runs the moving-instance code, Motion.ADeformingEmitterIsSampledByItsAreaAtTheInstant the
-# deforming-mesh code and Motion.MovingLightsAreSeenAndSampledWhereTheyAreAtTheInstant the
-# moving-light code under the sanitizers.
+# Left out under the sanitizers: the long statistical renders listed in
+# scripts/cpp-long-tests.txt (each line names the shorter tests that run the same code
+# here). They take 2.5 min or more each under ASan and run in the plain build of
+# scripts/test.sh. The rest runs in two shards at once (GoogleTest's sharding), one per core.
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 BUILD=$ROOT/build/sanitize
 SANITIZERS=address,undefined
-SLOW_TESTS="BsdfChiSquare.SampleFollowsPdfForEveryBSDF:BsdfFurnace.WhiteMaterialsReflectAtMostOne"
-SLOW_TESTS+=":PreviewSurfaceEnergy.WhiteFurnaceIsOneForEveryRoughnessIorAndAngle"
-SLOW_TESTS+=":Materials.PreviewSurfaceFurnaceIsLeOverOneMinusAlbedo"
-SLOW_TESTS+=":Integrators.PathLightAndBidirectionalAgreeForEveryLightKind:Camera.LensPathLightAndBidirectionalAgree"
-SLOW_TESTS+=":Motion.SlidingEmitterGivesTheClosedFormRampForEveryIntegratorThatSeesEmitters:Motion.BlurredShadowEqualsTheTimeAverageOfStaticShadows:Motion.ACameraSlidingPastAStillQuadSeesTheSameRampAsTheQuadSlidingPastIt"
-SLOW_TESTS+=":Motion.DeformingEmittersGiveTheClosedFormCoverageForEveryIntegratorThatSeesEmitters"
-SLOW_TESTS+=":Motion.MovingPointSphereAndDistantLightsGiveTheClosedFormIrradiance"
-# Its 2 x 10^8 photon paths take minutes under the sanitizers; the same tracing, slicing and
-# grids run there in Motion.TracedPhotons... and the PhotonDirect tests.
-SLOW_TESTS+=":Motion.PhotonDensityOnAMovingReceiverIsTheTimeAverageOfStaticOnes"
-SLOW_TESTS+=":AreaLightShaping.PathLightAndBidirectionalAgreeOnTheShapedPool"
+LONG_TESTS=$(sed -e 's/#.*//' -e 's/[[:space:]]//g' "$ROOT/scripts/cpp-long-tests.txt" | grep -v '^$' | paste -sd:)
 
 start=$(date +%s)
 echo "[sanitize] building the C++ tests with -fsanitize=$SANITIZERS ($BUILD)"
@@ -62,8 +42,19 @@ canary asan 'int main(int argc, char**) { int* p = new int[argc]; delete[] p; re
 int main(int argc, char**) { int x = INT_MAX - 1; x += argc * 2; return x == 0; }' "signed integer overflow" \
   || { echo "[sanitize] the sanitizers did not catch the canary bugs: this run could not fail"; exit 1; }
 
-"$BUILD/renderer/tessera_core_tests" --gtest_brief=1 --gtest_filter="-$SLOW_TESTS"
-rc=$?
+SHARDS=2
+pids=()
+for i in $(seq 0 $((SHARDS - 1))); do
+  GTEST_TOTAL_SHARDS=$SHARDS GTEST_SHARD_INDEX=$i \
+    "$BUILD/renderer/tessera_core_tests" --gtest_brief=1 --gtest_filter="-$LONG_TESTS" \
+    > "$BUILD/shard-$i.log" 2>&1 &
+  pids+=($!)
+done
+rc=0
+for i in "${!pids[@]}"; do
+  wait "${pids[$i]}" || rc=$?
+  cat "$BUILD/shard-$i.log"
+done
 echo "[sanitize] build $((built - start)) s, tests $(($(date +%s) - built)) s"
 if [ $rc -ne 0 ]; then echo "[sanitize] FAILED (exit $rc): see the sanitizer report above"; fi
 exit $rc

@@ -15,7 +15,9 @@ if [ -z "$build_dir" ] || [ ! -f "$build_dir/CTestTestfile.cmake" ]; then
   echo "[test] no C++ build directory with tests under build/"; status=1
 else
   echo "[test] C++ tests ($build_dir)"
-  ctest --test-dir "$build_dir" --output-on-failure || status=1
+  # One test process per core: most are single-threaded, and the long renders' threads
+  # share the cores with them.
+  ctest --test-dir "$build_dir" --output-on-failure -j "$(nproc)" || status=1
 fi
 
 echo "[test] C++ tests under ASan + UBSan"
@@ -23,7 +25,9 @@ bash "$ROOT/scripts/test-sanitize.sh" || status=1
 
 echo "[test] Python tests"
 cd "$ROOT"
-"$VENV/bin/python" -m pytest "$@"
+# Two workers (pytest-xdist), a test module per worker at a time: most farm tests wait on
+# processes they started, and a module's fixtures (its renders, its farm) stay its own.
+"$VENV/bin/python" -m pytest -n "$(nproc)" --dist loadfile "$@"
 rc=$?
 # pytest exits 5 when it collected nothing: that is a failure here, not a pass.
 [ $rc -eq 0 ] || status=1

@@ -6,6 +6,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -19,6 +20,16 @@ from tessera_queue import redis_schema as rdb
 from tessera_service.embedded import free_port, redis_server as _redis_server, stop_processes
 
 REPO = Path(__file__).resolve().parents[1]
+
+# Each pytest process (one per xdist worker: scripts/test.sh runs two) gives itself and the
+# farms it starts a temporary folder of their own. A farm sweeps what dead processes left in
+# its temporary folder when it starts (docs/farm.md), and a test that kills an API on
+# purpose must find the API's leftovers there until its own restart, not see another
+# test's farm sweep them first.
+TEST_TMPDIR = Path(tempfile.gettempdir()) / f"tessera-tests-{os.getpid()}"
+TEST_TMPDIR.mkdir(exist_ok=True)
+os.environ["TMPDIR"] = str(TEST_TMPDIR)
+tempfile.tempdir = None  # gettempdir() reads TMPDIR again
 CORNELL = REPO / "examples" / "cornell" / "cornell.usda"
 STARTUP_TIMEOUT = 30.0
 
@@ -30,10 +41,42 @@ SLOW_MODULES = {"test_farm_e2e", "test_farm_lifecycle", "test_farm_resilience", 
                 "test_integrators", "test_scene_passes"}
 
 
+# Real USD files from outside the project (README, "The external scenes"): they sit beside
+# the repository, or where TESSERA_SHARED_SCENES says. A test that reads them carries the
+# `shared_scenes` mark; without the folder it is skipped (one summary line names the
+# folder), unless TESSERA_REQUIRE_SHARED_SCENES=1 (set by .ci/run), which fails it instead
+# so that CI cannot lose those tests without a word.
+SHARED_SCENES = Path(os.environ.get("TESSERA_SHARED_SCENES", REPO.parent / "shared" / "scenes"))
+REQUIRE_SHARED_SCENES = os.environ.get("TESSERA_REQUIRE_SHARED_SCENES") == "1"
+
+
 def pytest_collection_modifyitems(config, items):
     for item in items:
         if item.module.__name__.rsplit(".", 1)[-1] in SLOW_MODULES:
             item.add_marker(pytest.mark.slow)
+
+
+def require_shared_scenes() -> Path:
+    """The external scenes folder; skips the test without it (fails it under
+    TESSERA_REQUIRE_SHARED_SCENES=1). For fixtures; tests carry the `shared_scenes` mark."""
+    if not SHARED_SCENES.is_dir():
+        message = f"needs the external scenes folder {SHARED_SCENES} (README: the external scenes)"
+        if REQUIRE_SHARED_SCENES:
+            pytest.fail(f"{message}; TESSERA_REQUIRE_SHARED_SCENES=1 makes its absence a failure",
+                        pytrace=False)
+        pytest.skip(message)
+    return SHARED_SCENES
+
+
+def pytest_sessionfinish(session, exitstatus):
+    # Kept after a failure: the farms' logs and leftovers are what one reads then.
+    if exitstatus == 0:
+        shutil.rmtree(TEST_TMPDIR, ignore_errors=True)
+
+
+def pytest_runtest_setup(item):
+    if item.get_closest_marker("shared_scenes") is not None:
+        require_shared_scenes()
 
 
 @pytest.fixture(scope="session")

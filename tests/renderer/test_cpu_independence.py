@@ -79,6 +79,7 @@ def _cpu_flags() -> set[str]:
     return set()
 
 
+@pytest.mark.shared_scenes  # the dome-glass scene
 def test_images_do_not_depend_on_the_cpus_libm_variant():
     if not {"fma", "avx2"} <= _cpu_flags():
         pytest.skip("this CPU has no FMA/AVX2: libm runs its baseline variant already, there is no other to compare")
@@ -92,6 +93,7 @@ def test_images_do_not_depend_on_the_cpus_libm_variant():
     assert not differ, f"these renders differ with libm's baseline variant: {differ} (switched: {switched})"
 
 
+@pytest.mark.shared_scenes  # the dome-glass scene
 def test_a_farm_of_mixed_cpus_pins_embrees_isa_and_agrees_bit_for_bit():
     if not {"fma", "avx2"} <= _cpu_flags():
         pytest.skip("this CPU has no AVX2: Embree has no other ISA than SSE here to compare")

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import hashlib
 import os
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -14,6 +13,7 @@ import numpy as np
 
 from tessera_base.film import resolve_splats
 from tessera_renderer.film import new_splat_buffer
+from tessera_tools.bench_cache import cache_dir, tessera_build
 
 
 def render_iteration(scene, integrator: str, iteration: int, *, spp: int, seed: int, max_depth: int = 8,
@@ -51,10 +51,13 @@ def mean_and_stderr(values) -> tuple[float, float]:
 def cached_halves(tag: str, scene_path: Path, settings: str,
                   render: Callable[[int], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """A reference as two independent renders, render(101) and render(202): their mean is
-    the reference, half their difference its own noise. Cached under the system temp
-    directory, keyed by the scene's bytes and `settings` (they take minutes)."""
-    key = hashlib.sha256(scene_path.read_bytes() + settings.encode()).hexdigest()[:16]
-    cache = Path(tempfile.gettempdir()) / f"tessera-test-{tag}-ref-{key}.npz"
+    the reference, half their difference its own noise. They take minutes, so they are
+    cached beside the bench's references (~/.cache/tessera or $TESSERA_CACHE_DIR), keyed by
+    the scene's bytes, `settings` and the compiled core: a changed core renders anew."""
+    key = hashlib.sha256(scene_path.read_bytes() + settings.encode() + tessera_build().encode()).hexdigest()[:16]
+    folder = cache_dir().parent / "test-references"
+    folder.mkdir(parents=True, exist_ok=True)
+    cache = folder / f"{tag}-{key}.npz"
     if cache.exists():
         with np.load(cache) as f:
             return f["a"], f["b"]

@@ -15,12 +15,13 @@ import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
+from conftest import SHARED_SCENES, require_shared_scenes
 from tessera_renderer import Scene, load_scene
 from tessera_renderer.scene_blob import scene_from_blob, translate_to_blob
 from tessera_renderer.usd import translate_stage
 from usd_fixtures import add_material, add_mesh, new_stage
 
-SCENES = Path(__file__).resolve().parents[4] / "shared" / "scenes"
+SCENES = SHARED_SCENES
 
 
 def _save(stage) -> str:
@@ -314,9 +315,7 @@ def test_package_members_obey_the_sandbox(tmp_path):
 def car_kit(tmp_path):
     import shutil
 
-    src = SCENES / "usdwg_mini_car_kit"
-    if not src.is_dir():
-        pytest.skip("shared scenes missing")
+    src = require_shared_scenes() / "usdwg_mini_car_kit"
     work = tmp_path / "kit"
     shutil.copytree(src, work)
     return work
@@ -327,6 +326,7 @@ def _lit_fraction(scene, w=32, h=24):
     return float((img[..., :3].max(axis=2) > 0.05).mean())
 
 
+@pytest.mark.shared_scenes
 def test_layer_of_an_unselected_variant_may_be_missing(car_kit):
     from tessera_renderer import SceneError
 
@@ -350,6 +350,7 @@ def test_layer_of_an_unselected_variant_may_be_missing(car_kit):
         load_scene(shot, root=car_kit)
 
 
+@pytest.mark.shared_scenes
 def test_missing_layer_of_the_selected_variant_or_a_sublayer_is_fatal(car_kit, tmp_path):
     from tessera_renderer import SceneError
 
@@ -362,6 +363,7 @@ def test_missing_layer_of_the_selected_variant_or_a_sublayer_is_fatal(car_kit, t
         load_scene(tmp_path / "sub.usda")
 
 
+@pytest.mark.shared_scenes
 def test_a_render_selects_variants_and_says_what_it_cannot_select(car_kit, tmp_path):
     """The kit's own file selects the tractor; a render may select another vehicle
     (load_scene variants=, tessera render --variant) and then draws that one; a missing
@@ -441,9 +443,8 @@ def test_camera_less_stage_is_framed_tightly_from_three_quarters(tmp_path, up, f
     assert abs(left - right) <= 2, (left, right)
 
 
+@pytest.mark.shared_scenes
 def test_real_teapot_fills_the_frame(tmp_path):
-    if not (SCENES / "usdwg_teapot").is_dir():
-        pytest.skip("shared scenes missing")
     scene = load_scene(SCENES / "usdwg_teapot" / "Teapot.usd")
     w, h = 64, 64
     rgba = scene.render_tile(0, 0, w, h, width=w, height=h, spp=2, max_depth=2)
@@ -745,10 +746,9 @@ def test_one_summary_line_names_every_grey_material(tmp_path):
                      "/Looks/Odd (ND_gltf_pbr_surfaceshader)"], data.warnings
 
 
+@pytest.mark.shared_scenes
 def test_real_teapot_keeps_its_universal_preview_surface():
     path = SCENES / "usdwg_intent_vfx_instancing" / "assets" / "teapot" / "mtl.usd"
-    if not path.is_file():
-        pytest.skip("shared scenes missing")
     data = translate_stage(str(path), root=str(SCENES / "usdwg_intent_vfx_instancing"))
     # Both surfaces are authored; the universal UsdPreviewSurface (green) wins, as in Storm.
     assert any(np.allclose(a, (0.107700236, 0.90119886, 0.038153667), atol=1e-6) for a in data.albedo)

@@ -10,9 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import SHARED_SCENES
 from test_bundles import MESH, layer
 
-SCENES = Path(os.environ.get("TESSERA_SHARED_SCENES", Path(__file__).resolve().parents[4] / "shared" / "scenes"))
+SCENES = SHARED_SCENES
 CAR_KIT = SCENES / "usdwg_mini_car_kit" / "USD_Mini_Car_Kit"
 SHARED = [CAR_KIT / "assets" / "vehicles" / "vehicleVariants.usda",
           SCENES / "usdwg_teapot" / "Teapot.usd",
@@ -121,6 +122,7 @@ def test_gather_reports_absolute_paths_and_uris_as_unportable(tmp_path):
     assert sorted(line.split(": ", 1)[1].split(";")[0] for line in pack.unportable) == ["a URI", "an absolute path"]
 
 
+@pytest.mark.shared_scenes
 @pytest.mark.parametrize("scene", SHARED, ids=[p.name for p in SHARED])
 def test_gather_equals_usd_compute_all_dependencies(scene):
     """Our walk (the sandbox's, trusting ../) finds exactly the files USD's own
@@ -185,6 +187,7 @@ def test_local_render_allows_absolute_paths_only_without_the_sandbox(tmp_path, c
     assert code == 2 and "is absolute" in err
 
 
+@pytest.mark.shared_scenes
 def test_local_render_of_the_mini_car_kit_as_usdview_opens_it(tmp_path, capsys):
     """vehicleVariants.usda references ../../../wheels/...: renders by default, equal to
     the render sandboxed at the kit's folder; refused with --sandbox."""

@@ -94,6 +94,7 @@ def test_submit_packs_the_project_and_the_farm_renders_what_render_does(farm, re
     assert all(p.alive() for p in farm.processes)
 
 
+@pytest.mark.shared_scenes
 def test_a_shared_scene_with_textures_uploads_one_changed_texture(farm, tmp_path):
     """The teapot (payload, variants, 2k JPEG textures): the first submit uploads every file,
     the second, after one texture changed, only that texture."""
@@ -218,6 +219,7 @@ def test_a_packed_submit_works_under_the_farms_redis_users(tmp_path):
         assert "NOPERM" not in p.log_path.read_text(errors="replace"), p.log(80)
 
 
+@pytest.mark.shared_scenes
 def test_the_mini_car_kit_renders_on_the_farm_as_it_does_locally(farm, tmp_path):
     """The issue's example: vehicleVariants.usda references ../../../wheels/...; submitted
     as a loose layer it is packed from the kit's folder, and the farm's image equals the

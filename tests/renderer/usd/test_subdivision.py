@@ -11,16 +11,16 @@ Each check is also run on the control cage (subdivision level 0), which must fai
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SHARED_SCENES
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from tessera_renderer.usd import SceneError, translate_opened_stage, translate_stage
 
-SCENES = Path(os.environ.get("TESSERA_SHARED_SCENES", Path(__file__).resolve().parents[4] / "shared" / "scenes"))
+SCENES = SHARED_SCENES
 
 # A cube [-1, 1]^3, faces wound counter-clockwise seen from outside.
 CUBE_POINTS = [(-1, -1, -1), (1, -1, -1), (1, 1, -1), (-1, 1, -1),
@@ -192,6 +192,7 @@ def test_level_is_validated():
         translate_opened_stage(stage, 0, subdivision_level=-1)
 
 
+@pytest.mark.shared_scenes
 def test_shared_pyramids_render_subdivided_without_a_warning():
     path = SCENES / "usdwg_subdiv_pyramids" / "Creases_SpinningPyramids.usda"
     data = translate_stage(str(path), 0)

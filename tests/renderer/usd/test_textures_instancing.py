@@ -8,7 +8,6 @@ E straight above shows texel / pi * E.
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np
@@ -17,12 +16,12 @@ from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade
 
 from tessera_renderer import load_scene
 from tessera_renderer.scene_blob import scene_from_blob, translate_to_blob
+from conftest import SHARED_SCENES
 from tessera_renderer.usd import translate_stage
 from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, new_stage
 
 E = 3.0
-# Beside the repository; TESSERA_SHARED_SCENES names it elsewhere (a git worktree, say).
-SCENES = Path(os.environ.get("TESSERA_SHARED_SCENES", Path(__file__).resolve().parents[4] / "shared" / "scenes"))
+SCENES = SHARED_SCENES
 
 
 def srgb_to_linear(v: float) -> float:
@@ -389,7 +388,7 @@ def test_auto_flattens_when_lights_hide_inside_native_instances(tmp_path):
     assert any("flattened" in w for w in data.warnings)
 
 
-@pytest.mark.skipif(not (SCENES / "usdwg_intent_vfx_instancing").is_dir(), reason="shared scenes missing")
+@pytest.mark.shared_scenes
 def test_real_instancing_scene_instances_equal_flattened(tmp_path):
     import shutil
     work = tmp_path / "vfx"

@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# The quick tier, while you work (after scripts/setup.sh): the C++ unit tests without the
+# long statistical renders (scripts/cpp-long-tests.txt) and `pytest -m "not slow"` (no real
+# farms, bench, fuzzing or long renders: tests/conftest.py SLOW_MODULES). The whole suite
+# is scripts/test.sh. Extra arguments go to pytest.
+set -uo pipefail
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+VENV=${TESSERA_VENV:-$ROOT/.venv}
+tests=$(ls -t "$ROOT"/build/*/renderer/tessera_core_tests 2>/dev/null | grep -v '/sanitize/' | head -n 1)
+[ -n "$tests" ] || { echo "[quick] no C++ test binary under build/: run scripts/setup.sh first"; exit 1; }
+LONG_TESTS=$(sed -e 's/#.*//' -e 's/[[:space:]]//g' "$ROOT/scripts/cpp-long-tests.txt" | grep -v '^$' | paste -sd:)
+status=0
+echo "[quick] C++ unit tests without the long renders ($tests)"
+"$tests" --gtest_brief=1 --gtest_filter="-$LONG_TESTS" || status=1
+echo "[quick] Python tests, not slow"
+cd "$ROOT" && "$VENV/bin/python" -m pytest -m "not slow" "$@" || status=1
+if [ $status -eq 0 ]; then echo "[quick] all passed"; else echo "[quick] FAILED"; fi
+exit $status
