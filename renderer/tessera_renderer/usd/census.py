@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .bundle import Limits
-from .gprims import RINGS, SEGMENTS
+from .gprims import NURBS_SEGMENTS, POINT_SPHERE_TRIANGLES, RINGS, SEGMENTS
 from .errors import SceneError
 
 # Upper bound of the triangles one tessellated Sphere, Cube, Cylinder, Cone, Capsule or
@@ -66,7 +66,25 @@ def take_census(stage, limits: Limits, time=None) -> Census:
                 _count_mesh(census, UsdGeom.Mesh(prim), time, limits)
             elif prim.GetTypeName() in _GPRIMS:
                 _add(census, GPRIM_TRIANGLES, str(prim.GetPath()), limits)
+            elif prim.IsA(UsdGeom.Points):
+                _add(census, POINT_SPHERE_TRIANGLES * _length(UsdGeom.Points(prim).GetPointsAttr(), time),
+                     str(prim.GetPath()), limits)
+            elif prim.IsA(UsdGeom.NurbsPatch):
+                patch = UsdGeom.NurbsPatch(prim)
+                # At most NURBS_SEGMENTS pieces per knot span and direction (gprims.nurbs_patch).
+                spans = [max(_length(a, time) - 1, 1) for a in (patch.GetUKnotsAttr(), patch.GetVKnotsAttr())]
+                _add(census, 2 * NURBS_SEGMENTS ** 2 * spans[0] * spans[1], str(prim.GetPath()), limits)
     return census
+
+
+def _length(attr, time) -> int:
+    """An array attribute's length (a value that is not an array counts as empty: the
+    translator warns)."""
+    value = attr.Get(time)
+    try:
+        return len(value) if value is not None else 0
+    except TypeError:
+        return 0
 
 
 def _count_mesh(census: Census, mesh, time, limits: Limits) -> None:

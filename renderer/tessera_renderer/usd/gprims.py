@@ -180,3 +180,134 @@ def blackbody_rgb(kelvin: float) -> np.ndarray:
     rgb = np.maximum(rgb, 0.0)
     lum = float(np.dot([0.2126729, 0.7151522, 0.0721750], rgb))
     return rgb / lum
+
+
+# -- NurbsPatch ------------------------------------------------------------------------
+NURBS_SEGMENTS = 8  # samples per knot span and direction (a span is one polynomial piece)
+
+
+def bspline_basis(knots: np.ndarray, order: int, count: int, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The B-spline basis functions N_i (i < count) of `order` over `knots` at parameters t
+    and their derivatives, each a (len(t), count) matrix: the Cox-de Boor recursion and
+    dN_i,p = p N_i,p-1 / (k_i+p - k_i) - p N_i+1,p-1 / (k_i+p+1 - k_i+1) (The NURBS Book,
+    eqs. 2.5 and 2.7; 0/0 = 0). The half-open spans put t at the range's end, knots[count],
+    in the last non-empty span, so the closing row of a tessellation lands on the last
+    control point of a clamped knot vector, with the span's own derivative."""
+    k = np.asarray(knots, np.float64)
+    t = np.asarray(t, np.float64)
+    n = ((k[None, :-1] <= t[:, None]) & (t[:, None] < k[None, 1:])).astype(np.float64)
+    end = t >= k[count]
+    if end.any():
+        last = max(i for i in range(count) if k[i] < k[i + 1] or i == 0)
+        n[end] = 0.0
+        n[end, last] = 1.0
+
+    def ratio(num, den):
+        return np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
+
+    lower = n
+    for p in range(1, order):  # degree p from degree p - 1
+        m = n.shape[1] - 1
+        lower = n
+        a = ratio(t[:, None] - k[None, :m], k[p:p + m] - k[:m])
+        b = ratio(k[None, p + 1:p + 1 + m] - t[:, None], k[p + 1:p + 1 + m] - k[1:1 + m])
+        n = a * n[:, :m] + b * n[:, 1:m + 1]
+    p = order - 1
+    dn = p * (ratio(lower[:, :count], k[p:p + count] - k[:count]) -
+              ratio(lower[:, 1:count + 1], k[p + 1:p + 1 + count] - k[1:1 + count]))
+    return n[:, :count], dn
+
+
+def _nurbs_parameters(knots: np.ndarray, lo: float, hi: float, order: int) -> np.ndarray:
+    """NURBS_SEGMENTS samples on every non-empty knot span within [lo, hi] (one where the
+    order is 2: a linear span is flat), ends included."""
+    breaks = np.unique(np.clip(knots, lo, hi))
+    pieces_per_span = 1 if order == 2 else NURBS_SEGMENTS
+    pieces = [np.linspace(a, b, pieces_per_span, endpoint=False) for a, b in zip(breaks[:-1], breaks[1:]) if b > a]
+    return np.concatenate(pieces + [[hi]]) if pieces else np.array([lo, hi])
+
+
+def nurbs_patch(u_count: int, v_count: int, u_order: int, v_order: int, u_knots, v_knots, points,
+                weights=None, u_range=None, v_range=None):
+    """A UsdGeomNurbsPatch (rational or polynomial, untrimmed) as triangles: (points,
+    triangles, per-vertex normals, per-vertex (u, v)). Control points are laid out u
+    fastest (points[v * u_count + u]), as RiNuPatch lays them out; the front face is the
+    side dP/du x dP/dv points to. ValueError names what is inconsistent."""
+    cps = np.asarray(points, np.float64).reshape(-1, 3)
+    uk, vk = np.asarray(u_knots, np.float64), np.asarray(v_knots, np.float64)
+    if u_order < 2 or v_order < 2 or u_count < u_order or v_count < v_order:
+        raise ValueError(f"orders {u_order} x {v_order} need at least that many control points "
+                         f"(has {u_count} x {v_count})")
+    if len(cps) != u_count * v_count:
+        raise ValueError(f"{len(cps)} points for {u_count} x {v_count} control vertices")
+    if len(uk) != u_count + u_order or len(vk) != v_count + v_order:
+        raise ValueError(f"knot counts {len(uk)} and {len(vk)}; the schema needs vertex count + order "
+                         f"({u_count + u_order} and {v_count + v_order})")
+    if np.any(np.diff(uk) < 0) or np.any(np.diff(vk) < 0) or not (np.isfinite(uk).all() and np.isfinite(vk).all()):
+        raise ValueError("knots must be finite and non-decreasing")
+    w = np.ones(len(cps)) if weights is None or len(weights) == 0 else np.asarray(weights, np.float64)
+    if len(w) != len(cps) or not (w > 0).all():
+        raise ValueError(f"pointWeights must be {len(cps)} positive values")
+    u_lo, u_hi = (uk[u_order - 1], uk[u_count]) if u_range is None else u_range
+    v_lo, v_hi = (vk[v_order - 1], vk[v_count]) if v_range is None else v_range
+    u_lo, u_hi = max(u_lo, uk[u_order - 1]), min(u_hi, uk[u_count])
+    v_lo, v_hi = max(v_lo, vk[v_order - 1]), min(v_hi, vk[v_count])
+    if not (u_hi > u_lo and v_hi > v_lo):
+        raise ValueError("the parameter range is empty")
+    us, vs = _nurbs_parameters(uk, u_lo, u_hi, u_order), _nurbs_parameters(vk, v_lo, v_hi, v_order)
+    bu, dbu = bspline_basis(uk, u_order, u_count, us)
+    bv, dbv = bspline_basis(vk, v_order, v_count, vs)
+    grid_w = w.reshape(v_count, u_count)
+    homogeneous = cps.reshape(v_count, u_count, 3) * grid_w[..., None]
+
+    def rational(basis_v, basis_u):
+        return (np.einsum("ai,ijc,bj->abc", basis_v, homogeneous, basis_u),
+                np.einsum("ai,ij,bj->ab", basis_v, grid_w, basis_u)[..., None])
+    num, den = rational(bv, bu)
+    surface = num / den  # (len(vs), len(us), 3): rows along v, u fastest
+    # The quotient rule: S = A / w, dS = (dA - dw S) / w.
+    num_u, den_u = rational(bv, dbu)
+    num_v, den_v = rational(dbv, bu)
+    du, dv = (num_u - den_u * surface) / den, (num_v - den_v * surface) / den
+    nrm = np.cross(du, dv)
+    length = np.linalg.norm(nrm, axis=-1, keepdims=True)
+    # Where a derivative vanishes (a collapsed edge, a pole), the normal is left to the
+    # triangles' geometry: None for the whole patch keeps the data plain.
+    normals = (nrm / length).reshape(-1, 3) if (length > 0).all() else None
+    tris = _grid_quads(len(vs), len(us), closed=False)
+    uu, vv = np.meshgrid(us, vs)
+    return surface.reshape(-1, 3), tris, normals, np.stack([uu.ravel(), vv.ravel()], -1)
+
+
+# -- Points ----------------------------------------------------------------------------
+POINT_SEGMENTS, POINT_RINGS = 16, 8  # each point's sphere: 2 x 16 x 8 - 32 = 224 triangles
+
+
+def _unit_point_sphere():
+    theta = np.linspace(math.pi, 0.0, POINT_RINGS + 1)
+    phi = np.linspace(0.0, 2 * math.pi, POINT_SEGMENTS, endpoint=False)
+    nrm = np.stack([np.sin(theta)[:, None] * np.cos(phi), np.sin(theta)[:, None] * np.sin(phi),
+                    np.broadcast_to(np.cos(theta)[:, None], (len(theta), len(phi)))], -1).reshape(-1, 3)
+    tris = _grid_quads(len(theta), len(phi), closed=True)
+    row = tris // len(phi)
+    pole = (row == 0) | (row == len(theta) - 1)
+    tris = tris[~((pole[:, 0] & pole[:, 1]) | (pole[:, 1] & pole[:, 2]) | (pole[:, 0] & pole[:, 2]))]
+    # The polyhedron is inscribed in the sphere: scaled so that its area is the sphere's
+    # (4 pi), its silhouette covers what the sphere's does to about 1 %.
+    e1, e2 = nrm[tris[:, 1]] - nrm[tris[:, 0]], nrm[tris[:, 2]] - nrm[tris[:, 0]]
+    area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=-1).sum()
+    return nrm * math.sqrt(4 * math.pi / area), tris, nrm
+
+
+POINT_SPHERE_TRIANGLES = len(_unit_point_sphere()[1])
+
+
+def point_spheres(positions, widths):
+    """UsdGeomPoints as spheres whose diameters are `widths` (one per point, or one for
+    all): (points, triangles, per-vertex normals)."""
+    pos = np.asarray(positions, np.float64).reshape(-1, 3)
+    radius = np.broadcast_to(np.asarray(widths, np.float64).reshape(-1), (len(pos),)) * 0.5
+    unit, tris, nrm = _unit_point_sphere()
+    pts = (pos[:, None, :] + radius[:, None, None] * unit[None]).reshape(-1, 3)
+    all_tris = (tris[None] + (np.arange(len(pos)) * len(unit))[:, None, None]).reshape(-1, 3)
+    return pts, all_tris, np.tile(nrm, (len(pos), 1))

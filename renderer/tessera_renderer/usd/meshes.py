@@ -388,6 +388,70 @@ class _MeshReader:
         normals = nrm[tris] if type_name != "Cube" else None
         return _Chunk(pts, tris, np.full(len(tris), row, np.uint32), normals, None)
 
+    def nurbs_chunk(self, prim) -> _Chunk | None:
+        """A NurbsPatch's surface tessellated (gprims.nurbs_patch), with its (u, v) as st;
+        trim curves are not cut out (one note)."""
+        from pxr import UsdGeom
+
+        t = self.time
+        g = UsdGeom.NurbsPatch(prim)
+
+        def get(attr, default=None):
+            value = attr.Get(t)
+            return default if value is None else value
+        try:
+            u_range, v_range = get(g.GetURangeAttr()), get(g.GetVRangeAttr())
+            pts, tris, nrm, uv = gprims.nurbs_patch(
+                int(get(g.GetUVertexCountAttr(), 0)), int(get(g.GetVVertexCountAttr(), 0)),
+                int(get(g.GetUOrderAttr(), 0)), int(get(g.GetVOrderAttr(), 0)),
+                np.asarray(get(g.GetUKnotsAttr(), [])), np.asarray(get(g.GetVKnotsAttr(), [])),
+                np.asarray(get(g.GetPointsAttr(), [])), np.asarray(get(g.GetPointWeightsAttr(), [])),
+                None if u_range is None else tuple(u_range), None if v_range is None else tuple(v_range))
+        except (ValueError, TypeError) as exc:
+            self.warn(f"{prim.GetPath()}: NurbsPatch skipped: {exc}")
+            return None
+        if not np.isfinite(pts).all():
+            self.warn(f"{prim.GetPath()}: NurbsPatch with non-finite points skipped")
+            return None
+        if get(g.GetTrimCurveCountsAttr()) is not None and len(get(g.GetTrimCurveCountsAttr())):
+            self._count_note("NurbsPatch trim curves are not cut out yet: the untrimmed surface is rendered")
+        if g.GetOrientationAttr().Get(t) == UsdGeom.Tokens.leftHanded:
+            tris = tris[:, ::-1]
+            nrm = None if nrm is None else -nrm
+        row = self.material_row(prim, prim, bool(g.GetDoubleSidedAttr().Get(t)))
+        return _Chunk(pts, tris, np.full(len(tris), row, np.uint32), None if nrm is None else nrm[tris],
+                      uv[tris].astype(np.float32))
+
+    def points_chunk(self, prim) -> _Chunk | None:
+        """A Points prim as spheres of its widths (gprims.point_spheres); a point without
+        an authored width is 1 across, as Hydra draws it."""
+        from pxr import UsdGeom
+
+        t = self.time
+        g = UsdGeom.Points(prim)
+        positions = g.GetPointsAttr().Get(t)
+        if positions is None or len(positions) == 0:
+            return None
+        positions = np.asarray(positions, np.float64)
+        widths = g.GetWidthsAttr().Get(t)
+        widths = np.ones(1) if widths is None or len(widths) == 0 else np.asarray(widths, np.float64)
+        if len(widths) not in (1, len(positions)):
+            self.warn(f"{prim.GetPath()}: {len(widths)} widths for {len(positions)} points; "
+                      f"the first is used for all")
+            widths = widths[:1]
+        keep = np.isfinite(positions).all(axis=1) & np.isfinite(np.broadcast_to(widths, (len(positions),))) & \
+            (np.broadcast_to(widths, (len(positions),)) > 0)
+        if not keep.all():
+            self.warn(f"{prim.GetPath()}: {int((~keep).sum())} points with a NaN/Inf position or a width "
+                      f"that is not positive skipped")
+            widths = widths if len(widths) == 1 else widths[keep]
+            positions = positions[keep]
+            if len(positions) == 0:
+                return None
+        pts, tris, nrm = gprims.point_spheres(positions, widths)
+        row = self.material_row(prim, prim, False)
+        return _Chunk(pts, tris, np.full(len(tris), row, np.uint32), nrm[tris], None)
+
     def curves_chunk(self, prim, world: np.ndarray | None = None) -> _Chunk | None:
         """A BasisCurves prim's tubes of triangles (in its local space), or None. With
         `world` (its transform; a prim of the world, not of a prototype) a still,

@@ -227,7 +227,8 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
                 m = skinned[1]  # skinned points are in the skeleton's space
             if m is not None and base_inv is not None:
                 m = m @ base_inv
-            if prim.IsA(UsdGeom.Mesh) or type_name in _GPRIMS or prim.IsA(UsdGeom.BasisCurves):
+            if prim.IsA(UsdGeom.Mesh) or type_name in _GPRIMS or prim.IsA(UsdGeom.BasisCurves) or \
+                    prim.IsA(UsdGeom.NurbsPatch) or prim.IsA(UsdGeom.Points):
                 if prim.IsA(UsdGeom.Mesh):
                     chunk = self.mesh_chunk(prim)
                     if chunk is not None:
@@ -235,6 +236,10 @@ class _Translator(_MeshReader, _InstanceReader, _MaterialReader, _LightReader, _
                             self._skin_deformed(prim, chunk, top_level)
                 elif type_name in _GPRIMS:
                     chunk = self.gprim_chunk(prim, type_name)
+                elif prim.IsA(UsdGeom.NurbsPatch):
+                    chunk = self.nurbs_chunk(prim)
+                elif prim.IsA(UsdGeom.Points):
+                    chunk = self.points_chunk(prim)
                 else:
                     chunk = self.curves_chunk(prim, m if top_level and sink is self.chunks else None)
                 if chunk is None:

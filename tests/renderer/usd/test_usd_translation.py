@@ -90,15 +90,15 @@ def test_invisible_and_guide_prims_are_skipped_and_unsupported_ones_warned(tmp_p
     add_mesh(stage, "/Hidden/Child", *tri)
     guide = add_mesh(stage, "/Guide", *tri)
     guide.CreatePurposeAttr(UsdGeom.Tokens.guide)
-    UsdGeom.NurbsPatch.Define(stage, "/Patch")
-    UsdGeom.NurbsPatch.Define(stage, "/Patch2")
-    UsdGeom.Points.Define(stage, "/Dust")
+    UsdGeom.NurbsCurves.Define(stage, "/Curve")
+    UsdGeom.NurbsCurves.Define(stage, "/Curve2")
+    UsdGeom.HermiteCurves.Define(stage, "/Hermite")
     stage.GetRootLayer().Save()
     data = translate_stage(str(tmp_path / "v.usda"))
     assert len(data.indices) == 1
     text = " | ".join(data.warnings)
-    assert "2 NurbsPatch prims not supported yet" in text
-    assert "1 Points prim not supported yet" in text
+    assert "2 NurbsCurves prims not supported yet" in text
+    assert "1 HermiteCurves prim not supported yet" in text
     assert "no camera" in text
 
 
