@@ -21,6 +21,7 @@ scripts in benchmarks/, scripts/, examples/ and renderer/tools/.
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -44,6 +45,14 @@ SCRIPTS = "scripts"
 SCRIPT_FOLDERS = [REPO / "benchmarks", REPO / "scripts", REPO / "examples", REPO / "renderer" / "tools"]
 # `python -m tessera` runs this module; the package never imports it, so it sits with the CLI.
 ENTRY_MODULES = {"tessera.__main__": CLI}
+
+
+def extension_modules() -> set[str]:
+    """The core's compiled modules (renderer/CMakeLists.txt's nanobind_add_module targets,
+    installed into tessera_renderer): `from .. import _subdivision` imports one of them, not
+    the package's __init__."""
+    cmake = (REPO / "renderer" / "CMakeLists.txt").read_text()
+    return {f"tessera_renderer.{name}" for name in re.findall(r"nanobind_add_module\((\w+)", cmake)}
 
 BELOW_THE_FARM = {"tessera", "tessera_queue", "tessera_tools", "tessera_base", "tessera_renderer"}
 # Which of our packages each layer may import (besides itself). Everything not listed is
@@ -123,6 +132,7 @@ def edges(modules: dict[str, tuple[Path, str]]) -> dict[str, set[str]]:
     """module -> the checked modules it imports. `from a import b` is an edge to a.b when
     that is a module, else to a; a script's bare `import common` to its sibling file."""
     graph = {}
+    known = set(modules) | extension_modules()
     for name, (path, _) in modules.items():
         is_script = name.endswith(".py")
         targets = set()
@@ -130,7 +140,7 @@ def edges(modules: dict[str, tuple[Path, str]]) -> dict[str, set[str]]:
             candidates = [f"{target}.{attr}", target] if attr and target else [target or attr]
             if is_script:
                 candidates += [str((path.parent / f"{c}.py").relative_to(REPO)) for c in candidates if c]
-            hit = next((c for c in candidates if c in modules and c != name), None)
+            hit = next((c for c in candidates if c in known and c != name), None)
             if hit:
                 targets.add(hit)
         graph[name] = targets
@@ -216,6 +226,7 @@ def test_every_python_file_has_a_layer():
 def _checked_tree(tmp_path, files: dict[str, str]):
     """The checks run on a made-up tree laid out like the repository."""
     global REPO, PACKAGES, SCRIPT_FOLDERS
+    files = {"renderer/CMakeLists.txt": "nanobind_add_module(_core NB_STATIC python/module.cpp)\n", **files}
     for rel, text in files.items():
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / rel).write_text(text)
@@ -259,11 +270,13 @@ def test_the_checker_sees_an_upward_import(tmp_path):
 def test_the_checker_sees_a_hidden_cycle(tmp_path):
     """Negative control: a cycle through a lazy import, one through TYPE_CHECKING, one
     through `from package import module` and one between scripts are each found; a
-    package's __init__ importing its modules, which import a sibling, is no cycle."""
+    package's __init__ importing its modules, which import a sibling, is no cycle, nor is a
+    module's import of the core's compiled module (`from .. import _core`)."""
     _, found = _checked_tree(tmp_path, {
         "renderer/tessera_renderer/__init__.py": "from .usd.stage import Stage\n",
         "renderer/tessera_renderer/usd/__init__.py": "from . import stage, lights\n",
-        "renderer/tessera_renderer/usd/stage.py": "from .lights import read\n",
+        "renderer/tessera_renderer/usd/stage.py": "from .lights import read\nfrom . import subdivision\n",
+        "renderer/tessera_renderer/usd/subdivision.py": "def f():\n    from .. import _core\n",
         "renderer/tessera_renderer/usd/lights.py": "def read():\n    from .stage import Stage\n",
         "renderer/tessera_renderer/usd/materials.py": "from typing import TYPE_CHECKING\n"
                                                      "if TYPE_CHECKING:\n    from .mtlx import M\n",
