@@ -17,6 +17,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field, ValidationError, field_validator
 
+from tessera_base import integrators
 from tessera_base.exr_header import scene_sha256
 
 MANIFEST = "refs.json"
@@ -40,7 +41,7 @@ class Reference(BaseModel):
     scene: str = Field(description="the scene file, relative to the reference folder")
     width: int = Field(ge=1, le=16384)
     height: int = Field(ge=1, le=16384)
-    integrator: str = "path"
+    integrator: str = Field(default_factory=integrators.default)  # the registry's first
     integrator_params: dict[str, float] = Field(default_factory=dict)
     max_depth: int = Field(default=64, ge=1, le=1024)
     seed: int = Field(default=0, ge=0, le=2**31)

@@ -62,6 +62,7 @@ def add_parser(sub, resolution, positive, add_integrator_option, integrator_para
 
 
 def cmd_create(args: argparse.Namespace) -> int:
+    from tessera_base import integrators
     from tessera_renderer import SceneError, load_scene
 
     from . import refcheck, refs
@@ -85,7 +86,7 @@ def cmd_create(args: argparse.Namespace) -> int:
             width, height = loaded.width, loaded.height
         ref = refs.Reference(
             name=name, scene=os.path.relpath(scene.resolve(), folder.resolve()), width=width,
-            height=height, integrator=args.integrator or "path",
+            height=height, integrator=args.integrator or integrators.default(),
             integrator_params=args.integrator_params_fn(args), max_depth=args.max_depth,
             seed=args.seed, spp=args.spp, target_error=args.target_error,
             check=refs.CheckBudget(min_spp=args.check_min_spp, max_spp=args.check_max_spp),
