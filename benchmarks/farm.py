@@ -43,7 +43,7 @@ class Farm:
     """Redis + API + workers as separate processes, like a deployment on one host."""
 
     def __init__(self, stack: ExitStack, workdir: str, workers: int, heartbeat_ttl: float = 5.0):
-        from tessera_service.embedded import free_port, redis_server, stop_processes
+        from tessera_cli.embedded import free_port, redis_server, stop_processes
 
         self.redis_url = stack.enter_context(redis_server(workdir)).url
         self.redis = redis.Redis.from_url(self.redis_url)

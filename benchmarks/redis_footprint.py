@@ -44,7 +44,7 @@ def _free_port() -> int:
 
 
 def measure(workdir: str) -> list[dict]:
-    from tessera_service.embedded import redis_server, stop_processes
+    from tessera_cli.embedded import redis_server, stop_processes
 
     env = {k: v for k, v in os.environ.items() if not k.startswith("TESSERA_") and k != "REDIS_URL"}
     out = []

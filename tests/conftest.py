@@ -17,7 +17,7 @@ import redis
 from tessera_base import protocol
 
 from tessera_queue import redis_schema as rdb
-from tessera_service.embedded import free_port, redis_server as _redis_server, stop_processes
+from tessera_cli.embedded import free_port, redis_server as _redis_server, stop_processes
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -542,6 +542,13 @@ NB_MODULE(_core, m) {
                 d["complete"] = info.complete;
                 d["delta_caustics"] = info.delta_caustics;
                 d["shades_curves"] = info.shades_curves;
+                using Pilot = IntegratorInfo::PilotCandidate;
+                d["pilot_candidate"] = info.pilot_candidate == Pilot::kAlways ? "always"
+                                       : info.pilot_candidate == Pilot::kMirrorsOrGlassWithNoiseTarget
+                                           ? "mirrors_or_glass_with_noise_target"
+                                           : "never";
+                d["merging_alpha"] = info.merging_alpha;
+                d["view_independent_product"] = info.view_independent_product;
                 if (!info.iteration_cap.param.empty()) {
                     nb::dict cap;
                     cap["param"] = std::string(info.iteration_cap.param);
@@ -559,7 +566,8 @@ NB_MODULE(_core, m) {
             return out;
         },
         "The registered integrators in registry order: dicts of name, description, the capabilities "
-        "(splats, scene_passes, stop_per_tile, complete, delta_caustics, shades_curves, iteration_cap; "
+        "(splats, scene_passes, stop_per_tile, complete, delta_caustics, shades_curves, iteration_cap, "
+        "pilot_candidate, merging_alpha, view_independent_product; "
         "integrators/integrator.h) and "
         "params (setting name -> description).");
     m.def(

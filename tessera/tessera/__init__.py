@@ -10,7 +10,7 @@
         farm.wait(job.id)
         same = farm.download(job.id)                      # bit for bit tessera.render's image
 
-The `tessera` command (tessera.cli) is a thin layer over these. Heavy modules (the
+The `tessera` command (tessera_cli.cli) is a thin layer over these. Heavy modules (the
 renderer, OpenImageIO) load on first use, not on `import tessera`.
 """
 from tessera_base import __version__

@@ -9,19 +9,22 @@ pilot renders each candidate `PILOT_REPEATS` times (different seeds, interleaved
 repeats, var / (m^2 + 0.01) with m the median of all candidates' pilot images there (the
 measure relMSE uses, with a scale no candidate's fireflies inflate), averaged over the image.
 
-Candidates are the integrators `auto` chooses between: `path` and `bdpt` always, and the
-photon-merging `vcm` and `sppm` when the scene has mirrors or glass (Scene.has_delta_surfaces:
-the caustics merging is for) and the render runs in passes (a noise target: merging
-integrators converge over iterations, and a fixed-spp render is one iteration). A scene
-whose caustics path tracing cannot reach at all (a delta light through glass or off a
-smooth metal: Scene.has_delta_caustics) leaves out `path`: its variance there is small
-because it misses that light, not because it is efficient.
+Candidates are the integrators `auto` chooses between, as the core's registry declares them
+(each integrator's `pilot_candidate`, read through tessera_base.integrators.pilot_candidates;
+this module names none): today `path` and `bdpt` always, and the photon-merging `sppm` and
+`vcm` when the scene has mirrors or glass (Scene.has_delta_surfaces: the caustics merging is
+for) and the render runs in passes (a noise target: merging integrators converge over
+iterations, and a fixed-spp render is one iteration). A scene whose caustics path tracing
+cannot reach at all (a delta light through glass or off a smooth metal:
+Scene.has_delta_caustics) leaves out the candidates without `delta_caustics` (`path`): its
+variance there is small because it misses that light, not because it is efficient.
 
 The pilot image is coarse, the render is not: a candidate's seconds are extrapolated to
 the render's size, its tile pass scaled by the pixel count and its scene pass (photons or
 light paths, whose cost does not depend on the image) added once. A merging integrator's
 variance falls more slowly than 1/J over J passes: its radius shrinks from batch to batch,
-so it falls as J^(-alpha). To reach the render's noise target (relative variance
+so it falls as J^(-alpha), alpha its default radius exponent (the registry's `merging_alpha`,
+the constant its `alpha` setting defaults to). To reach the render's noise target (relative variance
 eps = target_error^2) it needs J = (v / eps)^(1/alpha) passes where an unbiased one needs
 v / eps, so its efficiency is multiplied by the handicap J'^(1 - 1/alpha), J' = v / eps
 clamped to [1, the batches the render holds at most].
@@ -47,10 +50,6 @@ import json
 import time
 from dataclasses import asdict, dataclass, field
 
-CANDIDATES = ("path", "bdpt")
-MERGING_CANDIDATES = ("vcm", "sppm")
-# The radius exponents of the merging integrators' defaults (docs/integrators.md).
-MERGING_ALPHA = {"vcm": 0.75, "sppm": 2.0 / 3.0}
 PILOT_PIXELS = 64
 PILOT_SPP = 4
 PILOT_REPEATS = 4
@@ -97,9 +96,11 @@ def choose(rows: list[PilotRow]) -> str:
     merging integrator has the highest typical efficiency: then that one (the module's rule)."""
     if not rows:
         raise ValueError("no pilot measurements to choose from")
+    from tessera_base.integrators import merging_alpha
+
     best = max(rows, key=lambda r: (r.efficiency, -rows.index(r)))
     typical = max(rows, key=lambda r: (r.typical_efficiency, -rows.index(r)))
-    if best.integrator not in MERGING_ALPHA and typical.integrator in MERGING_ALPHA and typical.typical_efficiency > 0:
+    if not merging_alpha(best.integrator) and merging_alpha(typical.integrator) and typical.typical_efficiency > 0:
         return typical.integrator
     return best.integrator
 
@@ -110,18 +111,30 @@ def pilot_size(width: int, height: int) -> tuple[int, int]:
 
 
 def candidates(scene, settings) -> tuple[str, ...]:
-    """The integrators the pilot measures for this scene and render (the module's rule)."""
-    merging = MERGING_CANDIDATES if settings.adaptive and scene.has_delta_surfaces() else ()
-    base = ("bdpt",) if scene.has_delta_caustics() else CANDIDATES
-    return base + merging
+    """The integrators the pilot measures for this scene and render (the registry's rule)."""
+    from tessera_base.integrators import pilot_candidates
+
+    return pilot_candidates(mirrors_or_glass=scene.has_delta_surfaces(), noise_target=settings.adaptive,
+                            delta_caustics=scene.has_delta_caustics())
+
+
+def left_out(names: tuple[str, ...]) -> list[str]:
+    """The always-candidates a scene's delta-light caustics left out of `names`."""
+    from tessera_base.integrators import pilot_candidates
+
+    always = pilot_candidates(mirrors_or_glass=False, noise_target=False, delta_caustics=False)
+    return [c for c in always if c not in names]
 
 
 def merging_handicap(integrator: str, rel_variance: float, settings) -> float:
     """The factor on a merging integrator's efficiency (the module's rule); 1 for others."""
-    if integrator not in MERGING_ALPHA or not settings.target_error:
+    from tessera_base.integrators import merging_alpha
+
+    alpha = merging_alpha(integrator)
+    if not alpha or not settings.target_error:
         return 1.0
     passes = min(max(1.0, rel_variance / settings.target_error ** 2), float(merging_batches(settings)))
-    return passes ** (1.0 - 1.0 / MERGING_ALPHA[integrator])
+    return passes ** (1.0 - 1.0 / alpha)
 
 
 def merging_batches(settings) -> int:
@@ -160,9 +173,9 @@ def run_pilot(scene, settings, threads: int = 0, seed: int = 0x51107) -> Pilot:
 
     w, h = pilot_size(settings.width, settings.height)
     names = candidates(scene, settings)
-    if names == ("bdpt",):
-        return Pilot(choice="bdpt", size=(w, h), spp=0, repeats=0,
-                     reason="a delta light lights a caustic path tracing cannot reach: bdpt without a pilot")
+    missed = f"a delta light lights a caustic {', '.join(left_out(names))} cannot reach"
+    if len(names) == 1:
+        return Pilot(choice=names[0], size=(w, h), spp=0, repeats=0, reason=f"{missed}: {names[0]} without a pilot")
     images: dict[str, list] = {c: [] for c in names}
     scene_s: dict[str, list[float]] = {c: [] for c in names}
     tile_s: dict[str, list[float]] = {c: [] for c in names}
@@ -182,7 +195,7 @@ def run_pilot(scene, settings, threads: int = 0, seed: int = 0x51107) -> Pilot:
         r.handicap = merging_handicap(r.integrator, r.rel_variance, settings)
         r.efficiency *= r.handicap
         r.typical_efficiency *= merging_handicap(r.integrator, r.typical_rel_variance, settings)
-    reason = "" if set(names) >= set(CANDIDATES) else "a delta light lights a caustic path tracing cannot reach"
+    reason = missed if left_out(names) else ""
     return Pilot(choice=choose(rows), rows=rows, size=(w, h), reason=reason)
 
 

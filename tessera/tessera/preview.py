@@ -1,7 +1,8 @@
 """Real-time preview of a solved radiosity scene (`tessera preview SCENE`).
 
 Radiosity's solution is view-independent: solved once, any view of it costs one primary
-ray per pixel (the `radiosity` integrator's tile pass). The preview solves the scene once,
+ray per pixel (its tile pass). The registry names the integrator whose product is such a
+solution (`view_independent_product`: tessera_base.integrators.preview_integrator). The preview solves the scene once,
 then re-renders it for every camera the user asks for, in a browser page served on
 localhost (drag to orbit, wheel to zoom), or, with `--frames N`, along an orbit without a
 server, printing the frame rate (the benchmark of docs/benchmarks/radiosity.md).
@@ -19,6 +20,7 @@ import numpy as np
 from tessera_renderer import Scene, _core
 
 from tessera_base.images import tonemap_srgb8
+from tessera_base.integrators import preview_integrator
 
 
 def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
@@ -34,8 +36,9 @@ class RadiosityPreview:
                  integrator_params: dict[str, float] | None = None, seed: int = 0):
         self.scene, self.width, self.height, self.threads = scene, width, height, threads
         self.params = dict(integrator_params or {})
+        self.integrator = preview_integrator()
         started = time.perf_counter()
-        self.product = scene.scene_pass("radiosity", 0, seed=seed, threads=threads,
+        self.product = scene.scene_pass(self.integrator, 0, seed=seed, threads=threads,
                                         integrator_params=self.params)
         self.solve_seconds = time.perf_counter() - started
         c = scene.data.camera
@@ -68,7 +71,7 @@ class RadiosityPreview:
     def frame(self, yaw: float = 0.0, pitch: float = 0.0, zoom: float = 1.0) -> np.ndarray:
         """Linear RGBA (height, width, 4) of the solution from that view, 1 sample per pixel."""
         return self.scene.render_tile(0, 0, self.width, self.height, width=self.width, height=self.height,
-                                      spp=1, threads=self.threads, integrator="radiosity",
+                                      spp=1, threads=self.threads, integrator=self.integrator,
                                       integrator_params=self.params, scene_product=self.product,
                                       camera=self.camera(yaw, pitch, zoom))
 

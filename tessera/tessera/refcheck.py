@@ -19,6 +19,8 @@ and pooled with the earlier ones (`accumulate`). After every look:
   this budget), which `strict` turns into a failure.
 
 The number of samples per pixel the decision took is in the result (and the report).
+`render_reference` renders an entry's reference EXR the same way (or on a farm, reffarm.py);
+it lives here, above the manifest (refs.py), which imports neither.
 """
 from __future__ import annotations
 
@@ -30,6 +32,7 @@ from typing import Literal
 import numpy as np
 
 from tessera_base import images
+from tessera_base.exr_header import scene_sha256
 from tessera_tools import compare
 
 from . import refs
@@ -116,6 +119,32 @@ def render(scene_file: str | Path, ref: Reference, *, spp: int | None, seed: int
     meta.update(provenance(scene_file, target_error, result.rgba, result.variance, result.spp,
                            result.variance_kind))
     return images.RenderImage(result.rgba, result.variance, result.spp, meta, result.variance_kind)
+
+
+def render_reference(folder: str | Path, ref: Reference, *, threads: int = 0,
+                     progress: bool = False, farm: str | None = None,
+                     token: str | None = None) -> Reference:
+    """Renders `ref` (locally, or on the farm at URL `farm`) into its EXR; returns the
+    entry with its version, scene hash and where it was rendered filled in."""
+    from . import __version__
+
+    scene = refs.scene_path(folder, ref)
+    if not scene.is_file():
+        raise RefsError(f"reference {ref.name}: scene {scene} does not exist")
+    spp = ref.spp if ref.target_error is None else None
+    out = Path(folder) / ref.exr
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if farm:
+        from .reffarm import render_on_farm
+
+        render_on_farm(farm, token, scene, ref, out)
+    else:
+        image = render(scene, ref, spp=spp, seed=ref.seed, threads=threads, progress=progress,
+                       target_error=ref.target_error)
+        images.write_exr(out, image.rgba, image.metadata,
+                         aovs={"variance": image.variance, "spp": image.spp})
+    return ref.model_copy(update={"tessera_version": __version__, "scene_sha256": scene_sha256(scene),
+                                  "rendered_on": "farm" if farm else "local"})
 
 
 def accumulate(a: images.RenderImage | None, b: images.RenderImage) -> images.RenderImage:

@@ -17,7 +17,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field, ValidationError, field_validator
 
-from tessera_base import images
+from tessera_base import integrators
 from tessera_base.exr_header import scene_sha256
 
 MANIFEST = "refs.json"
@@ -41,7 +41,7 @@ class Reference(BaseModel):
     scene: str = Field(description="the scene file, relative to the reference folder")
     width: int = Field(ge=1, le=16384)
     height: int = Field(ge=1, le=16384)
-    integrator: str = "path"
+    integrator: str = Field(default_factory=integrators.default)  # the registry's first
     integrator_params: dict[str, float] = Field(default_factory=dict)
     max_depth: int = Field(default=64, ge=1, le=1024)
     seed: int = Field(default=0, ge=0, le=2**31)
@@ -139,30 +139,3 @@ def status(folder: str | Path, ref: Reference) -> list[str]:
     if ref.tessera_version and ref.tessera_version != __version__:
         out.append(f"rendered by Tessera {ref.tessera_version}, this is {__version__}")
     return out
-
-
-def render_reference(folder: str | Path, ref: Reference, *, threads: int = 0,
-                     progress: bool = False, farm: str | None = None,
-                     token: str | None = None) -> Reference:
-    """Renders `ref` (locally, or on the farm at URL `farm`) into its EXR; returns the
-    entry with its version, scene hash and where it was rendered filled in."""
-    from . import __version__
-    from .refcheck import render
-
-    scene = scene_path(folder, ref)
-    if not scene.is_file():
-        raise RefsError(f"reference {ref.name}: scene {scene} does not exist")
-    spp = ref.spp if ref.target_error is None else None
-    out = Path(folder) / ref.exr
-    out.parent.mkdir(parents=True, exist_ok=True)
-    if farm:
-        from .reffarm import render_on_farm
-
-        render_on_farm(farm, token, scene, ref, out)
-    else:
-        image = render(scene, ref, spp=spp, seed=ref.seed, threads=threads, progress=progress,
-                       target_error=ref.target_error)
-        images.write_exr(out, image.rgba, image.metadata,
-                         aovs={"variance": image.variance, "spp": image.spp})
-    return ref.model_copy(update={"tessera_version": __version__, "scene_sha256": scene_sha256(scene),
-                                  "rendered_on": "farm" if farm else "local"})

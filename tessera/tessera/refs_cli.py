@@ -62,9 +62,10 @@ def add_parser(sub, resolution, positive, add_integrator_option, integrator_para
 
 
 def cmd_create(args: argparse.Namespace) -> int:
+    from tessera_base import integrators
     from tessera_renderer import SceneError, load_scene
 
-    from . import refs
+    from . import refcheck, refs
 
     folder, scene = Path(args.folder), Path(args.scene)
     try:
@@ -85,12 +86,12 @@ def cmd_create(args: argparse.Namespace) -> int:
             width, height = loaded.width, loaded.height
         ref = refs.Reference(
             name=name, scene=os.path.relpath(scene.resolve(), folder.resolve()), width=width,
-            height=height, integrator=args.integrator or "path",
+            height=height, integrator=args.integrator or integrators.default(),
             integrator_params=args.integrator_params_fn(args), max_depth=args.max_depth,
             seed=args.seed, spp=args.spp, target_error=args.target_error,
             check=refs.CheckBudget(min_spp=args.check_min_spp, max_spp=args.check_max_spp),
             exr=f"{name}.exr")
-        ref = refs.render_reference(folder, ref, threads=args.threads, progress=True, farm=args.farm,
+        ref = refcheck.render_reference(folder, ref, threads=args.threads, progress=True, farm=args.farm,
                                     token=args.token or os.environ.get("TESSERA_TOKEN"))
     except (refs.RefsError, ValueError) as exc:
         print(f"tessera refs create: {exc}", file=sys.stderr)
@@ -103,7 +104,7 @@ def cmd_create(args: argparse.Namespace) -> int:
 
 
 def cmd_update(args: argparse.Namespace) -> int:
-    from . import refs
+    from . import refcheck, refs
 
     folder = Path(args.folder)
     try:
@@ -111,7 +112,7 @@ def cmd_update(args: argparse.Namespace) -> int:
         chosen = {r.name for r in refset.select(args.names)}
         for i, ref in enumerate(refset.references):
             if ref.name in chosen:
-                refset.references[i] = refs.render_reference(
+                refset.references[i] = refcheck.render_reference(
                     folder, ref, threads=args.threads, progress=True, farm=args.farm,
                     token=args.token or os.environ.get("TESSERA_TOKEN"))
                 print(f"{ref.name}: rendered again", file=sys.stderr)

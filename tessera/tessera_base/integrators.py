@@ -149,6 +149,32 @@ def validate_params(name: str, values: dict[str, float]) -> dict[str, float]:
     return dict(sorted(values.items()))
 
 
+def pilot_candidates(*, mirrors_or_glass: bool, noise_target: bool, delta_caustics: bool) -> tuple[str, ...]:
+    """The integrators `auto`'s measuring pilot (tessera/tessera/pilot.py) tries, in registry
+    order, for a scene with (or without) mirrors or glass and delta-light caustics, rendered
+    to a noise target or not: each integrator's `pilot_candidate` says when it is one, and
+    delta-light caustics leave out those that cannot find them (`delta_caustics`)."""
+    when = {"always": True, "mirrors_or_glass_with_noise_target": mirrors_or_glass and noise_target}
+    return tuple(i["name"] for i in integrators()
+                 if when.get(i["pilot_candidate"], False) and (i["delta_caustics"] or not delta_caustics))
+
+
+def merging_alpha(name: str) -> float:
+    """A merging integrator's default radius exponent alpha (its variance falls as J^-alpha
+    over J iterations); 0 for any other integrator."""
+    return next((float(i["merging_alpha"]) for i in integrators() if i["name"] == name), 0.0)
+
+
+def preview_integrator() -> str:
+    """The integrator whose scene-wide product is a camera-independent solution, which
+    `tessera preview` solves once and re-renders from any view (`view_independent_product`)."""
+    found = [i["name"] for i in integrators() if i["view_independent_product"]]
+    if len(found) != 1:
+        raise RegistryError(f"the preview needs one integrator with a view-independent product, "
+                            f"the registry has {found or 'none'}")
+    return found[0]
+
+
 def help_text() -> str:
     """One line per integrator, for `tessera render --integrator help`."""
     width = max(len(n) for n in names())

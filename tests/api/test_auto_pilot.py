@@ -15,10 +15,15 @@ from pathlib import Path
 
 import pytest
 
-from tessera.pilot import CANDIDATES, PilotRow, choose, pilot_size, run_pilot
+from tessera.pilot import PilotRow, choose, pilot_size, run_pilot
 
 REPO = Path(__file__).resolve().parents[2]
 CAUSTIC = REPO / "examples" / "caustic" / "caustic.usda"
+# What the registry declares (renderer/core/integrators: each integrator's pilot_candidate
+# and merging_alpha), written out here so a change there fails these tests.
+ALWAYS = ("path", "bdpt")
+MERGING = ("sppm", "vcm")  # registry order
+MERGING_ALPHA = {"sppm": 2.0 / 3.0, "vcm": 0.75}
 
 
 def test_choose_takes_the_most_efficient_and_the_first_on_a_tie():
@@ -66,7 +71,7 @@ def test_pilot_variance_sees_bdpt_win_the_caustic_per_sample(cornell_path):
     caustic = load_scene(CAUSTIC)
     p = run_pilot(caustic, RenderSettings(width=caustic.width, height=caustic.height), threads=2)
     rel = {r.integrator: r.rel_variance for r in p.rows}
-    assert [r.integrator for r in p.rows] == list(CANDIDATES)
+    assert [r.integrator for r in p.rows] == list(ALWAYS)
     assert rel["path"] > 3 * rel["bdpt"], rel
     assert p.choice == choose(p.rows)
     cornell = load_scene(cornell_path)
@@ -106,7 +111,7 @@ def test_cli_auto_reports_the_pilot_and_records_it_in_the_exr(tmp_path, cornell_
     spec = oiio.ImageInput.open(str(out)).spec()
     pilot = json.loads(spec.getattribute("tessera:auto"))
     rows = [PilotRow(**row) for row in pilot["rows"]]
-    assert {r.integrator for r in rows} == set(CANDIDATES)
+    assert {r.integrator for r in rows} == set(ALWAYS)
     assert pilot["choice"] == choose(rows)  # the recorded numbers give the recorded choice
     assert spec.getattribute("tessera:integrator") == pilot["choice"]
     assert f"auto chose {pilot['choice']}" in r.stderr
@@ -120,7 +125,7 @@ def test_merging_candidates_join_for_mirrors_or_glass_in_a_progressive_render(co
     """vcm and sppm are candidates only where they can win: a scene with delta surfaces
     (the caustic's glass ball; the Cornell box has none) rendered in passes (a noise target;
     a fixed-spp render is one iteration, where a merging integrator has not converged)."""
-    from tessera.pilot import MERGING_CANDIDATES, candidates
+    from tessera.pilot import candidates
     from tessera_base.protocol import RenderSettings
     from tessera_renderer import load_scene
 
@@ -128,9 +133,9 @@ def test_merging_candidates_join_for_mirrors_or_glass_in_a_progressive_render(co
     fixed = RenderSettings(width=64, height=64, spp=64)
     caustic, cornell = load_scene(CAUSTIC), load_scene(cornell_path)
     assert caustic.has_delta_surfaces() and not cornell.has_delta_surfaces()
-    assert candidates(caustic, progressive) == CANDIDATES + MERGING_CANDIDATES
-    assert candidates(caustic, fixed) == CANDIDATES
-    assert candidates(cornell, progressive) == CANDIDATES
+    assert candidates(caustic, progressive) == ALWAYS + MERGING
+    assert candidates(caustic, fixed) == ALWAYS
+    assert candidates(cornell, progressive) == ALWAYS
 
 
 def test_merging_handicap_is_the_slower_variance_decay_to_the_noise_target():
@@ -157,7 +162,7 @@ def test_pilot_on_the_caustic_measures_merging_and_records_its_numbers():
     0.135 against 11: asserted 10x), and the recorded numbers give the recorded choice:
     efficiency = handicap / (rel_variance x seconds), seconds extrapolated to the render's
     size and holding the scene pass's."""
-    from tessera.pilot import MERGING_ALPHA, merging_handicap
+    from tessera.pilot import merging_handicap
     from tessera_base.protocol import RenderSettings
     from tessera_renderer import load_scene
 
@@ -165,7 +170,7 @@ def test_pilot_on_the_caustic_measures_merging_and_records_its_numbers():
     st = RenderSettings(width=caustic.width, height=caustic.height, target_error=0.01)
     p = run_pilot(caustic, st, threads=2)
     rows = {r.integrator: r for r in p.rows}
-    assert list(rows) == ["path", "bdpt", "vcm", "sppm"]
+    assert list(rows) == [*ALWAYS, *MERGING]
     assert rows["path"].rel_variance > 10 * rows["sppm"].rel_variance, rows
     for name, r in rows.items():
         assert r.handicap == pytest.approx(merging_handicap(name, r.rel_variance, st))
@@ -190,3 +195,39 @@ def test_typical_mean_is_not_moved_by_one_pixel_but_is_by_a_region():
     assert typical_mean(v) == pytest.approx(0.1)
     v[:64] = 1e4  # control: a region (the pixels of a caustic) is no rare hit
     assert typical_mean(v) > 100
+
+
+def test_the_registry_declares_the_candidates_and_the_merging_exponents():
+    """The pilot's rule is data in the core's registry: which integrators are candidates for
+    which scene features, and the radius exponent each merging integrator defaults to (the
+    constant its `alpha` setting defaults to, so a render with that alpha given explicitly is
+    bit-identical to one without; a slightly different alpha is not, the control)."""
+    import numpy as np
+
+    from tessera_base import integrators
+    from tessera_renderer import load_scene
+    from tessera_renderer.film import new_splat_buffer
+
+    cases = {(False, False, False): ALWAYS, (True, False, False): ALWAYS, (False, True, False): ALWAYS,
+             (True, True, False): ALWAYS + MERGING, (True, True, True): ("bdpt",) + MERGING,
+             (False, False, True): ("bdpt",)}
+    for (mirrors, target, caustics), expected in cases.items():
+        assert integrators.pilot_candidates(mirrors_or_glass=mirrors, noise_target=target,
+                                            delta_caustics=caustics) == expected
+    for name in ("path", "bdpt", "light", "radiosity"):
+        assert integrators.merging_alpha(name) == 0.0
+    scene = load_scene(CAUSTIC)
+    for name, alpha in MERGING_ALPHA.items():
+        assert integrators.merging_alpha(name) == pytest.approx(alpha, rel=1e-6)
+
+        def render(params):  # iteration 1: the radius has shrunk by alpha's schedule once
+            product = scene.scene_pass(name, 1, seed=3, threads=2, integrator_params=params)
+            splats = new_splat_buffer(16, 16)
+            image = scene.render_tile(0, 0, 16, 16, width=16, height=16, spp=2, sample_start=2, threads=2,
+                                      integrator=name, integrator_params=params, scene_product=product,
+                                      splats=splats)
+            return np.concatenate([np.asarray(image).ravel(), splats.ravel().astype(np.float64)])
+
+        default = render({})
+        assert np.array_equal(default, render({"alpha": integrators.merging_alpha(name)})), name
+        assert not np.array_equal(default, render({"alpha": alpha * 0.95})), name

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from tessera import refs
+from tessera import refcheck, refs
 
 pytestmark = pytest.mark.slow  # two renders and a child pytest: ~12 s of CPU
 
@@ -37,7 +37,7 @@ def test_one_line_check_passes_unchanged_and_fails_when_the_light_changes(tmp_pa
     ref = refs.Reference(name="cornell", scene="../cornell.usda", width=32, height=32, spp=512,
                          check=refs.CheckBudget(min_spp=64, max_spp=128), exr="cornell.exr")
     folder = tmp_path / "refs"
-    ref = refs.render_reference(folder, ref)
+    ref = refcheck.render_reference(folder, ref)
     refs.save(folder, refs.RefSet(references=[ref]))
     (tmp_path / "test_look.py").write_text(PROJECT_TEST)
     report = tmp_path / "reports"

@@ -16,7 +16,7 @@ import pytest
 
 from conftest import CORNELL, clean_env, start_api, submit
 from tessera_base import images
-from tessera.cli import main as tessera_main
+from tessera_cli.cli import main as tessera_main
 from tessera_base.denoise import DenoiseError, denoise
 from tessera_base.film import add_denoised
 from tessera.local import render_image

@@ -24,7 +24,7 @@ import pytest
 import yaml
 
 from tessera_queue import redis_schema as rdb
-from tessera.cli import build_parser
+from tessera_cli.cli import build_parser
 from tessera_service.routers.scaling import ScalingSignal
 from tessera_service.settings import Settings
 from tessera_worker.settings import WorkerSettings

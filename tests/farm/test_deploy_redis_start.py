@@ -16,7 +16,7 @@ import redis
 import yaml
 
 from conftest import clean_env, start_worker
-from tessera_service.embedded import free_port
+from tessera_cli.embedded import free_port
 
 REPO = Path(__file__).resolve().parents[2]
 DEPLOY = REPO / "deploy"

@@ -11,7 +11,7 @@ import httpx
 import pytest
 
 from conftest import STARTUP_TIMEOUT, Process, clean_env, start_api, wait_until_ready
-from tessera_service.embedded import free_port
+from tessera_cli.embedded import free_port
 
 TOKEN = "tok-alice-1"
 ELSEWHERE = "203.0.113.7"  # TEST-NET-3: some host on the internet

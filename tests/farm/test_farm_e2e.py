@@ -25,7 +25,7 @@ from tessera_queue import tasks as queue_tasks
 from tessera_queue import redis_schema as rdb
 from tessera_base.protocol import JobSpec, RenderSettings
 from tessera_renderer import load_scene
-from tessera_service.embedded import free_port
+from tessera_cli.embedded import free_port
 from tessera_service.store import JobStore
 
 

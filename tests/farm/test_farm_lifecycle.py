@@ -31,7 +31,7 @@ from tessera_base import protocol
 from tessera_base import convergence
 from tessera_queue import redis_schema as rdb
 from tessera_worker.worker import CLAIM_MIN_IDLE_MS
-from tessera_service.embedded import free_port, redis_server as local_redis
+from tessera_cli.embedded import free_port, redis_server as local_redis
 
 COMMON_FAULTS = "segv:poison*.usda#1,hang:hang*.usda,oom:oom*.usda"
 TILE_TIMEOUT = 6.0

@@ -24,7 +24,7 @@ from conftest import (CORNELL, child_pids, clean_env, farm_image, is_running, lo
                       start_worker, submit, wait_for_job)
 from tessera_base import images, protocol
 from tessera_queue import redis_schema as rdb
-from tessera_service.embedded import free_port, redis_server as local_redis, stop_processes
+from tessera_cli.embedded import free_port, redis_server as local_redis, stop_processes
 from tessera_service.redis_acl import Credentials
 
 

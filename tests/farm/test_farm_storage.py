@@ -14,7 +14,7 @@ from conftest import (CORNELL, farm_image, local_reference, start_api, start_wor
                       wait_for_job)
 from tessera_queue import redis_schema as rdb
 from tessera_base.protocol import RenderSettings
-from tessera_service.embedded import redis_server
+from tessera_cli.embedded import redis_server
 
 
 def assert_bit_identical(actual: np.ndarray, expected: np.ndarray) -> None:

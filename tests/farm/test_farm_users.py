@@ -11,7 +11,7 @@ import httpx
 import pytest
 
 from conftest import CORNELL, STARTUP_TIMEOUT, clean_env, start_api, start_worker, submit, wait_for_job
-from tessera_service.embedded import free_port
+from tessera_cli.embedded import free_port
 
 TOKENS = {"alice": "tok-alice-1", "bob": "tok-bob-1", "root": "tok-root-1"}
 # Render settings of a job that finishes in well under a second.

@@ -18,7 +18,7 @@ from redis.retry import Retry
 from conftest import (CORNELL, REPO, STARTUP_TIMEOUT, clean_env, start_api, start_worker, submit,
                       wait_for_job)
 from tessera_queue import redis_schema as rdb
-from tessera_service.embedded import free_port, redis_server, stop_processes
+from tessera_cli.embedded import free_port, redis_server, stop_processes
 from tessera_service.redis_acl import (API_USER, DEFAULT_RULE, WORKER_USER, Credentials,
                                       aof_replay_problem, user_rule)
 

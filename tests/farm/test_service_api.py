@@ -221,7 +221,7 @@ def test_cancel(api):
 
 
 def test_service_does_not_import_renderer_or_usd():
-    code = ("import sys, tessera_service.app, tessera_service.embedded; "
+    code = ("import sys, tessera_service.app, tessera_cli.embedded; "
             "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('pxr', 'tessera_renderer')); "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)

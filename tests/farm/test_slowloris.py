@@ -16,7 +16,7 @@ import httpx
 import pytest
 
 from conftest import Process, clean_env, wait_until_ready
-from tessera_service.embedded import free_port
+from tessera_cli.embedded import free_port
 
 HEADER_TIMEOUT = 4.0   # seconds (TESSERA_HTTP_HEADER_TIMEOUT of the server under test)
 BODY_IDLE_TIMEOUT = 3.0  # TESSERA_HTTP_BODY_IDLE_TIMEOUT

@@ -19,7 +19,7 @@ import httpx
 import pytest
 
 from conftest import STARTUP_TIMEOUT, clean_env
-from tessera_service.embedded import free_port
+from tessera_cli.embedded import free_port
 from tessera_worker.child import RenderChild
 
 

@@ -174,7 +174,7 @@ def test_tile_results_carry_aovs(cornell_path):
 def test_local_render_writes_aov_layers_and_noise_target_spp(tmp_path, cornell_path):
     """`tessera render --aovs all` in noise-target mode: spp is the per-tile sample count
     the pass schedule reached, and every layer is in the EXR under its OpenEXR name."""
-    from tessera.cli import main
+    from tessera_cli.cli import main
 
     out = tmp_path / "c.exr"
     assert main(["render", str(cornell_path), "--res", "32x24", "--tile", "8", "--target-error", "0.2",

@@ -27,7 +27,7 @@ def test_the_rule_at_its_edges():
 
 
 def _render(tmp_path, intensity, capsys):
-    from tessera.cli import main
+    from tessera_cli.cli import main
 
     scene = tmp_path / f"dim{intensity}.usda"
     scene.write_text(DIM_SPHERE_LIGHT_USDA.replace("INTENSITY", str(intensity)))

@@ -11,7 +11,7 @@ import pytest
 from pydantic import ValidationError
 
 from conftest import CORNELL
-from tessera import cli
+from tessera_cli import cli
 from tessera_base import film, images, integrators
 from tessera_base.protocol import RenderSettings, TileRect
 from tessera_queue.tasks import TileTask

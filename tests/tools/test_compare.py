@@ -16,7 +16,7 @@ import pytest
 from conftest import CORNELL, start_api
 from tessera_tools import compare
 from tessera_base import images
-from tessera.cli import main
+from tessera_cli.cli import main
 
 RES, SPP = "64x64", 32
 WHITE = "(0.725, 0.71, 0.68)"

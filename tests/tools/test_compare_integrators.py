@@ -18,7 +18,7 @@ from scipy import stats
 from conftest import CORNELL
 from tessera_tools import compare
 from tessera_base import images
-from tessera.cli import main
+from tessera_cli.cli import main
 from tessera.local import render_image
 from tessera_base.convergence import VARIANCE_BATCHES
 from tessera_base.protocol import RenderSettings

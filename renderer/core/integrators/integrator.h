@@ -67,6 +67,19 @@ struct IntegratorInfo {
         std::string_view max_param;
         double max_per_iteration = 0;
     } iteration_cap = {};
+    // Which renders `auto`'s measuring pilot (tessera/tessera/pilot.py) tries it in: never;
+    // always; or only for a scene with mirrors or glass (Scene::has_delta_surfaces) rendered to
+    // a noise target (merging converges over iterations; a fixed-spp render is one). A scene
+    // with delta-light caustics also leaves out a candidate without `delta_caustics`.
+    enum class PilotCandidate { kNever, kAlways, kMirrorsOrGlassWithNoiseTarget };
+    PilotCandidate pilot_candidate = PilotCandidate::kNever;
+    // A merging integrator's default radius exponent (its `alpha` setting's default): its
+    // variance falls as J^-alpha over J iterations, which the pilot's efficiency handicaps.
+    // 0: not a merging integrator.
+    double merging_alpha = 0;
+    // Its scene-wide product is the whole image's solution, independent of the camera (one
+    // primary ray a pixel reads it): `tessera preview` solves it once and re-renders any view.
+    bool view_independent_product = false;
 };
 
 // Settings common to every integrator, plus the named extras its info declares.

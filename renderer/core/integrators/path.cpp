@@ -17,6 +17,7 @@ const IntegratorInfo& PathIntegrator::Info() {
         .complete = true,
         .params = {{"rr_depth", "vertex index (0 = the first hit) from which Russian roulette may end a path "
                                 "(default 2; 5 reaches an error sooner in closed diffuse scenes)"}},
+        .pilot_candidate = IntegratorInfo::PilotCandidate::kAlways,
     };
     return info;
 }

@@ -36,6 +36,7 @@ public:
             .stop_per_tile = false,
             .shades_curves = false,
             .params = RadiosityParams(),
+            .view_independent_product = true,
         };
         return info;
     }

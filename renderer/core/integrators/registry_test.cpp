@@ -44,6 +44,37 @@ TEST(Registry, AutoPicksTheFirstCompleteIntegratorThatHandlesTheScene) {
     }
 }
 
+// What `auto`'s pilot reads (tessera_base.integrators.pilot_candidates, merging_alpha): an
+// always-candidate is complete, a mirrors-or-glass one is a merging integrator (its alpha a
+// radius exponent in (0, 1), its iterations batches), and at least one candidate remains for
+// a scene with delta-light caustics. The preview's integrator is the one view-independent
+// product, made by a scene pass.
+TEST(Registry, PilotCandidatesAndThePreviewFollowTheCapabilities) {
+    using Pilot = IntegratorInfo::PilotCandidate;
+    int always = 0, with_caustics = 0, previews = 0;
+    for (const IntegratorInfo& info : RegisteredIntegrators()) {
+        const bool merging = info.merging_alpha != 0;
+        if (merging) {
+            EXPECT_GT(info.merging_alpha, 0.0) << info.name;
+            EXPECT_LT(info.merging_alpha, 1.0) << info.name;
+            EXPECT_FALSE(info.iteration_cap.param.empty()) << info.name;
+        }
+        if (info.pilot_candidate == Pilot::kAlways) {
+            EXPECT_TRUE(info.complete) << info.name;
+            ++always;
+            with_caustics += info.delta_caustics;
+        }
+        if (info.pilot_candidate == Pilot::kMirrorsOrGlassWithNoiseTarget) EXPECT_TRUE(merging) << info.name;
+        if (info.view_independent_product) {
+            EXPECT_TRUE(info.scene_passes) << info.name;
+            ++previews;
+        }
+    }
+    EXPECT_GE(always, 2);  // a pilot of one candidate would measure nothing
+    EXPECT_GE(with_caustics, 1);
+    EXPECT_EQ(previews, 1);
+}
+
 TEST(Registry, SplattingIntegratorsRefuseToRenderWithoutASplatBuffer) {
     const Scene scene(FloorScene(0.5f));
     const Camera camera = LookDownAtOrigin(1.f, 4);

@@ -78,6 +78,8 @@ public:
                        {"time_slices", "with motion blur, the first batch's slices of the shutter; a visible "
                                        "point merges with photons of its own slice (default 32)"}},
             .iteration_cap = {"photons", kDefaultPhotons, "", double(kMaxPhotonsPerIteration)},
+            .pilot_candidate = IntegratorInfo::PilotCandidate::kMirrorsOrGlassWithNoiseTarget,
+            .merging_alpha = kDefaultAlpha,
         };
         return info;
     }

@@ -167,6 +167,8 @@ public:
                                        "vertex merges with light paths of its own slice (default 32)"}},
             .iteration_cap = {"light_paths", kDefaultLightPaths, "max_iteration_paths",
                               double(kMaxLightPathsPerIteration)},
+            .pilot_candidate = IntegratorInfo::PilotCandidate::kMirrorsOrGlassWithNoiseTarget,
+            .merging_alpha = kDefaultAlpha,
         };
         return info;
     }

@@ -1,5 +1,5 @@
 """Native instances and PointInstancers: prototypes kept once with instance transforms, or
-flattened into copies (the _InstanceReader part of the translator)."""
+flattened into copies (the InstanceReader part of the translator)."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,7 +8,7 @@ from .errors import SceneError
 from .meshes import _Chunk
 
 
-class _InstanceReader:
+class InstanceReader:
     """Turns instanced prims into prototypes + transforms, or flat copies."""
 
     # -- instancing -----------------------------------------------------------------

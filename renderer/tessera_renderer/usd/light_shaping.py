@@ -18,6 +18,7 @@ import os
 
 import numpy as np
 
+from .authoring import authoring_layer
 from .errors import read_float
 
 IES_SAMPLES = 181  # lights/light_shaping.h kIesSamples: 0..180 degrees, 1 degree apart
@@ -119,13 +120,11 @@ def ies_profile(text: str, normalize: bool, note, angle_scale: float = 0.0) -> n
 def _ies_table(translator, api, where: str) -> np.ndarray | None:
     """The light's IES table (shaping:ies:file read through the bundle sandbox), or None
     without one; a missing or unreadable file is a warning naming it."""
-    from .materials import _authoring_layer
-
     t = translator.time
     asset = api.GetShapingIesFileAttr().Get(t)
     if asset is None or not asset.path:
         return None
-    layer = _authoring_layer(api.GetShapingIesFileAttr())
+    layer = authoring_layer(api.GetShapingIesFileAttr())
     path = translator.bundle.resolve_texture(asset, os.path.dirname(layer.realPath) if layer else None,
                                              where) if translator.bundle else None
     if path is None:

@@ -1,23 +1,19 @@
 """UsdLux lights -> emissive triangles, point, sphere, distant and dome lights, and the
-default lighting of a light-less stage (the _LightReader part of the translator)."""
+default lighting of a light-less stage (the LightReader part of the translator)."""
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from . import gprims, light_shaping
 from .camera import CameraDesc, _unit
 from .errors import SceneError, read_float, read_floats
-from .materials import _authoring_layer
+from .authoring import authoring_layer
 from .meshes import _Chunk
-
-if TYPE_CHECKING:  # stage imports this module
-    from .stage import SceneData
+from .scene_data import SceneData
 
 
-class _LightReader:
+class LightReader:
     """Translates every UsdLux light kind, in the units of docs/scene-translation.md."""
 
     # -- lights ---------------------------------------------------------------------
@@ -156,7 +152,7 @@ class _LightReader:
         asset = attr.Get(self.time)
         if not isinstance(asset, Sdf.AssetPath) or not asset.path:
             return None
-        layer = _authoring_layer(attr)
+        layer = authoring_layer(attr)
         return self._texture_from(
             asset=asset, anchor=os.path.dirname(layer.realPath) if layer else None, where=str(prim.GetPath()),
             input_name="emissiveColor", channel="rgb", fallback=[1.0, 1.0, 1.0, 1.0], wrap_s="clamp",
@@ -263,7 +259,7 @@ class _LightReader:
         asset = dome.GetTextureFileAttr().Get(self.time)
         if asset is not None and asset.path:
             attr = dome.GetTextureFileAttr()
-            layer = _authoring_layer(attr)
+            layer = authoring_layer(attr)
             import os
             path = self.bundle.resolve_texture(asset, os.path.dirname(layer.realPath) if layer else None,
                                                str(prim.GetPath())) if self.bundle else None

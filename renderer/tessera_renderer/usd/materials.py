@@ -1,5 +1,5 @@
 """UsdPreviewSurface, MaterialX looks and UsdUVTexture -> deduplicated material rows and a
-texture table (the _MaterialReader part of the translator)."""
+texture table (the MaterialReader part of the translator)."""
 from __future__ import annotations
 
 import json
@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from .authoring import authoring_layer
 from .errors import SceneError
 
 
@@ -53,7 +54,7 @@ class _MaterialTable:
         return self._index[key]
 
 
-class _MaterialReader:
+class MaterialReader:
     """Resolves bindings into material rows and textures."""
 
     # -- materials ------------------------------------------------------------------
@@ -311,7 +312,7 @@ class _MaterialReader:
             for a in file_attr.GetValueProducingAttributes():
                 asset = a.Get(t)
                 layer_dir = None
-                spec_layer = _authoring_layer(a)
+                spec_layer = authoring_layer(a)
                 if spec_layer is not None:
                     import os
                     layer_dir = os.path.dirname(spec_layer.realPath)
@@ -415,14 +416,6 @@ class _MaterialReader:
         if clamped != c:
             self.warn(f"{path}: diffuse colour {c} clamped to [0, 1] (energy conservation)")
         return clamped
-
-
-def _authoring_layer(attr):
-    """The layer whose opinion gives an attribute its value (for anchoring asset paths)."""
-    for spec in attr.GetPropertyStack():
-        if spec.HasDefaultValue() or spec.layer.GetNumTimeSamplesForPath(spec.path):
-            return spec.layer
-    return None
 
 
 def _input_value(shader, name, time):

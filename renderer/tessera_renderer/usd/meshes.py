@@ -1,5 +1,5 @@
 """Meshes, gprims and curves -> triangle chunks: topology, triangulation, primvar
-expansion, normals, subdivision and UsdSkel posing (the _MeshReader part of the
+expansion, normals, subdivision and UsdSkel posing (the MeshReader part of the
 translator)."""
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ class _Chunk:
         return _Chunk(pts, tris, self.material, normals, uvs)
 
 
-class _MeshReader:
+class MeshReader:
     """Reads geometric prims into _Chunk triangles."""
 
     # -- skinning -------------------------------------------------------------------

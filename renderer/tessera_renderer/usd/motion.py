@@ -1,4 +1,4 @@
-"""Transform motion over the camera's shutter (the _MotionReader part of the translator).
+"""Transform motion over the camera's shutter (the MotionReader part of the translator).
 
 UsdGeomCamera's `shutter:open` and `shutter:close` are offsets from the render's time code,
 in time codes (0 and 0, the schema's fallbacks, mean no motion blur). A prim whose world
@@ -90,7 +90,7 @@ class _TopologyChanges(Exception):
     """A deforming mesh's point count differs between two instants of the shutter."""
 
 
-class _MotionReader:
+class MotionReader:
     """World matrices of moving prims at evenly spaced instants of the shutter."""
 
     def _init_motion(self, shutter: Shutter | None) -> None:

@@ -28,6 +28,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from .authoring import authoring_layer
+
 # The UsdPreviewSurface input each shading model's inputs fill: (preview input, MaterialX
 # input, the constant weight multiplying it or None).
 _MAPPINGS = {
@@ -127,10 +129,8 @@ class UsdNode:
 
     def file(self, name):
         """(Sdf.AssetPath, authoring layer directory, colour space) of a filename input."""
-        from .materials import _authoring_layer
-
         for attr in self._attrs(name):
-            layer = _authoring_layer(attr)
+            layer = authoring_layer(attr)
             space = attr.GetColorSpace() if attr.HasColorSpace() else ""
             return attr.Get(self.time), (os.path.dirname(layer.realPath) if layer else None), space
         return None, None, ""

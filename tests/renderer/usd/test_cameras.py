@@ -192,7 +192,7 @@ def test_orthographic_fstop_is_named_not_silently_dropped(tmp_path):
 def test_cli_camera_option_renders_through_that_camera_and_names_a_missing_one(tmp_path, capsys):
     import OpenImageIO as oiio
 
-    from tessera.cli import main
+    from tessera_cli.cli import main
 
     _square_scene(tmp_path / "two.usda", cameras=("/Cams/A", "/Cams/B"))
     boxes = {}

@@ -98,7 +98,7 @@ def test_default_lighting_can_be_switched_off_and_then_says_black(tmp_path):
 def test_cli_no_default_light(tmp_path):
     import OpenImageIO as oiio
 
-    from tessera.cli import main
+    from tessera_cli.cli import main
 
     path = _lightless_quad(tmp_path)
     for flag, lit in (([], True), (["--no-default-light"], False)):

@@ -141,7 +141,7 @@ def test_gather_equals_usd_compute_all_dependencies(scene):
 
 
 def _render(args: list[str], capsys) -> tuple[int, str]:
-    from tessera.cli import main
+    from tessera_cli.cli import main
 
     code = main(["render", *args, "--res", "24x16", "--spp", "2", "--seed", "3", "-q", "--threads", "1"])
     return code, capsys.readouterr().err

@@ -190,7 +190,7 @@ def test_a_packed_submit_works_under_the_farms_redis_users(tmp_path):
     import redis
 
     from conftest import start_api, start_worker
-    from tessera_service.embedded import redis_server
+    from tessera_cli.embedded import redis_server
     from tessera_service.redis_acl import Credentials
 
     shot = make_project(tmp_path / "proj")

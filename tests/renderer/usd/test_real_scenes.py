@@ -251,7 +251,7 @@ def test_tessera_render_widens_the_sandbox_only_with_root(tmp_path, capsys):
     upstream, is named in a warning).
     (Without --sandbox a local render trusts the files: tests/renderer/usd/test_packing.py.)"""
     from tessera_base import images
-    from tessera.cli import main
+    from tessera_cli.cli import main
 
     project = SCENES / "arnoldusd_disk_rect_lights" / "test_2439.5"
     out = tmp_path / "rect.exr"

@@ -131,7 +131,7 @@ def _render_one(args: argparse.Namespace) -> int:
     from tessera_base.images import write_png_preview
     from tessera_base.protocol import RenderSettings
 
-    from .rendering import render_scene
+    from tessera.rendering import render_scene
 
     scene_path = Path(args.scene)
     output = Path(args.output) if args.output else Path(scene_path.stem + ".exr")
@@ -418,7 +418,7 @@ def _submit_pilot(args: argparse.Namespace):
     from tessera_base.protocol import RenderSettings, parse_variant, parse_frames
     from tessera_renderer import load_scene
 
-    from .pilot import run_pilot
+    from tessera.pilot import run_pilot
 
     frame = args.frame
     if frame is None and getattr(args, "frames", None):
@@ -476,7 +476,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
     its assets); with --wait follows its progress and downloads the image."""
     from tqdm import tqdm
 
-    from .client import Client, FarmError
+    from tessera.client import Client, FarmError
 
     scene = Path(args.scene)
     settings = {k: v for k, v in dict(spp=args.spp, seed=args.seed, max_depth=args.max_depth,
@@ -584,7 +584,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from tessera_tools.compare import CompareError, heatmap
     from tessera_base.images import write_png
 
-    from .comparison import comparison as compare_images
+    from tessera.comparison import comparison as compare_images
 
     try:
         comparison = compare_images(args.test, args.reference, alpha=args.alpha, method=args.method,
@@ -637,7 +637,7 @@ def cmd_denoise(args: argparse.Namespace) -> int:
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    from tessera_service.embedded import serve
+    from tessera_cli.embedded import serve
 
     serve(host=args.host, port=args.port, workers=args.workers,
           redis_url=args.redis_url or os.environ.get("REDIS_URL") or None,
@@ -655,7 +655,7 @@ def cmd_preview(args: argparse.Namespace) -> int:
     """Solve a scene's radiosity once, then re-render it as the camera moves (tessera/preview.py)."""
     from tessera_renderer import SceneError, load_scene
 
-    from .preview import RadiosityPreview, serve
+    from tessera.preview import RadiosityPreview, serve
     width, height = args.res
     try:
         scene = load_scene(args.scene)
@@ -811,7 +811,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_bench_options(b)
     b.set_defaults(func=cmd_bench)
 
-    from .refs_cli import add_parser as add_refs_parser
+    from tessera.refs_cli import add_parser as add_refs_parser
 
     add_refs_parser(sub, _resolution, _positive, _add_integrator_option, _integrator_params)
 

@@ -24,11 +24,11 @@ import redis
 
 from tessera_base.process import die_with_parent, remove_orphaned_tempdirs
 
-from .redis_acl import API_USER, WORKER_USER, Credentials, acl_file
+from tessera_service.redis_acl import API_USER, WORKER_USER, Credentials, acl_file
 
 log = logging.getLogger("tessera.serve")
 
-WORKER_COMMAND = [sys.executable, "-m", "tessera", "worker"]
+WORKER_COMMAND = [sys.executable, "-m", "tessera_cli", "worker"]
 WORKER_STOP_TIMEOUT = 30.0  # seconds a worker may take to finish its tile on shutdown
 
 
@@ -43,14 +43,14 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
     (a deployment, which needs tokens or this set explicitly)."""
     import uvicorn
 
-    from .app import create_app
-    from .http_guard import connection_cap, guarded_protocol
-    from .settings import Settings
+    from tessera_service.app import create_app
+    from tessera_service.http_guard import connection_cap, guarded_protocol
+    from tessera_service.settings import Settings
 
     # Uvicorn handles SIGINT/SIGTERM while it runs and re-raises the signal once it has
     # stopped; this handler absorbs that, so that the workers and Redis are then stopped
     # in order. Outside of uvicorn's run a signal interrupts whatever we are waiting for.
-    from .auth import is_loopback
+    from tessera_service.auth import is_loopback
 
     phase = "starting"
     embedded = redis_url is None
