@@ -83,6 +83,9 @@ class JobStatus(BaseModel):
 
 class JobList(BaseModel):
     jobs: list[JobStatus]
+    offset: int = Field(default=0, description="the page's first job's place in the filtered list")
+    more: bool = Field(default=False, description="whether jobs follow this page (ask with "
+                                                  "offset + limit)")
 
 
 class JobLog(BaseModel):
@@ -116,3 +119,52 @@ class Health(BaseModel):
 
 class Problem(BaseModel):
     detail: str
+
+
+TaskState = Literal["queued", "rendering", "done", "failed", "waiting", "abandoned"]
+
+
+class TaskStatus(BaseModel):
+    """One tile of a job (all its passes together), or one scene pass (an iteration's
+    scene-wide task of an integrator with scene passes)."""
+
+    kind: Literal["tile", "scene_pass"]
+    index: int = Field(description="the tile's index in the grid (row-major), or the scene "
+                                   "pass's iteration")
+    x0: int | None = Field(default=None, description="a tile's rectangle in pixels")
+    y0: int | None = None
+    width: int | None = None
+    height: int | None = None
+    state: TaskState = Field(description="queued; rendering (a worker holds it); done; failed "
+                                         "(its attempts ran out: the job failed); waiting (for "
+                                         "its next pass to be queued, by a pass barrier or a "
+                                         "scene pass); abandoned (the job ended without it)")
+    pass_index: int | None = Field(default=None, description="the newest pass stored, queued "
+                                                             "or being rendered")
+    passes_done: int = Field(default=0, description="passes stored")
+    samples: int | None = Field(default=None, description="samples per pixel stored so far")
+    worker: str | None = Field(default=None, description="the worker rendering it, else the "
+                                                         "last one that stored or failed it")
+    attempts: int = Field(default=0, description="failed attempts, all passes together")
+    last_error: str | None = None
+    render_seconds: float = Field(default=0.0, description="render time of the stored passes")
+    rendering_seconds: float | None = Field(default=None, description="while rendering: "
+                                                                      "seconds since it was handed out")
+    finished_at: datetime | None = Field(default=None, description="when its last stored pass "
+                                                                   "was stored")
+    slow: bool = Field(default=False, description="its seconds per pass (or, rendering, its "
+                                                  "time so far) exceed slow_factor x the job's "
+                                                  "median seconds per pass")
+
+
+class JobTasks(BaseModel):
+    id: str
+    state: JobState
+    tiles: list[TaskStatus]
+    scene_passes: list[TaskStatus]
+    median_pass_seconds: float | None = Field(
+        description="the median render time of the job's stored tile passes (null: none yet)")
+    slow_factor: float
+    events_complete: bool = Field(description="false when the job's event stream was trimmed "
+                                              "(redis_schema.EVENTS_MAXLEN): older passes' workers "
+                                              "and times are then missing")

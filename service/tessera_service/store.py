@@ -216,9 +216,11 @@ class JobStore:
         return raw.decode() if raw is not None else None
 
     def list(self, state: str | None = None, limit: int = 100, offset: int = 0,
-             owner: str | None = None) -> list[Job]:
+             owner: str | None = None, name: str | None = None) -> list[Job]:
         """Jobs newest first, optionally only those in `state`, only those of `owner`
-        (None: everyone's). Drops index entries of jobs that have expired."""
+        (None: everyone's), only those whose scene name contains `name` (any case). Drops
+        index entries of jobs that have expired."""
+        needle = name.casefold() if name else None
         index = rdb.user_jobs_key(owner) if owner is not None else rdb.JOB_INDEX
         out: list[Job] = []
         start = 0
@@ -239,7 +241,8 @@ class JobStore:
             for fields in rows:
                 if fields:
                     job = _job(fields)
-                    if state is None or job.state == state:
+                    if ((state is None or job.state == state)
+                            and (needle is None or needle in job.spec.scene_name.casefold())):
                         out.append(job)
         return out[offset:offset + limit]
 
@@ -298,6 +301,28 @@ class JobStore:
                     return True
                 except redis.WatchError:
                     continue
+
+    def task_sources(self, job_id: str) -> dict:
+        """What the per-tile table of a job (tasks_view) is folded from, read at once:
+        events (the stream, oldest first: [(id, fields)]), failures (the failures hash),
+        open (the queue's entries: [(entry id, fields)], queued or being rendered) and
+        pending (entry id -> (consumer, ms since delivered, deliveries) of those being
+        rendered)."""
+        queue = rdb.job_queue_key(job_id)
+        with self.redis.pipeline(transaction=False) as pipe:
+            pipe.xrange(rdb.job_events_key(job_id))
+            pipe.hgetall(rdb.job_failures_key(job_id))
+            pipe.xrange(queue)
+            events, failures, open_entries = pipe.execute()
+        try:
+            rows = self.redis.xpending_range(queue, rdb.WORKER_GROUP, min="-", max="+",
+                                             count=max(1, len(open_entries)))
+        except redis.ResponseError:  # no queue (a final job) or no group: nothing in flight
+            rows = []
+        pending = {r["message_id"]: (r["consumer"].decode(), int(r["time_since_delivered"]),
+                                     int(r["times_delivered"])) for r in rows}
+        return {"events": events, "failures": {k.decode(): int(v) for k, v in failures.items()},
+                "open": open_entries, "pending": pending}
 
     def log(self, job_id: str) -> list[str]:
         return [line.decode(errors="replace")

@@ -267,7 +267,7 @@ def result_field(tile_index: int, pass_index: int) -> str:
 # ------------------------------------------------------------------ storage bound
 _RESULT_HEADER = 128   # a tile result's header and section lengths, rounded up
 _TASK_BYTES = 1024     # one queued TileTask (JSON) in the queue stream
-_EVENT_BYTES = 160     # one event stream entry
+_EVENT_BYTES = 224     # one event stream entry (with its worker name and seconds)
 
 
 def job_storage_bound(settings: RenderSettings) -> int:
@@ -280,7 +280,7 @@ def job_storage_bound(settings: RenderSettings) -> int:
         splat sums     P * (1 + B) * N * 24        (splatting integrators; int64 RGB, raw)
         lockstep sums  N * 16                      (PassAccumulator)
         images         N * (16 + 4 * AOV channels + 4 [+ 12 denoised])  (cached EXR, PNG)
-        queue, events  T * (1024 + P * 160)
+        queue, events  T * (1024 + P * 224)
     Splat sums are one full-frame layer per pass however many tiles there are (their
     stored size is zlib'd and usually far smaller)."""
     s = settings
@@ -316,6 +316,13 @@ class JobEvent(BaseModel):
     samples: int | None = None
     tiles_done: int | None = None
     message: str | None = None
+    # tile and pass events: the worker that stored the pass and its render seconds;
+    # failure events: the worker, the failed task's result field (`result_field` or
+    # `scene_task_field`) and which attempt at it this was. (GET /jobs/{id}/tasks folds them.)
+    worker: str | None = None
+    seconds: float | None = None
+    task: str | None = None
+    attempt: int | None = None
 
     def to_fields(self) -> dict[str, str]:
         return {k: str(v) for k, v in self.model_dump(exclude_none=True).items()}

@@ -255,15 +255,26 @@ def create_job(
                       warnings=warnings)
 
 
-@router.get("", response_model=JobList)
+@router.get("", response_model=JobList, responses={403: {"description": "`user` names "
+                                                                     "another user (admins only)"}})
 def list_jobs(request: Request, user: CurrentUser,
               state: Annotated[JobState | None, Query(description="only jobs in this state")] = None,
+              owner: Annotated[str | None, Query(alias="user", max_length=200, description=(
+                  "only this user's jobs (an admin may name anyone; others only themselves)"))] = None,
+              name: Annotated[str | None, Query(max_length=200, description=(
+                  "only jobs whose scene name contains this (case-insensitive)"))] = None,
               limit: Annotated[int, Query(ge=1, le=1000)] = 100,
               offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0) -> JobList:
-    """Your jobs (an admin: everyone's), newest first."""
+    """Your jobs (an admin: everyone's), newest first, a page of `limit` from `offset`;
+    `more` says whether another page follows."""
     store: JobStore = request.app.state.store
-    owner = None if user.admin else user.name
-    return JobList(jobs=[_status(j.spec.job_id, j) for j in store.list(state, limit, offset, owner)])
+    if owner is not None and not user.admin and owner != user.name:
+        raise HTTPException(403, "only an admin lists another user's jobs")
+    if owner is None and not user.admin:
+        owner = user.name
+    found = store.list(state, limit + 1, offset, owner, name=name or None)
+    return JobList(jobs=[_status(j.spec.job_id, j) for j in found[:limit]], offset=offset,
+                   more=len(found) > limit)
 
 
 @router.get("/{job_id}", response_model=JobStatus | SequenceStatus,

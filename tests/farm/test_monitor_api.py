@@ -1,0 +1,146 @@
+"""The API routes behind the monitor's task table, job filters and paging, on a real farm
+(redis-server, the API with tokens for alice, bob and the admin root, one worker whose
+render process fails on purpose: TESSERA_WORKER_FAULTS, docs/farm.md)."""
+from __future__ import annotations
+
+import shutil
+import time
+from datetime import datetime
+from pathlib import Path
+
+import httpx
+import pytest
+
+from conftest import CORNELL, start_api, start_worker, submit, wait_for_job
+
+pytestmark = pytest.mark.slow
+
+TOKENS = {"alice": "mon-alice-1", "bob": "mon-bob-1", "root": "mon-root-1"}
+WORKER = "mon-worker"
+# 64x64 in tiles of 32: four tiles, each one pass.
+SMALL = dict(width=64, height=64, spp=2, max_depth=4, tile_size=32)
+
+
+@pytest.fixture(scope="module")
+def farm(redis_server, tmp_path_factory):
+    logs = tmp_path_factory.mktemp("monitor-api")
+    api, base = start_api(redis_server, logs, api_tokens=",".join(f"{u}:{t}" for u, t in TOKENS.items()),
+                          api_admins="root")
+    worker = start_worker(redis_server, WORKER, logs, tile_timeout=600.0,
+                          faults="segv:poison*.usda#1,hang:stuck*.usda#15")
+    clients = {u: httpx.Client(base_url=base, timeout=60, headers={"Authorization": f"Bearer {t}"})
+               for u, t in TOKENS.items()}
+    clients["processes"] = [api, worker]
+    yield clients
+    worker.stop()
+    api.stop()
+
+
+def named(tmp_path: Path, name: str) -> Path:
+    path = tmp_path / name
+    shutil.copy(CORNELL, path)
+    return path
+
+
+def created(response: httpx.Response) -> str:
+    assert response.status_code == 201, response.text
+    return response.json()["id"]
+
+
+def test_tasks_of_a_done_job(farm, tmp_path):
+    alice = farm["alice"]
+    job = created(submit(alice, CORNELL, **SMALL))
+    status = wait_for_job(alice, job, processes=farm["processes"], expect="done")
+    r = alice.get(f"/jobs/{job}/tasks")
+    assert r.status_code == 200, r.text
+    table = r.json()
+    assert table["state"] == "done" and table["events_complete"] and table["scene_passes"] == []
+    assert [(t["index"], t["x0"], t["y0"], t["width"], t["height"]) for t in table["tiles"]] == [
+        (0, 0, 0, 32, 32), (1, 32, 0, 32, 32), (2, 0, 32, 32, 32), (3, 32, 32, 32, 32)]
+    for tile in table["tiles"]:
+        assert (tile["state"], tile["worker"], tile["passes_done"], tile["samples"], tile["attempts"]) == (
+            "done", WORKER, 1, 2, 0), tile
+        # When it was stored: the event's own time, inside the job's life.
+        at = datetime.fromisoformat(tile["finished_at"])
+        assert (datetime.fromisoformat(status["started_at"]).timestamp() - 0.002 <= at.timestamp()
+                <= datetime.fromisoformat(status["finished_at"]).timestamp() + 0.002)
+    # The tiles' seconds (each rounded to the millisecond) add up to the job's own sum,
+    # kept separately in its hash.
+    assert abs(sum(t["render_seconds"] for t in table["tiles"]) - status["render_seconds"]) <= 0.004
+    # Owner-checked as every job route: another user's job is a 404, the admin sees it.
+    assert farm["bob"].get(f"/jobs/{job}/tasks").status_code == 404
+    assert farm["root"].get(f"/jobs/{job}/tasks").status_code == 200
+    assert alice.get(f"/jobs/{'0' * 32}/tasks").status_code == 404
+    assert alice.get("/jobs/not-an-id/tasks").status_code == 404
+
+
+def test_a_failing_tile_shows_its_attempts_worker_and_error(farm, tmp_path):
+    alice = farm["alice"]
+    job = created(submit(alice, named(tmp_path, "poison.usda"), max_attempts=2, **SMALL))
+    status = wait_for_job(alice, job, processes=farm["processes"], expect="failed")
+    assert status["error"].startswith("tile 1 failed 2 times"), status
+    table = alice.get(f"/jobs/{job}/tasks").json()
+    tile = table["tiles"][1]
+    assert (tile["state"], tile["attempts"], tile["worker"]) == ("failed", 2, WORKER), tile
+    assert "SIGSEGV" in tile["last_error"]
+    assert all(t["attempts"] == 0 and t["state"] in ("done", "abandoned")
+               for t in table["tiles"] if t["index"] != 1), table
+
+
+def test_list_filters_and_pages(farm, tmp_path):
+    alice, bob, root = farm["alice"], farm["bob"], farm["root"]
+    ids = {name: created(submit(client, named(tmp_path, f"{name}.usda"), **SMALL))
+           for client, name in ((alice, "Alpha-one"), (alice, "beta-two"), (bob, "alpha-three"))}
+    for name, job in ids.items():
+        client = bob if name == "alpha-three" else alice
+        wait_for_job(client, job, processes=farm["processes"], expect="done")
+
+    def listed(client, **params) -> list[str]:
+        r = client.get("/jobs", params=params)
+        assert r.status_code == 200, r.text
+        return [j["id"] for j in r.json()["jobs"]]
+
+    # name: a case-insensitive part of the scene's name; each user sees only their own.
+    assert listed(alice, name="ALPHA") == [ids["Alpha-one"]]
+    assert listed(root, name="alpha") == [ids["alpha-three"], ids["Alpha-one"]]  # newest first
+    assert listed(root, name="alpha", user="bob") == [ids["alpha-three"]]
+    assert listed(alice, user="alice", name="beta") == [ids["beta-two"]]
+    assert bob.get("/jobs", params={"user": "alice"}).status_code == 403
+    assert ids["beta-two"] in listed(alice, state="done") and listed(alice, state="paused") == []
+    # Pages: everything alice has, one by one, in the order of the whole list, and `more`
+    # false on the last.
+    everything = listed(alice, limit=1000)
+    assert len(everything) >= 4  # the two above and the earlier tests' jobs
+    pages, offset = [], 0
+    while True:
+        page = alice.get("/jobs", params={"limit": 1, "offset": offset}).json()
+        pages += [j["id"] for j in page["jobs"]]
+        assert page["offset"] == offset
+        offset += 1
+        if not page["more"]:
+            break
+    assert pages == everything
+
+
+def test_a_hung_tile_is_shown_rendering_and_slow(farm, tmp_path):
+    """Tile 15 of 16 hangs (fault injection): the other fifteen are timed, and the hung
+    one is shown rendering on the worker and, once it has taken SLOW_FACTOR x their median,
+    slow; the done ones (compared with their own median) are mostly not."""
+    alice = farm["alice"]
+    form = dict(SMALL, width=128, height=128)
+    job = created(submit(alice, named(tmp_path, "stuck.usda"), **form))
+    deadline = time.monotonic() + 120
+    while True:
+        table = alice.get(f"/jobs/{job}/tasks").json()
+        hung = table["tiles"][15]
+        if hung["state"] == "rendering" and hung["slow"]:
+            break
+        assert time.monotonic() < deadline, table
+        time.sleep(0.1)
+    assert hung["worker"] == WORKER and hung["rendering_seconds"] > table["slow_factor"] * table["median_pass_seconds"]
+    done = [t for t in table["tiles"] if t["index"] != 15]
+    assert all(t["state"] == "done" for t in done), table
+    assert sum(t["slow"] for t in done) < len(done) // 2, table
+    r = alice.delete(f"/jobs/{job}")
+    assert r.json()["state"] == "cancelled"
+    assert all(t["state"] in ("done", "abandoned") for t in alice.get(f"/jobs/{job}/tasks").json()["tiles"])
