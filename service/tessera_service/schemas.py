@@ -72,6 +72,8 @@ class JobStatus(BaseModel):
     warnings: list[str]
     error: str | None = None
     owner: str | None = Field(default=None, description="the user who submitted the job")
+    sequence: str | None = Field(default=None, description="the frame range this job is a frame "
+                                                           "of (its frame: settings.frame)")
     reached_error: float | None = Field(
         default=None, description="a done noise-target job (GET /jobs/{id}): the relative noise its "
                                   "image reached, measured as the EXR's tessera:reached_error; null "
@@ -103,6 +105,7 @@ class WorkerStatus(BaseModel):
     current: str | None = Field(description="'job/tile/pass' being rendered, if any")
     tiles_done: int = Field(description="tile passes this worker stored")
     failures: int = Field(description="failed render attempts on this worker")
+    disabled: bool = Field(default=False, description="an admin disabled it: it takes no new task")
 
 
 class WorkerList(BaseModel):
@@ -168,3 +171,8 @@ class JobTasks(BaseModel):
     events_complete: bool = Field(description="false when the job's event stream was trimmed "
                                               "(redis_schema.EVENTS_MAXLEN): older passes' workers "
                                               "and times are then missing")
+
+
+class BlocklistCleared(BaseModel):
+    worker: str
+    jobs: list[str] = Field(description="the jobs not yet final that had blocklisted the worker")

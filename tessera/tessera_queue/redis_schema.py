@@ -22,6 +22,7 @@ Job hash fields (`job_key`), all written by the service at creation unless noted
     resume_state     the state a paused job returns to
     owner            the API user who submitted it (absent on jobs from before owners;
                      see `user_jobs_key`)
+    sequence         the frame range (`sequence_key`) the job is a frame of, if any
     lockstep_tiles   tile passes stored by a lockstep job, in all passes: every multiple of
                      tiles_total completes a pass and queues its barrier (store_tile.lua)
     decided_pass     the last pass whose lockstep barrier was applied (decide_pass.lua);
@@ -255,7 +256,8 @@ def user_jobs_key(user: str) -> str:
 def worker_key(worker_name: str) -> str:
     """Hash with a TTL, present while the worker is alive (its heartbeat): host, pid,
     started_at, beat_at, current ("job/tile/pass" or ""), tiles_done, failures, reaps
-    (times its reaper looked for dead workers' tiles)."""
+    (times its reaper looked for dead workers' tiles), disabled ("1": an admin disabled it
+    (POST /workers/{name}/disable): it takes no new task; set only while the hash lives)."""
     return f"{PREFIX}:worker:{worker_name}"
 
 

@@ -12,6 +12,7 @@ import httpx
 import pytest
 
 from conftest import CORNELL, start_api, start_worker, submit, wait_for_job
+from tessera_queue import redis_schema as rdb
 
 pytestmark = pytest.mark.slow
 
@@ -144,3 +145,90 @@ def test_a_hung_tile_is_shown_rendering_and_slow(farm, tmp_path):
     r = alice.delete(f"/jobs/{job}")
     assert r.json()["state"] == "cancelled"
     assert all(t["state"] in ("done", "abandoned") for t in alice.get(f"/jobs/{job}/tasks").json()["tiles"])
+
+
+def test_retry_and_purge(farm, tmp_path, redis_client):
+    alice, bob = farm["alice"], farm["bob"]
+    job = created(submit(alice, named(tmp_path, "poison.usda"), max_attempts=1, priority=7, **SMALL))
+    wait_for_job(alice, job, processes=farm["processes"], expect="failed")
+    assert bob.post(f"/jobs/{job}/retry").status_code == 404  # another user's: as if absent
+    r = farm["root"].post(f"/jobs/{job}/retry")  # the admin retries it: it stays alice's
+    assert r.status_code == 201, r.text
+    again = r.json()["id"]
+    assert again != job and r.headers["location"] == f"/jobs/{again}"
+    old, new = alice.get(f"/jobs/{job}").json(), alice.get(f"/jobs/{again}").json()
+    assert new["settings"] == old["settings"] and new["scene_name"] == "poison.usda"
+    assert (new["owner"], new["priority"]) == ("alice", 7)
+    assert alice.get(f"/jobs/{job}/log").json()["lines"][-1].endswith(f"retried as job {again}")
+    assert alice.get(f"/jobs/{again}/log").json()["lines"][1].endswith(f"retry of job {job}")
+    wait_for_job(alice, again, processes=farm["processes"], expect="failed")  # the same fault
+    done = created(submit(alice, CORNELL, **SMALL))
+    wait_for_job(alice, done, processes=farm["processes"], expect="done")
+    r = alice.post(f"/jobs/{done}/retry")
+    assert r.status_code == 409 and "only a failed or cancelled job" in r.text
+
+    # Purge: a finished job goes at once, with every key it kept.
+    assert any(redis_client.exists(k) for k in rdb.job_keys(job))
+    assert bob.post(f"/jobs/{job}/purge").status_code == 404
+    assert alice.post(f"/jobs/{job}/purge").status_code == 204
+    assert alice.get(f"/jobs/{job}").status_code == 404
+    assert not any(redis_client.exists(k) for k in rdb.job_keys(job))
+    assert job not in [j["id"] for j in alice.get("/jobs", params={"limit": 1000}).json()["jobs"]]
+    assert redis_client.zscore(rdb.JOB_INDEX, job) is None
+    assert redis_client.zscore(rdb.user_jobs_key("alice"), job) is None
+
+
+def test_retry_and_purge_a_frame_range(farm, tmp_path):
+    alice = farm["alice"]
+    farm["root"].post(f"/workers/{WORKER}/disable")  # the frames stay queued until cancelled
+    try:
+        r = submit(alice, CORNELL, frames="1-2", **SMALL)
+        assert r.status_code == 201, r.text
+        seq, frames = r.json()["id"], {f["frame"]: f["job"] for f in r.json()["frames"]}
+        assert alice.post(f"/jobs/{seq}/purge").status_code == 409  # not finished
+        assert alice.post(f"/jobs/{seq}/retry").status_code == 409  # nothing failed
+        alice.delete(f"/jobs/{frames[2]}")  # frame 2 cancelled: the one to retry
+        r = alice.post(f"/jobs/{seq}/retry")
+        assert r.status_code == 201, r.text
+        (retried,) = r.json()["frames"]
+        assert retried["frame"] == 2 and retried["job"] != frames[2]
+        status = alice.get(f"/jobs/{seq}").json()
+        assert [(f["frame"], f["job"]) for f in status["frames"]] == [(1, frames[1]), (2, retried["job"])]
+        assert alice.get(f"/jobs/{retried['job']}").json()["sequence"] == seq
+        alice.delete(f"/jobs/{seq}")
+        assert alice.post(f"/jobs/{seq}/purge").status_code == 204
+        assert alice.get(f"/jobs/{seq}").status_code == 404
+        assert all(alice.get(f"/jobs/{j}").status_code == 404 for j in (frames[1], retried["job"]))
+        assert alice.get(f"/jobs/{frames[2]}").status_code == 200  # replaced, so not the range's: kept
+    finally:
+        farm["root"].post(f"/workers/{WORKER}/enable")
+
+
+def test_worker_actions_are_for_admins(farm, redis_client):
+    alice, root = farm["alice"], farm["root"]
+    for method, path in (("POST", f"/workers/{WORKER}/disable"), ("POST", f"/workers/{WORKER}/enable"),
+                         ("DELETE", f"/workers/{WORKER}/blocklist")):
+        r = alice.request(method, path)
+        assert r.status_code == 403 and "only an admin" in r.text, (path, r.text)
+    assert root.post("/workers/no-such-worker/disable").status_code == 404
+    assert not redis_client.exists(rdb.worker_key("no-such-worker"))  # not brought to life
+    assert root.delete("/workers/no-such-worker/blocklist").json() == {"worker": "no-such-worker", "jobs": []}
+    # Disabled, the worker takes nothing: a job waits (three heartbeats, longer than the
+    # worker's idle wait) and is first picked after the enable.
+    assert root.post(f"/workers/{WORKER}/disable").json()["disabled"] is True
+    assert [w["disabled"] for w in alice.get("/workers").json()["workers"] if w["name"] == WORKER] == [True]
+    job = created(submit(alice, CORNELL, **SMALL))
+    beat = float(redis_client.hget(rdb.worker_key(WORKER), "beat_at"))
+    deadline = time.monotonic() + 60
+    beats = 0
+    while beats < 3:
+        now = float(redis_client.hget(rdb.worker_key(WORKER), "beat_at"))
+        if now > beat:
+            beats, beat = beats + 1, now
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    assert alice.get(f"/jobs/{job}").json()["state"] == "queued"
+    enabled_at = time.time()
+    assert root.post(f"/workers/{WORKER}/enable").json()["disabled"] is False
+    status = wait_for_job(alice, job, processes=farm["processes"], expect="done")
+    assert datetime.fromisoformat(status["started_at"]).timestamp() >= enabled_at

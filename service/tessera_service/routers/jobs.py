@@ -574,7 +574,8 @@ def _create_sequence(response: Response, store: JobStore, user: User, frame_list
             spec = JobSpec(job_id=uuid.uuid4().hex, scene_hash=scene_hash, scene_name=name,
                            settings=render.model_copy(update={"frame": float(f)}), priority=priority,
                            max_attempts=max_attempts)
-            tiles_total += store.create_job(spec, warnings, owner=user.name, brightest_light=brightest)
+            tiles_total += store.create_job(spec, warnings, owner=user.name, brightest_light=brightest,
+                                            sequence=sequence_id)
             created.append((f, spec.job_id))
         store.create_sequence(sequence_id, created, name, warnings, owner=user.name)
     except BaseException:
@@ -746,7 +747,8 @@ def _status(job_id: str, job: Job) -> JobStatus:
         finished_at=when(job.finished_at),
         elapsed_seconds=round(max(0.0, end - job.created_at), 3),
         render_seconds=round(job.render_seconds, 3),
-        warnings=job.warnings, error=job.error, owner=job.owner, **_noise_reached(job))
+        warnings=job.warnings, error=job.error, owner=job.owner, sequence=job.sequence,
+        **_noise_reached(job))
 
 
 def _noise_reached(job: Job) -> dict:
