@@ -82,6 +82,9 @@ def job_tasks(job_id: str, job: Job, sources: dict, now: float | None = None) ->
         elif event.type == "scene_pass" and event.pass_index is not None:
             row = scene_row(event.pass_index)
             row.passes_done, row.pass_index, row.finished_at = 1, event.pass_index, _when(at)
+            row.worker = event.worker or row.worker
+            if event.seconds is not None:
+                row.render_seconds = event.seconds
         elif event.type == "failure":
             row = row_of(event.task) if event.task else tiles.get(event.tile)
             if row is not None:

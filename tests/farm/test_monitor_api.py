@@ -232,3 +232,21 @@ def test_worker_actions_are_for_admins(farm, redis_client):
     assert root.post(f"/workers/{WORKER}/enable").json()["disabled"] is False
     status = wait_for_job(alice, job, processes=farm["processes"], expect="done")
     assert datetime.fromisoformat(status["started_at"]).timestamp() >= enabled_at
+
+
+def test_scene_passes_are_rows_with_their_worker(farm):
+    """An integrator with scene passes (photon_direct): one row per iteration's scene pass,
+    done on the worker, as many as the tiles' passes (each iteration's tile passes follow
+    its scene pass)."""
+    alice = farm["alice"]
+    # A noise target no image reaches: passes of 1, 1 and 2 samples up to max_spp 4, each
+    # iteration its own scene pass (tests/renderer/test_scene_passes.py).
+    form = dict(SMALL, spp=4, target_error=1e-6, min_spp=1, max_spp=4, integrator="photon_direct")
+    job = created(submit(alice, CORNELL, **form))
+    wait_for_job(alice, job, processes=farm["processes"], expect="done")
+    table = alice.get(f"/jobs/{job}/tasks").json()
+    iterations = max(t["pass_index"] for t in table["tiles"]) + 1
+    assert iterations == 3, table
+    assert [(s["index"], s["state"], s["worker"]) for s in table["scene_passes"]] == [
+        (i, "done", WORKER) for i in range(iterations)], table
+    assert all(t["passes_done"] == iterations for t in table["tiles"]), table

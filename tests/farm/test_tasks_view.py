@@ -91,11 +91,11 @@ def test_scene_passes_are_rows_of_their_own():
                           settings=SETTINGS, tile=first_tasks(SPEC)[0].tile, pass_index=1,
                           scene_pass=True)
     src = {"events": [event(T0, type="state", state="queued"),
-                      event(T0 + 10, type="scene_pass", pass_index=0)],
+                      event(T0 + 10, type="scene_pass", pass_index=0, worker="w-b", seconds=1.5)],
            "failures": {"tile:scene:1": 2},
            "open": [(b"9-0", {b"task": scene_task.model_dump_json().encode()})],
            "pending": {b"9-0": ("w-a", 100, 3)}}
     table = job_tasks(SPEC.job_id, job("running"), src)
-    assert [(s.index, s.state, s.attempts, s.worker) for s in table.scene_passes] == [
-        (0, "done", 0, None), (1, "rendering", 2, "w-a")]
+    assert [(s.index, s.state, s.attempts, s.worker, s.render_seconds) for s in table.scene_passes] == [
+        (0, "done", 0, "w-b", 1.5), (1, "rendering", 2, "w-a", 0.0)]
     assert table.median_pass_seconds is None  # no timed tile pass yet

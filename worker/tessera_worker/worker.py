@@ -404,7 +404,7 @@ class Worker:
         tasks = [t.model_dump_json() for t in task.pass_tasks(p)]
         stored = self.scripts.store_product(keys=self._keys(job_id, task.scene_hash),
                                             args=[job_id, p, digest, product, entry_id,
-                                                  repr(time.time()), *tasks])
+                                                  repr(time.time()), self.name, repr(seconds), *tasks])
         log.info("job %s: scene pass %d computed in %.3f s (%d bytes)%s", job_id, p, seconds,
                  len(product), "" if stored == 1 else "; it was already stored")
 
