@@ -157,7 +157,8 @@ class TaskStatus(BaseModel):
                                                                    "was stored")
     slow: bool = Field(default=False, description="its seconds per pass (or, rendering, its "
                                                   "time so far) exceed slow_factor x the job's "
-                                                  "median seconds per pass")
+                                                  "median seconds per pass, and the median by "
+                                                  "slow_min_excess")
 
 
 class JobTasks(BaseModel):
@@ -168,6 +169,8 @@ class JobTasks(BaseModel):
     median_pass_seconds: float | None = Field(
         description="the median render time of the job's stored tile passes (null: none yet)")
     slow_factor: float
+    slow_min_excess: float = Field(description="seconds a slow tile's time also exceeds the "
+                                               "median by")
     events_complete: bool = Field(description="false when the job's event stream was trimmed "
                                               "(redis_schema.EVENTS_MAXLEN): older passes' workers "
                                               "and times are then missing")

@@ -22,6 +22,9 @@ from .store import Job
 # A tile is slow when its seconds per pass exceed this many times the job's median (a
 # tile of sky beside one of glass differs by less; a stuck or thrashing tile by far more).
 SLOW_FACTOR = 3.0
+# ... and exceed it by this many seconds: at milliseconds per pass, noise alone triples a
+# tile's time (a 15 ms tile beside 3 ms ones is nothing to look at).
+SLOW_MIN_EXCESS = 1.0
 # The median is only a yardstick once this many passes were timed.
 MIN_TIMED_PASSES = 3
 
@@ -132,11 +135,13 @@ def job_tasks(job_id: str, job: Job, sources: dict, now: float | None = None) ->
         for row in tiles.values():
             per_pass = row.render_seconds / row.passes_done if row.passes_done else 0.0
             running = row.rendering_seconds if row.state == "rendering" else 0.0
-            row.slow = max(per_pass, running or 0.0) > SLOW_FACTOR * median
+            seconds = max(per_pass, running or 0.0)
+            row.slow = seconds > SLOW_FACTOR * median and seconds > median + SLOW_MIN_EXCESS
     return JobTasks(id=job_id, state=job.state, tiles=[tiles[i] for i in sorted(tiles)],
                     scene_passes=[scene[i] for i in sorted(scene)],
                     median_pass_seconds=None if median is None else round(median, 3),
-                    slow_factor=SLOW_FACTOR, events_complete=complete)
+                    slow_factor=SLOW_FACTOR, slow_min_excess=SLOW_MIN_EXCESS,
+                    events_complete=complete)
 
 
 def _first_is_queued(fields: dict) -> bool:

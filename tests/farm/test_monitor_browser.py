@@ -317,33 +317,47 @@ def stream_ids(api: httpx.Client, job: str) -> list[str]:
 
 
 def test_sequence_tasks_log_event_times_and_download(farm, browser, shots):
-    """A frame range is one row with a cell per frame; expanded, a row per frame; a frame's
-    panel shows its task table, its events at the times they happened (not when the page
-    read them) and its log as the API has it, and downloads its EXR."""
+    """A frame range is one row with a cell per frame (frame 3 cancelled before it ran);
+    filtered to done jobs, the strip still shows frame 3 (from the range's status);
+    expanded, a row per frame; a frame's panel shows its task table, its events at the times
+    they happened (not when the page read them) and its log as the API has it, and
+    downloads its EXR."""
     base, processes = farm
     api = httpx.Client(base_url=base, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=60)
-    with open(CORNELL, "rb") as f:
-        r = api.post("/jobs", files={"file": ("cornell.usda", f)},
-                     data={**{k: str(v) for k, v in SMALL.items()}, "frames": "1-3"})
-    assert r.status_code == 201, r.text
-    seq, frame_jobs = r.json()["id"], {f["frame"]: f["job"] for f in r.json()["frames"]}
+    root = httpx.Client(base_url=base, headers={"Authorization": f"Bearer {ROOT_TOKEN}"}, timeout=60)
+    assert root.post(f"/workers/{WORKER}/disable").status_code == 200  # no frame starts yet
+    try:
+        with open(CORNELL, "rb") as f:
+            r = api.post("/jobs", files={"file": ("cornell.usda", f)},
+                         data={**{k: str(v) for k, v in SMALL.items()}, "frames": "1-3"})
+        assert r.status_code == 201, r.text
+        seq, frame_jobs = r.json()["id"], {f["frame"]: f["job"] for f in r.json()["frames"]}
+        assert api.delete(f"/jobs/{frame_jobs[3]}").json()["state"] == "cancelled"
+    finally:
+        root.post(f"/workers/{WORKER}/enable")
     deadline = time.monotonic() + WAIT
-    while api.get(f"/jobs/{seq}").json()["state"] != "done":
+    while [f["state"] for f in api.get(f"/jobs/{seq}").json()["frames"]] != ["done", "done", "cancelled"]:
         assert time.monotonic() < deadline, api.get(f"/jobs/{seq}").json()
         time.sleep(0.05)
     opened = datetime.now(timezone.utc)
     driver = browser
     sign_in(driver, base, TOKEN)
     wait(driver, lambda d: [c.get_attribute("data-state") for c in
-                            d.find_elements(*sequence_row(seq, ".frame-cell"))] == ["done"] * 3,
-         "the sequence row does not show three done frames", processes)
+                            d.find_elements(*sequence_row(seq, ".frame-cell"))] == ["done", "done", "cancelled"],
+         "the sequence row does not show frames done, done, cancelled", processes)
     cells = driver.find_elements(*sequence_row(seq, ".frame-cell"))
     assert [c.get_attribute("data-frame") for c in cells] == ["1", "2", "3"]
     assert [c.get_attribute("data-job") for c in cells] == [frame_jobs[1], frame_jobs[2], frame_jobs[3]]
     # One row for the range, none per frame until it is expanded.
     assert not driver.find_elements(By.CSS_SELECTOR, f'#jobs tr[data-job="{frame_jobs[1]}"]')
     driver.save_screenshot(str(shots / "6-sequence.png"))
-    driver.find_element(*sequence_row(seq)).click()
+    # Only done jobs listed: frame 3 is not on the page, yet its cell is, from the range.
+    Select(driver.find_element(By.ID, "filter-state")).select_by_value("done")
+    wait(driver, lambda d: d.find_element(By.ID, "page-info").text == "jobs 1–" + str(len(
+        api.get("/jobs", params={"state": "done", "limit": 1000}).json()["jobs"])), "the state filter did not apply")
+    assert [c.get_attribute("data-state") for c in driver.find_elements(*sequence_row(seq, ".frame-cell"))] == [
+        "done", "done", "cancelled"]
+    driver.find_element(*sequence_row(seq, "td.scene")).click()
     wait(driver, lambda d: [r.find_element(By.CSS_SELECTOR, "td.scene").text for r in d.find_elements(
         By.CSS_SELECTOR, f'#jobs tr.frame-row[data-sequence="{seq}"]')] == ["frame 1", "frame 2", "frame 3"],
          "expanding the sequence did not list its frames")

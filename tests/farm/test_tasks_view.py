@@ -9,7 +9,7 @@ from tessera_base.protocol import JobSpec, RenderSettings
 from tessera_queue import redis_schema as rdb
 from tessera_queue.tasks import TileTask, job_tasks as first_tasks
 from tessera_service.store import Job
-from tessera_service.tasks_view import SLOW_FACTOR, job_tasks
+from tessera_service.tasks_view import SLOW_FACTOR, SLOW_MIN_EXCESS, job_tasks
 
 SETTINGS = RenderSettings(width=64, height=64, spp=4, tile_size=32)  # tiles 0-3, 32x32
 SPEC = JobSpec(job_id="a" * 32, scene_hash="b" * 64, scene_name="x.usda", settings=SETTINGS,
@@ -28,16 +28,18 @@ def job(state: str) -> Job:
                warnings=[], error=None)
 
 
-def sources(failures: dict[str, int], open_tiles: dict[int, tuple[str, int] | None]) -> dict:
+def sources(failures: dict[str, int], open_tiles: dict[int, tuple[str, int] | None],
+            scale: float = 1.0) -> dict:
+    """Tiles 0-2 stored in 0.5, 0.7 and 0.6 s (times `scale`): the median pass 0.6 s."""
     events = [event(T0, type="state", state="queued"),
               event(T0 + 1000, type="tile", tile=0, pass_index=0, samples=4, tiles_done=1,
-                    worker="w-a", seconds=0.5),
+                    worker="w-a", seconds=0.5 * scale),
               event(T0 + 2000, type="failure", tile=1, message="the renderer crashed", worker="w-b",
                     task="1:0", attempt=1),
               event(T0 + 3000, type="tile", tile=2, pass_index=0, samples=4, tiles_done=2,
-                    worker="w-b", seconds=0.7),
+                    worker="w-b", seconds=0.7 * scale),
               event(T0 + 3500, type="tile", tile=1, pass_index=0, samples=4, tiles_done=3,
-                    worker="w-a", seconds=0.6)]
+                    worker="w-a", seconds=0.6 * scale)]
     grid = first_tasks(SPEC)
     entries, pending = [], {}
     for i, (tile, held) in enumerate(open_tiles.items()):
@@ -61,10 +63,17 @@ def test_tiles_fold_from_events_failures_and_queue():
         "done", 1, "the renderer crashed", "w-a")
     assert (rows[3].state, rows[3].worker, rows[3].rendering_seconds) == ("rendering", "w-c", 9.5)
     assert [t.index for t in table.tiles if t.slow] == [3]
-    # Negative control: held for just under SLOW_FACTOR x the median it is not slow.
+    # Negative control: held for just under SLOW_FACTOR x the median it is not slow (1.79 s:
+    # the excess over the median, 1.19 s, is past SLOW_MIN_EXCESS, so the factor decides).
+    assert SLOW_FACTOR * 0.6 - 0.01 - 0.6 > SLOW_MIN_EXCESS
     under = job_tasks(SPEC.job_id, job("running"),
                       sources({}, {3: ("w-c", int(SLOW_FACTOR * 600) - 10)}))
     assert not any(t.slow for t in under.tiles)
+    # Tiles of milliseconds (median 6 ms): one held 20x the median but less than
+    # SLOW_MIN_EXCESS over it is not slow; held just past that excess it is.
+    fast = lambda held_ms: job_tasks(SPEC.job_id, job("running"),  # noqa: E731
+                                     sources({}, {3: ("w-c", held_ms)}, scale=0.01)).tiles[3].slow
+    assert not fast(int((0.006 + SLOW_MIN_EXCESS) * 1000) - 10) and fast(int((0.006 + SLOW_MIN_EXCESS) * 1000) + 10)
     # Queued (not held) is queued, on nobody.
     queued = job_tasks(SPEC.job_id, job("running"), sources({}, {3: None}))
     assert (queued.tiles[3].state, queued.tiles[3].worker) == ("queued", None)

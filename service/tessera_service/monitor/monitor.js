@@ -15,6 +15,7 @@
   const PAGE_SIZE = 50;
   let page = { offset: 0, more: false };
   const expanded = new Set();   // ids of the sequences shown with a row per frame
+  let sequenceStatus = new Map(); // sequence id -> its SequenceStatus (every frame's state)
   let selected = null;          // { id, controller, state, denoise, loading, pending }
 
   class Unauthorized extends Error {}
@@ -97,6 +98,13 @@
         const list = await jobsResponse.json();
         page = { offset: list.offset, more: list.more };
         $("filter-error").textContent = "";
+        // A frame range's strip shows all its frames, also those on other pages.
+        const ids = [...new Set(list.jobs.filter((j) => j.sequence).map((j) => j.sequence))];
+        const statuses = await Promise.all(ids.map(async (id) => {
+          const response = await api(`/jobs/${id}`);
+          return response.ok ? response.json() : null;
+        }));
+        sequenceStatus = new Map(statuses.filter(Boolean).map((status) => [status.id, status]));
         renderJobs(list.jobs);
       } else {
         $("filter-error").textContent = await problem(jobsResponse);
@@ -178,7 +186,10 @@
       }
       if (shown.has(job.sequence)) continue; // (and a retried frame's older jobs)
       shown.add(job.sequence);
-      const frames = sequences.get(job.sequence).slice().sort((a, b) => frameOf(a) - frameOf(b));
+      const status = sequenceStatus.get(job.sequence);
+      const frames = status
+        ? status.frames.map((f) => jobs.get(f.job) || frameOnly(f, status, job))
+        : sequences.get(job.sequence).slice().sort((a, b) => frameOf(a) - frameOf(b));
       sequenceRow(body, job.sequence, frames);
       if (expanded.has(job.sequence)) {
         for (const frame of frames) {
@@ -189,6 +200,15 @@
       }
     }
     if (selected && jobs.has(selected.id)) showJob(jobs.get(selected.id));
+  }
+
+  // A frame whose job is not on this page: what the sequence's status says of it.
+  function frameOnly(frame, status, listed) {
+    return { id: frame.job, state: frame.state, scene_name: status.scene_name,
+             settings: { frame: frame.frame }, tiles_done: frame.tiles_done,
+             tiles_total: frame.tiles_total, passes_done: 0, priority: listed.priority,
+             created_at: status.created_at, elapsed_seconds: null, render_seconds: null,
+             warnings: status.warnings, partial: true };
   }
 
   function frameOf(job) {
@@ -236,7 +256,8 @@
     cell(row, String(frames[0].priority), "priority");
     cell(row, new Date(frames[0].created_at).toLocaleTimeString());
     cell(row, "");
-    cell(row, `${frames.reduce((t, f) => t + f.render_seconds, 0).toFixed(1)} s`);
+    cell(row, frames.some((f) => f.partial) ? ""
+      : `${frames.reduce((t, f) => t + f.render_seconds, 0).toFixed(1)} s`);
     const warnings = frames[0].warnings;
     cell(row, warnings.length ? `${warnings.length} ⚠` : "", "warnings");
     row.title = warnings.join("\n");
@@ -266,8 +287,8 @@
     td.dataset.percent = pct;
     cell(row, String(job.priority), "priority");
     cell(row, new Date(job.created_at).toLocaleTimeString());
-    cell(row, `${job.elapsed_seconds.toFixed(1)} s`);
-    cell(row, `${job.render_seconds.toFixed(1)} s`);
+    cell(row, job.partial ? "" : `${job.elapsed_seconds.toFixed(1)} s`);
+    cell(row, job.partial ? "" : `${job.render_seconds.toFixed(1)} s`);
     cell(row, job.warnings.length ? `${job.warnings.length} ⚠` : "", "warnings");
     row.title = job.warnings.join("\n");
     row.addEventListener("click", () => select(job.id));
@@ -512,6 +533,10 @@
         const [tasks, log] = await Promise.all([api(`/jobs/${job.id}/tasks`, { signal: job.controller.signal }),
                                                 api(`/jobs/${job.id}/log`, { signal: job.controller.signal })]);
         if (selected !== job) return;
+        if (!jobs.has(job.id) || jobs.get(job.id).partial) {
+          const status = await api(`/jobs/${job.id}`, { signal: job.controller.signal });
+          if (status.ok && selected === job) showJob(await status.json());
+        }
         if (tasks.ok) renderTasks(await tasks.json());
         if (log.ok) renderLog((await log.json()).lines);
         if (finalNow && tasks.ok && log.ok) d.final = true;
@@ -552,7 +577,7 @@
     const median = table.median_pass_seconds === null ? "–" : `${table.median_pass_seconds.toFixed(3)} s`;
     $("tasks-summary").textContent = `${count("done")} done, ${count("rendering")} rendering, `
       + `${count("queued")} queued, ${count("failed")} failed, ${rows.filter((t) => t.slow).length} slow `
-      + `(over ${table.slow_factor}× the median pass, ${median})`
+      + `(over ${table.slow_factor}× the median pass, ${median}, and ${table.slow_min_excess} s more)`
       + (table.events_complete ? "" : "; older passes' workers and times were trimmed");
   }
 

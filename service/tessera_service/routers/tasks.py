@@ -18,7 +18,7 @@ def get_tasks(job_id: str, request: Request, user: CurrentUser) -> JobTasks:
     """One row per tile (all its passes together) and per scene pass: queued, rendering
     (on which worker, for how long), done, failed or waiting; its failed attempts and last
     error, its passes, samples and render seconds, and whether it is slow (its seconds per
-    pass above slow_factor x the job's median). For a frame range, ask for a frame's job."""
+    pass above slow_factor x the job's median, and above the median by slow_min_excess). For a frame range, ask for a frame's job."""
     job = _job(request, job_id, user)
     store: JobStore = request.app.state.store
     return job_tasks(job_id, job, store.task_sources(job_id))
