@@ -365,8 +365,10 @@ class JobStore:
         try:
             rows = self.redis.xpending_range(queue, rdb.WORKER_GROUP, min="-", max="+",
                                              count=max(1, len(open_entries)))
-        except redis.ResponseError:  # no queue (a final job) or no group: nothing in flight
-            rows = []
+        except redis.ResponseError as e:
+            if "NOGROUP" not in str(e):  # (a refusal, NOPERM say, is no empty queue)
+                raise
+            rows = []  # no queue (a final job) or no group: nothing in flight
         pending = {r["message_id"]: (r["consumer"].decode(), int(r["time_since_delivered"]),
                                      int(r["times_delivered"])) for r in rows}
         return {"events": events, "failures": {k.decode(): int(v) for k, v in failures.items()},
