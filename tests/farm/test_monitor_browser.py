@@ -462,6 +462,8 @@ def test_failed_tile_blocklist_worker_actions_and_retry(farm, browser, shots, re
         wait(driver, attribute_is("job-state", "data-state", "done"), "the retried job is not done", every)
         wait(driver, lambda d: [r["state"] for r in task_rows(d)] == ["done"] * 4, "its tiles are not done", every)
         assert {r["cells"][3] for r in task_rows(driver)} == {WORKER}
+        wait(driver, attribute_is("preview", "data-state", "done"), "no final preview of the retried job", every)
+        assert colourful(shown_pixels(driver, "preview")), "the retried job's preview is black or grey"
         assert alice.get(f"/jobs/{retried}").json()["owner"] == "alice"  # the job's owner, not root
         assert f"retried as job {retried}" in alice.get(f"/jobs/{job}/log").json()["lines"][-1]
         driver.save_screenshot(str(shots / "9-retried.png"))
