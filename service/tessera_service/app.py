@@ -21,7 +21,7 @@ from .auth import AuthGate, parse_networks, require_user
 from .http_guard import accept_error_handler
 from .inspection_pool import InspectionPool
 from .redis_acl import aof_replay_problem, redacted
-from .routers import apidocs, blobs, compare, farm, jobs, monitor, priority, scaling
+from .routers import actions, apidocs, blobs, compare, farm, jobs, monitor, priority, scaling, tasks, workers
 from .schemas import Health, Problem
 from .settings import Settings
 from .store import JobStore
@@ -95,6 +95,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(farm.router, dependencies=[Depends(require_user)], responses=errors)
     app.include_router(compare.router, dependencies=[Depends(require_user)], responses=errors)
     app.include_router(priority.router, dependencies=[Depends(require_user)], responses=errors)
+    app.include_router(tasks.router, dependencies=[Depends(require_user)], responses=errors)
+    app.include_router(actions.router, dependencies=[Depends(require_user)], responses=errors)
+    app.include_router(workers.router, dependencies=[Depends(require_user)], responses=errors)
     app.include_router(monitor.router)  # public static page: AuthGate lets only its paths through
     app.include_router(apidocs.router)  # public as well: the docs page and its Swagger UI files
     app.include_router(blobs.router, dependencies=[Depends(require_user)], responses=errors)

@@ -72,6 +72,8 @@ class JobStatus(BaseModel):
     warnings: list[str]
     error: str | None = None
     owner: str | None = Field(default=None, description="the user who submitted the job")
+    sequence: str | None = Field(default=None, description="the frame range this job is a frame "
+                                                           "of (its frame: settings.frame)")
     reached_error: float | None = Field(
         default=None, description="a done noise-target job (GET /jobs/{id}): the relative noise its "
                                   "image reached, measured as the EXR's tessera:reached_error; null "
@@ -83,6 +85,9 @@ class JobStatus(BaseModel):
 
 class JobList(BaseModel):
     jobs: list[JobStatus]
+    offset: int = Field(default=0, description="the page's first job's place in the filtered list")
+    more: bool = Field(default=False, description="whether jobs follow this page (ask with "
+                                                  "offset + limit)")
 
 
 class JobLog(BaseModel):
@@ -100,6 +105,7 @@ class WorkerStatus(BaseModel):
     current: str | None = Field(description="'job/tile/pass' being rendered, if any")
     tiles_done: int = Field(description="tile passes this worker stored")
     failures: int = Field(description="failed render attempts on this worker")
+    disabled: bool = Field(default=False, description="an admin disabled it: it takes no new task")
 
 
 class WorkerList(BaseModel):
@@ -116,3 +122,60 @@ class Health(BaseModel):
 
 class Problem(BaseModel):
     detail: str
+
+
+TaskState = Literal["queued", "rendering", "done", "failed", "waiting", "abandoned"]
+
+
+class TaskStatus(BaseModel):
+    """One tile of a job (all its passes together), or one scene pass (an iteration's
+    scene-wide task of an integrator with scene passes)."""
+
+    kind: Literal["tile", "scene_pass"]
+    index: int = Field(description="the tile's index in the grid (row-major), or the scene "
+                                   "pass's iteration")
+    x0: int | None = Field(default=None, description="a tile's rectangle in pixels")
+    y0: int | None = None
+    width: int | None = None
+    height: int | None = None
+    state: TaskState = Field(description="queued; rendering (a worker holds it); done; failed "
+                                         "(its attempts ran out: the job failed); waiting (for "
+                                         "its next pass to be queued, by a pass barrier or a "
+                                         "scene pass); abandoned (the job ended without it)")
+    pass_index: int | None = Field(default=None, description="the newest pass stored, queued "
+                                                             "or being rendered")
+    passes_done: int = Field(default=0, description="passes stored")
+    samples: int | None = Field(default=None, description="samples per pixel stored so far")
+    worker: str | None = Field(default=None, description="the worker rendering it, else the "
+                                                         "last one that stored or failed it")
+    attempts: int = Field(default=0, description="failed attempts, all passes together")
+    last_error: str | None = None
+    render_seconds: float = Field(default=0.0, description="render time of the stored passes")
+    rendering_seconds: float | None = Field(default=None, description="while rendering: "
+                                                                      "seconds since it was handed out")
+    finished_at: datetime | None = Field(default=None, description="when its last stored pass "
+                                                                   "was stored")
+    slow: bool = Field(default=False, description="its seconds per pass (or, rendering, its "
+                                                  "time so far) exceed slow_factor x the job's "
+                                                  "median seconds per pass, and the median by "
+                                                  "slow_min_excess")
+
+
+class JobTasks(BaseModel):
+    id: str
+    state: JobState
+    tiles: list[TaskStatus]
+    scene_passes: list[TaskStatus]
+    median_pass_seconds: float | None = Field(
+        description="the median render time of the job's stored tile passes (null: none yet)")
+    slow_factor: float
+    slow_min_excess: float = Field(description="seconds a slow tile's time also exceeds the "
+                                               "median by")
+    events_complete: bool = Field(description="false when the job's event stream was trimmed "
+                                              "(redis_schema.EVENTS_MAXLEN): older passes' workers "
+                                              "and times are then missing")
+
+
+class BlocklistCleared(BaseModel):
+    worker: str
+    jobs: list[str] = Field(description="the jobs not yet final that had blocklisted the worker")

@@ -33,6 +33,7 @@ class Job:
     # the number as text, "none" when the image has no noise estimate; None: not yet.
     reached_error: str | None = None
     brightest_light: str | None = None  # what a black image's warning names
+    sequence: str | None = None         # the frame range it is a frame of
 
     @property
     def final(self) -> bool:
@@ -49,6 +50,7 @@ class WorkerInfo:
     current: str
     tiles_done: int
     failures: int
+    disabled: bool = False
 
 
 class JobStore:
@@ -123,7 +125,8 @@ class JobStore:
 
     # ------------------------------------------------------------------ jobs
     def create_job(self, spec: JobSpec, warnings: list[str], owner: str | None = None,
-                   brightest_light: str | None = None) -> int:
+                   brightest_light: str | None = None, sequence: str | None = None,
+                   note: str | None = None) -> int:
         """Creates the job (owned by the API user `owner`; None: by nobody, so that only
         admins see it), its queue with the first pass
         of every tile, and its place in the schedule, in one transaction: workers never see
@@ -149,6 +152,7 @@ class JobStore:
                 "warnings": json.dumps(warnings),
                 **({"owner": owner} if owner is not None else {}),
                 **({"brightest_light": brightest_light} if brightest_light else {}),
+                **({"sequence": sequence} if sequence else {}),
             })
             pipe.zadd(rdb.JOB_INDEX, {spec.job_id: now})
             if owner is not None:
@@ -159,6 +163,8 @@ class JobStore:
                 pipe.xadd(queue, task.to_fields())
             pipe.rpush(rdb.job_log_key(spec.job_id),
                        f"{now!r} job queued: {len(tasks)} tiles, priority {spec.priority}")
+            if note:  # why it exists (a retry of which job), before any worker's line
+                pipe.rpush(rdb.job_log_key(spec.job_id), f"{now!r} {note}")
             for w in warnings:
                 pipe.rpush(rdb.job_log_key(spec.job_id), f"{now!r} warning: {w}")
             if spec.settings.auto_pilot:
@@ -216,9 +222,11 @@ class JobStore:
         return raw.decode() if raw is not None else None
 
     def list(self, state: str | None = None, limit: int = 100, offset: int = 0,
-             owner: str | None = None) -> list[Job]:
+             owner: str | None = None, name: str | None = None) -> list[Job]:
         """Jobs newest first, optionally only those in `state`, only those of `owner`
-        (None: everyone's). Drops index entries of jobs that have expired."""
+        (None: everyone's), only those whose scene name contains `name` (any case). Drops
+        index entries of jobs that have expired."""
+        needle = name.casefold() if name else None
         index = rdb.user_jobs_key(owner) if owner is not None else rdb.JOB_INDEX
         out: list[Job] = []
         start = 0
@@ -239,9 +247,52 @@ class JobStore:
             for fields in rows:
                 if fields:
                     job = _job(fields)
-                    if state is None or job.state == state:
+                    if ((state is None or job.state == state)
+                            and (needle is None or needle in job.spec.scene_name.casefold())):
                         out.append(job)
         return out[offset:offset + limit]
+
+    def replace_frame(self, sequence_id: str, old_job: str, new_job: str) -> bool:
+        """Makes `new_job` the frame range's job for the frame `old_job` rendered (a retry);
+        False if the record is gone or does not list `old_job`."""
+        key = rdb.sequence_key(sequence_id)
+        with self.redis.pipeline(transaction=True) as pipe:
+            while True:
+                try:
+                    pipe.watch(key)
+                    raw = pipe.hget(key, "frames")
+                    if raw is None:
+                        return False
+                    frames = json.loads(raw)
+                    if not any(job == old_job for _, job in frames):
+                        return False
+                    pipe.multi()
+                    pipe.hset(key, "frames", json.dumps([[f, new_job if job == old_job else job]
+                                                         for f, job in frames]))
+                    pipe.execute()
+                    return True
+                except redis.WatchError:
+                    continue
+
+    def forget_sequence(self, sequence_id: str) -> None:
+        self.redis.delete(rdb.sequence_key(sequence_id))
+
+    def add_log(self, job_id: str, text: str) -> None:
+        with self.redis.pipeline(transaction=False) as pipe:
+            pipe.rpush(rdb.job_log_key(job_id), f"{time.time()!r} {text}")
+            pipe.ltrim(rdb.job_log_key(job_id), -rdb.LOG_MAXLEN, -1)
+            pipe.execute()
+
+    def purge(self, job_id: str, owner: str | None) -> None:
+        """Removes a final job and everything it keeps (redis_schema.job_keys) at once,
+        rather than at the end of its retention."""
+        with self.redis.pipeline(transaction=True) as pipe:
+            pipe.delete(*rdb.job_keys(job_id))
+            pipe.zrem(rdb.JOB_INDEX, job_id)
+            pipe.srem(rdb.ACTIVE, job_id)
+            if owner is not None:
+                pipe.zrem(rdb.user_jobs_key(owner), job_id)
+            pipe.execute()
 
     def _keys(self, job_id: str) -> list[str]:
         scene_hash = self.redis.hget(rdb.job_key(job_id), "scene_hash")
@@ -299,6 +350,30 @@ class JobStore:
                 except redis.WatchError:
                     continue
 
+    def task_sources(self, job_id: str) -> dict:
+        """What the per-tile table of a job (tasks_view) is folded from, read at once:
+        events (the stream, oldest first: [(id, fields)]), failures (the failures hash),
+        open (the queue's entries: [(entry id, fields)], queued or being rendered) and
+        pending (entry id -> (consumer, ms since delivered, deliveries) of those being
+        rendered)."""
+        queue = rdb.job_queue_key(job_id)
+        with self.redis.pipeline(transaction=False) as pipe:
+            pipe.xrange(rdb.job_events_key(job_id))
+            pipe.hgetall(rdb.job_failures_key(job_id))
+            pipe.xrange(queue)
+            events, failures, open_entries = pipe.execute()
+        try:
+            rows = self.redis.xpending_range(queue, rdb.WORKER_GROUP, min="-", max="+",
+                                             count=max(1, len(open_entries)))
+        except redis.ResponseError as e:
+            if "NOGROUP" not in str(e):  # (a refusal, NOPERM say, is no empty queue)
+                raise
+            rows = []  # no queue (a final job) or no group: nothing in flight
+        pending = {r["message_id"]: (r["consumer"].decode(), int(r["time_since_delivered"]),
+                                     int(r["times_delivered"])) for r in rows}
+        return {"events": events, "failures": {k.decode(): int(v) for k, v in failures.items()},
+                "open": open_entries, "pending": pending}
+
     def log(self, job_id: str) -> list[str]:
         return [line.decode(errors="replace")
                 for line in self.redis.lrange(rdb.job_log_key(job_id), 0, -1)]
@@ -332,8 +407,30 @@ class JobStore:
                                   beat_at=float(f.get("beat_at", 0)),
                                   current=f.get("current", ""),
                                   tiles_done=int(f.get("tiles_done", 0)),
-                                  failures=int(f.get("failures", 0))))
+                                  failures=int(f.get("failures", 0)),
+                                  disabled=bool(f.get("disabled"))))
         return out
+
+    def set_worker_disabled(self, name: str, disabled: bool) -> bool:
+        """Marks a live worker disabled (it takes no new task; the one it renders it
+        finishes) or enabled again; False if no live worker has that name (a dead one's
+        hash is not brought back)."""
+        script = ("if redis.call('exists', KEYS[1]) == 0 then return 0 end "
+                  + ("redis.call('hset', KEYS[1], 'disabled', '1') " if disabled
+                     else "redis.call('hdel', KEYS[1], 'disabled') ") + "return 1")
+        return bool(self.redis.eval(script, 1, rdb.worker_key(name)))
+
+    def clear_blocklist(self, name: str) -> list[str]:
+        """Takes the worker off the blocklists of every job not yet final, and forgets its
+        failures there (else its next failure blocklists it again at once); returns the
+        ids of the jobs it was blocklisted for."""
+        ids = sorted(j.decode() for j in self.redis.smembers(rdb.ACTIVE))
+        with self.redis.pipeline(transaction=False) as pipe:
+            for job_id in ids:
+                pipe.srem(rdb.job_blocklist_key(job_id), name)
+                pipe.hdel(rdb.job_failures_key(job_id), f"worker:{name}")
+            rows = pipe.execute()
+        return [job_id for job_id, removed in zip(ids, rows[0::2]) if removed]
 
     def seconds_since_progress(self) -> float | None:
         """Seconds since the newest event of any queued or running job (a tile pass stored,
@@ -397,6 +494,7 @@ def _job(fields: dict[bytes, bytes]) -> Job:
         owner=f.get("owner"),
         reached_error=f.get("reached_error"),
         brightest_light=f.get("brightest_light") or None,
+        sequence=f.get("sequence") or None,
     )
 
 

@@ -22,6 +22,7 @@ Job hash fields (`job_key`), all written by the service at creation unless noted
     resume_state     the state a paused job returns to
     owner            the API user who submitted it (absent on jobs from before owners;
                      see `user_jobs_key`)
+    sequence         the frame range (`sequence_key`) the job is a frame of, if any
     lockstep_tiles   tile passes stored by a lockstep job, in all passes: every multiple of
                      tiles_total completes a pass and queues its barrier (store_tile.lua)
     decided_pass     the last pass whose lockstep barrier was applied (decide_pass.lua);
@@ -255,7 +256,8 @@ def user_jobs_key(user: str) -> str:
 def worker_key(worker_name: str) -> str:
     """Hash with a TTL, present while the worker is alive (its heartbeat): host, pid,
     started_at, beat_at, current ("job/tile/pass" or ""), tiles_done, failures, reaps
-    (times its reaper looked for dead workers' tiles)."""
+    (times its reaper looked for dead workers' tiles), disabled ("1": an admin disabled it
+    (POST /workers/{name}/disable): it takes no new task; set only while the hash lives)."""
     return f"{PREFIX}:worker:{worker_name}"
 
 
@@ -267,7 +269,7 @@ def result_field(tile_index: int, pass_index: int) -> str:
 # ------------------------------------------------------------------ storage bound
 _RESULT_HEADER = 128   # a tile result's header and section lengths, rounded up
 _TASK_BYTES = 1024     # one queued TileTask (JSON) in the queue stream
-_EVENT_BYTES = 160     # one event stream entry
+_EVENT_BYTES = 224     # one event stream entry (with its worker name and seconds)
 
 
 def job_storage_bound(settings: RenderSettings) -> int:
@@ -280,7 +282,7 @@ def job_storage_bound(settings: RenderSettings) -> int:
         splat sums     P * (1 + B) * N * 24        (splatting integrators; int64 RGB, raw)
         lockstep sums  N * 16                      (PassAccumulator)
         images         N * (16 + 4 * AOV channels + 4 [+ 12 denoised])  (cached EXR, PNG)
-        queue, events  T * (1024 + P * 160)
+        queue, events  T * (1024 + P * 224)
     Splat sums are one full-frame layer per pass however many tiles there are (their
     stored size is zlib'd and usually far smaller)."""
     s = settings
@@ -316,6 +318,13 @@ class JobEvent(BaseModel):
     samples: int | None = None
     tiles_done: int | None = None
     message: str | None = None
+    # tile and pass events: the worker that stored the pass and its render seconds;
+    # failure events: the worker, the failed task's result field (`result_field` or
+    # `scene_task_field`) and which attempt at it this was. (GET /jobs/{id}/tasks folds them.)
+    worker: str | None = None
+    seconds: float | None = None
+    task: str | None = None
+    attempt: int | None = None
 
     def to_fields(self) -> dict[str, str]:
         return {k: str(v) for k, v in self.model_dump(exclude_none=True).items()}

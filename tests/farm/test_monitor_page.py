@@ -3,12 +3,14 @@ a real API with a token, no browser (tests/test_monitor_browser.py drives one)."
 from __future__ import annotations
 
 import re
+import typing
 
 import httpx
 import pytest
 
 from conftest import start_api
 from tessera_base import integrators
+from tessera_base.protocol import JobState
 from tessera_service.auth import PUBLIC_PATHS
 from tessera_service.routers.monitor import PAGE_PATHS
 
@@ -43,11 +45,19 @@ def test_the_page_and_its_files_are_public_and_nothing_else_is(base):
 
 def test_the_page_offers_the_registry_integrators_and_no_inline_script(base):
     text = httpx.get(f"{base}/", timeout=30).text
-    offered = re.findall(r'<option value="([^"]+)">', text)
+    offered = re.findall(r'<option value="([^"]+)">', _select(text, "integrator"))
     assert offered == [*integrators.names(), "auto"]
+    # The job list's state filter offers exactly the API's job states (and "any").
+    states = re.findall(r'<option value="([^"]*)">', _select(text, "filter-state"))
+    assert states == ["", *typing.get_args(JobState)]
     # The content security policy allows scripts from the server only: one file, no inline code.
     assert re.findall(r"<script[^>]*>", text) == ['<script src="/monitor/monitor.js" defer>']
     assert not re.search(r"\son[a-z]+\s*=", text)  # no inline event handlers either
+
+
+def _select(text: str, element_id: str) -> str:
+    start = text.index(f'id="{element_id}"')
+    return text[start:text.index("</select>", start)]
 
 
 def test_the_page_posts_every_form_field_the_api_takes(base):

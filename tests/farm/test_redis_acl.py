@@ -113,6 +113,8 @@ def test_a_farm_runs_every_job_kind_under_its_redis_users(acl_redis, tmp_path):
                 ids.append(r.json()["id"])
             paused = submit(client, CORNELL, width=16, height=16, spp=1, tile_size=8).json()["id"]
             assert client.post(f"/jobs/{paused}/pause").status_code == 200
+            # The task table reads the queue's consumer group (XPENDING) while it exists.
+            assert client.get(f"/jobs/{paused}/tasks").status_code == 200
             assert client.post(f"/jobs/{paused}/resume").status_code == 200
             ids.append(paused)
             cancelled = submit(client, CORNELL, width=64, height=64, spp=64, tile_size=8).json()["id"]
@@ -124,6 +126,14 @@ def test_a_farm_runs_every_job_kind_under_its_redis_users(acl_redis, tmp_path):
                     assert r.status_code == 200, r.text
                 assert client.get(f"/jobs/{job}/events").status_code == 200
             assert client.get("/workers").json()["workers"][0]["name"] == "acl-w1"
+            # The monitor's actions: worker disable/enable (EVAL), blocklists, retry, purge.
+            assert client.post("/workers/acl-w1/disable").json()["disabled"] is True
+            assert client.post("/workers/acl-w1/enable").json()["disabled"] is False
+            assert client.delete("/workers/acl-w1/blocklist").status_code == 200
+            retried = client.post(f"/jobs/{cancelled}/retry")
+            assert retried.status_code == 201, retried.text
+            assert client.delete(f"/jobs/{retried.json()['id']}").status_code == 200
+            assert client.post(f"/jobs/{cancelled}/purge").status_code == 204
             assert client.get("/metrics").status_code == 200
             assert client.get("/healthz").json()["status"] == "ok"
     finally:

@@ -171,7 +171,7 @@ def test_a_product_delivered_twice_is_stored_and_its_tiles_queued_once(redis_cli
     redis_client.hset(key, mapping={"state": "paused", "tiles_total": 2, "priority": 5})
     redis_client.xgroup_create(queue, rdb.WORKER_GROUP, id="0", mkstream=True)
     first = redis_client.xadd(queue, {"task": "scene"})
-    args = [job, 0, "d1g35t", b"photons", first, repr(time.time()), "t0", "t1"]
+    args = [job, 0, "d1g35t", b"photons", first, repr(time.time()), "w-1", "0.25", "t0", "t1"]
     assert scripts.store_product(keys=keys, args=args) == 1
     again = redis_client.xadd(queue, {"task": "scene"})
     assert scripts.store_product(keys=keys, args=[*args[:4], again, *args[5:]]) == 0
@@ -179,9 +179,11 @@ def test_a_product_delivered_twice_is_stored_and_its_tiles_queued_once(redis_cli
     assert redis_client.hget(key, rdb.product_field(0)) == b"d1g35t"
     assert redis_client.hget(key, "scene_passes_stored") == b"1"
     assert redis_client.hgetall(rdb.job_products_key(job)) == {b"d1g35t": b"photons"}
+    stored = [rdb.JobEvent.from_fields(f) for _, f in redis_client.xrange(rdb.job_events_key(job))]
+    assert [(e.type, e.pass_index, e.worker, e.seconds) for e in stored] == [("scene_pass", 0, "w-1", 0.25)]
     # A final job takes no product.
     redis_client.hset(key, "state", "cancelled")
     late = redis_client.xadd(queue, {"task": "scene"})
-    assert scripts.store_product(keys=keys, args=[job, 1, "x", b"y", late, repr(time.time())]) == -1
+    assert scripts.store_product(keys=keys, args=[job, 1, "x", b"y", late, repr(time.time()), "w-1", "1"]) == -1
     assert redis_client.hget(key, rdb.product_field(1)) is None
     redis_client.delete(*rdb.job_keys(job))

@@ -116,6 +116,7 @@ class Worker:
                                           socket_timeout=30, health_check_interval=30)
         self.scripts = rdb.Scripts(self.redis)
         self._faults = _parse_faults(settings.faults)
+        self._was_disabled = False
         self._scene_files: dict[str, str] = {}
         self._products: dict[str, bytes] = {}  # content hash -> scene-pass product
         self._tmpdir: str | None = None
@@ -164,6 +165,9 @@ class Worker:
                     next_reap = time.monotonic() + REAP_INTERVAL
                 if stop.is_set():
                     break
+                if self._disabled():
+                    stop.wait(IDLE_WAIT)  # (leaves the wake-up tokens to the others)
+                    continue
                 picked = self.scripts.pick(keys=[rdb.READY],
                                            args=[self.name, repr(time.time()), rdb.job_prefix()])
                 if redis_down:
@@ -185,6 +189,15 @@ class Worker:
                     log.warning("lost redis (%s); retrying", e)
                     redis_down = True
                 stop.wait(1.0)
+
+    def _disabled(self) -> bool:
+        """An admin disabled this worker (POST /workers/{name}/disable): it takes no new task."""
+        disabled = self.redis.hget(rdb.worker_key(self.name), "disabled") is not None
+        if disabled != self._was_disabled:
+            log.warning("disabled by an admin: taking no new task" if disabled
+                        else "enabled again: taking tasks")
+            self._was_disabled = disabled
+        return disabled
 
     def _wait_for_redis(self, stop: threading.Event, action) -> None:
         while not stop.is_set():
@@ -391,7 +404,7 @@ class Worker:
         tasks = [t.model_dump_json() for t in task.pass_tasks(p)]
         stored = self.scripts.store_product(keys=self._keys(job_id, task.scene_hash),
                                             args=[job_id, p, digest, product, entry_id,
-                                                  repr(time.time()), *tasks])
+                                                  repr(time.time()), self.name, repr(seconds), *tasks])
         log.info("job %s: scene pass %d computed in %.3f s (%d bytes)%s", job_id, p, seconds,
                  len(product), "" if stored == 1 else "; it was already stored")
 

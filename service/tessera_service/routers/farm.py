@@ -39,7 +39,7 @@ def list_workers(request: Request, user: Annotated[User, Depends(require_user)])
     return WorkerList(workers=[
         WorkerStatus(name=w.name, host=w.host, pid=w.pid, started_at=when(w.started_at),
                      last_heartbeat=when(w.beat_at), current=current(w.current),
-                     tiles_done=w.tiles_done, failures=w.failures)
+                     tiles_done=w.tiles_done, failures=w.failures, disabled=w.disabled)
         for w in store.workers()])
 
 

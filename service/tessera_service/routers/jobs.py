@@ -255,15 +255,26 @@ def create_job(
                       warnings=warnings)
 
 
-@router.get("", response_model=JobList)
+@router.get("", response_model=JobList, responses={403: {"description": "`user` names "
+                                                                     "another user (admins only)"}})
 def list_jobs(request: Request, user: CurrentUser,
               state: Annotated[JobState | None, Query(description="only jobs in this state")] = None,
+              owner: Annotated[str | None, Query(alias="user", max_length=200, description=(
+                  "only this user's jobs (an admin may name anyone; others only themselves)"))] = None,
+              name: Annotated[str | None, Query(max_length=200, description=(
+                  "only jobs whose scene name contains this (case-insensitive)"))] = None,
               limit: Annotated[int, Query(ge=1, le=1000)] = 100,
               offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0) -> JobList:
-    """Your jobs (an admin: everyone's), newest first."""
+    """Your jobs (an admin: everyone's), newest first, a page of `limit` from `offset`;
+    `more` says whether another page follows."""
     store: JobStore = request.app.state.store
-    owner = None if user.admin else user.name
-    return JobList(jobs=[_status(j.spec.job_id, j) for j in store.list(state, limit, offset, owner)])
+    if owner is not None and not user.admin and owner != user.name:
+        raise HTTPException(403, "only an admin lists another user's jobs")
+    if owner is None and not user.admin:
+        owner = user.name
+    found = store.list(state, limit + 1, offset, owner, name=name or None)
+    return JobList(jobs=[_status(j.spec.job_id, j) for j in found[:limit]], offset=offset,
+                   more=len(found) > limit)
 
 
 @router.get("/{job_id}", response_model=JobStatus | SequenceStatus,
@@ -563,7 +574,8 @@ def _create_sequence(response: Response, store: JobStore, user: User, frame_list
             spec = JobSpec(job_id=uuid.uuid4().hex, scene_hash=scene_hash, scene_name=name,
                            settings=render.model_copy(update={"frame": float(f)}), priority=priority,
                            max_attempts=max_attempts)
-            tiles_total += store.create_job(spec, warnings, owner=user.name, brightest_light=brightest)
+            tiles_total += store.create_job(spec, warnings, owner=user.name, brightest_light=brightest,
+                                            sequence=sequence_id)
             created.append((f, spec.job_id))
         store.create_sequence(sequence_id, created, name, warnings, owner=user.name)
     except BaseException:
@@ -735,7 +747,8 @@ def _status(job_id: str, job: Job) -> JobStatus:
         finished_at=when(job.finished_at),
         elapsed_seconds=round(max(0.0, end - job.created_at), 3),
         render_seconds=round(job.render_seconds, 3),
-        warnings=job.warnings, error=job.error, owner=job.owner, **_noise_reached(job))
+        warnings=job.warnings, error=job.error, owner=job.owner, sequence=job.sequence,
+        **_noise_reached(job))
 
 
 def _noise_reached(job: Job) -> dict:

@@ -11,7 +11,8 @@ local n = redis.call('HINCRBY', K.failures, 'tile:' .. ARGV[2], 1)
 local wf = redis.call('HINCRBY', K.failures, 'worker:' .. ARGV[5], 1)
 redis.call('HINCRBY', K.stats, 'failures', 1)
 if redis.call('EXISTS', worker) == 1 then redis.call('HINCRBY', worker, 'failures', 1) end
-event(K.events, 'type', 'failure', 'tile', ARGV[3], 'message', ARGV[6])
+event(K.events, 'type', 'failure', 'tile', ARGV[3], 'message', ARGV[6], 'worker', ARGV[5],
+      'task', ARGV[2], 'attempt', n)
 logline(K.log, ARGV[7], 'tile ' .. ARGV[3] .. ' attempt ' .. n .. ' failed on worker ' .. ARGV[5]
         .. ': ' .. ARGV[6])
 local result = 'retry'

@@ -8,6 +8,9 @@
 -- Returns 1 if this completed the job, 0 if not, -1 if the job is gone or final (dropped).
 local id = ARGV[1]
 local worker = KEYS[17]
+-- Who stored the pass and how long it took ride on its event (the per-tile table of
+-- GET /jobs/{id}/tasks folds them).
+local by = {'worker', ARGV[8], 'seconds', string.format('%.3f', tonumber(ARGV[4]))}
 local state = redis.call('HGET', K.job, 'state')
 local ret = 0
 if (not state) or is_final(state) then
@@ -23,14 +26,15 @@ elseif redis.call('HSETNX', K.tiles, ARGV[2], ARGV[3]) == 1 then
     local done = redis.call('HINCRBY', K.job, 'tiles_done', 1)
     redis.call('HINCRBY', K.stats, 'tiles', 1)
     event(K.events, 'type', 'tile', 'tile', ARGV[10], 'pass_index', ARGV[11], 'samples', ARGV[12],
-          'tiles_done', done)
+          'tiles_done', done, unpack(by))
     if done >= tonumber(redis.call('HGET', K.job, 'tiles_total')) then
       redis.call('XACK', K.queue, '@WORKER_GROUP@', ARGV[9])
       finish(id, 'done', ARGV[7], nil)
       ret = 1
     end
   elseif ARGV[5] == '2' then
-    event(K.events, 'type', 'pass', 'tile', ARGV[10], 'pass_index', ARGV[11], 'samples', ARGV[12])
+    event(K.events, 'type', 'pass', 'tile', ARGV[10], 'pass_index', ARGV[11], 'samples', ARGV[12],
+          unpack(by))
     local n = redis.call('HINCRBY', K.job, 'lockstep_tiles', 1)
     if n % tonumber(redis.call('HGET', K.job, 'tiles_total')) == 0 then
       redis.call('XADD', K.queue, '*', 'task', ARGV[6])
@@ -39,7 +43,8 @@ elseif redis.call('HSETNX', K.tiles, ARGV[2], ARGV[3]) == 1 then
   else
     redis.call('XADD', K.queue, '*', 'task', ARGV[6])
     if state ~= 'paused' then make_ready(id) end
-    event(K.events, 'type', 'pass', 'tile', ARGV[10], 'pass_index', ARGV[11], 'samples', ARGV[12])
+    event(K.events, 'type', 'pass', 'tile', ARGV[10], 'pass_index', ARGV[11], 'samples', ARGV[12],
+          unpack(by))
   end
 end
 ack(K.queue, ARGV[9])
