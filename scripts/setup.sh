@@ -45,5 +45,8 @@ VPY="$VENV/bin/python"
 # reuse its build directory (build/<wheel tag>): re-runs compile only what changed.
 "$VPY" -m pip install -q "scikit-build-core>=0.10" "nanobind>=2.0"
 echo "[setup] building and installing Tessera (C++ core, Python packages)"
-"$VPY" -m pip install -q --no-build-isolation -e "$ROOT[test]"
+# The C++ unit tests are built beside the core here (ctest in build/<wheel tag>), never
+# into a wheel (`pip wheel .`, docs: README "Using it elsewhere").
+"$VPY" -m pip install -q --no-build-isolation --config-settings=cmake.define.TESSERA_BUILD_TESTS=ON \
+  -e "$ROOT[test]"
 echo "[setup] ready: $VENV/bin/tessera"

@@ -9,7 +9,7 @@ import numpy as np
 
 from tessera_base import images
 from tessera_base.film import SplatSums, add_denoised, assemble_image
-from tessera_base.protocol import JobSpec, TileResult, decode_tile, tile_grid
+from tessera_base.protocol import JobSpec, TileResult, decode_tile, in_crop, job_tiles
 
 
 class MergeError(Exception):
@@ -57,14 +57,15 @@ def reached_noise(spec: JobSpec, tiles: dict[bytes | str, bytes],
     if image.splatting:
         if image.batch_variance is None:
             return None
-        return reached_error(image.rgba, image.batch_variance[0], image.spp,
+        return reached_error(in_crop(s, image.rgba), in_crop(s, image.batch_variance[0]), in_crop(s, image.spp),
                              images.batch_means_kind(image.batch_variance[1]))
-    return reached_error(image.rgba, image.variance, image.spp, images.VARIANCE_PER_SAMPLE)
+    return reached_error(in_crop(s, image.rgba), in_crop(s, image.variance), in_crop(s, image.spp),
+                         images.VARIANCE_PER_SAMPLE)
 
 
 def _decode_passes(spec: JobSpec, tiles: dict[bytes | str, bytes]) -> dict[int, list[TileResult]]:
     s = spec.settings
-    grid = tile_grid(s.width, s.height, s.tile_size)
+    grid = {t.index: t for t in job_tiles(s)}
     passes: dict[int, list[TileResult]] = {}
     for key, data in tiles.items():
         field = key.decode() if isinstance(key, bytes) else str(key)
@@ -72,8 +73,8 @@ def _decode_passes(spec: JobSpec, tiles: dict[bytes | str, bytes]) -> dict[int, 
             index, pass_index = (int(v) for v in field.split(":"))
         except ValueError:
             raise MergeError(f"tile result field {field!r} is not 'tile:pass'") from None
-        if not 0 <= index < len(grid):
-            raise MergeError(f"tile index {index} is outside the job's grid of {len(grid)}")
+        if index not in grid:
+            raise MergeError(f"tile index {index} is not one of the job's {len(grid)} tiles")
         try:
             result = decode_tile(data)
         except ValueError as e:
@@ -138,10 +139,13 @@ def encode_image(rgba: np.ndarray, spec: JobSpec, fmt: str, aovs: dict[str, np.n
             # The noise asked for and reached, as a local render writes them (the scene
             # file's own hash is local only: the farm holds the uploaded bundle).
             layers = aovs or {}
-            metadata.update(noise_attributes(s.target_error, rgba, layers.get("variance"), layers.get("spp"), kind))
+            metadata.update(noise_attributes(s.target_error, in_crop(s, rgba), in_crop(s, layers.get("variance")),
+                                             in_crop(s, layers.get("spp")), kind))
             if s.auto_pilot:
                 metadata["tessera:auto"] = s.auto_pilot
             images.write_exr(path, rgba, metadata, aovs=aovs, crop=s.crop)
         else:
-            images.write_png_preview(path, rgba)
+            s = spec.settings  # a crop's PNG is the crop (a layer read from its EXR already is)
+            full_frame = rgba.shape[:2] == (s.height, s.width)
+            images.write_png_preview(path, in_crop(s, rgba) if full_frame else rgba)
         return path.read_bytes()

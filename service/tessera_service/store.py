@@ -143,8 +143,7 @@ class JobStore:
                 "created_at": repr(now),
                 # The grid's tiles, not the first tasks: a scene-pass job starts with one
                 # scene task, and lockstep barriers count tile passes by this.
-                "tiles_total": len(protocol.tile_grid(spec.settings.width, spec.settings.height,
-                                                      spec.settings.tile_size)),
+                "tiles_total": len(protocol.job_tiles(spec.settings)),
                 "tiles_done": 0,
                 "passes_done": 0,
                 "render_seconds": 0,

@@ -17,7 +17,7 @@ from tqdm import tqdm
 from tessera_base import images, integrators
 from tessera_base.film import SplatSums, add_denoised, assemble_image, black_image_warning, pass_image, render_tile_pass, run_scene_pass
 from tessera_base.convergence import PassAccumulator, combine_passes, image_finished, tile_finished
-from tessera_base.protocol import RenderSettings, TileRect, TileResult, pass_range, tile_grid
+from tessera_base.protocol import RenderSettings, TileRect, TileResult, in_crop, job_tiles, pass_range
 
 
 @dataclass
@@ -53,7 +53,8 @@ def render_tile_passes(scene, settings: RenderSettings, rect: TileRect, threads:
     Returns (rgba, samples, passes). `deadline` (time.monotonic()) plays the time_limit.
     With settings.aovs, their combined tile layers go into `aovs_out` (name -> array)."""
     results = _tile_passes(scene, settings, rect, threads, deadline, integrator)
-    image = assemble_image(settings, {rect.index: results}, partial=True, with_aovs=aovs_out is not None)
+    image = assemble_image(settings, {rect.index: results}, partial=True, with_aovs=aovs_out is not None,
+                           tiles=[rect])
     if aovs_out is not None:
         window = (slice(rect.y0, rect.y0 + rect.height), slice(rect.x0, rect.x0 + rect.width))
         aovs_out.update({name: layer[window] for name, layer in image.aovs.items()})
@@ -89,14 +90,14 @@ def render_image(scene, settings: RenderSettings, threads: int = 0, progress: bo
     result = _render_image(scene, settings, threads, progress, variance)
     result.denoise_warning = add_denoised(settings, result.rgba, result.aovs)
     data = getattr(scene, "data", None)
-    result.black_warning = black_image_warning(result.rgba, getattr(data, "brightest_light", None))
+    result.black_warning = black_image_warning(in_crop(settings, result.rgba), getattr(data, "brightest_light", None))
     return result
 
 
 def _render_image(scene, settings: RenderSettings, threads: int, progress: bool,
                   variance: bool) -> LocalRenderResult:
-    tiles = tile_grid(settings.width, settings.height, settings.tile_size)
     integrator = scene.resolve_integrator(settings.integrator)
+    tiles = job_tiles(settings, integrator)  # with a crop, only the tiles that meet it
     if settings.lockstep or integrators.splats(integrator) or integrators.scene_passes(integrator):
         result = _render_lockstep(scene, settings, integrator, tiles, threads, progress, variance)
         result.integrator = integrator
@@ -104,12 +105,12 @@ def _render_image(scene, settings: RenderSettings, threads: int, progress: bool,
     start = time.perf_counter()
     deadline = time.monotonic() + settings.time_limit if settings.time_limit else None
     per_tile: dict[int, list[TileResult]] = {}
-    with tqdm(total=settings.width * settings.height, unit="px", unit_scale=True, disable=not progress,
+    with tqdm(total=sum(t.width * t.height for t in tiles), unit="px", unit_scale=True, disable=not progress,
               desc="render", dynamic_ncols=True) as bar:
         for t in tiles:
             per_tile[t.index] = _tile_passes(scene, settings, t, threads, deadline, integrator)
             bar.update(t.width * t.height)
-    image = assemble_image(settings, per_tile, with_aovs=True)
+    image = assemble_image(settings, per_tile, with_aovs=True, tiles=tiles)
     samples = sum(r.spp * t.width * t.height for t in tiles for r in per_tile[t.index])
     passes = sum(len(rs) for rs in per_tile.values())
     return LocalRenderResult(image.rgba, time.perf_counter() - start, samples, passes, image.variance,
@@ -136,7 +137,7 @@ def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, th
     start = time.perf_counter()
     deadline = time.monotonic() + settings.time_limit if settings.time_limit else None
     p = 0
-    with tqdm(total=width * height, unit="px", unit_scale=True, disable=not progress,
+    with tqdm(total=sum(t.width * t.height for t in tiles), unit="px", unit_scale=True, disable=not progress,
               desc=f"render ({integrator})", dynamic_ncols=True) as bar:
         while True:
             spp = pass_range(settings, p)[1]
@@ -156,13 +157,13 @@ def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, th
                 bar.update(t.width * t.height)
             if pass_range(settings, p + 1) is None:
                 break
-            acc = acc.add(pass_image(width, height, this_pass, sums), spp)
+            acc = acc.add(in_crop(settings, pass_image(width, height, this_pass, sums)), spp)
             # A time limit belongs to the noise target: a fixed spp renders every pass.
             if image_finished(settings, p, acc) or (settings.adaptive and deadline is not None
                                                     and time.monotonic() >= deadline):
                 break
             p += 1
-    image = assemble_image(settings, per_tile, sums, with_aovs=True)
+    image = assemble_image(settings, per_tile, sums, with_aovs=True, tiles=tiles)
     result = LocalRenderResult(image.rgba, time.perf_counter() - start, samples, p + 1, aovs=image.aovs)
     if not want_variance:
         return result

@@ -54,8 +54,9 @@ class Image:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         write_exr(path, self.rgba, self.header(), aovs=self.layers, crop=crop)
-        if png:
-            write_png_preview(path.with_suffix(".png"), self.rgba)
+        if png:  # a crop's preview is the crop
+            x0, y0, x1, y1 = crop or (0, 0, self.width, self.height)
+            write_png_preview(path.with_suffix(".png"), self.rgba[y0:y1, x0:x1])
         return path
 
     @classmethod
@@ -84,7 +85,7 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
            frame: float | None = None, root: str | Path | None = None,
            default_light: bool = True, subdivision_level: int | None = None,
            camera: str | None = None, shutter: tuple[float, float] | None = None,
-           variants: Sequence[str] = ()) -> Image:
+           variants: Sequence[str] = (), crop: tuple[int, int, int, int] | None = None) -> Image:
     """Renders `scene` locally and returns the image.
 
     `scene` is a USD file or .zip/.usdz bundle path, or a scene already loaded with
@@ -100,7 +101,9 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
     layers (albedo, normal, depth, spp, variance). With `variance` (the default) the image
     also carries the noise estimate `tessera.compare` needs (variance and spp layers).
     `target_error` renders to a noise target instead of a fixed spp (min_spp, max_spp,
-    time_limit bound it). Everything else is as for `tessera render`.
+    time_limit bound it). `crop` (x0, y0, x1, y1, exclusive) renders only that region
+    (pixels outside it stay 0; write the image with the same crop). Everything else is as
+    for `tessera render`.
 
     Raises tessera_renderer.SceneError when the scene cannot be read, ValueError for
     settings out of range (pydantic's ValidationError is a ValueError)."""
@@ -112,7 +115,7 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
     optional = dict(integrator=integrator, max_depth=max_depth, tile_size=tile_size,
                     target_error=target_error, min_spp=min_spp, max_spp=max_spp, time_limit=time_limit)
     settings = RenderSettings(width=width, height=height, spp=spp, seed=seed, aovs=list(aovs),
-                              denoise=denoise, integrator_params=dict(integrator_params or {}),
+                              denoise=denoise, integrator_params=dict(integrator_params or {}), crop=crop,
                               **{k: v for k, v in optional.items() if v is not None})
     if settings.denoise:
         from tessera_base.denoise import unavailable_reason
@@ -160,7 +163,10 @@ def render_scene(scene, settings, *, scene_name: str, threads: int = 0, progress
                                                settings.seed, scene_name, settings.integrator, variance_kind)
     from tessera_base.exr_header import noise_attributes
 
-    metadata.update(noise_attributes(settings.target_error, result.rgba, layers.get("variance"), layers.get("spp"),
+    from tessera_base.protocol import in_crop
+
+    metadata.update(noise_attributes(settings.target_error, in_crop(settings, result.rgba),
+                                     in_crop(settings, layers.get("variance")), in_crop(settings, layers.get("spp")),
                                      variance_kind))
     metadata.update(integrator=result.integrator, seconds=result.seconds, samples=result.samples,
                     samples_per_second=result.samples_per_second, passes=result.passes,

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import integrators
-from .protocol import AOV_CHANNELS, RenderSettings, SplatBatch, TileRect, TileResult, pass_range, tile_grid
+from .protocol import AOV_CHANNELS, RenderSettings, SplatBatch, TileRect, TileResult, pass_range, job_tiles
 from .convergence import BatchMeans, batch_ranges, combine_aovs, combine_passes, new_aov_frame
 
 # The renderer's fixed-point splat scale (kSplatScale in C++); tests/base/test_protocol.py pins
@@ -311,16 +311,18 @@ class Assembled:
 
 def assemble_image(settings: RenderSettings, passes_by_tile: dict[int, list[TileResult]],
                    sums: SplatSums | None = None, *, partial: bool = False,
-                   with_aovs: bool = False) -> Assembled:
+                   with_aovs: bool = False, tiles: list[TileRect] | None = None) -> Assembled:
     """Combines each tile's passes (convergence.combine_passes) and pastes the tiles into the
     full image; adds every splat (the results' own layers and `sums`), exactly, and
     normalises them once by all results' light paths. With `partial`, missing tiles and
-    passes are left out (a preview of a running job). Raises ValueError when the results
-    do not form the image."""
+    passes are left out (a preview of a running job). `tiles`: the job's tiles
+    (protocol.job_tiles of the settings by default; a local render passes those it chose
+    with the integrator `auto` resolved to). Raises ValueError when the results do not
+    form the image."""
     s = settings
-    grid = tile_grid(s.width, s.height, s.tile_size)
-    if not partial and len(passes_by_tile) != len(grid):
-        missing = sorted(set(range(len(grid))) - set(passes_by_tile))
+    grid = {t.index: t for t in (job_tiles(s) if tiles is None else tiles)}
+    if not partial and set(passes_by_tile) != set(grid):
+        missing = sorted(set(grid) - set(passes_by_tile))
         raise ValueError(f"{len(missing)} of {len(grid)} tiles are missing (first: {missing[:5]})")
     full = np.zeros((s.height, s.width, 4), np.float32)
     variance: np.ndarray | None = np.zeros((s.height, s.width, 3), np.float32)
@@ -328,6 +330,8 @@ def assemble_image(settings: RenderSettings, passes_by_tile: dict[int, list[Tile
     aovs = new_aov_frame(s) if with_aovs else {}
     used: list[TileResult] = []
     for index in sorted(passes_by_tile):
+        if index not in grid:
+            raise ValueError(f"tile {index} is not one of this job's {len(grid)} tiles")
         rect = grid[index]
         results = sorted(passes_by_tile[index], key=lambda r: r.pass_index)
         if [r.pass_index for r in results] != list(range(len(results))):

@@ -263,8 +263,8 @@ class RenderSettings(BaseModel):
                     "raw image; adds the albedo and normal AOVs (docs/denoise.md)")
 
     # Added within schema 2 like aovs: the region the EXR holds (x0, y0, x1, y1; x1, y1
-    # exclusive) as its data window inside the full display window (docs/aovs.md). The
-    # whole frame is still rendered: splats from anywhere land in the region.
+    # exclusive) as its data window inside the full display window (docs/aovs.md). Only
+    # the tiles meeting it are rendered, cut to it (job_tiles), unless the integrator splats.
     crop: tuple[int, int, int, int] | None = Field(
         default=None,
         description="write only this pixel region x0,y0,x1,y1 (x1, y1 exclusive) of the image "
@@ -380,6 +380,39 @@ def tile_grid(width: int, height: int, tile_size: int) -> list[TileRect]:
                                   width=min(tile_size, width - x0),
                                   height=min(tile_size, height - y0)))
     return tiles
+
+
+def job_tiles(settings: "RenderSettings", integrator: str | None = None) -> list[TileRect]:
+    """The tiles a job renders: the whole grid, or with a crop only the grid's tiles that
+    meet it, cut to it (each keeps its grid index). A pixel depends only on (scene, pixel,
+    sample, seed), so the crop's pixels equal the full render's bit for bit. Not for an
+    integrator that splats (`integrator`, default settings.integrator; `auto` may): a
+    crop pixel also gathers the light paths started from every other pixel, so those
+    render the whole grid."""
+    s = settings
+    grid = tile_grid(s.width, s.height, s.tile_size)
+    if s.crop is None:
+        return grid
+    if integrators.splats(integrator or s.integrator):
+        return grid
+    cx0, cy0, cx1, cy1 = s.crop
+    out = []
+    for t in grid:
+        x0, y0 = max(t.x0, cx0), max(t.y0, cy0)
+        x1, y1 = min(t.x0 + t.width, cx1), min(t.y0 + t.height, cy1)
+        if x0 < x1 and y0 < y1:
+            out.append(TileRect(index=t.index, x0=x0, y0=y0, width=x1 - x0, height=y1 - y0))
+    return out
+
+
+def in_crop(settings: "RenderSettings", array: np.ndarray | None) -> np.ndarray | None:
+    """The crop's region of a full-frame array (h, w, ...), or the array without a crop.
+    What the user sees of a cropped render: its noise, its PNG, its black-image check
+    (the pixels outside it were never rendered)."""
+    if array is None or settings.crop is None:
+        return array
+    x0, y0, x1, y1 = settings.crop
+    return array[y0:y1, x0:x1]
 
 
 # ------------------------------------------------------------------ tile results

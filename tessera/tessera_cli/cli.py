@@ -166,7 +166,7 @@ def _render_one(args: argparse.Namespace) -> int:
     try:
         settings = RenderSettings(width=width, height=height, spp=args.spp, seed=args.seed,
                                   max_depth=args.max_depth, tile_size=args.tile,
-                                  aovs=args.aovs or [], denoise=args.denoise, **_noise_target(args),
+                                  aovs=args.aovs or [], denoise=args.denoise, crop=args.crop, **_noise_target(args),
                                   integrator_params=_integrator_params(args),
                                   **({"integrator": args.integrator} if args.integrator else {}))
     except ValidationError as exc:
@@ -208,19 +208,20 @@ def _render_one(args: argparse.Namespace) -> int:
         print(f"tessera render: renderer bug: {exc}", file=sys.stderr)
         return 3
     from tessera_base.exr_header import scene_sha256
+    from tessera_base.protocol import in_crop
 
     image.metadata["tessera:scene_sha256"] = scene_sha256(scene_path)
     image.write(output, crop=args.crop)
     result = image.metadata
     preview = output.with_suffix(".png")
-    write_png_preview(preview, image.rgba)
+    write_png_preview(preview, in_crop(settings, image.rgba))  # a crop's preview is the crop
     if result.get("black_warning"):
         print(f"warning: {result['black_warning']}", file=sys.stderr)
     if result["denoise_warning"]:
         print(f"warning: {result['denoise_warning']}", file=sys.stderr)
     elif settings.denoise:
         denoised = output.with_name(output.stem + ".denoised.png")
-        write_png_preview(denoised, image.layers["denoised"])
+        write_png_preview(denoised, in_crop(settings, image.layers["denoised"]))
         preview = f"{preview} ({denoised} denoised)"
     if settings.adaptive:
         mean_spp = result["samples"] / (settings.width * settings.height)
@@ -714,8 +715,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_time_options(r, frames=True)
     r.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
                    help="write only this pixel region (X1, Y1 exclusive) as the EXR's data "
-                        "window, the full frame as its display window; the whole frame is "
-                        "rendered (light paths from anywhere land in the region)")
+                        "window, the full frame as its display window; only the region is "
+                        "rendered (light, bdpt and vcm trace the whole frame: light paths from "
+                        "anywhere land in it); the PNG preview is the region")
     r.add_argument("--no-variance", action="store_true",
                    help="write no variance and spp layers (a smaller EXR that `tessera compare` "
                         "cannot judge); it saves little time: the noise estimate comes from the "

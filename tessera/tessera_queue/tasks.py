@@ -8,7 +8,7 @@ from pydantic import BaseModel, Field
 
 from tessera_base import integrators
 from tessera_base.protocol import (DEFAULT_MAX_ATTEMPTS, DEFAULT_PRIORITY, MAX_PRIORITY, MIN_PRIORITY, SCHEMA_VERSION, JobSpec,
-                                   RenderSettings, TileRect, tile_grid)
+                                   RenderSettings, TileRect, job_tiles)
 
 
 class TileTask(BaseModel):
@@ -62,7 +62,7 @@ class TileTask(BaseModel):
         s = self.settings
         return [self.model_copy(update={"tile": rect, "pass_index": pass_index, "decide": False,
                                         "scene_pass": False})
-                for rect in tile_grid(s.width, s.height, s.tile_size)]
+                for rect in job_tiles(s)]
 
     def iteration_tasks(self, pass_index: int) -> list["TileTask"]:
         """What starts pass `pass_index`: its scene-wide task for an integrator with scene
@@ -78,6 +78,6 @@ def job_tasks(spec: JobSpec) -> list[TileTask]:
     scene passes, the scene-wide task of the first iteration (which queues those tiles)."""
     s = spec.settings
     first = TileTask(job_id=spec.job_id, scene_hash=spec.scene_hash, scene_name=spec.scene_name,
-                     settings=s, tile=tile_grid(s.width, s.height, s.tile_size)[0],
+                     settings=s, tile=job_tiles(s)[0],
                      priority=spec.priority, max_attempts=spec.max_attempts)
     return first.iteration_tasks(0)

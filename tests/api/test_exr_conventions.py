@@ -89,6 +89,12 @@ def test_crop_writes_the_region_as_data_window_of_the_full_frame(renders):
     assert set(crop) == ALL_AOV_CHANNELS
     for name in ALL_AOV_CHANNELS:  # the same seed: the region's pixels bit for bit
         np.testing.assert_array_equal(crop[name], full[name][4:28, 8:40], err_msg=name)
+    # The PNG preview of a crop is the crop (the full frame's PNG is the full frame).
+    import OpenImageIO as oiio
+
+    for png, size in (("crop.png", (32, 24)), ("full.png", (48, 32))):
+        spec = oiio.ImageInput.open(str(renders / png)).spec()
+        assert (spec.width, spec.height) == size, png
 
 
 def test_every_kind_of_file_reads_with_the_tools(renders, tmp_path):

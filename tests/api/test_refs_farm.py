@@ -27,6 +27,16 @@ def farm_url(redis_server, tmp_path_factory):
     api.stop()
 
 
+def png_size(path) -> tuple[int, int]:
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    assert inp is not None, oiio.geterror()
+    spec = inp.spec()
+    inp.close()
+    return spec.width, spec.height
+
+
 def create(folder, *args: str) -> None:
     r = subprocess.run([sys.executable, "-m", "tessera", "refs", "create", str(folder), str(CORNELL),
                         "--res", "24x16", "--spp", "32", "--seed", "7", *args],
@@ -51,20 +61,24 @@ def test_farm_reference_equals_the_local_one(farm_url, tmp_path, integrator):
 
 
 def test_crop_job_field_writes_the_region_as_data_window(farm_url, tmp_path):
-    """The job field `crop`: the farm's EXR holds the region as its data window inside the
-    full display window, with the pixels of the same job rendered whole, bit for bit."""
+    """The job field `crop`: the farm queues only the tiles meeting the region (2 of the 6
+    tiles of 8 px), its EXR holds the region as its data window inside the full display
+    window, with the pixels of the same job rendered whole, bit for bit, and its PNG is
+    the region."""
     import httpx
 
     exrs = {}
     with httpx.Client(base_url=farm_url, timeout=60) as client:
-        for name, extra in (("full", {}), ("crop", {"crop": "4,2,20,14"}), ("bad", {"crop": "4,2,40,14"})):
+        for name, extra in (("full", {}), ("crop", {"crop": "10,2,20,7"}), ("bad", {"crop": "4,2,40,14"})):
             with open(CORNELL, "rb") as f:
                 r = client.post("/jobs", files={"file": ("cornell.usda", f)},
-                                data={"width": "24", "height": "16", "spp": "8", "seed": "2", **extra})
+                                data={"width": "24", "height": "16", "spp": "8", "seed": "2", "tile_size": "8",
+                                      **extra})
             if name == "bad":
                 assert r.status_code == 422 and "not a non-empty region" in r.text, r.text
                 continue
             assert r.status_code == 201, r.text
+            assert r.json()["tiles_total"] == {"full": 6, "crop": 2}[name]
             job = r.json()["id"]
             while (state := client.get(f"/jobs/{job}").json()["state"]) not in ("done", "failed", "cancelled"):
                 import time
@@ -72,8 +86,11 @@ def test_crop_job_field_writes_the_region_as_data_window(farm_url, tmp_path):
             assert state == "done"
             exrs[name] = tmp_path / f"{name}.exr"
             exrs[name].write_bytes(client.get(f"/jobs/{job}/image.exr").content)
+            png = tmp_path / f"{name}.png"
+            png.write_bytes(client.get(f"/jobs/{job}/preview.png").content)
+            assert png_size(png) == {"full": (24, 16), "crop": (10, 5)}[name]
     head = subprocess.run(["exrheader", str(exrs["crop"])], capture_output=True, text=True).stdout
-    assert "dataWindow (type box2i): (4 2) - (19 13)" in head
+    assert "dataWindow (type box2i): (10 2) - (19 6)" in head
     assert "displayWindow (type box2i): (0 0) - (23 15)" in head
     full, crop = images.read_exr(exrs["full"]), images.read_exr(exrs["crop"])
-    assert np.array_equal(crop.view(np.uint32), full[2:14, 4:20].view(np.uint32))
+    assert np.array_equal(crop.view(np.uint32), full[2:7, 10:20].view(np.uint32))

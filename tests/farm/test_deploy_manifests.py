@@ -328,36 +328,98 @@ def dockerfile() -> list[tuple[str, str]]:
     return out
 
 
-def test_dockerfile_builds_with_setup_sh_as_non_root():
-    steps = dockerfile()
-    assert steps[0][0] == "FROM" and re.fullmatch(r"debian:12(\.\d+)?(-slim)?", steps[0][1])
-    runs = [rest for word, rest in steps if word == "RUN"]
-    assert any("scripts/setup.sh" in r for r in runs)
-    # No second install recipe: nothing but setup.sh installs Python packages or the build.
-    assert not any(re.search(r"\bpip3? install|\bcmake\b", r) for r in runs)
-    (copy,) = [rest for word, rest in steps if word == "COPY"]
-    assert copy.split() == [".", IMAGE_ROOT]
+def stages() -> dict[str, list[tuple[str, str]]]:
+    """The Dockerfile's stages by name (FROM IMAGE AS NAME), each with its instructions."""
+    out: dict[str, list[tuple[str, str]]] = {}
+    for word, rest in dockerfile():
+        if word == "FROM":
+            image, _, name = rest.partition(" AS ")
+            out[name.strip()] = [(word, image.strip())]
+        else:
+            out[list(out)[-1]].append((word, rest))
+    return out
+
+
+def apt_packages(run: str) -> set[str]:
+    m = re.search(r"apt-get install -y --no-install-recommends (.*?)(?:&&|$)", run)
+    return set(m.group(1).split()) if m else set()
+
+
+def test_dockerfile_builds_a_wheel_and_a_slim_runtime_installs_only_it():
+    st = stages()
+    assert list(st) == ["build", "runtime"]  # the last stage is the image
+    assert re.fullmatch(r"debian:12(\.\d+)?", st["build"][0][1])
+    assert re.fullmatch(r"debian:12(\.\d+)?-slim", st["runtime"][0][1])
+    build_runs = " ".join(rest for word, rest in st["build"] if word == "RUN")
+    assert re.search(r"pip wheel .*--no-deps .*-w /dist /src", build_runs)
+    runs = [rest for word, rest in st["runtime"] if word == "RUN"]
+    text = " ".join(runs)
+    # Only the wheel, with no extras: nothing of [test] (Chromium, chromedriver, Mitsuba,
+    # Selenium), no compilers, no editable install, no set-up script.
+    (install,) = re.findall(r"pip install [^&]*", text)
+    assert install.split()[-1] == "/tmp/dist/tessera-*.whl" and "[" not in install
+    for banned in ("chromium", "mitsuba", "selenium", "[test]", "-e ", "setup.sh", "build-essential",
+                   "cmake", "-dev"):
+        assert banned not in text, banned
+    copies = [rest for word, rest in st["runtime"] if word == "COPY"]
+    assert "--from=build /dist/ /tmp/dist/" in copies
+    # The Redis container's files come from this image (k8s's init container copies them).
+    (conf_copy,) = [c for c in copies if "redis.conf" in c]
+    assert conf_copy.split() == ["deploy/redis.conf", "deploy/users.acl", f"{IMAGE_ROOT}/deploy/"]
+    steps = st["runtime"]
     user = [rest for word, rest in steps if word == "USER"][-1]
     assert user.split(":")[0] not in ("0", "root")
     assert [w for w, _ in steps].index("USER") > max(i for i, (w, _) in enumerate(steps) if w == "RUN")
-    entry = [rest for word, rest in steps if word == "ENTRYPOINT"][-1]
-    cmd = [rest for word, rest in steps if word == "CMD"][-1]
-    assert yaml.safe_load(entry) == ["tessera"]
-    assert_tessera_command(yaml.safe_load(cmd))
+    assert yaml.safe_load([rest for word, rest in steps if word == "ENTRYPOINT"][-1]) == ["tessera"]
+    assert_tessera_command(yaml.safe_load([rest for word, rest in steps if word == "CMD"][-1]))
     # The user's uid is the one the manifests run as (their volumes' fsGroup too).
-    uid = re.search(r"--uid (\d+)", " ".join(runs)).group(1)
+    uid = re.search(r"--uid (\d+)", text).group(1)
     assert user.split(":")[0] == uid
     for kind in ("Deployment", "StatefulSet"):
         for obj in objects(kind).values():
             assert str(obj["spec"]["template"]["spec"]["securityContext"]["runAsUser"]) == uid
-    # Redis's data directory exists in the image, owned by that user.
-    assert re.search(rf"install -d -o tessera -g tessera -m 700 {redis_conf_value('dir')}", " ".join(runs))
+
+
+def debian_package_of(path: str) -> str:
+    real = str(Path(path).resolve())
+    for candidate in (path, real, real.replace("/usr/lib/", "/lib/", 1), path.replace("/lib/", "/usr/lib/", 1)):
+        r = subprocess.run(["dpkg", "-S", candidate], capture_output=True, text=True)
+        if r.returncode == 0:
+            return r.stdout.split(":")[0]
+    raise AssertionError(f"no Debian package holds {path}")
+
+
+def test_runtime_stage_installs_the_cores_shared_libraries():
+    """Every library the built core links (ldd of _core and _subdivision, outside the
+    Python wheels) comes from a package the runtime stage installs, one it depends on, or
+    debian:12-slim's own (libc6, libgcc-s1, libstdc++6: apt's dependencies)."""
+    import tessera_renderer._core
+    import tessera_renderer._subdivision
+
+    runtime = set()
+    for word, rest in stages()["runtime"]:
+        if word == "RUN":
+            runtime |= apt_packages(rest)
+    depends = set()
+    for pkg in runtime:
+        out = subprocess.run(["dpkg-query", "-W", "-f=${Depends}", pkg], capture_output=True, text=True).stdout
+        depends |= {d.split()[0].split(":")[0] for d in out.replace("|", ",").split(",") if d.strip()}
+    allowed = runtime | depends | {"libc6", "libgcc-s1", "libstdc++6"}
+    needed = set()
+    for so in (tessera_renderer._core.__file__, tessera_renderer._subdivision.__file__):
+        for line in subprocess.run(["ldd", str(so)], capture_output=True, text=True, check=True).stdout.splitlines():
+            m = re.search(r"=> (/\S+)", line)
+            if m and "site-packages" not in m.group(1):
+                needed.add(debian_package_of(m.group(1)))
+    assert {"libembree3-3", "libtbb12", "libosdcpu3.5.0"} <= needed  # the check sees the core's libraries
+    assert needed <= allowed, needed - allowed
 
 
 def test_dockerignore_keeps_the_hosts_build_out():
-    ignored = (DEPLOY / "Dockerfile.dockerignore").read_text().split()
-    for path in (".venv", "build", ".git"):
+    ignored = (REPO / ".dockerignore").read_text().split()
+    for path in (".venv", "build", "out", ".git", "deploy/.env"):
         assert path in ignored
+    assert not (DEPLOY / "Dockerfile.dockerignore").exists()  # would replace the root one
 
 
 def test_hadolint_passes():
@@ -380,18 +442,27 @@ def test_compose_services_volumes_and_healthchecks():
     services = c["services"]
     assert set(services) == {"redis", "api", "worker"}
     for name, s in services.items():
-        assert s["image"] and s["build"]["dockerfile"] == "deploy/Dockerfile", name
-        assert (DEPLOY / s["build"]["context"] / s["build"]["dockerfile"]).resolve() == DEPLOY / "Dockerfile"
+        if name != "redis":
+            assert s["image"] and s["build"]["dockerfile"] == "deploy/Dockerfile", name
+            assert (DEPLOY / s["build"]["context"] / s["build"]["dockerfile"]).resolve() == DEPLOY / "Dockerfile"
         assert s["healthcheck"]["test"][0] in ("CMD", "CMD-SHELL"), name
         for volume in s.get("volumes", []):
             source, target = volume.split(":")[:2]
-            assert source in c["volumes"], f"{name}: volume {source} is not declared"
+            if source.startswith("./"):  # a file of deploy/, where the start script reads it
+                assert (DEPLOY / source).is_file() and volume.endswith(":ro"), volume
+                assert image_path(target) == DEPLOY / source[2:]
+            else:
+                assert source in c["volumes"], f"{name}: volume {source} is not declared"
         for dep, cond in s.get("depends_on", {}).items():
             assert dep in services and cond["condition"] == "service_healthy"
             assert "healthcheck" in services[dep]
         assert_settings_names(s.get("environment", {}), name)
     redis = services["redis"]
-    assert [v.split(":")[1] for v in redis["volumes"]] == [redis_conf_value("dir")]
+    # The official Redis image (not Tessera's), as its redis user, its data on the volume.
+    assert re.fullmatch(r"\$\{TESSERA_REDIS_IMAGE:-redis:7\.0-bookworm\}", redis["image"]) and "build" not in redis
+    assert redis["user"] == "999:999"
+    data_dir = re.search(r"--dir (\S+)", " ".join(redis["command"])).group(1)
+    assert [v.split(":")[1] for v in redis["volumes"] if not v.startswith("./")] == [data_dir]
     assert_redis_start_script(" ".join(redis["command"]))
     assert_tessera_command(services["api"]["command"])
     assert_tessera_command(services["worker"]["command"])
@@ -420,3 +491,97 @@ def test_compose_secrets_are_variables_documented_in_the_example():
     redis = compose()["services"]["redis"]
     for var in re.findall(r"\$\$\{(\w+)\}", " ".join(redis["command"])):
         assert var in redis["environment"]
+
+
+def test_compose_workers_share_the_hosts_cores():
+    """Each replica renders with TESSERA_WORKER_THREADS threads, not every core of the host
+    (0, the worker's default): the defaults, replicas x threads, fit a 4-core host."""
+    worker = compose()["services"]["worker"]
+    threads = re.fullmatch(r"\$\{TESSERA_WORKER_THREADS:-(\d+)\}", worker["environment"]["TESSERA_WORKER_THREADS"])
+    replicas = re.fullmatch(r"\$\{TESSERA_WORKERS:-(\d+)\}", str(worker["deploy"]["replicas"]))
+    assert threads and replicas, (worker["environment"], worker["deploy"])
+    assert int(threads.group(1)) >= 1 and int(threads.group(1)) * int(replicas.group(1)) == 4
+    assert WorkerSettings(threads=int(threads.group(1))).threads == int(threads.group(1))
+    assert WorkerSettings.model_fields["threads"].default == 0  # why compose must set it
+    example = (DEPLOY / "compose.env.example").read_text()
+    assert "TESSERA_WORKER_THREADS=" in example
+
+
+# ------------------------------------------------------------------ Kubernetes, the rest
+def test_kubernetes_has_ingress_tls_network_policies_and_a_disruption_budget():
+    (ingress,) = objects("Ingress").values()
+    (tls,) = ingress["spec"]["tls"]
+    (rule,) = ingress["spec"]["rules"]
+    assert rule["host"] in tls["hosts"] and tls["secretName"]
+    backend = rule["http"]["paths"][0]["backend"]["service"]
+    api_service = objects("Service")[backend["name"]]
+    assert backend["port"]["name"] in {p["name"] for p in api_service["spec"]["ports"]}
+    policies = objects("NetworkPolicy")
+    deny = [p for p in policies.values() if p["spec"]["podSelector"] == {} and "ingress" not in p["spec"]]
+    assert len(deny) == 1 and deny[0]["spec"]["policyTypes"] == ["Ingress"]
+    labels = {c: objects(k)[n]["spec"]["template"]["metadata"]["labels"] for c, k, n in (
+        ("redis", "StatefulSet", "tessera-redis"), ("api", "Deployment", "tessera-api"),
+        ("worker", "Deployment", "tessera-worker"))}
+
+    def allowed_into(component: str) -> list[dict]:
+        return [rule for p in policies.values() if p["spec"]["podSelector"].get("matchLabels", {}).items()
+                <= labels[component].items() and p["spec"]["podSelector"] for rule in p["spec"].get("ingress", [])]
+
+    (redis_rule,) = allowed_into("redis")
+    sources = [f["podSelector"]["matchLabels"] for f in redis_rule["from"]]
+    assert sorted(s["app.kubernetes.io/component"] for s in sources) == ["api", "worker"]
+    for s in sources:
+        assert s.items() <= labels[s["app.kubernetes.io/component"]].items()
+    assert allowed_into("worker") == []  # nothing connects to a worker
+    (api_rule,) = allowed_into("api")
+    assert {f["namespaceSelector"]["matchLabels"]["kubernetes.io/metadata.name"] for f in api_rule["from"]} \
+        == {"ingress-nginx", "keda"}
+    (pdb,) = objects("PodDisruptionBudget").values()
+    assert pdb["spec"]["selector"]["matchLabels"].items() <= labels["api"].items()
+    api_replicas = objects("Deployment")["tessera-api"]["spec"]["replicas"]
+    assert 1 <= pdb["spec"]["minAvailable"] < api_replicas  # a drain can still move one
+
+
+def test_kubernetes_redis_runs_the_official_image_with_the_tessera_images_files():
+    sts = objects("StatefulSet")["tessera-redis"]
+    pod = sts["spec"]["template"]["spec"]
+    (redis,) = pod["containers"]
+    images = {i["name"]: i for i in yaml.safe_load((K8S / "kustomization.yaml").read_text())["images"]}
+    assert redis["image"].split()[0] == "redis" and images["redis"]["newTag"] == "7.0-bookworm"
+    (init,) = pod["initContainers"]
+    assert init["image"] == "tessera"
+    # The init container copies from the image what the Redis command reads, into the
+    # volume the Redis container mounts where the command looks.
+    copied = [Path(p).name for p in init["command"][1:-1]]
+    target = init["command"][-1]
+    volume = {m["mountPath"].rstrip("/"): m["name"] for m in init["volumeMounts"]}[target.rstrip("/")]
+    mounted = {m["name"]: m["mountPath"] for m in redis["volumeMounts"]}[volume]
+    script = " ".join(redis["args"])
+    for name in copied:
+        assert f"{mounted}/{name}" in script
+        assert image_path(f"{mounted}/{name}") == DEPLOY / name  # and the image has them there
+    assert sorted(copied) == ["redis.conf", "users.acl"]
+
+
+# ------------------------------------------------------------------ systemd
+def unit(name: str) -> dict[str, list[str]]:
+    out: dict[str, list[str]] = {}
+    for line in (DEPLOY / "systemd" / name).read_text().splitlines():
+        if "=" in line and not line.startswith("#"):
+            key, _, value = line.partition("=")
+            out.setdefault(key.strip(), []).extend(value.split())
+    return out
+
+
+@pytest.mark.parametrize("name", ["tessera-api.service", "tessera-worker@.service"])
+def test_systemd_units_wait_for_the_network_and_run_as_a_created_user(name):
+    u = unit(name)
+    # After= orders only: without Wants= nothing pulls network-online.target in, and the
+    # unit may start before the network is up.
+    assert "network-online.target" in u["After"] and "network-online.target" in u["Wants"]
+    (user,) = u["User"]
+    sysusers = (DEPLOY / "systemd" / "tessera.sysusers").read_text()
+    (entry,) = [line.split() for line in sysusers.splitlines() if line.startswith("u ")]
+    assert entry[1] == user
+    readme = (DEPLOY / "README.md").read_text()
+    assert "systemd-sysusers" in readme and "/etc/sysusers.d/tessera.conf" in readme

@@ -42,7 +42,9 @@ def local_script(script: str, tmp: Path, acl_in_image: str, port: int) -> str:
     lines = [f"dir {tmp}" if line.startswith("dir ") else line for line in conf.splitlines()]
     assert lines != conf.splitlines()
     (tmp / "redis.conf").write_text("\n".join(lines) + "\n")
-    script = (script.replace("/opt/tessera/deploy/redis.conf", str(tmp / "redis.conf"))
+    # compose's official Redis image keeps its data in /data (--dir): here, `tmp`.
+    script = (script.replace("--dir /data", f"--dir {tmp}")
+              .replace("/opt/tessera/deploy/redis.conf", str(tmp / "redis.conf"))
               .replace("/opt/tessera/", f"{REPO}/").replace(acl_in_image, str(tmp / "users.acl")))
     assert "/opt/tessera" not in script and str(tmp / "redis.conf") in script
     return script + f" --port {port} --bind 127.0.0.1"

@@ -474,7 +474,7 @@ class Worker:
                        task.scene_hash)
             self._ack(rdb.job_queue_key(job_id), entry_id)
             return
-        grid = protocol.tile_grid(s.width, s.height, s.tile_size)
+        grid = protocol.job_tiles(s)
         tiles_key = rdb.job_tiles_key(job_id)
         results = []
         for rect in grid:
@@ -501,7 +501,7 @@ class Worker:
                 self._fail(job_id, f"pass {p}: unreadable splat sum: {e}", task.scene_hash)
                 self._ack(rdb.job_queue_key(job_id), entry_id)
                 return
-        acc = acc.add(film.pass_image(s.width, s.height, results, sums), results[0].spp)
+        acc = acc.add(protocol.in_crop(s, film.pass_image(s.width, s.height, results, sums)), results[0].spp)
         del results
         finished = convergence.image_finished(s, p, acc)
         if not finished and s.adaptive and s.time_limit is not None:  # a fixed spp renders every pass

@@ -726,7 +726,7 @@ def _image(request: Request, job_id: str, fmt: str, user: User) -> bytes:
             raise HTTPException(500, f"cannot assemble the image of job {job_id}: {e}") from None
         if aovs.denoise_warning:
             logger.warning("job %s: %s", job_id, aovs.denoise_warning)
-        black = black_image_warning(rgba, job.brightest_light)
+        black = black_image_warning(protocol.in_crop(job.spec.settings, rgba), job.brightest_light)
         if black and store.add_warning(job_id, black):
             logger.warning("job %s: %s", job_id, black)
         data = encode_image(rgba, job.spec, fmt, aovs=aovs)
