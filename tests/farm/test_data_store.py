@@ -1,0 +1,177 @@
+"""The farm's large bytes live in the shared data directory, not in the queue's Redis
+(issue 42, items 7 and 13: six 250 MiB PUT /blobs filled the deploy Redis and POST /jobs
+answered 503 for everyone; an 82 KB .usdc became a 520 MB translated scene in Redis, kept
+7 days). Real redis-server, uvicorn API and worker processes; Redis keeps only the index,
+objects nothing holds are swept, objects a job holds are not."""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import time
+
+import httpx
+import numpy as np
+import redis
+
+from conftest import (CORNELL, DATA_ROOT, local_reference, farm_image, start_api, start_worker,
+                      submit, wait_for_job)
+from tessera_queue import redis_schema as rdb
+from tessera_service.embedded import redis_server
+
+MiB = 1 << 20
+FORM = dict(width=32, height=32, spp=2, seed=1, max_depth=8, tile_size=16)
+
+
+def wait_until(predicate, timeout: float, what: str, poll: float = 0.05):
+    deadline = time.monotonic() + timeout
+    while not (value := predicate()):
+        assert time.monotonic() < deadline, what
+        time.sleep(poll)
+    return value
+
+
+def object_path(client: redis.Redis, digest: str):
+    """Where the farm of `client` keeps object `digest` (tessera_queue.data_store layout)."""
+    sid = client.get(rdb.DATA_STORE_ID)
+    assert sid is not None, "the farm has no data store"
+    return DATA_ROOT / sid.decode() / "objects" / digest[:2] / digest
+
+
+def test_uploads_do_not_fill_the_queues_redis(tmp_path):
+    """Six 1 MiB files into a Redis with 4 MiB of room (the issue's six 250 MiB files into
+    the deploy maxmemory, scaled down): before, the fourth PUT answered 503 "job store is
+    full" and so did POST /jobs; now all six are stored, Redis grows by their index only
+    (all its keys hold under 32 KiB; used_memory, with the API's connections, grows by
+    under a tenth of the 6 MiB), and jobs are accepted. The bytes are the files
+    named by their SHA-256 in the data directory."""
+    blobs = [os.urandom(MiB) for _ in range(6)]
+    with redis_server(str(tmp_path)) as rs:
+        client = redis.Redis.from_url(rs.url)
+        api, base = start_api(rs.url, tmp_path, user_blob_quota_bytes=str(8 * MiB),
+                              max_upload_bytes=str(2 * MiB))
+        try:
+            with httpx.Client(base_url=base, timeout=60) as http:
+                before = client.info("memory")["used_memory"]
+                client.config_set("maxmemory", before + 4 * MiB)
+                for data in blobs:
+                    r = http.put(f"/blobs/{hashlib.sha256(data).hexdigest()}", content=data)
+                    assert r.status_code == 201, (r.status_code, r.text)
+                grown = client.info("memory")["used_memory"] - before
+                assert grown < 6 * MiB // 10, f"Redis grew by {grown} bytes for {6 * MiB} bytes of files"
+                held = sum(client.memory_usage(k) for k in client.scan_iter())
+                assert held < 32 * 1024, f"Redis's keys hold {held} bytes"
+                for data in blobs:
+                    digest = hashlib.sha256(data).hexdigest()
+                    assert object_path(client, digest).read_bytes() == data
+                    assert int(client.get(rdb.blob_key(digest))) == len(data)
+                # DELETE /blobs deletes the bytes at once, not at the next sweep.
+                gone = hashlib.sha256(blobs[0]).hexdigest()
+                assert http.delete(f"/blobs/{gone}").json()["bytes"] == MiB
+                assert not object_path(client, gone).exists() and not client.exists(rdb.data_key(gone))
+
+                # Jobs are accepted: a plain upload and a packed one, whose scene bytes
+                # are not in Redis either.
+                assert submit(http, CORNELL, **FORM).status_code == 201
+                text = CORNELL.read_bytes()
+                digest = hashlib.sha256(text).hexdigest()
+                assert http.put(f"/blobs/{digest}", content=text).status_code == 201
+                manifest = json.dumps({"entry": "cornell.usda", "files": {"cornell.usda": digest}})
+                r = http.post("/jobs", files={"manifest": ("m.json", manifest)},
+                              data={k: str(v) for k, v in FORM.items()})
+                assert r.status_code == 201, r.text
+                scene_hash = client.hget(rdb.job_key(r.json()["id"]), "scene_hash").decode()
+                fields = client.hgetall(rdb.scene_key(scene_hash))
+                assert sum(len(v) for v in fields.values()) < 256, fields.keys()
+                assert object_path(client, scene_hash).stat().st_size > len(text)  # the zip
+        finally:
+            api.stop()
+            client.close()
+
+
+def test_unheld_objects_are_swept_held_ones_kept(tmp_path):
+    """Scene retention 2 s, a sweep every 0.2 s, no worker: an uploaded file whose
+    retention passed is deleted (file and index) by a sweep, the scene of a queued job
+    stays through later sweeps although its retention passed too (control), and goes
+    once the job is cancelled. Synchronised on Redis's expiry of the keys and on the
+    sweep counters (the bytes they count deleted are the files' sizes)."""
+    with redis_server(str(tmp_path)) as rs:
+        client = redis.Redis.from_url(rs.url)
+        api, base = start_api(rs.url, tmp_path, scene_retention="2", data_sweep_seconds="0.2")
+        try:
+            with httpx.Client(base_url=base, timeout=60) as http:
+                job = submit(http, CORNELL, **FORM).json()["id"]
+                scene_hash = client.hget(rdb.job_key(job), "scene_hash").decode()
+                scene_file = object_path(client, scene_hash)
+                assert scene_file.read_bytes() == CORNELL.read_bytes()
+                lone = os.urandom(4096)
+                h_lone = hashlib.sha256(lone).hexdigest()
+                assert http.put(f"/blobs/{h_lone}", content=lone).status_code == 201
+
+                wait_until(lambda: not client.exists(rdb.blob_key(h_lone)), 30, "the upload never expired")
+                wait_until(lambda: client.hget(rdb.STATS, "data_evicted"), 30,
+                           "the expired upload was never swept")
+                assert int(client.hget(rdb.STATS, "data_evicted_bytes")) == len(lone)
+                assert not object_path(client, h_lone).exists() and not client.exists(rdb.data_key(h_lone))
+                # The scene's retention (set when the job was submitted) has passed too.
+                wait_until(lambda: not client.exists(rdb.preflight_key(scene_hash, ".usda")), 30,
+                           "the pre-flight result never expired")
+                sweeps = int(client.hget(rdb.STATS, "data_sweeps"))
+                wait_until(lambda: int(client.hget(rdb.STATS, "data_sweeps")) >= sweeps + 2, 30,
+                           "no sweep ran")
+                assert scene_file.read_bytes() == CORNELL.read_bytes(), "a queued job's scene was swept"
+                assert client.exists(rdb.data_key(scene_hash))
+                assert int(client.hget(rdb.STATS, "data_evicted")) == 1
+
+                assert http.delete(f"/jobs/{job}").status_code == 200
+                wait_until(lambda: not scene_file.exists(), 30, "the released scene was never swept")
+                assert not client.exists(rdb.data_key(scene_hash))
+                assert int(client.hget(rdb.STATS, "data_evicted")) == 2
+                assert int(client.hget(rdb.STATS, "data_evicted_bytes")) == len(lone) + len(CORNELL.read_bytes())
+        finally:
+            api.stop()
+            client.close()
+
+
+def test_translated_scene_is_in_the_data_store_and_translated_once(tmp_path):
+    """The renderer's translated scene is an object of the data store: the scene hash in
+    Redis names it by SHA-256 (before: it held the blob's bytes, 520 MB for the issue's
+    10^7 triangles). A second job of the scene, on another worker with nothing cached,
+    renders from it without translating again, and its image is the local render's."""
+    from tessera_renderer import scene_blob
+
+    version = f"v{scene_blob.BLOB_VERSION}.{scene_blob.TRANSLATOR_VERSION}"
+    with redis_server(str(tmp_path)) as rs:
+        client = redis.Redis.from_url(rs.url)
+        api, base = start_api(rs.url, tmp_path)
+        workers = [start_worker(rs.url, "translate-a", tmp_path)]
+        try:
+            with httpx.Client(base_url=base, timeout=60) as http:
+                first = submit(http, CORNELL, **FORM).json()["id"]
+                wait_for_job(http, first, processes=workers, expect="done")
+                scene_hash = client.hget(rdb.job_key(first), "scene_hash").decode()
+                translated = client.hget(rdb.scene_key(scene_hash), rdb.translated_field(version))
+                assert translated is not None
+                assert re.fullmatch(rb"[0-9a-f]{64}", translated), \
+                    f"the scene hash holds {len(translated)} bytes of translated scene"
+                fields = client.hgetall(rdb.scene_key(scene_hash))
+                assert sum(len(v) for v in fields.values()) < 512
+                blob = object_path(client, translated.decode()).read_bytes()
+                assert blob.startswith(scene_blob.MAGIC)
+                assert hashlib.sha256(blob).hexdigest() == translated.decode()
+                assert int(client.hget(rdb.STATS, "scene_translations")) == 1
+
+                workers[0].stop()
+                workers.append(start_worker(rs.url, "translate-b", tmp_path))
+                form = {**FORM, "seed": 2}
+                second = submit(http, CORNELL, **form).json()["id"]
+                wait_for_job(http, second, processes=workers[1:], expect="done")
+                assert int(client.hget(rdb.STATS, "scene_translations")) == 1
+                expected = local_reference(form)
+                actual = farm_image(http, second, tmp_path)
+                assert np.array_equal(actual.view(np.uint32), expected.view(np.uint32))
+        finally:
+            for proc in (*workers, api):
+                proc.stop()
+            client.close()
