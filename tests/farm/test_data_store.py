@@ -13,6 +13,7 @@ import time
 
 import httpx
 import numpy as np
+import pytest
 import redis
 
 from conftest import (CORNELL, DATA_ROOT, local_reference, farm_image, start_api, start_worker,
@@ -90,6 +91,7 @@ def test_uploads_do_not_fill_the_queues_redis(tmp_path):
             client.close()
 
 
+@pytest.mark.slow  # sweeps past a 2 s retention: about 10 s
 def test_unheld_objects_are_swept_held_ones_kept(tmp_path):
     """Scene retention 2 s, a sweep every 0.2 s, no worker: an uploaded file whose
     retention passed is deleted (file and index) by a sweep, the scene of a queued job
@@ -134,6 +136,7 @@ def test_unheld_objects_are_swept_held_ones_kept(tmp_path):
             client.close()
 
 
+@pytest.mark.slow  # two workers and a local render: about 17 s
 def test_translated_scene_is_in_the_data_store_and_translated_once(tmp_path):
     """The renderer's translated scene is an object of the data store: the scene hash in
     Redis names it by SHA-256 (before: it held the blob's bytes, 520 MB for the issue's
