@@ -178,3 +178,24 @@ def test_translated_scene_is_in_the_data_store_and_translated_once(tmp_path):
             for proc in (*workers, api):
                 proc.stop()
             client.close()
+
+
+def test_a_worker_without_a_usable_data_directory_refuses_to_start(tmp_path):
+    """A worker that cannot write to the data directory would fail every scene it took:
+    it says so once and exits. Control: the same worker with a writable directory
+    starts (its heartbeat appears)."""
+    import subprocess
+    import sys
+
+    from conftest import clean_env
+
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    with redis_server(str(tmp_path)) as rs:
+        env = clean_env(REDIS_URL=rs.url, TESSERA_DATA_DIR=str(blocker / "data"))
+        proc = subprocess.run([sys.executable, "-m", "tessera_worker", "--name", "no-data"],
+                              env=env, capture_output=True, text=True, timeout=120)
+        assert proc.returncode != 0
+        assert f"cannot write to the data directory {blocker / 'data'}" in proc.stderr, proc.stderr
+        worker = start_worker(rs.url, "with-data", tmp_path)  # the session's directory
+        worker.stop()
