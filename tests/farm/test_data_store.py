@@ -199,3 +199,38 @@ def test_a_worker_without_a_usable_data_directory_refuses_to_start(tmp_path):
         assert f"cannot write to the data directory {blocker / 'data'}" in proc.stderr, proc.stderr
         worker = start_worker(rs.url, "with-data", tmp_path)  # the session's directory
         worker.stop()
+
+
+def test_the_store_checks_what_it_reads_and_keeps_what_is_held(redis_client, tmp_path):
+    """data_store on a real Redis, in-process: a held object survives an eviction, an
+    eviction whose file a writer recorded again meanwhile puts the file back (the race
+    the index-first order closes), an unheld one goes (file and index), and bytes that
+    no longer match their name are refused on read."""
+    from tessera_queue.data_store import DataStore, ObjectMissing
+
+    store = DataStore(tmp_path / "data", redis_client)
+    data = os.urandom(1000)
+    digest = hashlib.sha256(data).hexdigest()
+    holder = "tessera:test:holder"
+    redis_client.set(holder, 1)
+    with redis_client.pipeline() as pipe:
+        store.hold(pipe, digest, len(data), holder)
+        pipe.execute()
+    store.write_bytes(digest, data)
+    assert store.evict_if_unheld(digest) is None and store.read_bytes(digest) == data
+
+    redis_client.delete(holder)
+    # The file's deletion after a writer recorded the object again (its index is back).
+    assert store._remove_file(digest) == 0 and store.read_bytes(digest) == data
+    assert store.evict_if_unheld(digest) == len(data)
+    assert not store.path(digest).exists() and not redis_client.exists(rdb.data_key(digest))
+    with pytest.raises(ObjectMissing, match="missing from the farm's data directory"):
+        store.read_bytes(digest)
+
+    store.write_bytes(digest, data)
+    store.path(digest).write_bytes(data[:-1] + bytes([data[-1] ^ 1]))
+    with pytest.raises(ObjectMissing, match="does not match its SHA-256"):
+        store.read_bytes(digest)
+    with pytest.raises(ObjectMissing, match="does not match its SHA-256"):
+        store.copy_to(digest, tmp_path / "copy")
+    assert not (tmp_path / "copy").exists()
