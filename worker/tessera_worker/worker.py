@@ -640,7 +640,13 @@ class Worker:
         with self.redis.pipeline(transaction=True) as pipe:
             try:
                 pipe.watch(key)
-                if not pipe.exists(key) or pipe.hexists(key, field):
+                if not pipe.exists(key):
+                    return
+                named = _text(pipe.hget(key, field))
+                if named:
+                    pipe.unwatch()
+                    if named == digest:  # the same bytes: restores a file that went missing
+                        self.data.write_file(digest, path)
                     return
                 pipe.multi()
                 pipe.hset(key, field, digest)
