@@ -131,6 +131,8 @@ def test_unheld_objects_are_swept_held_ones_kept(tmp_path):
                 assert not client.exists(rdb.data_key(scene_hash))
                 assert int(client.hget(rdb.STATS, "data_evicted")) == 2
                 assert int(client.hget(rdb.STATS, "data_evicted_bytes")) == len(lone) + len(CORNELL.read_bytes())
+                metrics = http.get("/metrics").text
+                assert "tessera_data_evicted_total 2.0" in metrics, metrics
         finally:
             api.stop()
             client.close()
