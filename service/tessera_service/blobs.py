@@ -219,7 +219,7 @@ class BlobStore:
                         pipe.unwatch()
                         self.redis.hdel(rdb.blob_usage_key(self.user), digest)
                         return None
-                    size = int(pipe.get(blob) or 0)
+                    size = self._size(digest, pipe.get(blob))
                     last = int(pipe.scard(owners)) == 1
                     pipe.multi()
                     pipe.srem(owners, self.user)
@@ -247,7 +247,24 @@ class BlobStore:
         with self.redis.pipeline(transaction=False) as pipe:
             for digest in hashes:
                 pipe.get(rdb.blob_key(digest))
-            return {d: int(n or 0) for d, n in zip(hashes, pipe.execute())}
+            return {d: self._size(d, raw) for d, raw in zip(hashes, pipe.execute())}
+
+    def _size(self, digest: str, raw: bytes | None) -> int:
+        """The size a blob's index says; a blob stored by a farm before the data store (its
+        bytes in the index itself) is moved into the data store first."""
+        if raw is None:
+            return 0
+        if raw.isdigit():
+            return int(raw)
+        if hashlib.sha256(raw).hexdigest() != digest:
+            return 0  # damaged: never usable
+        blob = rdb.blob_key(digest)
+        with self.redis.pipeline(transaction=True) as pipe:
+            self.data.hold(pipe, digest, len(raw), blob)  # index first: see data_store
+            pipe.set(blob, len(raw), xx=True, keepttl=True)
+            pipe.execute()
+        self.data.write_bytes(digest, raw)
+        return len(raw)
 
     def assemble(self, manifest: Manifest, out: Path, limit: int) -> str:
         """Writes the manifest's bundle to `out` (a zip; see the module docstring) and

@@ -82,6 +82,7 @@ class JobStore:
         with self.redis.pipeline(transaction=True) as pipe:
             pipe.hsetnx(key, "name", name)
             pipe.hset(key, "size", size)
+            pipe.hdel(key, "data")  # the bytes themselves, where farms before the data store kept them
             self.data.hold(pipe, scene_hash, size, key)  # index first: see data_store
             pipe.execute()
         self.touch_scene(scene_hash)

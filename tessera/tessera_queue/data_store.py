@@ -35,6 +35,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
+import re
 import shutil
 import time
 import uuid
@@ -45,6 +46,7 @@ import redis
 from tessera_queue import redis_schema as rdb
 
 DATA_DIR_ENV = "TESSERA_DATA_DIR"
+_DIGEST = re.compile(rb"[0-9a-f]{64}")
 TMP_MAX_AGE = 3600.0   # seconds: a temporary file this old was left by a killed writer
 _CHUNK = 1 << 20
 
@@ -52,6 +54,12 @@ _CHUNK = 1 << 20
 class ObjectMissing(RuntimeError):
     """An object the index names is not in the data directory (another directory than the
     API's, or lost), or its bytes do not match its name."""
+
+
+def is_digest(value: bytes | None) -> bool:
+    """Whether a Redis value names an object (a SHA-256 in hex), rather than holding the
+    bytes themselves as farms before the data store did."""
+    return value is not None and _DIGEST.fullmatch(value) is not None
 
 
 def default_root() -> Path:

@@ -236,3 +236,62 @@ def test_the_store_checks_what_it_reads_and_keeps_what_is_held(redis_client, tmp
     with pytest.raises(ObjectMissing, match="does not match its SHA-256"):
         store.copy_to(digest, tmp_path / "copy")
     assert not (tmp_path / "copy").exists()
+
+
+@pytest.mark.slow  # a worker and a local render: about 15 s
+def test_a_farm_upgraded_from_bytes_in_redis_renders_what_it_stored(tmp_path):
+    """A Redis written before the data store: a scene's bytes in its hash (field data),
+    its translated scene as a field's value, an uploaded file's bytes in its index. After
+    the upgrade a queued job of that scene renders the local render's image from the old
+    translated scene (translated no more); a job at another time code, which needs the
+    scene's bytes, has its worker move them into the data store; the API moves the file
+    when a manifest uses it."""
+    from tessera_base.protocol import JobSpec, RenderSettings
+    from tessera_renderer import scene_blob
+    from tessera_service.store import JobStore
+
+    version = f"v{scene_blob.BLOB_VERSION}.{scene_blob.TRANSLATOR_VERSION}"
+    scene = CORNELL.read_bytes()
+    scene_hash = hashlib.sha256(scene).hexdigest()
+    layer = scene + b"\n# uploaded before the data store\n"
+    layer_hash = hashlib.sha256(layer).hexdigest()
+    with redis_server(str(tmp_path)) as rs:
+        client = redis.Redis.from_url(rs.url)
+        key = rdb.scene_key(scene_hash)
+        client.hset(key, mapping={"name": "cornell.usda", "data": scene, "retention": 3600,
+                                  rdb.translated_field(version): scene_blob.translate_to_blob(CORNELL)})
+        client.expire(key, 3600)
+        client.set(rdb.blob_key(layer_hash), layer, ex=3600)
+        client.sadd(rdb.blob_owners_key(layer_hash), "alice")
+        client.hset(rdb.blob_usage_key("alice"), layer_hash, len(layer))
+        api, base = start_api(rs.url, tmp_path, api_tokens="alice:alice-token")
+        worker = start_worker(rs.url, "upgraded", tmp_path)
+        try:
+            with httpx.Client(base_url=base, timeout=60,
+                              headers={"Authorization": "Bearer alice-token"}) as http:
+                spec = JobSpec(job_id="a" * 32, scene_hash=scene_hash, scene_name="cornell.usda",
+                               settings=RenderSettings(**FORM))
+                JobStore(client).create_job(spec, [], owner="alice")
+                wait_for_job(http, spec.job_id, processes=[worker, api], expect="done")
+                actual = farm_image(http, spec.job_id, tmp_path)
+                assert np.array_equal(actual.view(np.uint32), local_reference(FORM).view(np.uint32))
+                assert client.hget(rdb.STATS, "scene_translations") is None  # the old blob served
+                # Another time code needs a translation of its own, from the scene's bytes.
+                frame = JobSpec(job_id="b" * 32, scene_hash=scene_hash, scene_name="cornell.usda",
+                                settings=RenderSettings(**FORM, frame=1.0))
+                JobStore(client).create_job(frame, [], owner="alice")
+                wait_for_job(http, frame.job_id, processes=[worker, api], expect="done")
+                assert int(client.hget(rdb.STATS, "scene_translations")) == 1
+                assert not client.hexists(key, "data")
+                assert object_path(client, scene_hash).read_bytes() == scene
+
+                manifest = json.dumps({"entry": "cornell.usda", "files": {"cornell.usda": layer_hash}})
+                r = http.post("/jobs", files={"manifest": ("m.json", manifest)},
+                              data={k: str(v) for k, v in FORM.items()})
+                assert r.status_code == 201, r.text
+                assert int(client.get(rdb.blob_key(layer_hash))) == len(layer)
+                assert object_path(client, layer_hash).read_bytes() == layer
+        finally:
+            for proc in (worker, api):
+                proc.stop()
+            client.close()

@@ -38,7 +38,7 @@ import redis
 from tessera_base import film, integrators, protocol
 from tessera_base import convergence
 from tessera_queue import redis_schema as rdb
-from tessera_queue.data_store import DataStore, ObjectMissing, default_root
+from tessera_queue.data_store import DataStore, ObjectMissing, default_root, is_digest
 from tessera_base.process import private_tempdir, remove_orphaned_tempdirs
 from tessera_queue.tasks import TileTask
 
@@ -605,7 +605,16 @@ class Worker:
             self._scene_files[name] = self._scene_files.pop(name)
             source["blob_path"] = path
             return source
-        digest = _text(self.redis.hget(rdb.scene_key(task.scene_hash), rdb.translated_field(blob_version)))
+        named = self.redis.hget(rdb.scene_key(task.scene_hash), rdb.translated_field(blob_version))
+        if named is not None and not is_digest(named):
+            # The blob itself, as farms before the data store kept it (until the scene expires).
+            path = os.path.join(self._tmpdir, name)
+            with open(path, "wb") as f:
+                f.write(named)
+            self._remember_file(name, path)
+            source["blob_path"] = path
+            return source
+        digest = _text(named)
         if digest:
             path = os.path.join(self._tmpdir, name)
             try:
@@ -682,12 +691,32 @@ class Worker:
         os.makedirs(os.path.join(self._tmpdir, task.scene_hash), exist_ok=True)
         path = os.path.join(self._tmpdir, task.scene_hash, protocol.scene_file_name(suffix))
         try:
-            self.data.copy_to(task.scene_hash, path)
+            try:
+                self.data.copy_to(task.scene_hash, path)
+            except ObjectMissing:
+                if not self._adopt_legacy_scene(task.scene_hash):
+                    raise
+                self.data.copy_to(task.scene_hash, path)
         except ObjectMissing as exc:
             # This worker's data directory, not the scene: another worker may render it.
             raise RenderFailed(f"cannot read scene {task.scene_name!r}: {exc}", fatal=False) from None
         self._remember_file(key, path)
         return path
+
+    def _adopt_legacy_scene(self, scene_hash: str) -> bool:
+        """Moves a scene's bytes that a farm before the data store kept in its hash (field
+        `data`) into the data store; False if there are none."""
+        key = rdb.scene_key(scene_hash)
+        data = self.redis.hget(key, "data")
+        if data is None or hashlib.sha256(data).hexdigest() != scene_hash:
+            return False
+        with self.redis.pipeline(transaction=True) as pipe:
+            self.data.hold(pipe, scene_hash, len(data), key)  # index first: see data_store
+            pipe.hset(key, "size", len(data))
+            pipe.execute()
+        self.data.write_bytes(scene_hash, data)
+        self.redis.hdel(key, "data")
+        return True
 
     def _fault_for(self, task: TileTask) -> str | None:
         target = SCENE_TASK if task.scene_pass else task.tile.index
