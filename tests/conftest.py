@@ -1,6 +1,7 @@
 """Shared fixtures: real redis-server, real uvicorn and worker subprocesses (no fakes)."""
 from __future__ import annotations
 
+import atexit
 import contextlib
 import os
 import shutil
@@ -85,11 +86,20 @@ def cornell_path() -> Path:
     return CORNELL
 
 
+# The data directory (TESSERA_DATA_DIR) every API and worker of this test session shares,
+# as one machine's do; each Redis server's farm keeps its own folder in it (data_store).
+DATA_ROOT = Path(tempfile.mkdtemp(prefix="tessera-test-data-"))
+atexit.register(shutil.rmtree, DATA_ROOT, True)
+os.environ["TESSERA_DATA_DIR"] = str(DATA_ROOT)  # for the stores tests make in-process
+
+
 def clean_env(**extra: str) -> dict[str, str]:
-    """The test's environment without any Redis or Tessera settings of the developer's."""
+    """The test's environment without any Redis or Tessera settings of the developer's
+    (but the session's data directory)."""
     env = {k: v for k, v in os.environ.items()
            if not k.startswith("TESSERA_") and k != "REDIS_URL"}
     env["PYTHONUNBUFFERED"] = "1"
+    env["TESSERA_DATA_DIR"] = str(DATA_ROOT)
     env.update(extra)
     return env
 

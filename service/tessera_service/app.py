@@ -41,7 +41,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         log.error("no API tokens (TESSERA_API_TOKENS) and anonymous loopback access is off "
                   "(TESSERA_ALLOW_ANONYMOUS_LOOPBACK): every request but /healthz is refused")
     store = JobStore.from_url(settings.redis_url, retention=settings.job_retention,
-                              scene_retention=settings.scene_retention)
+                              scene_retention=settings.scene_retention, data_dir=settings.data_dir)
     aredis = redis.asyncio.Redis.from_url(settings.redis_url, socket_connect_timeout=5,
                                           socket_timeout=30, health_check_interval=30)
 
@@ -62,7 +62,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             if problem is not None:
                 log.critical("refusing to start: %s", problem)
                 raise RuntimeError(f"tessera API: {problem}")
+        problem = store.data.unusable()
+        if problem is not None:
+            log.critical("refusing to start: %s", problem)
+            raise RuntimeError(f"tessera API: {problem}")
+        sweeper = asyncio.create_task(_sweep_data(store, settings.data_sweep_seconds))
         yield
+        sweeper.cancel()
         store.redis.close()
         await aredis.aclose()
 
@@ -146,6 +152,19 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                             status_code=503, headers={"Retry-After": "30"})
 
     return app
+
+
+async def _sweep_data(store: JobStore, period: float) -> None:
+    """Deletes the data store's objects that nothing holds (data_store.sweep), at start and
+    every `period` seconds; a failure (Redis down, a disk error) waits for the next."""
+    while True:
+        try:
+            count, freed = await asyncio.to_thread(store.data.sweep)
+            if count:
+                log.info("data sweep: deleted %d file(s) nothing holds, %d bytes", count, freed)
+        except (redis.RedisError, OSError) as exc:
+            log.warning("data sweep of %s failed: %s", store.data.root, exc)
+        await asyncio.sleep(period)
 
 
 def _json_safe(value):

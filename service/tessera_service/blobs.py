@@ -13,7 +13,10 @@ is remembered.
 Limits: one file is at most `max_upload_bytes`, as is the whole bundle (a packed scene is
 an upload); a manifest names at most TESSERA_MAX_FILES files (the bundle sandbox's own
 limit, 20 000). Files are kept for the scene retention after their last use, or until
-their user deletes them; each user may keep `user_blob_quota_bytes` of files.
+their user deletes them; each user may keep `user_blob_quota_bytes` of files. Their bytes
+live in the data store (tessera_queue.data_store), held by their index in Redis
+(`redis_schema.blob_key`); a job does not hold them, since its bundle is a copy (a scene
+of its own, which the job holds).
 
 Ownership: the bytes are stored once, but a user may use a file only after sending its
 bytes themselves (`redis_schema.blob_owners_key`); to another user the farm answers that
@@ -33,6 +36,7 @@ from pathlib import Path, PurePosixPath
 import redis
 
 from tessera_queue import redis_schema as rdb
+from tessera_queue.data_store import DataStore, ObjectMissing
 
 HASH = re.compile(r"[0-9a-f]{64}")
 ENTRY_COMMENT = "tessera-entry: "
@@ -125,12 +129,14 @@ def _member_path(path) -> str:
 
 
 class BlobStore:
-    """The API's side of content-addressed files in Redis (`redis_schema.blob_key`)."""
+    """The API's side of content-addressed files: their index in Redis
+    (`redis_schema.blob_key`), their bytes in the data store."""
 
-    def __init__(self, client: redis.Redis, retention: float, user: str):
+    def __init__(self, client: redis.Redis, retention: float, user: str, data: DataStore):
         self.redis = client
         self.ttl = int(retention) if retention > 0 else 0
         self.user = user
+        self.data = data
 
     def _owned(self, hashes: list[str]) -> list[bool]:
         """Whether each file is stored and this user sent its bytes."""
@@ -170,36 +176,40 @@ class BlobStore:
             self.redis.hdel(usage_key, *gone)
         return sum(n for d, n in sizes.items() if owned[d])
 
-    def put(self, digest: str, data: bytes, quota: int | None = None) -> bool:
-        """Stores verified bytes and records that this user has them; False when they were
-        stored already. QuotaExceeded when bytes the user does not have yet would take
-        them past `quota` (checked against their usage now: concurrent uploads of one user
-        may pass it by what they upload at once, at most blob_store_concurrency files per
-        API process)."""
+    def put(self, digest: str, path: str | os.PathLike, quota: int | None = None) -> bool:
+        """Stores the verified file at `path` as `digest` and records that this user has
+        it; False when it was stored already. QuotaExceeded when bytes the user does not
+        have yet would take them past `quota` (checked against their usage now: concurrent
+        uploads of one user may pass it by what they upload at once, at most
+        blob_store_concurrency files per API process)."""
+        size = os.path.getsize(path)
         if quota is not None and not self._owned([digest])[0]:
             used = self.usage()
-            if used + len(data) > quota:
+            if used + size > quota:
                 raise QuotaExceeded(
-                    f"this file ({len(data)} bytes) would take your stored files to "
-                    f"{used + len(data)} bytes, more than your quota of {quota} bytes "
+                    f"this file ({size} bytes) would take your stored files to "
+                    f"{used + size} bytes, more than your quota of {quota} bytes "
                     f"(TESSERA_USER_BLOB_QUOTA_BYTES): delete files you no longer need "
                     f"(DELETE /blobs/<sha256>, or DELETE /blobs for all of yours), or wait for "
                     f"them to expire")
-        usage_key = rdb.blob_usage_key(self.user)
+        usage_key, blob = rdb.blob_usage_key(self.user), rdb.blob_key(digest)
         with self.redis.pipeline(transaction=True) as pipe:
-            pipe.set(rdb.blob_key(digest), data, nx=True, ex=self.ttl or None)
+            pipe.set(blob, size, nx=True, ex=self.ttl or None)
             pipe.sadd(rdb.blob_owners_key(digest), self.user)
-            pipe.hset(usage_key, digest, len(data))
+            pipe.hset(usage_key, digest, size)
             if self.ttl:
                 pipe.expire(usage_key, self.ttl)
+            self.data.hold(pipe, digest, size, blob)  # index first: see data_store
             stored = pipe.execute()[0]
         self._renew([digest])
+        self.data.write_file(digest, path)
         return bool(stored)
 
     def delete(self, digest: str) -> int | None:
-        """Forgets that this user has the file, and the file itself once no other user
-        sent it; its size, or None when this user has no such file. Jobs are not
-        affected: a submitted packed scene is a scene of its own (assembled at submission)."""
+        """Forgets that this user has the file, and the file itself (its bytes in the data
+        store at once) once no other user sent it; its size, or None when this user has
+        no such file. Jobs are not affected: a submitted packed scene is a scene of its own
+        (assembled at submission)."""
         owners, blob = rdb.blob_owners_key(digest), rdb.blob_key(digest)
         with self.redis.pipeline(transaction=True) as pipe:
             while True:
@@ -209,7 +219,7 @@ class BlobStore:
                         pipe.unwatch()
                         self.redis.hdel(rdb.blob_usage_key(self.user), digest)
                         return None
-                    size = int(pipe.strlen(blob))
+                    size = self._size(digest, pipe.get(blob))
                     last = int(pipe.scard(owners)) == 1
                     pipe.multi()
                     pipe.srem(owners, self.user)
@@ -217,9 +227,12 @@ class BlobStore:
                     if last:
                         pipe.delete(blob, owners)
                     pipe.execute()
-                    return size
+                    break
                 except redis.WatchError:
                     continue
+        if last:
+            self.data.evict_if_unheld(digest)
+        return size
 
     def delete_all(self) -> tuple[int, int]:
         """Deletes every file this user sent (as `delete`); (files, bytes)."""
@@ -233,8 +246,25 @@ class BlobStore:
     def sizes(self, hashes: list[str]) -> dict[str, int]:
         with self.redis.pipeline(transaction=False) as pipe:
             for digest in hashes:
-                pipe.strlen(rdb.blob_key(digest))
-            return {d: int(n) for d, n in zip(hashes, pipe.execute())}
+                pipe.get(rdb.blob_key(digest))
+            return {d: self._size(d, raw) for d, raw in zip(hashes, pipe.execute())}
+
+    def _size(self, digest: str, raw: bytes | None) -> int:
+        """The size a blob's index says; a blob stored by a farm before the data store (its
+        bytes in the index itself) is moved into the data store first."""
+        if raw is None:
+            return 0
+        if raw.isdigit():
+            return int(raw)
+        if hashlib.sha256(raw).hexdigest() != digest:
+            return 0  # damaged: never usable
+        blob = rdb.blob_key(digest)
+        with self.redis.pipeline(transaction=True) as pipe:
+            self.data.hold(pipe, digest, len(raw), blob)  # index first: see data_store
+            pipe.set(blob, len(raw), xx=True, keepttl=True)
+            pipe.execute()
+        self.data.write_bytes(digest, raw)
+        return len(raw)
 
     def assemble(self, manifest: Manifest, out: Path, limit: int) -> str:
         """Writes the manifest's bundle to `out` (a zip; see the module docstring) and
@@ -255,11 +285,10 @@ class BlobStore:
             zf.comment = (ENTRY_COMMENT + manifest.entry).encode()
             for name in order:
                 digest = manifest.files[name]
-                data = self.redis.get(rdb.blob_key(digest))
-                if data is None:
-                    raise BlobsMissing({name: digest})
-                if hashlib.sha256(data).hexdigest() != digest:
-                    raise ManifestError(f"the stored file for {name!r} does not match its hash")
+                try:
+                    data = self.data.read_bytes(digest)  # checked against its hash
+                except ObjectMissing:
+                    raise BlobsMissing({name: digest}) from None
                 info = zipfile.ZipInfo(name, date_time=_ZIP_DATE)
                 info.create_system = 3
                 info.external_attr = 0o644 << 16

@@ -56,6 +56,7 @@ WORKER_KEYS = (
     f"~{rdb.scene_key('*')}",  # the scene hash and its scene_jobs set
     f"~{rdb.job_key('*')}",    # the job hash and every per-job key under it
     f"~{rdb.worker_key('*')}",
+    f"~{rdb.data_key('*')}",   # the data store's index (translated scenes) and its store id
     *(f"~{key}" for key in (rdb.READY, rdb.ACTIVE, rdb.WORKERS, rdb.STATS, rdb.WAKE,
                             rdb.DEAD_LETTER)),
 )

@@ -43,9 +43,8 @@ class Settings(BaseSettings):
                     "requests with a token are not checked")
     blob_store_concurrency: int = Field(
         default=2, ge=1,
-        description="PUT /blobs uploads whose verified bytes are read into the API's memory and "
-                    "stored in Redis at once (each up to max_upload_bytes); the others wait. "
-                    "Uploads stream to disk, so this bounds the API's memory for blobs")
+        description="PUT /blobs uploads whose verified bytes are copied into the data "
+                    "directory at once (each up to max_upload_bytes); the others wait")
     user_upload_concurrency: int = Field(
         default=4, ge=1,
         description="PUT /blobs uploads one user may have in flight at once; one more gets 429 "
@@ -126,6 +125,18 @@ class Settings(BaseSettings):
         default=7 * DAY, ge=0,
         description="seconds an uploaded scene and its pre-flight result are kept after the "
                     "last job that used it was submitted (0: forever)")
+
+    data_dir: str | None = Field(
+        default=None,
+        description="the data directory: uploaded files, scenes and translated scenes, as files "
+                    "named by their SHA-256 (Redis keeps their index only). The API and every "
+                    "worker must share it (TESSERA_DATA_DIR for both; several machines: a shared "
+                    "volume). Default: XDG_DATA_HOME/tessera/data (~/.local/share/tessera/data)")
+    data_sweep_seconds: float = Field(
+        default=600.0, gt=0,
+        description="seconds between sweeps of the data directory, which delete the files "
+                    "nothing holds any more (an upload past its retention, a scene no job "
+                    "holds past its retention); also at start")
 
     job_redis_budget: int = Field(
         default=1024 * MiB, ge=1,

@@ -3,6 +3,7 @@ and the state machine: tessera_queue.redis_schema; messages: tessera_base.protoc
 from __future__ import annotations
 
 import json
+import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -12,6 +13,7 @@ import redis
 from tessera_base import protocol
 from tessera_queue import tasks as queue_tasks
 from tessera_queue import redis_schema as rdb
+from tessera_queue.data_store import DataStore, default_root
 from tessera_base.protocol import FINAL_STATES, JobSpec
 
 
@@ -55,11 +57,12 @@ class WorkerInfo:
 
 class JobStore:
     def __init__(self, client: redis.Redis, *, retention: float = 7 * 86400,
-                 scene_retention: float = 7 * 86400):
+                 scene_retention: float = 7 * 86400, data_dir: str | None = None):
         self.redis = client
         self.retention = retention
         self.scene_retention = scene_retention
         self.scripts = rdb.Scripts(client)
+        self.data = DataStore(data_dir or default_root(), client)
 
     @classmethod
     def from_url(cls, url: str, **kwargs) -> "JobStore":
@@ -73,15 +76,22 @@ class JobStore:
             return False
 
     # ------------------------------------------------------------------ scenes
-    def put_scene(self, scene_hash: str, name: str, data: bytes) -> None:
-        """Stores a scene once per content hash; every use extends its retention."""
+    def put_scene(self, scene_hash: str, name: str, source: bytes | str | os.PathLike) -> None:
+        """Stores a scene (bytes, or a file) once per content hash, its SHA-256: the bytes
+        in the data store, which the scene hash holds; every use extends its retention."""
         key = rdb.scene_key(scene_hash)
-        if not self.redis.hexists(key, "data"):
-            with self.redis.pipeline(transaction=True) as pipe:
-                pipe.hsetnx(key, "name", name)
-                pipe.hsetnx(key, "data", data)
-                pipe.execute()
+        size = len(source) if isinstance(source, bytes) else os.path.getsize(source)
+        with self.redis.pipeline(transaction=True) as pipe:
+            pipe.hsetnx(key, "name", name)
+            pipe.hset(key, "size", size)
+            pipe.hdel(key, "data")  # the bytes themselves, where farms before the data store kept them
+            self.data.hold(pipe, scene_hash, size, key)  # index first: see data_store
+            pipe.execute()
         self.touch_scene(scene_hash)
+        if isinstance(source, bytes):
+            self.data.write_bytes(scene_hash, source)
+        else:
+            self.data.write_file(scene_hash, source)
 
     def touch_scene(self, scene_hash: str) -> bool:
         """Extends a stored scene's retention (a scene a job holds does not expire at all);

@@ -1,7 +1,8 @@
 """A whole farm in one command: a private Redis, local workers and the API.
 
 serve() without a redis_url starts `redis-server` on a free local port (no persistence,
-in a temporary directory) and `workers` worker processes, runs the API in this process,
+in a temporary directory, with the farm's data directory beside it) and `workers` worker
+processes, runs the API in this process,
 and stops them all when the API stops (Ctrl-C / SIGTERM). With a redis_url only the API
 runs; workers are started elsewhere against the same Redis."""
 from __future__ import annotations
@@ -90,14 +91,18 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1,
                 log.warning("started a private redis-server on 127.0.0.1:%d (ACL users %s and "
                             "%s; nothing is persisted)", local.port, API_USER, WORKER_USER)
                 url = local.worker_url
-                supervisor = WorkerSupervisor(lambda: start_worker(url, threads=worker_threads), workers)
+                # The data store beside Redis, gone with it (nothing is persisted).
+                data_dir = os.path.join(tmp, "data")
+                supervisor = WorkerSupervisor(lambda: start_worker(url, threads=worker_threads,
+                                                                   data_dir=data_dir), workers)
                 stack.callback(supervisor.stop, WORKER_STOP_TIMEOUT)
                 supervisor.start()
                 log.warning("started %d local worker(s)", workers)
             # Tokens etc. come from the environment. Uvicorn's own proxy-header handling
             # is off: it would replace the peer address with a header's value for any
             # request from 127.0.0.1, and AuthGate decides whom to believe.
-            app = create_app(Settings(redis_url=redis_url, **anonymous))
+            app = create_app(Settings(redis_url=redis_url, **anonymous,
+                                      **({"data_dir": data_dir} if embedded else {})))
             limits = app.state.settings
             cap = connection_cap(limits.http_max_connections)
             protocol = guarded_protocol(limits.http_header_timeout, limits.http_body_idle_timeout, cap)
@@ -254,13 +259,17 @@ class WorkerSupervisor:
 
 
 def start_worker(redis_url: str, threads: int = 1, name: str | None = None,
-                 command: list[str] | None = None) -> subprocess.Popen:
+                 command: list[str] | None = None, data_dir: str | None = None) -> subprocess.Popen:
     """A worker process (in its own session, so that the terminal's Ctrl-C reaches only us
-    and we stop workers before Redis)."""
+    and we stop workers before Redis); `data_dir`: the API's data directory (default: the
+    environment's)."""
     cmd = list(command or WORKER_COMMAND) + ["--threads", str(threads)]
     if name:
         cmd += ["--name", name]
-    return subprocess.Popen(cmd, env={**os.environ, "REDIS_URL": redis_url},
+    env = {**os.environ, "REDIS_URL": redis_url}
+    if data_dir is not None:
+        env["TESSERA_DATA_DIR"] = data_dir
+    return subprocess.Popen(cmd, env=env,
                             stdin=subprocess.DEVNULL, start_new_session=True,
                             preexec_fn=die_with_parent)
 

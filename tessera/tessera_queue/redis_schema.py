@@ -80,11 +80,13 @@ _PRODUCTS = ":products"
 
 
 def scene_key(scene_hash: str) -> str:
-    """Hash: a scene stored once per content hash. Fields: name, data (the uploaded
-    bytes), retention (seconds it is kept after its last use), translated:<blob version>
-    (the renderer's translated scene, written once by the first worker that translates it,
-    so that it lives and dies with the scene). No TTL while a job holds it (`scene_jobs_key`);
-    the last job to end starts its retention."""
+    """Hash: a scene stored once per content hash (its SHA-256). Fields: name, size (of
+    the uploaded bytes, which live in the data store under scene_hash: data_store),
+    retention (seconds it is kept after its last use), translated:<blob version> (the
+    SHA-256 of the renderer's translated scene in the data store, recorded once by the
+    first worker that translates it). The hash holds those objects (`data_holders_key`),
+    so they live and die with it. No TTL while a job holds it (`scene_jobs_key`); the last
+    job to end starts its retention."""
     return f"{PREFIX}:scene:{scene_hash}"
 
 
@@ -94,7 +96,8 @@ def scene_jobs_key(scene_hash: str) -> str:
 
 
 def translated_field(blob_version: str) -> str:
-    """The scene hash field holding the renderer's translated scene blob, per blob version
+    """The scene hash field naming (by SHA-256) the renderer's translated scene blob in the
+    data store, per blob version
     so that an upgraded worker never reads an old blob as new."""
     return f"translated:{blob_version}"
 
@@ -117,12 +120,30 @@ def preflight_key(scene_hash: str, suffix: str, variants: Sequence[str] = ()) ->
 
 
 def blob_key(content_hash: str) -> str:
-    """String: one file of a packed scene (content-addressed upload: PUT /blobs/<sha256>),
-    its bytes under their SHA-256 (hex), verified when stored. A manifest of such files
-    (relative path -> hash) is assembled into a zip bundle that is then stored as a scene
-    (`scene_key`). TTL: the scene retention, renewed whenever a client asks for it or a
-    manifest uses it. Only the API reads or writes it."""
+    """String: the size of one file of a packed scene (content-addressed upload: PUT
+    /blobs/<sha256>), whose bytes, verified when stored, live in the data store under
+    their SHA-256 (hex); this key holds them there (`data_holders_key`). A manifest of
+    such files (relative path -> hash) is assembled into a zip bundle that is then stored
+    as a scene (`scene_key`). TTL: the scene retention, renewed whenever a client asks
+    for it or a manifest uses it. Only the API reads or writes it."""
     return f"{PREFIX}:blob:{content_hash}"
+
+
+DATA_STORE_ID = f"{PREFIX}:data:store-id"   # string: this farm's folder in the data directory
+DATA_OBJECTS = f"{PREFIX}:data:objects"     # set: SHA-256 of every object in the data store
+
+
+def data_key(content_hash: str) -> str:
+    """Hash: one object of the data store (tessera_queue.data_store), whose bytes are the
+    file named by its SHA-256 in the shared data directory. Fields: size. No TTL: it goes
+    with its file when the store's sweep finds no holder left."""
+    return f"{PREFIX}:data:{content_hash}"
+
+
+def data_holders_key(content_hash: str) -> str:
+    """Set: the Redis keys (`blob_key`, `scene_key`) that need the object; it is kept
+    while one of them exists."""
+    return f"{PREFIX}:data:{content_hash}:holders"
 
 
 def blob_owners_key(content_hash: str) -> str:

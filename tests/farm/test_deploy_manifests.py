@@ -415,6 +415,33 @@ def test_runtime_stage_installs_the_cores_shared_libraries():
     assert needed <= allowed, needed - allowed
 
 
+def test_api_and_workers_share_one_data_directory():
+    """The API and every worker read and write the farm's data directory (scenes, uploads,
+    translated scenes: tessera_queue.data_store); apart, a worker would find no scene. The
+    image sets TESSERA_DATA_DIR to a folder of its user; compose mounts one named volume
+    there in both services, Kubernetes one ReadWriteMany claim in both Deployments."""
+    env = " ".join(rest for word, rest in dockerfile() if word == "ENV")
+    data_dir = re.search(r"TESSERA_DATA_DIR=(\S+)", env).group(1)
+    runs = " ".join(rest for word, rest in dockerfile() if word == "RUN")
+    assert re.search(rf"install -d -o tessera -g tessera -m 700 {data_dir}", runs)
+    services = compose()["services"]
+    sources = {name: {v.split(":")[0] for v in services[name].get("volumes", [])
+                      if v.split(":")[1] == data_dir} for name in ("api", "worker")}
+    assert sources["api"] and sources["api"] == sources["worker"], sources
+    claims = set()
+    for name in ("tessera-api", "tessera-worker"):
+        pod = objects("Deployment")[name]["spec"]["template"]["spec"]
+        volumes = {v["name"]: v for v in pod.get("volumes", [])}
+        (container,) = pod["containers"]
+        mounted = [volumes[m["name"]]["persistentVolumeClaim"]["claimName"]
+                   for m in container.get("volumeMounts", []) if m["mountPath"] == data_dir]
+        assert len(mounted) == 1, f"{name} does not mount the data directory"
+        assert pod["securityContext"]["fsGroup"] == 10001
+        claims.add(mounted[0])
+    (claim,) = claims
+    assert objects("PersistentVolumeClaim")[claim]["spec"]["accessModes"] == ["ReadWriteMany"]
+
+
 def test_dockerignore_keeps_the_hosts_build_out():
     ignored = (REPO / ".dockerignore").read_text().split()
     for path in (".venv", "build", "out", ".git", "deploy/.env"):

@@ -4,6 +4,7 @@ The farm's merged image must equal a local render with the same settings bit for
 also when a worker dies mid-job and another takes over its tile."""
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import signal
@@ -102,9 +103,10 @@ def test_farm_image_equals_local_render(farm, redis_client, tmp_path):
     from tessera_renderer import scene_blob
     version = f"v{scene_blob.BLOB_VERSION}.{scene_blob.TRANSLATOR_VERSION}"
     spec = protocol.JobSpec.model_validate_json(redis_client.hget(rdb.job_key(job["id"]), "spec"))
-    blob = redis_client.hget(rdb.scene_key(spec.scene_hash), rdb.translated_field(version))
-    assert blob and blob.startswith(scene_blob.MAGIC)
-    # In the scene's hash: it expires with the scene, once no job holds it.
+    digest = redis_client.hget(rdb.scene_key(spec.scene_hash), rdb.translated_field(version))
+    assert digest and JobStore(redis_client).data.read_bytes(digest.decode()).startswith(scene_blob.MAGIC)
+    # Held by the scene's hash: it goes with the scene, once no job holds it.
+    assert redis_client.sismember(rdb.data_holders_key(digest.decode()), rdb.scene_key(spec.scene_hash))
     assert redis_client.pttl(rdb.scene_key(spec.scene_hash)) > 0
 
     # The merged files are cached: the same bytes again, without re-merging.
@@ -122,8 +124,8 @@ def test_bad_scenes_fail_cleanly_and_the_farm_goes_on(farm, redis_client, tmp_pa
     # A scene that gets past the API but not the worker (queued straight into Redis):
     # the job fails with the loader's message, the workers keep running.
     store = JobStore(redis_client)
-    garbage = b"#usda 1.0\n(((( garbage"
-    scene_hash = uuid.uuid4().hex
+    garbage = f"#usda 1.0\n(((( garbage {uuid.uuid4().hex}".encode()
+    scene_hash = hashlib.sha256(garbage).hexdigest()
     store.put_scene(scene_hash, "bad.usda", garbage)
     spec = JobSpec(job_id=uuid.uuid4().hex, scene_hash=scene_hash, scene_name="bad.usda",
                    settings=RenderSettings(width=32, height=32, spp=1, tile_size=16))

@@ -73,25 +73,31 @@ def test_neither_user_may_run_admin_or_dangerous_commands(acl_redis, worker_clie
 
 
 def test_the_worker_reaches_scenes_and_jobs_but_not_preflights_or_indexes(worker_client, api_client):
-    api_client.hset(SCENE, mapping={"name": "s.usda", "data": b"#usda 1.0"})
+    api_client.hset(SCENE, mapping={"name": "s.usda", "size": 9})
     api_client.set(PREFLIGHT, "{}")
     # What a worker does (the controls: these must work).
     assert worker_client.hget(SCENE, "name") == b"s.usda"
     worker_client.hset(rdb.job_tiles_key("1" * 32), "0:0", b"tile")
     worker_client.hincrby(rdb.STATS, "tiles", 1)
-    worker_client.hset(SCENE, rdb.translated_field("v1"), b"blob")
+    worker_client.hset(SCENE, rdb.translated_field("v1"), "2" * 64)
+    # ... and the data store's index of the translated scene it stores (data_store.hold).
+    worker_client.hset(rdb.data_key("2" * 64), "size", 4)
+    worker_client.sadd(rdb.data_holders_key("2" * 64), SCENE)
+    worker_client.sadd(rdb.DATA_OBJECTS, "2" * 64)
+    worker_client.set(rdb.DATA_STORE_ID, "x", nx=True)
     worker_client.srem(rdb.scene_jobs_key("0" * 64), "1" * 32)
     # What it must not.
     for denied in (lambda c: c.get(PREFLIGHT),
                    lambda c: c.set(PREFLIGHT, '{"width": 1}'),
                    lambda c: c.zadd(rdb.JOB_INDEX, {"x": 1}),
                    lambda c: c.zrange(rdb.user_jobs_key("alice"), 0, -1),
+                   lambda c: c.get(rdb.blob_key("0" * 64)),
                    lambda c: c.set("elsewhere", 1),
                    # ... also from inside a script: ACLs apply to the commands a script runs.
                    lambda c: c.eval(f"return redis.call('SET', '{PREFLIGHT}', 'x')", 0)):
         with pytest.raises(redis.ResponseError, match="(?i)no permissions|can't access"):
             denied(worker_client)
-    assert api_client.hget(SCENE, "data") == b"#usda 1.0"
+    assert api_client.hget(SCENE, "size") == b"9"
     assert api_client.get(PREFLIGHT) == b"{}"
 
 

@@ -16,6 +16,10 @@ class WorkerSettings(BaseSettings):
     redis_url: str = Field(default="redis://localhost:6379/0",
                            validation_alias=AliasChoices("TESSERA_WORKER_REDIS_URL", "REDIS_URL",
                                                          "redis_url"))
+    data_dir: str | None = Field(
+        default=None, validation_alias=AliasChoices("TESSERA_DATA_DIR", "TESSERA_WORKER_DATA_DIR", "data_dir"),
+        description="the farm's data directory, shared with the API (TESSERA_DATA_DIR; default "
+                    "XDG_DATA_HOME/tessera/data): scenes and translated scenes")
     threads: int = Field(default=0, ge=0, description="renderer threads per tile (0: all cores)")
     heartbeat_ttl: float = Field(default=5.0, gt=0,
                                  description="seconds after its last heartbeat a worker is dead")
@@ -40,6 +44,8 @@ class WorkerSettings(BaseSettings):
 def add_worker_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--redis-url", help="default: $REDIS_URL or redis://localhost:6379/0")
     parser.add_argument("--name", default=None, help="consumer name (default: host-pid-random)")
+    parser.add_argument("--data-dir", help="the farm's data directory, shared with the API "
+                                           "(default: $TESSERA_DATA_DIR or ~/.local/share/tessera/data)")
     parser.add_argument("--threads", type=int, help="renderer threads per tile (0: all cores)")
     parser.add_argument("--heartbeat-ttl", type=float,
                         help="seconds after its last heartbeat a worker counts as dead")
@@ -53,7 +59,7 @@ def add_worker_options(parser: argparse.ArgumentParser) -> None:
 
 def settings_from_args(args: argparse.Namespace) -> WorkerSettings:
     settings = WorkerSettings()
-    update = {k: getattr(args, k) for k in ("redis_url", "threads", "heartbeat_ttl",
+    update = {k: getattr(args, k) for k in ("redis_url", "data_dir", "threads", "heartbeat_ttl",
                                            "memory_limit", "tile_timeout", "stop_grace")
               if getattr(args, k, None) is not None}
     return settings.model_copy(update=update)

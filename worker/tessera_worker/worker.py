@@ -38,6 +38,7 @@ import redis
 from tessera_base import film, integrators, protocol
 from tessera_base import convergence
 from tessera_queue import redis_schema as rdb
+from tessera_queue.data_store import DataStore, ObjectMissing, default_root, is_digest
 from tessera_base.process import private_tempdir, remove_orphaned_tempdirs
 from tessera_queue.tasks import TileTask
 
@@ -76,6 +77,10 @@ def run_worker(redis_url: str | None = None, name: str | None = None, threads: i
                                        heartbeat_ttl=heartbeat_ttl).items() if v is not None}
     settings = settings.model_copy(update=overrides)
     worker = Worker(settings, name=name)
+    problem = worker.data.unusable()
+    if problem is not None:  # every scene it took would fail: say so once, at start
+        log.critical("refusing to start: %s", problem)
+        raise SystemExit(f"tessera worker: {problem}")
     stop = stop_event if stop_event is not None else threading.Event()
     restore = _install_signal_handlers(stop) if threading.current_thread() is threading.main_thread() else None
     try:
@@ -115,6 +120,7 @@ class Worker:
         self.redis = redis.Redis.from_url(settings.redis_url, socket_connect_timeout=5,
                                           socket_timeout=30, health_check_interval=30)
         self.scripts = rdb.Scripts(self.redis)
+        self.data = DataStore(settings.data_dir or default_root(), self.redis)
         self._faults = _parse_faults(settings.faults)
         self._was_disabled = False
         self._scene_files: dict[str, str] = {}
@@ -576,8 +582,8 @@ class Worker:
 
     def _scene_source(self, task: TileTask, blob_version: str | None) -> dict:
         """Where the render process gets the task's scene: the translated blob another
-        worker stored in Redis (no USD parsing), else the scene file, translated here and
-        written as a blob (`blob_out`) that _share_blob then stores for the others."""
+        worker stored in the data store (no USD parsing), else the scene file, translated
+        here and written as a blob (`blob_out`) that _share_blob then stores for the others."""
         suffix = PurePosixPath(task.scene_name).suffix.lower()
         level, camera = task.settings.subdivision_level, task.settings.camera
         # A subdivision level other than the default translates to other triangles, another
@@ -612,45 +618,65 @@ class Worker:
             self._scene_files[name] = self._scene_files.pop(name)
             source["blob_path"] = path
             return source
-        blob = self.redis.hget(rdb.scene_key(task.scene_hash), rdb.translated_field(blob_version))
-        if blob is not None:
-            source["blob_path"] = self._keep_file(name, blob)
+        named = self.redis.hget(rdb.scene_key(task.scene_hash), rdb.translated_field(blob_version))
+        if named is not None and not is_digest(named):
+            # The blob itself, as farms before the data store kept it (until the scene expires).
+            path = os.path.join(self._tmpdir, name)
+            with open(path, "wb") as f:
+                f.write(named)
+            self._remember_file(name, path)
+            source["blob_path"] = path
             return source
+        digest = _text(named)
+        if digest:
+            path = os.path.join(self._tmpdir, name)
+            try:
+                self.data.copy_to(digest, path)
+                self._remember_file(name, path)
+                source["blob_path"] = path
+                return source
+            except ObjectMissing as exc:
+                log.warning("translating %s here: its translated scene is not usable: %s",
+                            task.scene_name, exc)
         source["scene_path"] = self._scene_file(task)
         source["blob_out"] = os.path.join(self._tmpdir, name)
         return source
 
     def _share_blob(self, task: TileTask, path: str) -> None:
-        """Stores a blob this worker translated, once (HSETNX), in the scene's hash."""
+        """Stores a blob this worker translated in the data store, named once (HSETNX
+        semantics) in the scene's hash, which then holds it."""
         if not os.path.exists(path):
             return
+        self.redis.hincrby(rdb.STATS, "scene_translations", 1)
         name = os.path.basename(path)
         self._remember_file(name, path)
         blob_version = name[len(task.scene_hash) + 1:-len(".blob")]
+        hasher = hashlib.sha256()
         with open(path, "rb") as f:
-            data = f.read()
-        # In the scene's own hash, so that it lives exactly as long as the scene; only if
-        # the scene is still there (a blob of an expired scene would never expire).
-        key = rdb.scene_key(task.scene_hash)
+            while chunk := f.read(1 << 20):
+                hasher.update(chunk)
+        digest, size = hasher.hexdigest(), os.path.getsize(path)
+        # Held by the scene's own hash, so that it lives exactly as long as the scene; only
+        # if the scene is still there (a blob of an expired scene would be swept at once).
+        key, field = rdb.scene_key(task.scene_hash), rdb.translated_field(blob_version)
         with self.redis.pipeline(transaction=True) as pipe:
             try:
                 pipe.watch(key)
                 if not pipe.exists(key):
                     return
+                named = _text(pipe.hget(key, field))
+                if named:
+                    pipe.unwatch()
+                    if named == digest:  # the same bytes: restores a file that went missing
+                        self.data.write_file(digest, path)
+                    return
                 pipe.multi()
-                pipe.hsetnx(key, rdb.translated_field(blob_version), data)
+                pipe.hset(key, field, digest)
+                self.data.hold(pipe, digest, size, key)  # index first: see data_store
                 pipe.execute()
             except redis.WatchError:
-                pass  # the scene changed meanwhile (another blob, an expiry): skip sharing
-
-    def _keep_file(self, name: str, data: bytes, relpath: str | None = None) -> str:
-        path = os.path.join(self._tmpdir, relpath or name)
-        tmp = path + ".part"
-        with open(tmp, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-        self._remember_file(name, path)
-        return path
+                return  # the scene changed meanwhile (another blob, an expiry): skip sharing
+        self.data.write_file(digest, path)
 
     def _remember_file(self, name: str, path: str) -> None:
         self._scene_files[name] = path
@@ -672,12 +698,38 @@ class Worker:
         if path is not None and os.path.exists(path):
             self._scene_files[key] = self._scene_files.pop(key)  # most recently used last
             return path
-        data = self.redis.hget(rdb.scene_key(task.scene_hash), "data")
-        if data is None:
+        if not self.redis.exists(rdb.scene_key(task.scene_hash)):
             raise RenderFailed(f"cannot load scene {task.scene_name!r}: scene "
                                f"{task.scene_hash} is missing from the store", fatal=True)
         os.makedirs(os.path.join(self._tmpdir, task.scene_hash), exist_ok=True)
-        return self._keep_file(key, data, os.path.join(task.scene_hash, protocol.scene_file_name(suffix)))
+        path = os.path.join(self._tmpdir, task.scene_hash, protocol.scene_file_name(suffix))
+        try:
+            try:
+                self.data.copy_to(task.scene_hash, path)
+            except ObjectMissing:
+                if not self._adopt_legacy_scene(task.scene_hash):
+                    raise
+                self.data.copy_to(task.scene_hash, path)
+        except ObjectMissing as exc:
+            # This worker's data directory, not the scene: another worker may render it.
+            raise RenderFailed(f"cannot read scene {task.scene_name!r}: {exc}", fatal=False) from None
+        self._remember_file(key, path)
+        return path
+
+    def _adopt_legacy_scene(self, scene_hash: str) -> bool:
+        """Moves a scene's bytes that a farm before the data store kept in its hash (field
+        `data`) into the data store; False if there are none."""
+        key = rdb.scene_key(scene_hash)
+        data = self.redis.hget(key, "data")
+        if data is None or hashlib.sha256(data).hexdigest() != scene_hash:
+            return False
+        with self.redis.pipeline(transaction=True) as pipe:
+            self.data.hold(pipe, scene_hash, len(data), key)  # index first: see data_store
+            pipe.hset(key, "size", len(data))
+            pipe.execute()
+        self.data.write_bytes(scene_hash, data)
+        self.redis.hdel(key, "data")
+        return True
 
     def _fault_for(self, task: TileTask) -> str | None:
         target = SCENE_TASK if task.scene_pass else task.tile.index

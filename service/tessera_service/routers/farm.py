@@ -70,7 +70,13 @@ class FarmCollector:
                 ("tessera_preflight_inspections", "inspections", "Scene inspections run (uploads "
                                                                  "of a file seen before are not inspected)"),
                 ("tessera_preflight_rejections", "inspections_rejected", "Scene inspections that "
-                                                                         "refused the scene")):
+                                                                         "refused the scene"),
+                ("tessera_scene_translations", "scene_translations", "Scenes translated by workers "
+                                                                     "(once per scene and variant)"),
+                ("tessera_data_sweeps", "data_sweeps", "Sweeps of the data directory"),
+                ("tessera_data_evicted", "data_evicted", "Data store files deleted by sweeps (nothing "
+                                                         "held them)"),
+                ("tessera_data_evicted_bytes", "data_evicted_bytes", "Bytes of those files")):
             yield CounterMetricFamily(name, doc, value=stats.get(key, 0.0))
         if self.pool is not None:  # this API process's pool
             yield GaugeMetricFamily("tessera_preflight_running", "Scene inspections running in "

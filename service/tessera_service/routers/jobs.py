@@ -231,8 +231,7 @@ def create_job(
                                      f"AOVs: {', '.join(render.aovs) or 'none'}), more than the "
                                      f"per-job budget of {_size(settings.job_redis_budget)} "
                                      f"(TESSERA_JOB_REDIS_BUDGET): render fewer pixels, passes or AOVs")
-        if not store.touch_scene(scene_hash):
-            store.put_scene(scene_hash, name, path.read_bytes())
+        store.put_scene(scene_hash, name, path)
 
     warnings = info.warnings if render.default_light or info.unlit_warnings is None else info.unlit_warnings
     warnings = [*warnings, *integrators.scene_warnings(render.integrator, curve_segments=info.curve_segments)]
@@ -823,7 +822,7 @@ def _assemble(request: Request, packed, path: Path, limit: int, user: User) -> s
     from ..blobs import BlobsMissing, BlobStore, ManifestError
 
     blobs = BlobStore(request.app.state.store.redis, request.app.state.settings.scene_retention,
-                      user.name)
+                      user.name, request.app.state.store.data)
     try:
         return blobs.assemble(packed, path, limit)
     except BlobsMissing as exc:

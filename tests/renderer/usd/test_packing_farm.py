@@ -20,6 +20,7 @@ import pytest
 from conftest import clean_env, start_api, start_worker, submit, wait_for_job
 from tessera_base import images
 from tessera_queue import redis_schema as rdb
+from tessera_service.store import JobStore
 from test_bundles import MESH, layer
 from test_packing import PROJECT_FILES, SCENES, make_project, write_texture
 
@@ -71,9 +72,12 @@ def test_submit_packs_the_project_and_the_farm_renders_what_render_does(farm, re
     total = sum(p.stat().st_size for p in files.values())
     assert uploaded(proc.stderr) == (6, 6, total)
     assert blob_count(redis_client) == before + 6
+    data = JobStore(redis_client).data  # the session's data directory, as the API's
     for rel, path in files.items():   # stored under their hash, with the scene retention
-        key = rdb.blob_key(hashlib.sha256(path.read_bytes()).hexdigest())
-        assert redis_client.get(key) == path.read_bytes(), rel
+        digest = hashlib.sha256(path.read_bytes()).hexdigest()
+        key = rdb.blob_key(digest)
+        assert int(redis_client.get(key)) == path.stat().st_size, rel  # Redis: the index only
+        assert data.read_bytes(digest) == path.read_bytes(), rel
         assert 0 < redis_client.ttl(key) <= RETENTION
     local = tmp_path / "local.exr"
     proc_local = tessera("render", str(shot), "-o", str(local), "-q", "--threads", "1", *ARGS)
