@@ -19,7 +19,7 @@ import redis
 from conftest import (CORNELL, DATA_ROOT, local_reference, farm_image, start_api, start_worker,
                       submit, wait_for_job)
 from tessera_queue import redis_schema as rdb
-from tessera_service.embedded import redis_server
+from tessera_cli.embedded import redis_server
 
 MiB = 1 << 20
 FORM = dict(width=32, height=32, spp=2, seed=1, max_depth=8, tile_size=16)
