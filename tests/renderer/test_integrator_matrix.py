@@ -25,7 +25,7 @@ that an error of TOLERANCE + Z * se (at most 1.95 %) is detected with probabilit
 Phi(Z) = 99.4 %, while a correct integrator fails a region only at TOLERANCE / se >= 4
 standard errors. The samples per pixel are found per cell, not listed per integrator: a
 pilot of K renders at PILOT_SPP measures the noise and the cell renders again with the spp
-that noise needs (up to MAX_SPP). The negative control, in every cell: the check applied to
+that noise needs (in steps, up to MAX_SPP; see measure). The negative control, in every cell: the check applied to
 the same renders as if the light were brighter by the stated detectable error must fail
 (radiance is linear in the emission, and test_negative_control_renders_the_brighter_light
 renders that brighter light for one cell per integrator and finds exactly those values).
@@ -42,20 +42,42 @@ from typing import Callable
 
 import numpy as np
 import pytest
-from scipy import stats
 
 from tessera.local import render_image
 from tessera_base import integrators
 from tessera_base.protocol import RenderSettings
 from tessera_renderer import _core, load_scene
 
-from test_stability import Builder  # noqa: E402  (tests/renderer is on sys.path under pytest's rootdir)
+from test_stability import Builder  # the scene builder of the stability tests (SceneData, no USD)
 from usd_fixtures import add_material, add_render_settings, box_inward_faces, emission_only, new_stage
 
 # ------------------------------------------------------------------ cells known to fail today
 # (integrator, scene) -> why, with the measured worst region. A strict xfail: the cell
 # must fail, so a fix shows up as an XPASS to remove here.
+_LIGHT_NOISE = ("too noisy to decide at 8192 spp (MAX_SPP): a light path lands in a 4 x 4-pixel region "
+                "too rarely; worst region se {se}, above MAX_SE 0.30 % (its error {err}, no sign of bias)")
+_PHOTON_MAP_NOISE = ("too noisy to decide: the photon map's noise (200000 photons, one map per fixed-spp "
+                     "render) does not fall with samples; worst region se {se} (errors within {err})")
+_RADIOSITY = ("radiosity's lit planes: constant elements, the point value differs from the element's "
+              "mean (issue 46; adaptive subdivision and vertex interpolation are another branch's); "
+              "regions {err}")
 KNOWN_FAILURES: dict[tuple[str, str], str] = {
+    **{("light", c): _LIGHT_NOISE.format(se="0.35 %", err="-0.48 %")
+       for c in ("rect_lit", "rect_lit_far_1e6", "rect_lit_tiny_1e-3", "rect_lit_huge_1e3", "rect_lit_degenerate")},
+    ("light", "sphere_lit"): _LIGHT_NOISE.format(se="0.65 %", err="-0.62 %"),
+    ("light", "dome_lit"): _LIGHT_NOISE.format(se="0.54 %", err="0.7 %"),
+    **{("photon_direct", c): _PHOTON_MAP_NOISE.format(se="0.48 %", err="0.3 %")
+       for c in ("rect_lit", "rect_lit_far_1e6", "rect_lit_tiny_1e-3", "rect_lit_huge_1e3", "rect_lit_degenerate")},
+    ("photon_direct", "disk_lit"): _PHOTON_MAP_NOISE.format(se="0.44 %", err="0.3 %"),
+    ("photon_direct", "sphere_lit"): _PHOTON_MAP_NOISE.format(se="0.80 %", err="0.7 %"),
+    ("photon_direct", "distant_lit"): _PHOTON_MAP_NOISE.format(se="0.52 %", err="0.8 %"),
+    ("photon_direct", "dome_lit"): _PHOTON_MAP_NOISE.format(se="0.76 %", err="0.4 %"),
+    **{("radiosity", c): _RADIOSITY.format(err="-2.85, -3.23, -1.82, -3.33 %")
+       for c in ("rect_lit", "rect_lit_far_1e6", "rect_lit_tiny_1e-3", "rect_lit_huge_1e3", "rect_lit_degenerate")},
+    ("radiosity", "disk_lit"): _RADIOSITY.format(err="-3.43, -4.62, -0.97, -3.93 %"),
+    ("radiosity", "sphere_lit"): _RADIOSITY.format(err="-1.93, -3.44, -0.61, -3.21 %"),
+    ("radiosity", "dome_lit"): ("radiosity under a dome: the solve's dome samples (light_samples 16 per element) "
+                                "vary with the seed; +3.0 % in a region with se 2.5-3.5 % at any spp"),
 }
 
 K = 8                   # independent renders per cell
@@ -243,8 +265,10 @@ def _furnace(gain: float, albedo: float, **preview):
     quads = np.asarray(idx).reshape(-1, 4)
     b.triangles(pts, [t for a, b_, c, d in quads for t in ((a, b_, c), (a, c, d))],
                 b.material(albedo=albedo, emission=1.0 * gain, **preview))
+    # The view keeps 0.6 from the walls: next event estimation toward an emitter that meets
+    # the shading point's surface has unbounded variance (1 / r^2) without MIS.
     b.camera = dict(origin=(0.1, 0.2, 0.3), **DOWN)
-    return b.build(res=RES, fov_tan=0.8), np.full((RES, RES), 1.0 / (1 - albedo))
+    return b.build(res=RES, fov_tan=0.3), np.full((RES, RES), 1.0 / (1 - albedo))
 
 
 def lambert_furnace(gain: float):
@@ -431,13 +455,31 @@ def region_means(rgb: np.ndarray, regions) -> np.ndarray:
     return np.array([grey[r].mean() for r in regions])
 
 
+# Light paths (or photon paths) per batch of a progressive integrator (its registry entry's
+# iteration_cap names the setting): the defaults (1e5) suit images of 1e5 pixels and would
+# spend almost all of a 64-pixel cell's time on paths no pixel reads.
+BATCH_PATHS = 512
+
+
+def settings_params(integrator: str) -> dict[str, float]:
+    entry = next(i for i in integrators.integrators() if i["name"] == integrator)
+    cap = entry.get("iteration_cap")
+    return {cap["param"]: BATCH_PATHS} if cap else {}
+
+
 def renders(scene, integrator: str, spp: int, regions) -> np.ndarray:
     out = []
     for seed in range(1, K + 1):
         settings = RenderSettings(width=scene.width, height=scene.height, spp=spp, seed=seed,
-                                  max_depth=MAX_DEPTH, integrator=integrator)
+                                  max_depth=MAX_DEPTH, integrator=integrator,
+                                  integrator_params=settings_params(integrator))
         out.append(region_means(render_image(scene, settings, threads=2, progress=False, variance=False).rgba,
                                 regions))
+        # Two seeds that give the same image bit for bit: the estimate does not depend on the
+        # seed here (exact direct light from a delta light, a deterministic solve, emitters
+        # seen directly), and more renders would repeat it.
+        if seed == 2 and np.array_equal(out[0], out[1]):
+            break
     return np.array(out)
 
 
@@ -446,16 +488,26 @@ def measure(integrator: str, case: Case, tmp_path, gain: float = 1.0, spp: int |
     scene, expected_image = build(case, gain, tmp_path)
     regions = case.regions or quadrants(expected_image.shape[0])
     expected = np.array([expected_image[r].mean() for r in regions])
-    if spp is None:
-        pilot = renders(scene, integrator, PILOT_SPP, regions)
-        se = float((pilot.std(axis=0, ddof=1) / math.sqrt(K) / expected).max())
-        # The spp that brings the worst region's standard error to 60 % of MAX_SE (the pilot's
-        # own estimate of it is uncertain by about 1 / sqrt(2 (K - 1)) = 27 %).
-        need = PILOT_SPP * (se / (0.6 * MAX_SE)) ** 2
-        spp = int(min(MAX_SPP, max(PILOT_SPP, 2 ** math.ceil(math.log2(max(need, 1))))))
-        if spp == PILOT_SPP:
-            return Measured(spp, pilot, expected, time.perf_counter() - started)
-    means = renders(scene, integrator, spp, regions)
+    if spp is not None:
+        return Measured(spp, renders(scene, integrator, spp, regions), expected, time.perf_counter() - started)
+    spp, means = PILOT_SPP, renders(scene, integrator, PILOT_SPP, regions)
+    while True:
+        se = float((means.std(axis=0, ddof=1) / math.sqrt(len(means)) / expected).max())
+        if se <= 0.8 * MAX_SE or spp >= MAX_SPP:
+            break
+        # The spp that brings the worst region's standard error to 60 % of MAX_SE (K renders
+        # estimate it only to about 1 / sqrt(2 (K - 1)) = 27 %, and heavy tails, light
+        # tracing's, hide in a small pilot: hence steps of at most 16 x).
+        need = spp * (se / (0.6 * MAX_SE)) ** 2
+        step = int(min(MAX_SPP, spp * 16, max(spp * 2, 2 ** math.ceil(math.log2(need)))))
+        more = renders(scene, integrator, step, regions)
+        se_more = float((more.std(axis=0, ddof=1) / math.sqrt(len(more)) / expected).max())
+        spp, means = step, more
+        if 4 * PILOT_SPP <= step < MAX_SPP and se_more > 0.7 * se:
+            # 4 x the samples or more left the noise where it was: it is the scene pass's
+            # (one photon map or solve per iteration, fixed-spp renders run one), which no
+            # number of samples lowers: the cell fails as too noisy to decide.
+            return Measured(spp, means, expected, time.perf_counter() - started, {"floor": True})
     return Measured(spp, means, expected, time.perf_counter() - started)
 
 
@@ -464,7 +516,8 @@ def check(m: Measured, gain: float = 1.0) -> list[str]:
     the measured values beyond TOLERANCE, or the standard error beyond MAX_SE."""
     rel = (1 + m.rel) * gain - 1
     bad = [f"region {k}: {rel[k]:+.2%} (se {m.rel_se[k]:.2%})" for k in range(len(rel)) if abs(rel[k]) > TOLERANCE]
-    bad += [f"region {k}: se {m.rel_se[k]:.2%} > {MAX_SE:.2%} at {m.spp} spp (too noisy to decide)"
+    bad += [f"region {k}: se {m.rel_se[k]:.2%} > {MAX_SE:.2%} at {m.spp} spp (too noisy to decide"
+            + ("; more samples did not lower it)" if m.extra.get("floor") else ")")
             for k in range(len(rel)) if m.rel_se[k] > MAX_SE]
     return bad
 
@@ -473,7 +526,7 @@ TIMINGS: list[str] = []
 
 
 def report(integrator: str, case: str, m: Measured) -> str:
-    line = (f"{integrator:>14} x {case:<22} spp {m.spp:5d}  worst {np.abs(m.rel).max():6.2%}  "
+    line = (f"{integrator:>14} x {case:<22} spp {m.spp:5d}  worst {m.rel[np.argmax(np.abs(m.rel))]:+6.2%}  "
             f"se {m.rel_se.max():.2%}  detects {m.detectable:.2%}  {m.seconds:6.2f} s")
     TIMINGS.append(line)
     print(line)
