@@ -549,6 +549,15 @@ NB_MODULE(_core, m) {
                                            : "never";
                 d["merging_alpha"] = info.merging_alpha;
                 d["view_independent_product"] = info.view_independent_product;
+                d["estimates"] = std::string(info.estimates);
+                nb::list blind;
+                for (const PathExclusion& x : info.blind_to) {
+                    nb::dict entry;
+                    entry["paths"] = std::string(x.paths);
+                    entry["reason"] = std::string(x.reason);
+                    blind.append(entry);
+                }
+                d["blind_to"] = blind;
                 if (!info.iteration_cap.param.empty()) {
                     nb::dict cap;
                     cap["param"] = std::string(info.iteration_cap.param);
@@ -568,8 +577,14 @@ NB_MODULE(_core, m) {
         "The registered integrators in registry order: dicts of name, description, the capabilities "
         "(splats, scene_passes, stop_per_tile, complete, delta_caustics, shades_curves, iteration_cap, "
         "pilot_candidate, merging_alpha, view_independent_product; "
-        "integrators/integrator.h) and "
+        "integrators/integrator.h), what a pixel estimates, the light-path classes it is blind to (dicts of "
+        "paths and reason; classes from PATH_CLASSES) and "
         "params (setting name -> description).");
+    {
+        nb::list classes;
+        for (std::string_view c : kPathClasses) classes.append(std::string(c));
+        m.attr("PATH_CLASSES") = classes;
+    }
     m.def(
         "auto_integrator", [](bool scene_has_delta_caustics) { return std::string(AutoIntegrator(scene_has_delta_caustics)); },
         "scene_has_delta_caustics"_a,

@@ -29,6 +29,7 @@ public:
             .description = "ambient occlusion: open fraction of the cosine-weighted hemisphere (white = unoccluded)",
             .params = {{"max_distance", "how far an occluder counts, in scene units (default: a tenth of the "
                                         "scene's bounding diameter; inf: any distance)"}},
+            .estimates = "ambient occlusion",
         };
         return info;
     }

@@ -35,6 +35,21 @@ struct IntegratorParam {
     std::string_view description;
 };
 
+// The classes of light paths (Heckbert's notation) an integrator may declare itself blind
+// to, for the integrator matrix (tests/renderer/test_integrator_matrix.py): each analytic
+// scene there names the classes its closed form needs, and an integrator is checked on
+// every scene whose classes it sees. L: a light with area (emissive triangles, sphere
+// lights); Ld: a delta light (distant, point); Lenv: the dome; D: a diffuse (non-delta)
+// scattering; S: a delta (smooth mirror or glass) scattering; E: the pinhole camera.
+inline constexpr std::string_view kPathClasses[] = {"L E", "L D E", "Ld D E", "Lenv D E", "L D D+ E", "L S+ E"};
+
+// A class of kPathClasses an integrator does not estimate, and why (one sentence, shown in
+// the matrix and in docs/integrators.md).
+struct PathExclusion {
+    std::string_view paths;
+    std::string_view reason;
+};
+
 struct IntegratorInfo {
     std::string_view name;
     std::string_view description;  // one line, for `tessera render --integrator help`
@@ -57,6 +72,13 @@ struct IntegratorInfo {
     // from its element mesh, which has no curves: they show black there.
     bool shades_curves = true;
     std::vector<IntegratorParam> params = {};
+    // What a pixel estimates: "radiance", or another quantity (ao: "ambient occlusion"),
+    // which the integrator matrix checks on its own closed forms.
+    std::string_view estimates = "radiance";
+    // The light paths it does not estimate (kPathClasses), each with its reason; empty:
+    // every class. An integrator is checked on every matrix scene it sees: a new one enters
+    // the matrix by being registered, and leaves a scene only by declaring why here.
+    std::vector<PathExclusion> blind_to = {};
     // For a progressive scene-pass integrator whose iterations trace batches (sppm, vcm):
     // setting `param` (default `per_batch`) counts a batch's paths, and an iteration holds
     // at most `max_per_iteration` of them (setting `max_param` if named). The passes'

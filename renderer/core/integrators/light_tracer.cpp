@@ -12,6 +12,8 @@ const IntegratorInfo& LightTracer::Info() {
         .splats = true,
         .stop_per_tile = false,
         .delta_caustics = true,
+        .blind_to = {{"L S+ E", "a light path reaches the pinhole camera only by a connection from its last "
+                                "vertex, and a smooth mirror or glass (a delta lobe) never connects"}},
     };
     return info;
 }

@@ -79,6 +79,8 @@ public:
                                   "of the scene's bounding diameter)"},
                        {"time_slices", "with motion blur, the slices of the shutter; a camera sample sees "
                                        "the photons of its own slice (default 32)"}},
+            .blind_to = {{"L D D+ E", "direct light only: a photon is kept where it first lands"},
+                         {"L S+ E", "a camera ray ends at the first surface it hits, smooth or not"}},
         };
         return info;
     }

@@ -36,6 +36,8 @@ public:
             .stop_per_tile = false,
             .shades_curves = false,
             .params = RadiosityParams(),
+            .blind_to = {{"L S+ E", "every surface is treated as Lambertian: smooth mirrors and glass (delta "
+                                    "lobes) reflect and transmit nothing"}},
             .view_independent_product = true,
         };
         return info;

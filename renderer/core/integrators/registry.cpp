@@ -5,6 +5,8 @@
 // Order matters twice: it is the order integrators are listed in, and `auto` prefers the
 // earlier of two complete integrators (path is measured the more efficient per unit time
 // where both apply: docs/benchmarks/integrators.md).
+#include <algorithm>
+#include <iterator>
 #include <stdexcept>
 #include <string>
 
@@ -50,7 +52,14 @@ std::string KnownNames() {
 const std::vector<IntegratorInfo>& RegisteredIntegrators() {
     static const std::vector<IntegratorInfo> infos = [] {
         std::vector<IntegratorInfo> v;
-        for (const IntegratorEntry& e : Entries()) v.push_back(e.info());
+        for (const IntegratorEntry& e : Entries()) {
+            // A misspelt class would silently let an integrator skip no scene at all.
+            for (const PathExclusion& x : e.info().blind_to)
+                if (std::find(std::begin(kPathClasses), std::end(kPathClasses), x.paths) == std::end(kPathClasses))
+                    throw std::logic_error("integrator '" + std::string(e.info().name) + "' declares an unknown "
+                                           "light-path class '" + std::string(x.paths) + "'");
+            v.push_back(e.info());
+        }
         return v;
     }();
     return infos;

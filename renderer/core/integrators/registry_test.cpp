@@ -2,6 +2,8 @@
 // splatting capability is what RenderTile actually enforces.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <iterator>
 #include <set>
 #include <string>
 #include <vector>
@@ -27,6 +29,23 @@ TEST(Registry, NamesAreUniqueAndEveryEntryBuildsItsOwnIntegrator) {
         EXPECT_FALSE(info.splats && info.stop_per_tile) << info.name;
     }
     EXPECT_EQ(FindIntegrator("auto"), nullptr);  // a rule, not an integrator
+}
+
+// The integrator matrix (tests/renderer/test_integrator_matrix.py) skips a scene for an
+// integrator only where its entry says why: a complete integrator may skip none, and every
+// exclusion names a known class and gives a reason.
+TEST(Registry, BlindnessIsDeclaredWithReasonsAndCompleteIntegratorsSeeEveryPath) {
+    for (const IntegratorInfo& info : RegisteredIntegrators()) {
+        for (const PathExclusion& x : info.blind_to) {
+            EXPECT_NE(std::find(std::begin(kPathClasses), std::end(kPathClasses), x.paths), std::end(kPathClasses))
+                << info.name << ": " << x.paths;
+            EXPECT_GT(x.reason.size(), 20u) << info.name << ": " << x.paths;
+        }
+        if (info.complete) {
+            EXPECT_TRUE(info.blind_to.empty()) << info.name;
+            EXPECT_EQ(info.estimates, "radiance") << info.name;
+        }
+    }
 }
 
 TEST(Registry, AutoPicksTheFirstCompleteIntegratorThatHandlesTheScene) {

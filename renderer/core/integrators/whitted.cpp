@@ -10,6 +10,8 @@ const IntegratorInfo& WhittedIntegrator::Info() {
     static const IntegratorInfo info{
         .name = "whitted",
         .description = "Whitted ray tracing: direct light everywhere, recursion along ideal mirrors and refraction only",
+        .blind_to = {{"L D D+ E", "diffuse surfaces get direct light only: recursion follows ideal mirrors "
+                                  "and refraction only"}},
     };
     return info;
 }
