@@ -32,13 +32,15 @@ CENSUS_HEADROOM = 512 << 20
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     try:
-        if len(argv) not in (1, 2):
+        if len(argv) not in (1, 2, 3):
             raise ValueError("wrong number of arguments")
-        variants = [tuple(str(x) for x in v) for v in json.loads(argv[1])] if len(argv) == 2 else []
+        variants = [tuple(str(x) for x in v) for v in json.loads(argv[1])] if len(argv) >= 2 else []
         if any(len(v) != 3 for v in variants):
             raise ValueError("each variant selection is [prim path, variant set, variant]")
+        # The job's subdivision level: the translated size it is held to is that level's.
+        level = int(argv[2]) if len(argv) == 3 else None
     except ValueError as exc:
-        print(json.dumps({"ok": False, "error": f"usage: python -m tessera_renderer.inspect FILE [VARIANTS] ({exc})"}))
+        print(json.dumps({"ok": False, "error": f"usage: python -m tessera_renderer.inspect FILE [VARIANTS [SUBDIVISION_LEVEL]] ({exc})"}))
         return 2
     from . import Scene, SceneError
     from .usd.bundle import open_bundle, open_stage
@@ -58,7 +60,8 @@ def main(argv: list[str] | None = None) -> int:
             raise SceneError("the scene's face counts are too large to count within the "
                              f"pre-flight's memory (triangle limit {bundle.limits.triangles})") from None
         bundle.warnings[:] = warnings  # translate_stage opens the stage again and adds its own
-        data = translate_stage(argv[0], bundle=bundle, instancing="auto", variants=variants)
+        data = translate_stage(argv[0], bundle=bundle, instancing="auto", variants=variants,
+                               **({} if level is None else {"subdivision_level": level}))
         translated_bytes = blob_size(data)
         scene = Scene(data)
         del data

@@ -84,3 +84,40 @@ def test_the_issues_file_is_refused_under_the_default_limits(redis_server, tmp_p
     assert r.status_code == 422, r.text
     assert "limit of 4000000 triangles" in r.json()["detail"]  # 5 M faces: the mesh alone is over it
     assert "TESSERA_USER_MAX_TRIANGLES" in r.json()["detail"]
+
+
+def test_a_higher_subdivision_level_is_held_to_the_translated_size_limit(api, tmp_path):
+    """The job's subdivision level multiplies what its subdivision surfaces cost (x16 per
+    two levels): the pre-flight translates at that level. 400 Catmull-Clark quads are
+    12,800 triangles at the default level 2 (about 0.75 MB translated, within Bob's 1 MiB);
+    at level 4, 204,800 triangles (about 12 MB), over it. Before, the level-2 verdict let
+    the level-4 job through."""
+    from pxr import Usd, UsdGeom, Vt
+    import numpy as np
+
+    path = tmp_path / "cage.usdc"
+    stage = Usd.Stage.CreateNew(str(path))
+    camera = UsdGeom.Camera.Define(stage, "/Cam")
+    camera.AddTranslateOp().Set((0.0, 0.0, 60.0))
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Cage")
+    n = 400  # a row of quads along x
+    xs = np.arange(n + 1, dtype=np.float32)
+    points = np.concatenate([np.stack([xs, np.zeros_like(xs), np.zeros_like(xs)], -1),
+                             np.stack([xs, np.ones_like(xs), np.zeros_like(xs)], -1)]) * 0.05
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(points))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(n, 4, np.int32)))
+    k = np.arange(n, dtype=np.int32)
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.stack([k, k + 1, k + n + 2, k + n + 1], -1).ravel()))
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.catmullClark)
+    stage.GetRootLayer().Save()
+
+    def submit(level: str | None) -> httpx.Response:
+        data = {"width": "16", "height": "16", "spp": "1", **({"subdivision_level": level} if level else {})}
+        return api.post("/jobs", files={"file": (path.name, path.read_bytes())}, data=data,
+                        headers={"Authorization": "Bearer bob-token"})
+
+    assert submit(None).status_code == 201  # control: the default level is within the limit
+    r = submit("4")
+    assert r.status_code == 422, r.text
+    assert "TESSERA_USER_MAX_TRANSLATED_BYTES" in r.json()["detail"]
+    assert submit("2").status_code == 201  # the level's own verdict, not level 4's

@@ -209,7 +209,8 @@ def create_job(
         scene_hash = (_save_upload(file, path, settings.max_upload_bytes) if packed is None
                       else _assemble(request, packed, path, settings.max_upload_bytes, user))
         try:
-            info = _inspect(request, path, scene_hash, params["variants"] or (), user)
+            info = _inspect(request, path, scene_hash, params["variants"] or (), user,
+                            params.get("subdivision_level"))
         except HTTPException as exc:
             if packed is not None or suffix in (".zip", ".usdz") or exc.status_code != 422:
                 raise
@@ -619,11 +620,13 @@ def _loose_layer_detail(detail: str, stored: str, uploaded: str) -> str:
     return detail
 
 
-def _inspect(request: Request, path: Path, scene_hash: str, variants: Sequence[str], user: User) -> SceneInfo:
-    """The scene's pre-flight, composed with the job's variant selections: remembered
-    (passed or refused) for this exact file and selection, else inspected in a slot of the
-    bounded pool (429 when it is full); then held to `user`'s limits on declared triangles
-    and translated size."""
+def _inspect(request: Request, path: Path, scene_hash: str, variants: Sequence[str], user: User,
+             subdivision_level: int | None = None) -> SceneInfo:
+    """The scene's pre-flight, composed with the job's variant selections and translated at
+    its subdivision level (a level above the default multiplies what subdivision surfaces
+    cost): remembered (passed or refused) for this exact file, selection and level, else
+    inspected in a slot of the bounded pool (429 when it is full); then held to `user`'s
+    limits on declared triangles and translated size."""
     settings: Settings = request.app.state.settings
     store: JobStore = request.app.state.store
     pool: InspectionPool = request.app.state.inspections
@@ -636,7 +639,9 @@ def _inspect(request: Request, path: Path, scene_hash: str, variants: Sequence[s
            if user_triangles < farm_triangles else "")
     # "/t": verdicts remembered before they carried translated_bytes are not reused.
     limits = f"{max_triangles}/{settings.preflight_memory_bytes}/{settings.preflight_timeout:g}/t"
-    info = _inspect_limited(request, path, scene_hash, variants, max_triangles, limits, why)
+    if subdivision_level is not None:
+        limits += f"/s{subdivision_level}"
+    info = _inspect_limited(request, path, scene_hash, variants, max_triangles, limits, why, subdivision_level)
     if info.translated_bytes > user_translated:
         raise HTTPException(422, f"the scene cannot be rendered: it translates to "
                                  f"{_size(info.translated_bytes)}, more than the "
@@ -646,7 +651,7 @@ def _inspect(request: Request, path: Path, scene_hash: str, variants: Sequence[s
 
 
 def _inspect_limited(request: Request, path: Path, scene_hash: str, variants: Sequence[str],
-                     max_triangles: int, limits: str, why: str) -> SceneInfo:
+                     max_triangles: int, limits: str, why: str, subdivision_level: int | None = None) -> SceneInfo:
     settings: Settings = request.app.state.settings
     store: JobStore = request.app.state.store
     pool: InspectionPool = request.app.state.inspections
@@ -664,7 +669,8 @@ def _inspect_limited(request: Request, path: Path, scene_hash: str, variants: Se
                     info = inspect_scene(str(path), timeout=settings.preflight_timeout,
                                          memory_bytes=settings.preflight_memory_bytes,
                                          max_triangles=max_triangles,
-                                         variants=[protocol.parse_variant(v) for v in variants])
+                                         variants=[protocol.parse_variant(v) for v in variants],
+                                         subdivision_level=subdivision_level)
                 except PreflightRejected as e:
                     store.count_inspection(rejected=True)
                     if e.lasting:  # (a timeout under load says nothing of the file)
