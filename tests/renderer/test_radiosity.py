@@ -326,3 +326,116 @@ def test_a_degenerate_triangle_gets_one_element_however_long(cornell):
     with_sliver = Scene(sliver).scene_pass("radiosity", 0, threads=2, integrator_params=params)
     elements = [_still_solution_header(p)[1] for p in (plain, with_sliver)]
     assert elements[1] == elements[0] + 1, elements
+
+
+# --- A lit plane, point by point (issue 46) --------------------------------------------------
+#
+# A 4 x 4 Lambertian floor (albedo 0.5) under one light 1 unit above its centre, nothing else:
+# the floor's radiance is rho L F (rho/pi times the irradiance pi L F) with F the point-to-
+# light form factor, known in closed form: Lambert's contour integral for a polygon (a
+# RectLight, and an emissive hexagon mesh, the "area mesh light"), pi L R^2 cos / D^2 for a
+# sphere wholly above the plane. The floor sees nothing else (the lights reflect nothing),
+# so no interreflection enters. The radiosity is read at single points by a 1 x 1
+# orthographic camera with a window 2e-4 wide: the centre under the light, points off its
+# axis, near an edge and near a corner, where a lit plane's display was 9 % under and up to
+# 45 % over (the default mesh, element means interpolated). Only the defaults are used:
+# no element size is chosen. The check is 2 % at every point (deterministic: the solution
+# and the point's value carry no noise between runs); the negative control, the closed
+# form of a light 2.5 % brighter, must fail it.
+
+PLANE_HALF, LIGHT_HEIGHT, PLANE_RHO = 2.0, 1.0, 0.5
+PLANE_POINTS = [(0.0, 0.0), (0.37, -0.21), (0.8, 0.55), (1.9, 0.1), (-1.93, -1.9), (1.3, -1.7)]
+
+
+def _lambert_polygon_factor(x, n, polygon) -> float:
+    """Point-to-polygon form factor, (1/2pi) |sum_i gamma_i n . unit(R_i x R_i+1)|, for a
+    polygon wholly above the point's plane (Cohen & Wallace eq. 4.19)."""
+    r = [np.asarray(p, float) - x for p in polygon]
+    total = 0.0
+    for a, b in zip(r, r[1:] + r[:1]):
+        c = np.cross(a, b)
+        total += math.atan2(np.linalg.norm(c), float(np.dot(a, b))) * float(np.dot(c / np.linalg.norm(c), n))
+    return abs(total) / (2 * math.pi)
+
+
+def _lit_plane(folder, light: str):
+    """The scene file and the closed-form radiance of the floor at (x, z)."""
+    from pxr import Gf, Sdf, UsdLux, UsdShade
+    from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, emission_only, new_stage
+
+    path = folder / f"plane_{light}.usda"
+    stage = new_stage(path)
+    h = PLANE_HALF
+    ground = add_mesh(stage, "/Floor", [(-h, 0, -h), (-h, 0, h), (h, 0, h), (h, 0, -h)], [4], [0, 1, 2, 3])
+    ground.CreateDisplayColorAttr([Gf.Vec3f(PLANE_RHO, PLANE_RHO, PLANE_RHO)])
+    up = np.array([0.0, 1.0, 0.0])
+    if light == "rect":
+        L, w, d = 3.0, 1.0, 1.0
+        rect = UsdLux.RectLight.Define(stage, "/Light")
+        rect.AddTranslateOp().Set(Gf.Vec3d(0, LIGHT_HEIGHT, 0))
+        rect.AddRotateXOp().Set(-90.0)  # its emitting -Z to world -Y
+        rect.CreateWidthAttr(w)
+        rect.CreateHeightAttr(d)
+        rect.CreateIntensityAttr(L)
+        polygon = [(-w / 2, LIGHT_HEIGHT, -d / 2), (w / 2, LIGHT_HEIGHT, -d / 2), (w / 2, LIGHT_HEIGHT, d / 2),
+                   (-w / 2, LIGHT_HEIGHT, d / 2)]
+    elif light == "mesh":
+        L, r = 2.0, 0.6
+        emission_only(stage)
+        lamp = add_material(stage, "/Lamp", (0.0, 0.0, 0.0), (L, L, L))
+        # No specular lobe either: the lamp reflects nothing back onto the floor.
+        shader = UsdShade.Shader(stage.GetPrimAtPath("/Lamp/Surface"))
+        shader.CreateInput("useSpecularWorkflow", Sdf.ValueTypeNames.Int).Set(1)
+        shader.CreateInput("specularColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0, 0, 0))
+        polygon = [(r * math.cos(math.pi * k / 3), LIGHT_HEIGHT, r * math.sin(math.pi * k / 3)) for k in range(6)]
+        add_mesh(stage, "/Hexagon", polygon, [6], list(range(6)), lamp)  # wound to face down
+    else:
+        L, R = 4.0, 0.2
+        sphere = UsdLux.SphereLight.Define(stage, "/Light")
+        sphere.AddTranslateOp().Set(Gf.Vec3d(0, LIGHT_HEIGHT, 0))
+        sphere.CreateRadiusAttr(R)
+        sphere.CreateIntensityAttr(L)
+    cam = add_camera(stage, "/Cam", (0, 0.5, 0), focal=20.0)
+    cam.AddRotateXOp().Set(-90.0)
+    add_render_settings(stage, cam, (8, 8))
+    stage.GetRootLayer().Save()
+
+    def radiance(x: float, z: float) -> float:
+        if light == "sphere":
+            d2 = x * x + z * z + LIGHT_HEIGHT ** 2
+            return PLANE_RHO / math.pi * math.pi * L * R * R * (LIGHT_HEIGHT / math.sqrt(d2)) / d2
+        return PLANE_RHO * L * _lambert_polygon_factor(np.array([x, 0.0, z]), up, polygon)
+
+    return path, radiance
+
+
+def _radiosity_at_points(scene: Scene, points, params: dict) -> list[float]:
+    """The radiosity image at floor points (x, z), each through its own 1-pixel orthographic
+    camera looking straight down (scene coordinates are the world's less world_offset)."""
+    from tessera_renderer import _core
+
+    product = scene.scene_pass("radiosity", 0, threads=2, integrator_params=params)
+    offset = np.asarray(scene.data.world_offset, float)
+    values = []
+    for x, z in points:
+        origin = np.array([x, 0.5, z]) - offset
+        cam = _core.Camera(tuple(origin), (1, 0, 0), (0, 0, 1), (0, -1, 0), 1e-4, 1e-4, 1, 1, orthographic=True)
+        img = scene.render_tile(0, 0, 1, 1, width=1, height=1, spp=1, threads=2, integrator="radiosity",
+                                integrator_params=params, scene_product=product, camera=cam)
+        values.append(float(img[0, 0, :3].mean()))
+    return values
+
+
+@pytest.mark.parametrize("light", ["rect", "mesh", "sphere"])
+def test_default_radiosity_of_a_lit_plane_is_within_two_percent_at_every_point(tmp_path, light):
+    path, radiance = _lit_plane(tmp_path, light)
+    values = _radiosity_at_points(load_scene(path), PLANE_POINTS, {})
+    expected = [radiance(x, z) for x, z in PLANE_POINTS]
+    errors = [v / e - 1 for v, e in zip(values, expected)]
+    print(light, " ".join(f"{100 * e:+.2f}%" for e in errors))
+
+    def within(reference):
+        return all(abs(v / r - 1) < 0.02 for v, r in zip(values, reference))
+
+    assert within(expected), errors
+    assert not within([1.025 * e for e in expected])
