@@ -71,8 +71,9 @@ def render(scene: Scene, integrator: str, params: dict, spp: int, product: bytes
 
 @pytest.mark.slow
 def test_radiosity_matches_path_per_wall_and_meshing_bias_shrinks(cornell, path_reference):
-    fine = relative_errors(render(cornell, "radiosity", {"element_size": FINE}, 4), path_reference)
-    coarse = relative_errors(render(cornell, "radiosity", {"element_size": COARSE}, 4), path_reference)
+    fine = relative_errors(render(cornell, "radiosity", {"element_size": FINE, "refine_levels": 0}, 4), path_reference)
+    coarse = relative_errors(render(cornell, "radiosity", {"element_size": COARSE, "refine_levels": 0}, 4),
+                             path_reference)
     print("fine", fine, "coarse", coarse)
     assert max(abs(e) for e in fine.values()) < 0.02, fine
     # Meshing bias shrinks under refinement: in the worst region and on average.
@@ -90,7 +91,7 @@ def test_hierarchical_agrees_with_progressive_within_one_percent_with_far_fewer_
     whole tolerance. Measured at element size 50 (3404 elements): -0.9 % to +0.4 % per
     region with 1.15 M links, a tenth of the 11.6 M element pairs. The negative control, the
     hierarchical solution 2 % brighter, must fail the same check."""
-    params = {"element_size": FINE}
+    params = {"element_size": FINE, "refine_levels": 0}
     progressive = cornell.scene_pass("radiosity", 0, threads=2, integrator_params=params)
     hierarchical = cornell.scene_pass("radiosity", 0, threads=2, integrator_params={**params, "solver": 1})
     _, elements, _, _, _, _ = _still_solution_header(progressive)
@@ -112,7 +113,7 @@ def test_stochastic_solver_matches_path_per_wall(cornell, path_reference):
     about 0.2 % per region). Measured at element size 50: -1.2 % to +1.4 % per region, as
     the progressive solver's -1.2 % to +1.5 %, with a seventh of its solve time (1.2 s
     against 8.3 s). The negative control: the same solution 3 % brighter fails."""
-    params = {"element_size": FINE, "solver": 2}
+    params = {"element_size": FINE, "solver": 2, "refine_levels": 0}
     product = cornell.scene_pass("radiosity", 0, threads=2, integrator_params=params)
     _, elements, _, iterations, residual, converged = _still_solution_header(product)
     assert converged and residual < 1e-3 and iterations > 1, (iterations, residual)
@@ -125,11 +126,12 @@ def test_stochastic_solver_matches_path_per_wall(cornell, path_reference):
 
 def test_default_solver_is_progressive_for_small_meshes_and_stochastic_for_large(cornell):
     """Above 4096 elements the default is the stochastic solver (the progressive one's
-    form factors cost O(n^2)): the default's product is the explicit solver's bytes."""
-    small = {"element_size": 100.0}  # 884 elements
+    form factors cost O(n^2)): the default's product is the explicit solver's bytes (on an
+    unrefined mesh; the default's refined mesh is always shot by rays)."""
+    small = {"element_size": 100.0, "refine_levels": 0}  # 884 elements
     assert cornell.scene_pass("radiosity", 0, threads=2, integrator_params=small) == \
         cornell.scene_pass("radiosity", 0, threads=2, integrator_params={**small, "solver": 0})
-    large = {"element_size": 40.0, "rays_per_element": 16}
+    large = {"element_size": 40.0, "rays_per_element": 16, "refine_levels": 0}
     product = cornell.scene_pass("radiosity", 0, threads=2, integrator_params=large)
     assert _still_solution_header(product)[1] > 4096
     assert product == cornell.scene_pass("radiosity", 0, threads=2, integrator_params={**large, "solver": 2})
@@ -167,7 +169,7 @@ def test_hybrid_matches_path_and_counts_direct_light_once(cornell, path_referenc
     check allows 2 %. Counting direct light twice (NEE plus the solution's direct part at
     the first vertex) would add the direct image once more, `local` minus nothing (no
     region sees an emitter): the same check must refuse that."""
-    params = {"element_size": COARSE}
+    params = {"element_size": COARSE, "refine_levels": 0}
     hybrid = render(cornell, "hybrid", params, 256)
     errors = relative_errors(hybrid, path_reference)
     print("hybrid", errors)
@@ -243,7 +245,7 @@ def test_hybrid_matches_path_with_a_mirror_and_a_glass_sphere(tmp_path):
                     for s in (1, 2)) / 2)
 
     def errors(solver):
-        params = {"element_size": FINE, **({"solver": solver} if solver is not None else {})}
+        params = {"element_size": FINE, "refine_levels": 0, **({"solver": solver} if solver is not None else {})}
         product = scene.scene_pass("hybrid", 0, threads=2, integrator_params=params)
         img = scene.render_tile(0, 0, W, W, width=W, height=W, spp=1024, threads=2, integrator="hybrid",
                                 integrator_params=params, scene_product=product, seed=5)
@@ -321,7 +323,7 @@ def test_a_degenerate_triangle_gets_one_element_however_long(cornell):
         shading_normals=None if data.shading_normals is None else
         np.concatenate([data.shading_normals, data.shading_normals[:1]]),
         uvs=None)
-    params = {"element_size": COARSE}
+    params = {"element_size": COARSE, "refine_levels": 0}
     plain = cornell.scene_pass("radiosity", 0, threads=2, integrator_params=params)
     with_sliver = Scene(sliver).scene_pass("radiosity", 0, threads=2, integrator_params=params)
     elements = [_still_solution_header(p)[1] for p in (plain, with_sliver)]
