@@ -64,8 +64,9 @@ const std::vector<IntegratorParam>& RadiosityParams() {
     {"rays_per_element", "stochastic solver: rays of the first shot per element; later shots in proportion to the "
                          "power left unshot (default 1024)"},
     {"refine_levels", "adaptive meshing: rounds of halving the cells where the radiosity varies fast (an element "
-                      "differs from one of its display vertices by more than refine_tolerance of the larger), each "
-                      "followed by a new solve; 0 to 3 (default 3; not with solver 1)"},
+                      "differs from one of its display vertices by more than refine_tolerance of the larger, or "
+                      "direct_tolerance's test), each followed by a new solve; 0 to 3, not with solver 1 (not given: "
+                      "3 rounds by direct_tolerance's test alone, one solve, at most 8192 elements)"},
     {"refine_tolerance", "adaptive meshing's threshold, relative to the local radiosity and at least a tenth of the "
                          "mean (default 0.1)"},
     {"direct_tolerance", "adaptive meshing: also split an element whose display, interpolated to its centroid, "
