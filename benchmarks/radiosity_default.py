@@ -57,7 +57,7 @@ NOTE = ("The default's error was the display's: element means interpolated at th
         "the elements there) flatten the peak under a light and pull the plane's borders inward, and the ambient "
         "term spread 1e-3 of unshot power over a scene whose light escapes. Now the direct light is evaluated at "
         "each vertex, the mesh is refined where that interpolation misses the direct light at an element's centroid "
-        "by 1 % (at most 8192 elements, no solve between rounds), the refined mesh is shot by rays at the uniform "
+        "by 0.5 % (at most 8192 elements, no solve between rounds), the refined mesh is shot by rays at the uniform "
         "mesh's ray count, and the ambient term is scaled by the share of shot power that lands "
         "(docs/integrators.md, radiosity). The sphere light's residue is the NEE's noise at the vertices "
         "(16 x light_samples samples).")

@@ -63,7 +63,7 @@ std::vector<Color> VertexPointDirect(const Scene& scene, const RadiosityMesh& me
     const size_t nv = mesh.num_vertices();
     if (double(2 * nv) * double(direct.cost()) > kPointDirectBudget) return {};
     const auto& el = mesh.elements();
-    std::vector<Vec3> where(nv), normal(nv);
+    std::vector<Vec3> where(nv), normal(nv), inward(nv, Vec3(0.f));
     std::vector<Color> rho(2 * nv, Color(0.f));
     std::vector<float> area(nv, 0.f);
     for (const RadiosityElement& e : el)
@@ -72,7 +72,19 @@ std::vector<Color> VertexPointDirect(const Scene& scene, const RadiosityMesh& me
             normal[e.vertex[k]] = e.n;
             rho[e.vertex[k]] += e.rho * e.area;
             area[e.vertex[k]] += e.area;
+            inward[e.vertex[k]] += (e.center - e.p[k]) * e.area;
         }
+    // A vertex on a surface's border (a floor's edge along a wall) is evaluated a few ray
+    // offsets inside its elements: at the border itself its shadow rays would start on the
+    // wall and find it in the way (the seams along a room's edges went dark). An inner
+    // vertex's elements surround it, so it hardly moves.
+    const float nudge = 4e-4f * std::max(1.f, scene.scene_radius());
+    for (size_t v = 0; v < nv; ++v) {
+        if (!(area[v] > 0.f)) continue;
+        const Vec3 d = inward[v] / area[v];
+        const float len = Length(d);
+        if (len > 0.f) where[v] += d * (std::min(nudge, 0.5f * len) / len);
+    }
     std::vector<Color> out(2 * nv, Color(0.f));
     arena.execute([&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, 2 * nv, 64), [&](const tbb::blocked_range<size_t>& r) {

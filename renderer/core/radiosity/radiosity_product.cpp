@@ -70,7 +70,7 @@ const std::vector<IntegratorParam>& RadiosityParams() {
     {"refine_tolerance", "adaptive meshing's threshold, relative to the local radiosity and at least a tenth of the "
                          "mean (default 0.1)"},
     {"direct_tolerance", "adaptive meshing: also split an element whose display, interpolated to its centroid, "
-                         "misses the direct light evaluated there by more than this fraction (default 0.01; 0: off)"},
+                         "misses the direct light evaluated there by more than this fraction (default 0.005; 0: off)"},
     {"time_slices", "with motion blur, the shutter's slices: one solution per slice, at its middle instant, "
                     "read by the camera samples in it (default 8; 1 to 255)"},
     };
