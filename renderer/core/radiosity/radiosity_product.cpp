@@ -327,6 +327,10 @@ SolvedRadiosity SolveRadiosity(const Scene& scene, const RadiositySettings& sett
         for (uint32_t level = 0; level < settings.refine_levels; ++level) {
             out.vertex_direct = VertexPointDirect(scene, *out.mesh, settings, arena);
             if (out.vertex_direct.empty()) break;
+            if (out.mesh->elements().size() + 3 >= settings.refine_budget) {  // no room: skip the centroids
+                settled = true;
+                break;
+            }
             const std::vector<Color> centroid = CentroidPointDirect(scene, *out.mesh, settings, arena);
             std::vector<uint8_t> depth = DirectRefinedDepths(*out.mesh, out.vertex_direct, centroid,
                                                              settings.direct_tolerance, settings.refine_budget);
