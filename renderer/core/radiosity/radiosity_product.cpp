@@ -112,7 +112,10 @@ RadiositySettings RadiositySettingsFrom(const IntegratorSettings& s, const Scene
     // is not refined unless asked to be).
     if (!s.params.count("refine_levels") && r.refine_levels > 0) {
         r.refine_by_direct = true;
-        r.refine_budget = kDefaultRefineBudget;
+        // The progressive solver, asked for by name, pays for every element pair: its
+        // default refinement stops where the automatic choice would leave it.
+        r.refine_budget = r.solver == RadiositySolver::kProgressive ? RadiositySettings::kAutoStochasticElements
+                                                                     : kDefaultRefineBudget;
     }
     if (r.refine_levels > 0 && r.solver == RadiositySolver::kHierarchical)
         throw std::invalid_argument(std::string(who) + " refine_levels needs solver 0 (progressive) or 2 (stochastic): "
