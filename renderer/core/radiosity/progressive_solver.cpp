@@ -100,8 +100,18 @@ void SetAmbient(const RadiosityMesh& mesh, RadiositySolution* sol) {
     }
     sol->ambient = Color(0.f);
     if (!(area > 0.f)) return;
-    const Color rho_avg = rho_area / area;
-    const Color u = unshot_area / area;
+    // Cohen's ambient assumes a closed scene: all the unshot power lands and interreflects
+    // with the mean reflectance. Where part of every shot escapes (an open scene: a plane
+    // under a light) that overstates it, and a constant added everywhere is largest,
+    // relatively, where the light is dim: a lit plane's far corners were 4 % too bright.
+    // So only the fraction of shot power that did land is spread, and it interreflects
+    // with rho times that fraction.
+    const double closure_d = sol->shot_power > 0.0            ? sol->landed_power / sol->shot_power
+                             : sol->emission_shot_power > 0.0 ? sol->emission_landed_power / sol->emission_shot_power
+                                                              : 1.0;
+    const float closure = float(std::clamp(closure_d, 0.0, 1.0));
+    const Color rho_avg = rho_area / area * closure;
+    const Color u = unshot_area / area * closure;
     sol->ambient = Color(rho_avg.x < 1.f ? u.x / (1.f - rho_avg.x) : 0.f, rho_avg.y < 1.f ? u.y / (1.f - rho_avg.y) : 0.f,
                          rho_avg.z < 1.f ? u.z / (1.f - rho_avg.z) : 0.f);
 }
@@ -157,13 +167,21 @@ RadiositySolution SolveProgressive(const Scene& scene, const RadiosityMesh& mesh
     };
     auto shoot = [&](size_t i, int s, Color amount, bool is_direct) {
         const std::vector<float>& f = column(i, s);
+        double landed = 0.0;
         for (size_t j = 0; j < n; ++j) {
             if (f[j] == 0.f) continue;
+            landed += double(std::abs(f[j])) * el[j].area;
             const size_t k = 2 * j + (f[j] > 0.f ? 0 : 1);
             const Color db = el[j].rho * amount * std::abs(f[j]);
             sol.radiosity[k] += db;
             sol.unshot[k] += db;
             if (is_direct) sol.direct[k] += db;
+        }
+        // Reciprocity: sum_j F_ji A_j / A_i is the fraction of i's power that lands.
+        if (el[i].area > 0.f) {
+            const double power = Power(amount, el[i].area);
+            (is_direct ? sol.emission_shot_power : sol.shot_power) += power;
+            (is_direct ? sol.emission_landed_power : sol.landed_power) += power * std::min(1.0, landed / el[i].area);
         }
     };
 

@@ -42,12 +42,28 @@ struct RadiositySettings {
     // Stochastic: rays of the first shot per element (later shots in proportion to the
     // power still unshot).
     float rays_per_element = 1024.f;
+    // Stochastic: the first shot's rays in all when > 0 (else rays_per_element x elements).
+    double first_rays = 0.0;
     // Adaptive meshing: after each solve, the uniform cells with an element whose display
     // vertices differ from it by more than refine_tolerance of the larger of the two (and
     // of a tenth of the mean) are halved, and the scene is solved again, refine_levels
     // times at most (radiosity_product.cpp).
     uint32_t refine_levels = 0;
     float refine_tolerance = 0.1f;
+    // Also split an element where the display's direct light, interpolated from its
+    // vertices to its centroid, differs from the direct light evaluated there by more than
+    // this fraction of the larger (and of a hundredth of the mean): the interpolation
+    // error itself, measured (point_direct.h). Linear interpolation of a quadratic misses
+    // at an edge's midpoint up to 2.25 times what it misses at the centroid, so 0.5 % here
+    // keeps a point's error near 1 % (at 1 % a sphere-lit plane had a point 1.8 % off).
+    // 0: not this test.
+    float direct_tolerance = 0.005f;
+    // The default's refinement (refine_levels not given): rounds judged by the direct light's
+    // interpolation error alone (direct_tolerance), which needs no solve, so the scene is
+    // solved once, on the final mesh; the elements whose error is largest are split first,
+    // up to refine_budget elements in all (radiosity_product.cpp).
+    bool refine_by_direct = false;
+    size_t refine_budget = size_t(1) << 22;
     // The shutter instant the solution holds (a moving scene solves one per time slice);
     // every ray and element of the solve sees the scene then.
     float shutter_time = 0.5f;
@@ -60,6 +76,11 @@ struct RadiositySolution {
     std::vector<Color> direct;     // the reflected direct part of B (step 1)
     std::vector<Color> unshot;
     Color ambient;                 // the ambient radiosity estimate (Cohen et al. 1988)
+    // Of the reflected power shot so far (emission's shots apart), luminance-weighted, what
+    // reached a reflecting element: the scene's closure for light that is still unshot, which
+    // scales the ambient term (an open scene loses the rest).
+    double shot_power = 0.0, landed_power = 0.0;
+    double emission_shot_power = 0.0, emission_landed_power = 0.0;
     // Unshot power (luminance-weighted W) before the first shot of step 2 and after every shot.
     std::vector<double> residual;
     double entered_power = 0.0;    // what step 1 put into the scene
@@ -86,7 +107,8 @@ RadiositySolution ZeroSolution(size_t elements);
 // unmeshed lights goes into sol's radiosity, direct and unshot (which must be zeroed).
 void GatherUnmeshedDirect(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings,
                           tbb::task_arena& arena, RadiositySolution* sol);
-// The ambient term from what is still unshot (Cohen et al. 1988).
+// The ambient term from what is still unshot (Cohen et al. 1988), scaled by the closure
+// landed_power / shot_power (the emission's when nothing else was shot; 1 when nothing was).
 void SetAmbient(const RadiosityMesh& mesh, RadiositySolution* sol);
 
 // The ambient-corrected reflected radiosity B - E + rho ambient, per element side.

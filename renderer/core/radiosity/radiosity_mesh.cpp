@@ -329,11 +329,16 @@ std::vector<Color> RadiosityMesh::VertexAverage(const std::vector<Color>& elemen
     }
     for (size_t v = 0; v < sum.size(); ++v)
         if (weight[v] > 0.f) sum[v] = sum[v] / weight[v];
+    SettleHanging(&sum);
+    return sum;
+}
+
+void RadiosityMesh::SettleHanging(std::vector<Color>* vertex_values) const {
+    std::vector<Color>& v = *vertex_values;
     // Coarse edges first: a hanging vertex's edge ends are settled before it.
     for (const HangingVertex& h : hanging_)
         for (int side = 0; side < 2; ++side)
-            sum[2 * h.v + side] = sum[2 * h.a + side] * (1.f - h.t) + sum[2 * h.b + side] * h.t;
-    return sum;
+            v[2 * h.v + side] = v[2 * h.a + side] * (1.f - h.t) + v[2 * h.b + side] * h.t;
 }
 
 }  // namespace tessera

@@ -78,6 +78,9 @@ public:
     // each vertex side is the area-weighted mean of the elements meeting there, a hanging
     // vertex the interpolation along its coarse edge.
     std::vector<Color> VertexAverage(const std::vector<Color>& element_values) const;
+    // Gives each hanging vertex side (2 v + side) of per-vertex values the interpolation
+    // along its coarse edge, as VertexAverage does, so the display does not step there.
+    void SettleHanging(std::vector<Color>* vertex_values) const;
 
 private:
     struct Source {

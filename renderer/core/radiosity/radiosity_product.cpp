@@ -1,6 +1,7 @@
 #include "radiosity_product.h"
 
 #include "hierarchical_solver.h"
+#include "point_direct.h"
 #include "stochastic_solver.h"
 #include "shutter_slices.h"
 
@@ -35,6 +36,9 @@ struct Header {
 };
 // Default element size as a fraction of the scene's bounding diameter (unit-free).
 constexpr float kDefaultElementOfDiameter = 1.f / 10.f;
+// Rounds of adaptive meshing when refine_levels is not set (solvers 0 and 2).
+constexpr uint32_t kDefaultRefineLevels = 3;
+constexpr size_t kDefaultRefineBudget = 8192;
 
 void Append(std::string* out, const std::vector<Color>& v) {
     const size_t at = out->size();
@@ -60,10 +64,13 @@ const std::vector<IntegratorParam>& RadiosityParams() {
     {"rays_per_element", "stochastic solver: rays of the first shot per element; later shots in proportion to the "
                          "power left unshot (default 1024)"},
     {"refine_levels", "adaptive meshing: rounds of halving the cells where the radiosity varies fast (an element "
-                      "differs from one of its display vertices by more than refine_tolerance of the larger), each "
-                      "followed by a new solve; 0 to 3 (default 0; not with solver 1)"},
+                      "differs from one of its display vertices by more than refine_tolerance of the larger, or "
+                      "direct_tolerance's test), each followed by a new solve; 0 to 3, not with solver 1 (not given: "
+                      "3 rounds by direct_tolerance's test alone, one solve, at most 8192 elements)"},
     {"refine_tolerance", "adaptive meshing's threshold, relative to the local radiosity and at least a tenth of the "
                          "mean (default 0.1)"},
+    {"direct_tolerance", "adaptive meshing: also split an element whose display, interpolated to its centroid, "
+                         "misses the direct light evaluated there by more than this fraction (default 0.005; 0: off)"},
     {"time_slices", "with motion blur, the shutter's slices: one solution per slice, at its middle instant, "
                     "read by the camera samples in it (default 8; 1 to 255)"},
     };
@@ -93,17 +100,32 @@ RadiositySettings RadiositySettingsFrom(const IntegratorSettings& s, const Scene
     r.rays_per_element = s.Param("rays_per_element", r.rays_per_element);
     if (!(r.rays_per_element >= 1.f && r.rays_per_element <= 1e6f))
         throw std::invalid_argument(std::string(who) + " rays_per_element must be a number from 1 to 1e6");
-    const float levels = s.Param("refine_levels", 0.f);
+    // Refined by default (issue 46: a lit plane's point error under 2 % without choosing an
+    // element size); the hierarchical solver refines its own links instead.
+    const float levels = s.Param("refine_levels", hierarchical ? 0.f : float(kDefaultRefineLevels));
     if (!(levels >= 0.f && levels <= float(RadiosityMesh::kMaxDepth) && levels == std::floor(levels)))
         throw std::invalid_argument(std::string(who) + " refine_levels must be a whole number from 0 to " +
                                     std::to_string(RadiosityMesh::kMaxDepth));
     r.refine_levels = uint32_t(levels);
+    // The default refines by the direct light's interpolation error, up to
+    // kDefaultRefineBudget elements (a mesh already that large, the Cornell teapot's 196k,
+    // is not refined unless asked to be).
+    if (!s.params.count("refine_levels") && r.refine_levels > 0) {
+        r.refine_by_direct = true;
+        // The progressive solver, asked for by name, pays for every element pair: its
+        // default refinement stops where the automatic choice would leave it.
+        r.refine_budget = r.solver == RadiositySolver::kProgressive ? RadiositySettings::kAutoStochasticElements
+                                                                     : kDefaultRefineBudget;
+    }
     if (r.refine_levels > 0 && r.solver == RadiositySolver::kHierarchical)
         throw std::invalid_argument(std::string(who) + " refine_levels needs solver 0 (progressive) or 2 (stochastic): "
                                                        "the hierarchical solver refines its own links");
     r.refine_tolerance = s.Param("refine_tolerance", r.refine_tolerance);
     if (!(r.refine_tolerance > 0.f && r.refine_tolerance < 10.f))
         throw std::invalid_argument(std::string(who) + " refine_tolerance must be a number in (0, 10)");
+    r.direct_tolerance = s.Param("direct_tolerance", r.direct_tolerance);
+    if (!(r.direct_tolerance >= 0.f && r.direct_tolerance < 10.f))
+        throw std::invalid_argument(std::string(who) + " direct_tolerance must be a number in [0, 10)");
     r.time_slices = TimeSlicesSetting(s, who, 8.f);
     return r;
 }
@@ -118,6 +140,17 @@ namespace {
 
 RadiositySolution SolveOn(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings) {
     RadiositySolver solver = settings.solver;
+    if (solver == RadiositySolver::kAuto && settings.refine_by_direct && mesh.refined()) {
+        // The default's refined mesh: shooting by rays, as many as the uniform mesh would
+        // take (rays_per_element per cell), so refining does not multiply the solve's cost.
+        // The display's direct light, where the refinement is, is evaluated at points; what
+        // the elements hold is the smooth interreflection, averaged at the vertices. (The
+        // progressive solver's pairs grow with the square: 41 s on the Cornell box refined
+        // once, 3448 elements.)
+        RadiositySettings s = settings;
+        s.first_rays = double(settings.rays_per_element) * double(mesh.num_cells());
+        return SolveStochastic(scene, mesh, s);
+    }
     if (solver == RadiositySolver::kAuto)
         solver = mesh.elements().size() > RadiositySettings::kAutoStochasticElements || scene.has_delta_surfaces()
                      ? RadiositySolver::kStochastic
@@ -148,13 +181,29 @@ void AppendSlice(const Scene& scene, const RadiositySettings& settings, std::str
     if (h.depth_bytes) std::memcpy(out->data() + at + sizeof(Header), mesh.leaf_depth().data(), h.depth_bytes);
     Append(out, reflected);
     Append(out, sol.direct);
-    Append(out, mesh.VertexAverage(reflected));
-    Append(out, mesh.VertexAverage(sol.direct));
+    if (solved.vertex_direct.empty()) {
+        Append(out, mesh.VertexAverage(reflected));
+        Append(out, mesh.VertexAverage(sol.direct));
+        return;
+    }
+    // The display: the direct part evaluated at the vertex, the interreflected rest (smooth)
+    // the area-weighted mean of the elements there.
+    std::vector<Color> indirect(reflected.size());
+    for (size_t k = 0; k < reflected.size(); ++k) {
+        const Color i = reflected[k] - sol.direct[k];
+        indirect[k] = Color(std::max(0.f, i.x), std::max(0.f, i.y), std::max(0.f, i.z));
+    }
+    std::vector<Color> vertex = mesh.VertexAverage(indirect);
+    for (size_t k = 0; k < vertex.size(); ++k) vertex[k] += solved.vertex_direct[k];
+    Append(out, vertex);
+    Append(out, solved.vertex_direct);
 }
 
 }  // namespace
 
-std::vector<uint8_t> RefinedDepths(const RadiosityMesh& mesh, const RadiositySolution& solution, float tolerance) {
+std::vector<uint8_t> RefinedDepths(const RadiosityMesh& mesh, const RadiositySolution& solution, float tolerance,
+                                   const std::vector<Color>* point_direct, const std::vector<Color>* centroid_direct,
+                                   float direct_tolerance) {
     const std::vector<RadiosityElement>& el = mesh.elements();
     const std::vector<Color> reflected = ReflectedRadiosity(mesh, solution);
     const std::vector<Color> vertex = mesh.VertexAverage(reflected);
@@ -168,6 +217,19 @@ std::vector<uint8_t> RefinedDepths(const RadiosityMesh& mesh, const RadiositySol
     // Relative to the local radiosity, so a shadow's edge counts in a dim room as in a bright
     // one, but not below a tenth of the mean, where the solvers' noise would drive it.
     const float floor = float(0.1 * sum / area);
+    // The interpolation test: relative to the local direct light, down to a hundredth of
+    // its mean (a plane's far corners under a small light get a few percent of its peak).
+    const bool by_points = direct_tolerance > 0.f && point_direct && centroid_direct &&
+                           point_direct->size() == 2 * mesh.num_vertices() && centroid_direct->size() == reflected.size();
+    float direct_floor = 0.f;
+    if (by_points) {
+        double dsum = 0.0, darea = 0.0;
+        for (size_t k = 0; k < centroid_direct->size(); ++k) {
+            const float b = Luminance((*centroid_direct)[k]);
+            if (b > 0.f) dsum += double(b) * el[k / 2].area, darea += el[k / 2].area;
+        }
+        direct_floor = darea > 0.0 ? float(0.01 * dsum / darea) : 0.f;
+    }
     std::vector<uint8_t> depth;
     depth.reserve(el.size());
     bool changed = false;
@@ -180,7 +242,18 @@ std::vector<uint8_t> RefinedDepths(const RadiosityMesh& mesh, const RadiositySol
             for (int k = 0; k < 3; ++k) {
                 const uint32_t vk = 2 * el[e].vertex[k] + side;
                 const float v = Luminance(vertex[vk]), vd = Luminance(vertex_direct[vk]);
-                if (std::max(std::abs(v - b), std::abs(vd - bd)) > tolerance * std::max({b, v, floor})) split = true;
+                // With the direct part evaluated at points, its own test below judges it; this
+                // one then looks at the interreflected rest only.
+                const float step = by_points ? std::abs((v - vd) - (b - bd))
+                                             : std::max(std::abs(v - b), std::abs(vd - bd));
+                if (step > tolerance * std::max({b, v, floor})) split = true;
+            }
+            if (by_points && !split) {
+                float interpolated = 0.f;
+                for (int k = 0; k < 3; ++k) interpolated += Luminance((*point_direct)[2 * el[e].vertex[k] + side]) / 3.f;
+                const float exact = Luminance((*centroid_direct)[2 * e + side]);
+                if (std::abs(interpolated - exact) > direct_tolerance * std::max({exact, interpolated, direct_floor}))
+                    split = true;
             }
         }
         if (split) {
@@ -194,16 +267,98 @@ std::vector<uint8_t> RefinedDepths(const RadiosityMesh& mesh, const RadiositySol
     return changed ? depth : std::vector<uint8_t>{};
 }
 
+std::vector<uint8_t> DirectRefinedDepths(const RadiosityMesh& mesh, const std::vector<Color>& vertex_direct,
+                                         const std::vector<Color>& centroid_direct, float tolerance, size_t budget) {
+    const std::vector<RadiosityElement>& el = mesh.elements();
+    if (!(tolerance > 0.f) || vertex_direct.size() != 2 * mesh.num_vertices() || centroid_direct.size() != 2 * el.size())
+        return {};
+    double sum = 0.0, area = 0.0;
+    for (size_t k = 0; k < centroid_direct.size(); ++k) {
+        const float b = Luminance(centroid_direct[k]);
+        if (b > 0.f) sum += double(b) * el[k / 2].area, area += el[k / 2].area;
+    }
+    if (!(area > 0.0)) return {};
+    // Relative to the local direct light, down to a hundredth of its mean (a plane's far
+    // corners under a small light get a few percent of its peak).
+    const float floor = float(0.01 * sum / area);
+    // Each element's interpolation error over what the tolerance allows; > 1: split.
+    std::vector<std::pair<float, uint32_t>> over;
+    for (size_t e = 0; e < el.size(); ++e) {
+        const uint8_t d = mesh.refined() ? mesh.leaf_depth()[e] : 0;
+        if (d >= RadiosityMesh::kMaxDepth || el[e].emitter != Scene::kNoEmitter) continue;
+        float worst = 0.f;
+        for (int side = 0; side < 2; ++side) {
+            float interpolated = 0.f;
+            for (int k = 0; k < 3; ++k) interpolated += Luminance(vertex_direct[2 * el[e].vertex[k] + side]) / 3.f;
+            const float exact = Luminance(centroid_direct[2 * e + side]);
+            worst = std::max(worst, std::abs(interpolated - exact) / (tolerance * std::max({exact, interpolated, floor})));
+        }
+        if (worst > 1.f) over.push_back({worst, uint32_t(e)});
+    }
+    if (over.empty() || el.size() + 3 >= budget) return {};
+    // Within the budget, the largest errors first (ties by index: the same mesh on every worker).
+    const size_t room = (budget - el.size()) / 3;
+    if (over.size() > room) {
+        std::sort(over.begin(), over.end(), [](const auto& a, const auto& b) {
+            return a.first != b.first ? a.first > b.first : a.second < b.second;
+        });
+        over.resize(room);
+    }
+    if (over.empty()) return {};
+    std::vector<uint8_t> split(el.size(), 0);
+    for (const auto& o : over) split[o.second] = 1;
+    std::vector<uint8_t> depth;
+    depth.reserve(el.size() + 3 * over.size());
+    for (size_t e = 0; e < el.size(); ++e) {
+        const uint8_t d = mesh.refined() ? mesh.leaf_depth()[e] : 0;
+        if (split[e]) depth.insert(depth.end(), 4, uint8_t(d + 1));
+        else depth.push_back(d);
+    }
+    return depth;
+}
+
 SolvedRadiosity SolveRadiosity(const Scene& scene, const RadiositySettings& settings) {
     const ShutterTimeScope instant(settings.shutter_time);  // the mesh and the calling thread's rays
+    tbb::task_arena arena(settings.threads > 0 ? settings.threads : tbb::this_task_arena::max_concurrency());
     SolvedRadiosity out;
     out.mesh = std::make_unique<RadiosityMesh>(scene, settings.element_size);
+    if (settings.refine_by_direct) {
+        // The default: the mesh is refined where the display's direct light, interpolated
+        // from the vertices, misses the value evaluated at the element's centroid; both are
+        // point evaluations, so no solve is needed between rounds.
+        bool settled = false;
+        for (uint32_t level = 0; level < settings.refine_levels; ++level) {
+            out.vertex_direct = VertexPointDirect(scene, *out.mesh, settings, arena);
+            if (out.vertex_direct.empty()) break;
+            if (out.mesh->elements().size() + 3 >= settings.refine_budget) {  // no room: skip the centroids
+                settled = true;
+                break;
+            }
+            const std::vector<Color> centroid = CentroidPointDirect(scene, *out.mesh, settings, arena);
+            std::vector<uint8_t> depth = DirectRefinedDepths(*out.mesh, out.vertex_direct, centroid,
+                                                             settings.direct_tolerance, settings.refine_budget);
+            if (depth.empty()) {
+                settled = true;
+                break;
+            }
+            out.mesh = std::make_unique<RadiosityMesh>(scene, settings.element_size, depth);
+        }
+        out.solution = SolveOn(scene, *out.mesh, settings);
+        if (!settled) out.vertex_direct = VertexPointDirect(scene, *out.mesh, settings, arena);
+        return out;
+    }
     out.solution = SolveOn(scene, *out.mesh, settings);
+    out.vertex_direct = VertexPointDirect(scene, *out.mesh, settings, arena);
     for (uint32_t level = 0; level < settings.refine_levels; ++level) {
-        std::vector<uint8_t> depth = RefinedDepths(*out.mesh, out.solution, settings.refine_tolerance);
-        if (depth.empty()) break;
+        std::vector<Color> centroid_direct;
+        if (settings.direct_tolerance > 0.f && !out.vertex_direct.empty())
+            centroid_direct = CentroidPointDirect(scene, *out.mesh, settings, arena);
+        std::vector<uint8_t> depth = RefinedDepths(*out.mesh, out.solution, settings.refine_tolerance,
+                                                   &out.vertex_direct, &centroid_direct, settings.direct_tolerance);
+        if (depth.empty() || depth.size() > settings.refine_budget) break;
         out.mesh = std::make_unique<RadiosityMesh>(scene, settings.element_size, depth);
         out.solution = SolveOn(scene, *out.mesh, settings);
+        out.vertex_direct = VertexPointDirect(scene, *out.mesh, settings, arena);
     }
     return out;
 }

@@ -38,13 +38,28 @@ std::string SolveRadiosityProduct(const Scene& scene, const RadiositySettings& s
 struct SolvedRadiosity {
     std::unique_ptr<RadiosityMesh> mesh;
     RadiositySolution solution;
+    // The reflected direct radiosity evaluated at each display vertex side
+    // (VertexPointDirect; empty beyond its budget, then the display averages).
+    std::vector<Color> vertex_direct;
 };
 SolvedRadiosity SolveRadiosity(const Scene& scene, const RadiositySettings& settings);
+// The default's refinement: the leaf depths of the next round's mesh, every element whose
+// display (its vertices' point-evaluated direct light, averaged) misses the direct light
+// evaluated at its centroid by more than `tolerance` of the larger (and of a hundredth of
+// the mean) split in four, the largest misses first while the mesh stays within `budget`
+// elements. Empty when nothing changes.
+std::vector<uint8_t> DirectRefinedDepths(const RadiosityMesh& mesh, const std::vector<Color>& vertex_direct,
+                                         const std::vector<Color>& centroid_direct, float tolerance, size_t budget);
 // The leaf depths of the next round's mesh: every element one of whose display vertices
 // differs from it by more than `tolerance` of the larger of the two (or of a tenth of the
 // mean reflected radiosity) is split in four. Empty when nothing changes or
 // kMaxElements would be passed.
-std::vector<uint8_t> RefinedDepths(const RadiosityMesh& mesh, const RadiositySolution& solution, float tolerance);
+// With vertex_direct and centroid_direct (the point-evaluated direct part at the display
+// vertices and the element centroids, point_direct.h), an element is also split where the
+// mean of its vertices' values misses its centroid's by more than direct_tolerance.
+std::vector<uint8_t> RefinedDepths(const RadiosityMesh& mesh, const RadiositySolution& solution, float tolerance,
+                                   const std::vector<Color>* vertex_direct = nullptr,
+                                   const std::vector<Color>* centroid_direct = nullptr, float direct_tolerance = 0.f);
 
 // A tile's view of a product: the radiosity leaving a surface point.
 class RadiosityLookup {

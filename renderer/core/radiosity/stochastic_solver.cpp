@@ -40,10 +40,12 @@ struct Deposit {
 };
 
 // Shoots `radiosity` (W m^-2 per element side) along about `rays` rays and returns the
-// radiosity each element side receives (reflectance applied).
+// radiosity each element side receives (reflectance applied). Adds the power it shot and the
+// part that landed on a reflecting element to sol's closure counts, and its rays to sol->rays.
 std::vector<Color> Shoot(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings,
                          tbb::task_arena& arena, const std::vector<Color>& radiosity, double rays, uint32_t iteration,
-                         uint64_t* cast) {
+                         RadiositySolution* sol) {
+    uint64_t* cast = &sol->rays;
     const std::vector<RadiosityElement>& el = mesh.elements();
     std::vector<Color> received(radiosity.size(), Color(0.f));
     double total = 0.0;
@@ -71,6 +73,7 @@ std::vector<Color> Shoot(const Scene& scene, const RadiosityMesh& mesh, const Ra
     }
     const uint64_t count = next;
     *cast += count;
+    uint64_t landed_rays = 0, *landed = &landed_rays;
 
     const float eps = 1e-4f * std::max(1.f, scene.scene_radius());
     const bool through_delta = scene.has_delta_surfaces();
@@ -137,11 +140,17 @@ std::vector<Color> Shoot(const Scene& scene, const RadiosityMesh& mesh, const Ra
                 }
             });
         });
-        for (uint64_t c = block; c < block_end; ++c)
+        for (uint64_t c = block; c < block_end; ++c) {
             for (const Deposit& d : deposits[c - block]) received[d.side] += d.power;
+            *landed += deposits[c - block].size();
+        }
     }
     for (size_t k = 0; k < received.size(); ++k)
         if (el[k / 2].area > 0.f) received[k] = received[k] / el[k / 2].area;
+    if (count > 0) {
+        (iteration == 0 ? sol->emission_shot_power : sol->shot_power) += total;
+        (iteration == 0 ? sol->emission_landed_power : sol->landed_power) += total * double(landed_rays) / double(count);
+    }
     return received;
 }
 
@@ -172,10 +181,10 @@ RadiositySolution SolveStochastic(const Scene& scene, const RadiosityMesh& mesh,
         sol.converged = true;
         return sol;
     }
-    const double first_rays = double(settings.rays_per_element) * double(n);
+    const double first_rays = settings.first_rays > 0.0 ? settings.first_rays : double(settings.rays_per_element) * double(n);
 
     // Iteration 0: the emission, once; what it deposits is direct light.
-    const std::vector<Color> direct = Shoot(scene, mesh, settings, arena, emission, first_rays, 0, &sol.rays);
+    const std::vector<Color> direct = Shoot(scene, mesh, settings, arena, emission, first_rays, 0, &sol);
     for (size_t k = 0; k < 2 * n; ++k) {
         sol.radiosity[k] += direct[k];
         sol.direct[k] += direct[k];
@@ -190,7 +199,7 @@ RadiositySolution SolveStochastic(const Scene& scene, const RadiosityMesh& mesh,
         const double rays = std::max(double(n), first_rays * u / sol.entered_power);
         std::vector<Color> shot(2 * n, Color(0.f));
         shot.swap(sol.unshot);
-        const std::vector<Color> received = Shoot(scene, mesh, settings, arena, shot, rays, sol.shots, &sol.rays);
+        const std::vector<Color> received = Shoot(scene, mesh, settings, arena, shot, rays, sol.shots, &sol);
         for (size_t k = 0; k < 2 * n; ++k) {
             sol.radiosity[k] += received[k];
             sol.unshot[k] = received[k];
