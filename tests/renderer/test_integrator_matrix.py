@@ -58,9 +58,6 @@ _LIGHT_NOISE = ("too noisy to decide at 8192 spp (MAX_SPP): a light path lands i
                 "too rarely; worst region se {se}, above MAX_SE 0.30 % (its error {err}, no sign of bias)")
 _PHOTON_MAP_NOISE = ("too noisy to decide: the photon map's noise (200000 photons, one map per fixed-spp "
                      "render) does not fall with samples; worst region se {se} (errors within {err})")
-_RADIOSITY = ("radiosity's lit planes: constant elements, the point value differs from the element's "
-              "mean (issue 46; adaptive subdivision and vertex interpolation are another branch's); "
-              "regions {err}")
 KNOWN_FAILURES: dict[tuple[str, str], str] = {
     **{("light", c): _LIGHT_NOISE.format(se="0.35 %", err="-0.48 %")
        for c in ("rect_lit", "rect_lit_far_1e6", "rect_lit_tiny_1e-3", "rect_lit_huge_1e3", "rect_lit_degenerate")},
@@ -72,12 +69,10 @@ KNOWN_FAILURES: dict[tuple[str, str], str] = {
     ("photon_direct", "sphere_lit"): _PHOTON_MAP_NOISE.format(se="0.80 %", err="0.7 %"),
     ("photon_direct", "distant_lit"): _PHOTON_MAP_NOISE.format(se="0.52 %", err="0.8 %"),
     ("photon_direct", "dome_lit"): _PHOTON_MAP_NOISE.format(se="0.76 %", err="0.4 %"),
-    **{("radiosity", c): _RADIOSITY.format(err="-2.85, -3.23, -1.82, -3.33 %")
-       for c in ("rect_lit", "rect_lit_far_1e6", "rect_lit_tiny_1e-3", "rect_lit_huge_1e3", "rect_lit_degenerate")},
-    ("radiosity", "disk_lit"): _RADIOSITY.format(err="-3.43, -4.62, -0.97, -3.93 %"),
-    ("radiosity", "sphere_lit"): _RADIOSITY.format(err="-1.93, -3.44, -0.61, -3.21 %"),
-    ("radiosity", "dome_lit"): ("radiosity under a dome: the solve's dome samples (light_samples 16 per element) "
-                                "vary with the seed; +3.0 % in a region with se 2.5-3.5 % at any spp"),
+    ("radiosity", "rect_lit_tiny_1e-3"): ("radiosity's default on the plane scaled by 1e-3: one region -1.79 % "
+                                          "(se 0.01 %; the same plane at scale 1, far away or 1e3: -0.28 %), "
+                                          "within 2 % but outside TOLERANCE; a scale-dependent offset in the "
+                                          "refinement or the vertices' direct light, not found yet"),
 }
 
 K = 8                   # independent renders per cell
@@ -445,9 +440,14 @@ class Measured:
 
     @property
     def detectable(self) -> float:
-        """The smallest relative error the check detects with probability Phi(Z), TOLERANCE +
-        Z se rounded up to the next 0.1 % (an error of exactly TOLERANCE is a coin toss)."""
-        return math.floor((TOLERANCE + Z * float(self.rel_se.max())) * 1000 + 1) / 1000
+        """The smallest relative error, up or down, the check detects with probability Phi(Z):
+        TOLERANCE + Z se, rounded up to the next 0.1 % (an error of exactly TOLERANCE is a coin
+        toss), from where the regions already lie. A method whose regions sit below their
+        closed forms within TOLERANCE (radiosity's discretisation) needs a larger error
+        upwards before a region leaves the band, one above it a larger error downwards."""
+        rel = self.rel
+        shift = max(-float(rel.max()), float(rel.min()))
+        return math.floor((TOLERANCE + Z * float(self.rel_se.max()) + shift) * 1000 + 1) / 1000
 
 
 def region_means(rgb: np.ndarray, regions) -> np.ndarray:
@@ -564,7 +564,8 @@ def test_matrix(integrator, case, tmp_path):
     failures = check(m)
     assert not failures, f"{integrator} on {case}: " + "; ".join(failures)
     assert m.detectable <= 0.02, f"{integrator} on {case}: detects only {m.detectable:.2%}"
-    assert check(m, gain=1 + m.detectable), f"{integrator} on {case}: the negative control passed"
+    for gain in (1 + m.detectable, 1 - m.detectable):
+        assert check(m, gain=gain), f"{integrator} on {case}: the negative control (x{gain:.3f}) passed"
 
 
 def quick_cells() -> list:
