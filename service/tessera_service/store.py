@@ -261,27 +261,37 @@ class JobStore:
                         out.append(job)
         return out[offset:offset + limit]
 
-    def replace_frame(self, sequence_id: str, old_job: str, new_job: str) -> bool:
-        """Makes `new_job` the frame range's job for the frame `old_job` rendered (a retry);
-        False if the record is gone or does not list `old_job`."""
-        key = rdb.sequence_key(sequence_id)
+    def _update_json_field(self, key: str, field: str, change, also=None) -> bool:
+        """Rewrites the JSON list in hash `key`'s `field` to change(value) atomically (WATCH,
+        retried when another writer came first); `also(pipe)` adds commands to the same
+        transaction. False, and nothing written, when the field is gone or change gives None."""
         with self.redis.pipeline(transaction=True) as pipe:
             while True:
                 try:
                     pipe.watch(key)
-                    raw = pipe.hget(key, "frames")
+                    raw = pipe.hget(key, field)
                     if raw is None:
                         return False
-                    frames = json.loads(raw)
-                    if not any(job == old_job for _, job in frames):
+                    value = change(json.loads(raw))
+                    if value is None:
                         return False
                     pipe.multi()
-                    pipe.hset(key, "frames", json.dumps([[f, new_job if job == old_job else job]
-                                                         for f, job in frames]))
+                    pipe.hset(key, field, json.dumps(value))
+                    if also is not None:
+                        also(pipe)
                     pipe.execute()
                     return True
                 except redis.WatchError:
                     continue
+
+    def replace_frame(self, sequence_id: str, old_job: str, new_job: str) -> bool:
+        """Makes `new_job` the frame range's job for the frame `old_job` rendered (a retry);
+        False if the record is gone or does not list `old_job`."""
+        def change(frames):
+            if not any(job == old_job for _, job in frames):
+                return None
+            return [[f, new_job if job == old_job else job] for f, job in frames]
+        return self._update_json_field(rdb.sequence_key(sequence_id), "frames", change)
 
     def forget_sequence(self, sequence_id: str) -> None:
         self.redis.delete(rdb.sequence_key(sequence_id))
@@ -340,24 +350,10 @@ class JobStore:
     def add_warning(self, job_id: str, warning: str) -> bool:
         """Adds a warning found once the job's image exists (a black image) to its
         warnings and its log, once; False when it was there already or the job is gone."""
-        key = rdb.job_key(job_id)
-        with self.redis.pipeline(transaction=True) as pipe:
-            while True:
-                try:
-                    pipe.watch(key)
-                    raw = pipe.hget(key, "warnings")
-                    if raw is None:
-                        return False
-                    warnings = json.loads(raw)
-                    if warning in warnings:
-                        return False
-                    pipe.multi()
-                    pipe.hset(key, "warnings", json.dumps([*warnings, warning]))
-                    pipe.rpush(rdb.job_log_key(job_id), f"{time.time()!r} warning: {warning}")
-                    pipe.execute()
-                    return True
-                except redis.WatchError:
-                    continue
+        return self._update_json_field(
+            rdb.job_key(job_id), "warnings",
+            lambda warnings: None if warning in warnings else [*warnings, warning],
+            also=lambda pipe: pipe.rpush(rdb.job_log_key(job_id), f"{time.time()!r} warning: {warning}"))
 
     def task_sources(self, job_id: str) -> dict:
         """What the per-tile table of a job (tasks_view) is folded from, read at once:
