@@ -14,6 +14,7 @@ APT_PACKAGES=(
   libosd-dev  # OpenSubdiv: subdivision surfaces refined at translation time
   openexr  # exrheader/exrinfo: tests check that OpenEXR's own tools read every EXR we write
   libgtest-dev redis-server iproute2
+  ccache  # compiler cache: a re-run or a fresh clone rebuilds only what changed (scripts/ccache-env.sh)
   libllvm19  # Mitsuba's llvm_ad_rgb variant, the second peer in `tessera bench`
   chromium chromium-driver  # the monitor page's browser tests (selenium drives them)
 )
@@ -33,6 +34,9 @@ if [ ${#missing[@]} -gt 0 ]; then
     $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
   fi
 fi
+
+# shellcheck source=scripts/ccache-env.sh
+source "$ROOT/scripts/ccache-env.sh"
 
 PY=${PYTHON:-python3}
 if [ ! -x "$VENV/bin/python" ]; then

@@ -15,6 +15,7 @@
 # scripts/test.sh. The rest runs in two shards at once (GoogleTest's sharding), one per core.
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+source "$ROOT/scripts/ccache-env.sh"
 BUILD=$ROOT/build/sanitize
 SANITIZERS=address,undefined
 LONG_TESTS=$(sed -e 's/#.*//' -e 's/[[:space:]]//g' "$ROOT/scripts/cpp-long-tests.txt" | grep -v '^$' | paste -sd:)

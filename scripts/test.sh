@@ -6,6 +6,7 @@
 # examples against their committed references). Exits non-zero if any test fails.
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+source "$ROOT/scripts/ccache-env.sh"
 bash "$ROOT/scripts/setup.sh" || { echo "[test] set-up failed"; exit 1; }
 VENV=${TESSERA_VENV:-$ROOT/.venv}
 

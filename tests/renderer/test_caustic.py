@@ -27,6 +27,7 @@ from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade
 from tessera_renderer import load_scene
 from tessera_base.film import resolve_splats
 from tessera_renderer.film import new_splat_buffer
+import render_cache
 from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, new_stage
 
 W = H = 48
@@ -111,10 +112,20 @@ def glass_region_means(scene, integrator: str, seed: int) -> dict[str, float]:
 
 def render(scene, integrator: str, seed: int) -> np.ndarray:
     spp = SPP[integrator]
-    splats = new_splat_buffer(W, H) if integrator != "path" else None
-    img = scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, max_depth=8, threads=2,
-                            integrator=integrator, splats=splats)
-    return resolve_splats(img, splats, W * H * spp, scene.splat_exponent) if splats is not None else img
+
+    def core_render() -> dict[str, np.ndarray]:
+        splats = new_splat_buffer(W, H) if integrator != "path" else None
+        img = scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, max_depth=8, threads=2,
+                                integrator=integrator, splats=splats)
+        return {"img": img} if splats is None else {"img": img, "splats": splats}
+
+    # The core's output is cached across runs (tests/render_cache.py): keyed by the
+    # translated scene, these settings and the compiled core.
+    out = render_cache.cached("caustic", scene, {"integrator": integrator, "seed": seed, "spp": spp,
+                                                 "size": [W, H], "max_depth": 8}, core_render)
+    if "splats" not in out:
+        return out["img"]
+    return resolve_splats(out["img"], out["splats"], W * H * spp, scene.splat_exponent)
 
 
 def student_t_quantile(p: float, df: float) -> float:

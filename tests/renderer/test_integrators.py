@@ -12,6 +12,8 @@ from tessera_renderer import load_scene
 from tessera_base.film import resolve_splats
 from tessera_renderer.film import new_splat_buffer
 
+import render_cache
+
 W = H = 32
 # Family-wise false-alarm rate over the 2 agreement tests x 12 statistics (4 quadrants x 3
 # channels), Bonferroni; each statistic gets a Welch t limit for its own degrees of freedom.
@@ -21,12 +23,23 @@ POWER = 0.02  # the relative difference every statistic must detect
 
 
 def render(scene, integrator, seed, spp, **kw):
-    if integrators.splats(integrator):
-        splats = new_splat_buffer(W, H)
-        cam = scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, threads=2,
-                                integrator=integrator, splats=splats, **kw)
-        return resolve_splats(cam, splats, W * H * spp, scene.splat_exponent)
-    return scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, threads=2, **kw)
+    """The W x H image; the core's output is cached across runs (tests/render_cache.py)."""
+    splatting = integrators.splats(integrator)
+
+    def core_render() -> dict[str, np.ndarray]:
+        if splatting:
+            splats = new_splat_buffer(W, H)
+            cam = scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, threads=2,
+                                    integrator=integrator, splats=splats, **kw)
+            return {"img": cam, "splats": splats}
+        return {"img": scene.render_tile(0, 0, W, H, width=W, height=H, spp=spp, seed=seed, threads=2, **kw)}
+
+    settings = {"integrator": integrator if splatting else kw.get("integrator"), "seed": seed, "spp": spp,
+                "size": [W, H], **kw}
+    out = render_cache.cached("integrators", scene, settings, core_render)
+    if splatting:
+        return resolve_splats(out["img"], out["splats"], W * H * spp, scene.splat_exponent)
+    return out["img"]
 
 
 def quadrant_means(img):

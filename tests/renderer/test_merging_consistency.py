@@ -53,7 +53,7 @@ def reference(name: str) -> tuple[np.ndarray, np.ndarray]:
         return mirror_reference()
     path, integrator, spp = SCENES[name]
     scene = load_scene(str(path))
-    return cached_halves(name, path, f"{W}x{H}:{integrator}:{spp}:{MAX_DEPTH}", lambda seed: render_iteration(
+    return cached_halves(name, scene, f"{W}x{H}:{integrator}:{spp}:{MAX_DEPTH}", lambda seed: render_iteration(
         scene, integrator, 0, spp=spp, seed=seed, max_depth=MAX_DEPTH, width=W, height=H)[..., :3])
 
 

@@ -28,6 +28,7 @@ import math
 import numpy as np
 import pytest
 
+import render_cache
 import test_caustic as tc
 from tessera_base.protocol import RenderSettings, pass_range
 
@@ -46,10 +47,17 @@ def render_sppm(scene, seed: int, iterations: int = SPPM_ITERATIONS, params=SPPM
     total, acc, out = 0, None, []
     for k in range(iterations):
         start, spp = pass_range(settings, k)
-        product = scene.scene_pass("sppm", k, seed=seed, max_depth=8, threads=2, integrator_params=params)
-        img = scene.render_tile(0, 0, tc.W, tc.H, width=tc.W, height=tc.H, spp=spp, sample_start=start,
-                                seed=seed, max_depth=8, threads=2, integrator="sppm",
-                                integrator_params=params, scene_product=product)[..., :3].astype(np.float64)
+
+        def iteration() -> dict[str, np.ndarray]:
+            product = scene.scene_pass("sppm", k, seed=seed, max_depth=8, threads=2, integrator_params=params)
+            return {"img": scene.render_tile(0, 0, tc.W, tc.H, width=tc.W, height=tc.H, spp=spp, sample_start=start,
+                                             seed=seed, max_depth=8, threads=2, integrator="sppm",
+                                             integrator_params=params, scene_product=product)}
+
+        # Cached across runs by scene, settings and core (tests/render_cache.py).
+        img = render_cache.cached("sppm-caustic", scene, {"iteration": k, "start": start, "spp": spp, "seed": seed,
+                                                          "params": params, "size": [tc.W, tc.H], "max_depth": 8},
+                                  iteration)["img"][..., :3].astype(np.float64)
         acc = img * spp if acc is None else acc + img * spp
         total += spp
         out.append(acc / total)

@@ -34,7 +34,7 @@ PARAMS = {"photons": 50000}
 
 def reference() -> tuple[np.ndarray, np.ndarray]:
     scene = load_scene(str(MIRROR))
-    return cached_halves("mirror", MIRROR, f"{W}x{H}:{REF_SPP}:{MAX_DEPTH}", lambda seed: scene.render_tile(
+    return cached_halves("mirror", scene, f"{W}x{H}:{REF_SPP}:{MAX_DEPTH}", lambda seed: scene.render_tile(
         0, 0, W, H, width=W, height=H, spp=REF_SPP, seed=seed, max_depth=MAX_DEPTH, threads=2,
         integrator="path")[..., :3])
 

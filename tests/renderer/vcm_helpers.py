@@ -4,16 +4,13 @@ product, so the per-iteration images are independent estimates whose spread give
 standard error. And the merging tests' cached high-sample references."""
 from __future__ import annotations
 
-import hashlib
-import os
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 
+import render_cache
 from tessera_base.film import resolve_splats
 from tessera_renderer.film import new_splat_buffer
-from tessera_tools.bench_cache import cache_dir, tessera_build
 
 
 def render_iteration(scene, integrator: str, iteration: int, *, spp: int, seed: int, max_depth: int = 8,
@@ -48,21 +45,12 @@ def mean_and_stderr(values) -> tuple[float, float]:
     return float(v.mean()), float(v.std(ddof=1) / np.sqrt(len(v)))
 
 
-def cached_halves(tag: str, scene_path: Path, settings: str,
+def cached_halves(tag: str, scene, settings: str,
                   render: Callable[[int], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """A reference as two independent renders, render(101) and render(202): their mean is
     the reference, half their difference its own noise. They take minutes, so they are
-    cached beside the bench's references (~/.cache/tessera or $TESSERA_CACHE_DIR), keyed by
-    the scene's bytes, `settings` and the compiled core: a changed core renders anew."""
-    key = hashlib.sha256(scene_path.read_bytes() + settings.encode() + tessera_build().encode()).hexdigest()[:16]
-    folder = cache_dir().parent / "test-references"
-    folder.mkdir(parents=True, exist_ok=True)
-    cache = folder / f"{tag}-{key}.npz"
-    if cache.exists():
-        with np.load(cache) as f:
-            return f["a"], f["b"]
-    a, b = (render(seed).astype(np.float64) for seed in (101, 202))
-    tmp = cache.with_suffix(f".{os.getpid()}.npz")
-    np.savez(tmp, a=a, b=b)
-    os.replace(tmp, cache)
-    return a, b
+    cached across runs (tests/render_cache.py: keyed by the translated scene, `settings`
+    and the build)."""
+    out = render_cache.cached(tag, scene, {"settings": settings, "halves": [101, 202]},
+                              lambda: {"a": render(101).astype(np.float64), "b": render(202).astype(np.float64)})
+    return out["a"], out["b"]
