@@ -22,6 +22,7 @@ import os
 
 import numpy as np
 import pytest
+import scipy.stats
 from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade
 
 from tessera_renderer import load_scene
@@ -129,21 +130,8 @@ def render(scene, integrator: str, seed: int) -> np.ndarray:
 
 
 def student_t_quantile(p: float, df: float) -> float:
-    """Inverse CDF of Student's t (p > 0.5), by bisection on the CDF integrated with
-    Simpson's rule (no scipy here)."""
-    c = math.exp(math.lgamma((df + 1) / 2) - math.lgamma(df / 2)) / math.sqrt(df * math.pi)
-
-    def cdf(x: float) -> float:
-        n = 2000
-        h = x / n
-        f = [c * (1 + (i * h) ** 2 / df) ** (-(df + 1) / 2) for i in range(n + 1)]
-        return 0.5 + h / 3 * (f[0] + f[-1] + 4 * sum(f[1:-1:2]) + 2 * sum(f[2:-1:2]))
-
-    lo, hi = 0.0, 1e3
-    for _ in range(100):
-        mid = (lo + hi) / 2
-        lo, hi = (mid, hi) if cdf(mid) < p else (lo, mid)
-    return (lo + hi) / 2
+    """Inverse CDF of Student's t."""
+    return float(scipy.stats.t.ppf(p, df))
 
 
 def welch(a: list[float], b: list[float]) -> tuple[float, float, float]:
