@@ -132,7 +132,10 @@ def main() -> int:
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--runs", type=int, default=5)
     args = ap.parse_args()
-    scenes = [("cornell", lambda: load_scene(CORNELL))]
+    # The box as exporters write it (UsdPreviewSurface turned Lambertian at load): the lane
+    # kernel's scene (docs/benchmarks/simd-kernel.md), its rays those of the Lambertian kernel.
+    scenes = [("cornell", lambda: load_scene(CORNELL)),
+              ("cornell_exported", lambda: load_scene(CORNELL.with_name("cornell_exported.usda")))]
     real = SHARED / REAL[0] / REAL[1]
     if real.is_file():
         scenes.append((f"{REAL[0]}/{REAL[1]}", lambda: load_scene(real, frame=27, root=SHARED / REAL[0])))

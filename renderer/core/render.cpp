@@ -126,12 +126,22 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
     std::mutex first_mutex;
     RenderStats stats;
     const uint32_t n_pixels = tile.width * tile.height;
+    // Batches are of a still shutter: a moving scene or camera keeps one instant per sample.
+    const bool in_batches = integrator->samples_in_batches() && !sample_time;
+    constexpr uint32_t kBatchSamples = 256;
+    const uint32_t chunk = in_batches ? kBatchSamples : 1;
 
     auto render_range = [&](const tbb::blocked_range<uint32_t>& range) {
         ScopedFlushDenormals ftz;
         IntegratorCounters counters;
         const RayCounters rays_before = tls_ray_counters;
         RayCounters aov_rays;  // traced for the AOVs: not the integrators' rays
+        // An integrator that estimates batches (the lane kernel) gets a pixel's samples up to
+        // kBatchSamples at a time; the others one at a time, as a splatting one needs (its
+        // variance batch is chosen per sample).
+        std::vector<BatchSample> batch_samples;
+        std::vector<PathSample> results(chunk);
+        batch_samples.reserve(chunk);
         for (uint32_t i = range.begin(); i != range.end(); ++i) {
             const uint32_t x = tile.x0 + i % tile.width, y = tile.y0 + i / tile.width;
             const uint64_t pixel_index = uint64_t(y) * camera.width + x;
@@ -147,71 +157,85 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
             uint32_t batch_end = options.sample_start +
                                  (batches.count ? VarianceBatchRange(options.spp, batches.count, 0).second : options.spp);
             double batch_r = 0, batch_g = 0, batch_b = 0;
-            for (uint32_t s = options.sample_start; s < options.sample_start + options.spp; ++s) {
-                PixelSampler sampler(options.seed, pixel_index, s, /*stream=*/0, options.sampler);
-                Vec2 jitter = sampler.Get2D();
-                // The lens dimensions are drawn only for a lens, so pinhole images keep
-                // their sample streams.
-                const Vec2 u_lens = kFullFeatures && camera.HasLens() ? sampler.Get2D() : Vec2{0.5f, 0.5f};
-                // The sample's instant in the shutter (a box shutter): its own dimension,
-                // drawn only when something moves, so static images keep their streams.
-                const float time = sample_time ? sampler.Get1D() : 0.5f;
-                const ShutterTimeScope instant(time);
-                // A moving camera, where it is at that instant (for the ray, the AOVs and
-                // every connection the integrator makes to the camera).
-                std::optional<Camera> moved;
-                if (kFullFeatures && camera.Moves()) moved = camera.At(time);
-                const Camera& cam = moved ? *moved : camera;
-                Ray ray = cam.GenerateRay(float(x) + jitter.x, float(y) + jitter.y, u_lens);
-                float t_min, t_max;
-                cam.ClipRange(ray.d, &t_min, &t_max);
-                if (want_aovs) {
-                    // Its own sample stream, so the image is the same with or without AOVs.
-                    const RayCounters before = tls_ray_counters;
-                    PixelSampler aov_sampler(options.seed, pixel_index, s, /*stream=*/2, options.sampler);
-                    const AOVSample a = SampleAOVs(scene, cam, ray, t_min, t_max, options.max_depth, aov_sampler);
-                    aov_rays.closest += tls_ray_counters.closest - before.closest;
-                    aov_rays.shadow += tls_ray_counters.shadow - before.shadow;
-                    for (int c = 0; c < 3; ++c) {
-                        aov_albedo[c] += a.albedo[c];
-                        aov_normal[c] += a.normal[c];
+            const uint32_t end = options.sample_start + options.spp;
+            for (uint32_t s0 = options.sample_start; s0 < end; s0 += chunk) {
+                const uint32_t count = std::min(chunk, end - s0);
+                batch_samples.clear();
+                for (uint32_t s = s0; s < s0 + count; ++s) {
+                    PixelSampler sampler(options.seed, pixel_index, s, /*stream=*/0, options.sampler);
+                    Vec2 jitter = sampler.Get2D();
+                    // The lens dimensions are drawn only for a lens, so pinhole images keep
+                    // their sample streams.
+                    const Vec2 u_lens = kFullFeatures && camera.HasLens() ? sampler.Get2D() : Vec2{0.5f, 0.5f};
+                    // The sample's instant in the shutter (a box shutter): its own dimension,
+                    // drawn only when something moves, so static images keep their streams.
+                    const float time = sample_time ? sampler.Get1D() : 0.5f;
+                    const ShutterTimeScope instant(time);
+                    // A moving camera, where it is at that instant (for the ray, the AOVs and
+                    // every connection the integrator makes to the camera).
+                    std::optional<Camera> moved;
+                    if (kFullFeatures && camera.Moves()) moved = camera.At(time);
+                    const Camera& cam = moved ? *moved : camera;
+                    Ray ray = cam.GenerateRay(float(x) + jitter.x, float(y) + jitter.y, u_lens);
+                    float t_min, t_max;
+                    cam.ClipRange(ray.d, &t_min, &t_max);
+                    if (want_aovs) {
+                        // Its own sample stream, so the image is the same with or without AOVs.
+                        const RayCounters before = tls_ray_counters;
+                        PixelSampler aov_sampler(options.seed, pixel_index, s, /*stream=*/2, options.sampler);
+                        const AOVSample a = SampleAOVs(scene, cam, ray, t_min, t_max, options.max_depth, aov_sampler);
+                        aov_rays.closest += tls_ray_counters.closest - before.closest;
+                        aov_rays.shadow += tls_ray_counters.shadow - before.shadow;
+                        for (int c = 0; c < 3; ++c) {
+                            aov_albedo[c] += a.albedo[c];
+                            aov_normal[c] += a.normal[c];
+                        }
+                        if (a.hit) {
+                            aov_depth += a.depth;
+                            ++aov_hits;
+                        }
                     }
-                    if (a.hit) {
-                        aov_depth += a.depth;
-                        ++aov_hits;
+                    const CameraSample cs{ray, t_min, t_max, options.seed, pixel_index, s, options.sampler};
+                    if (in_batches) {
+                        batch_samples.push_back({ray, t_min, t_max, sampler});
+                        continue;
                     }
+                    SplatFilm& sample_film = batches.count ? batch_films[batch] : film;
+                    results[s - s0] = integrator->Sample(scene, cam, cs, sampler, sample_film, &counters);
                 }
-                const CameraSample cs{ray, t_min, t_max, options.seed, pixel_index, s, options.sampler};
-                SplatFilm& sample_film = batches.count ? batch_films[batch] : film;
-                const PathSample ps = integrator->Sample(scene, cam, cs, sampler, sample_film, &counters);
-                if (!IsFinite(ps.radiance)) {
-                    if (nonfinite.fetch_add(1) == 0) {
-                        std::lock_guard<std::mutex> lock(first_mutex);
-                        stats.first_nonfinite_pixel_x = x;
-                        stats.first_nonfinite_pixel_y = y;
-                        stats.first_nonfinite_sample = s;
+                if (in_batches) integrator->SampleBatch(scene, batch_samples.data(), results.data(), count);
+                // Summed in sample order, however the samples were estimated.
+                for (uint32_t s = s0; s < s0 + count; ++s) {
+                    const PathSample& ps = results[s - s0];
+                    if (!IsFinite(ps.radiance)) {
+                        if (nonfinite.fetch_add(1) == 0) {
+                            std::lock_guard<std::mutex> lock(first_mutex);
+                            stats.first_nonfinite_pixel_x = x;
+                            stats.first_nonfinite_pixel_y = y;
+                            stats.first_nonfinite_sample = s;
+                        }
+                    } else {
+                        sum_r += ps.radiance.x;
+                        sum_g += ps.radiance.y;
+                        sum_b += ps.radiance.z;
+                        sum_a += ps.alpha;
+                        sq_r += double(ps.radiance.x) * ps.radiance.x;
+                        sq_g += double(ps.radiance.y) * ps.radiance.y;
+                        sq_b += double(ps.radiance.z) * ps.radiance.z;
+                        batch_r += ps.radiance.x;
+                        batch_g += ps.radiance.y;
+                        batch_b += ps.radiance.z;
                     }
-                } else {
-                    sum_r += ps.radiance.x;
-                    sum_g += ps.radiance.y;
-                    sum_b += ps.radiance.z;
-                    sum_a += ps.alpha;
-                    sq_r += double(ps.radiance.x) * ps.radiance.x;
-                    sq_g += double(ps.radiance.y) * ps.radiance.y;
-                    sq_b += double(ps.radiance.z) * ps.radiance.z;
-                    batch_r += ps.radiance.x;
-                    batch_g += ps.radiance.y;
-                    batch_b += ps.radiance.z;
-                }
-                if (batches.count && s + 1 == batch_end) {
-                    const double n = double(VarianceBatchRange(options.spp, batches.count, batch).second);
-                    float* out = batches.rgb + (size_t(batch) * n_pixels + i) * 3;
-                    out[0] = float(batch_r * (1.0 / n));
-                    out[1] = float(batch_g * (1.0 / n));
-                    out[2] = float(batch_b * (1.0 / n));
-                    batch_r = batch_g = batch_b = 0;
-                    if (++batch < batches.count)
-                        batch_end += VarianceBatchRange(options.spp, batches.count, batch).second;
+                    if (batches.count && s + 1 == batch_end) {
+                        const double n = double(VarianceBatchRange(options.spp, batches.count, batch).second);
+                        float* out = batches.rgb + (size_t(batch) * n_pixels + i) * 3;
+                        out[0] = float(batch_r * (1.0 / n));
+                        out[1] = float(batch_g * (1.0 / n));
+                        out[2] = float(batch_b * (1.0 / n));
+                        batch_r = batch_g = batch_b = 0;
+                        if (++batch < batches.count)
+                            batch_end += VarianceBatchRange(options.spp, batches.count, batch).second;
+                    }
                 }
             }
             const double inv = 1.0 / double(options.spp);

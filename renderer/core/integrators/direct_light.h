@@ -9,6 +9,39 @@
 
 namespace tessera {
 
+// The light sample of SampleDirectLight before its shadow ray: the contribution it makes
+// if the segment to the light point is free, and that point. The lane kernel
+// (path_lanes.h) casts the shadow rays of a whole lane group after shading it; the
+// sampler's dimensions are drawn here, so the shadow ray's outcome cannot shift them.
+struct UnshadowedLightSample {
+    Color contribution{0.f};
+    LightSample ls;
+    bool needs_shadow_ray = false;  // false: the contribution is zero whatever the ray says
+};
+template <typename Shading>
+inline UnshadowedLightSample SampleDirectLightUnshadowed(const Scene& scene, const SurfaceHit& hit,
+                                                         const Shading& bsdf, const Frame& frame, Vec3 wo,
+                                                         PixelSampler& sampler, bool mis) {
+    UnshadowedLightSample out;
+    float pmf = 0.f;
+    uint32_t light = 0;
+    const bool chosen = scene.SampleLight(sampler.Get1D(), hit.p, hit.ns, &light, &pmf);
+    const Vec2 u = sampler.Get2D();  // drawn either way: the dimensions after it stay put
+    if (!chosen) return out;
+    if (!scene.SampleEmitter(light, hit.p, u, &out.ls)) return out;
+    const float light_pdf = pmf * out.ls.pdf;
+    if (!(light_pdf > 0.f)) return out;
+    const Vec3 wo_local = frame.ToLocal(wo), wi_local = frame.ToLocal(out.ls.wi);
+    if (!SidesAgree(wo, out.ls.wi, hit.ng, wo_local, wi_local)) return out;
+    const Color f = bsdf.f(wo_local, wi_local) * std::abs(wi_local.z);
+    if (IsBlack(f)) return out;
+    // A delta light cannot be hit by BSDF sampling: light sampling takes it all.
+    const float w = (mis && !out.ls.is_delta) ? PowerHeuristic(light_pdf, bsdf.PDF(wo_local, wi_local)) : 1.f;
+    out.contribution = f * out.ls.radiance * (w / light_pdf);
+    out.needs_shadow_ray = true;
+    return out;
+}
+
 // One light sample at a surface: Le f |cos| / pdf through the BSDF's non-delta lobes, with
 // a shadow ray. With `mis`, weighted by the power heuristic against BSDF sampling of the
 // same direction (delta lights always get weight 1). The light is chosen by
@@ -19,23 +52,9 @@ namespace tessera {
 template <typename Shading>
 inline Color SampleDirectLight(const Scene& scene, const SurfaceHit& hit, const Shading& bsdf, const Frame& frame,
                                Vec3 wo, PixelSampler& sampler, bool mis) {
-    float pmf = 0.f;
-    uint32_t light = 0;
-    const bool chosen = scene.SampleLight(sampler.Get1D(), hit.p, hit.ns, &light, &pmf);
-    const Vec2 u = sampler.Get2D();  // drawn either way: the dimensions after it stay put
-    if (!chosen) return Color(0.f);
-    LightSample ls;
-    if (!scene.SampleEmitter(light, hit.p, u, &ls)) return Color(0.f);
-    const float light_pdf = pmf * ls.pdf;
-    if (!(light_pdf > 0.f)) return Color(0.f);
-    const Vec3 wo_local = frame.ToLocal(wo), wi_local = frame.ToLocal(ls.wi);
-    if (!SidesAgree(wo, ls.wi, hit.ng, wo_local, wi_local)) return Color(0.f);
-    const Color f = bsdf.f(wo_local, wi_local) * std::abs(wi_local.z);
-    if (IsBlack(f) || !scene.Unoccluded(hit.p, hit.p_error, hit.ng, ls))
-        return Color(0.f);
-    // A delta light cannot be hit by BSDF sampling: light sampling takes it all.
-    const float w = (mis && !ls.is_delta) ? PowerHeuristic(light_pdf, bsdf.PDF(wo_local, wi_local)) : 1.f;
-    return f * ls.radiance * (w / light_pdf);
+    const UnshadowedLightSample s = SampleDirectLightUnshadowed(scene, hit, bsdf, frame, wo, sampler, mis);
+    if (!s.needs_shadow_ray || !scene.Unoccluded(hit.p, hit.p_error, hit.ng, s.ls)) return Color(0.f);
+    return s.contribution;
 }
 
 }  // namespace tessera

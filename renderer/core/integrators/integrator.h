@@ -141,6 +141,14 @@ inline float LightPathInstant(const Scene& scene, PixelSampler& sampler) {
     return scene.has_motion() ? sampler.Get1D() : 0.5f;
 }
 
+// One pixel sample handed to an integrator that estimates many at once (SampleBatch): its
+// camera ray and clipping range, and its stream 0 past the camera's dimensions.
+struct BatchSample {
+    Ray ray;
+    float t_min, t_max;
+    PixelSampler sampler;
+};
+
 // Per-thread counters an integrator may add to.
 struct IntegratorCounters {
     uint64_t rejected_splats = 0;  // splats that were not finite and >= 0: a bug if > 0
@@ -154,6 +162,13 @@ public:
     // camera's dimensions. A splatting integrator also adds to `film` (full frame).
     virtual PathSample Sample(const Scene& scene, const Camera& camera, const CameraSample& cs,
                               PixelSampler& sampler, SplatFilm& film, IntegratorCounters* counters) const = 0;
+
+    // Whether it estimates batches of pixel samples (SampleBatch) for this render: chosen
+    // when it was built for the scene, so the renderer asks once per tile, not per sample.
+    virtual bool samples_in_batches() const { return false; }
+    // For samples_in_batches(): the estimate of each of n pixel samples of a still shutter
+    // (no motion, no moving camera), each the bits Sample would return for it alone.
+    virtual void SampleBatch(const Scene&, BatchSample*, PathSample*, size_t) const {}
 
     // For an integrator with scene_passes: the scene-wide work of iteration `iteration`
     // (e.g. tracing a batch of photons), run once before that iteration's tile passes, and

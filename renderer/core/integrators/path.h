@@ -19,14 +19,18 @@ public:
     // 2: on the Cornell box with a mirror and a glass sphere, 5 gave the ceiling (lit through
     // them) a heavy tail, one seed in six 6 % bright (tests/renderer/test_radiosity.py).
     static constexpr int kDefaultRouletteDepth = 2;
-    explicit PathIntegrator(int max_depth, int roulette_depth = kDefaultRouletteDepth)
-        : max_depth_(max_depth), roulette_depth_(roulette_depth) {}
+    // lanes: 0 for the scalar kernel, else the lane width (1, 4, 8) of the lane kernel
+    // (path_lanes.h), which the caller has checked applies to the scene.
+    explicit PathIntegrator(int max_depth, int roulette_depth = kDefaultRouletteDepth, int lanes = 0)
+        : max_depth_(max_depth), roulette_depth_(roulette_depth), lanes_(lanes) {}
     static const IntegratorInfo& Info();
     const IntegratorInfo& info() const override { return Info(); }
     PathSample Sample(const Scene& scene, const Camera&, const CameraSample& cs, PixelSampler& sampler, SplatFilm&,
                       IntegratorCounters*) const override {
         return Li(scene, cs.ray, sampler, cs.t_min, cs.t_max);
     }
+    bool samples_in_batches() const override { return lanes_ > 0; }
+    void SampleBatch(const Scene& scene, BatchSample* samples, PathSample* out, size_t n) const override;
     // Radiance arriving along `ray`; max_depth bounds the number of scattering events.
     // [t_min, t_max] limits the first segment (the camera's clipping range).
     PathSample Li(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min = 0.f,
@@ -40,6 +44,7 @@ private:
     PathSample Trace(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const;
     int max_depth_;
     int roulette_depth_;
+    int lanes_;
 };
 
 }  // namespace tessera

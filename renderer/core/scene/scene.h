@@ -271,6 +271,14 @@ public:
         return true;
     }
     bool Occluded(Vec3 origin, Vec3 dir, float t_far) const;
+    // Closest hits of up to 8 rays at once (lanes with active[i] false are skipped): through
+    // rtcIntersect8 for width 8, rtcIntersect4 for 4, rtcIntersect1 per ray for 1. found[i]
+    // says whether lane i hit. For scenes Intersect sends straight to Embree (no cutouts,
+    // no normal maps: packets_apply()); hits are those IntersectClosest builds.
+    static constexpr int kMaxPacket = 8;
+    void IntersectPacket(int width, const bool* active, const Ray* rays, const float* t_min, const float* t_max,
+                         SurfaceHit* hits, bool* found) const;
+    bool packets_apply() const { return !kFullFeatures || (!has_cutouts_ && !has_normal_maps_); }
     // Is the segment between two points free? Each end lies within its error bound of a
     // surface with geometric normal n (n = 0: not on a surface, as a point light or the
     // lens), and each is moved off its own surface toward the other before the ray is
@@ -486,6 +494,9 @@ private:
     RTCScene scene_ = nullptr;
     size_t num_triangles_ = 0;
     bool IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceHit* hit) const;
+    // The hit record of Embree's closest hit `rh` (a hit) of `ray`: shared by the single-ray
+    // and the packet queries, so that both give the same bits from the same Embree hit.
+    bool FinishClosest(const Ray& ray, const RTCRayHit& rh, SurfaceHit* hit) const;
     // IntersectClosest's hit on a sphere light or a curve (kept out of the triangles' way).
     bool SphereOrCurveHit(const Ray& ray, const RTCRayHit& rh, SurfaceHit* hit) const;
     // Intersect without the normal map (shadow rays through cutouts need no shading).

@@ -243,6 +243,10 @@ bool Scene::IntersectClosest(const Ray& ray, float t_near, float t_far, SurfaceH
     ++tls_ray_counters.closest;
     rtcIntersect1(scene_, &context, &rh);
     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+    return FinishClosest(ray, rh, hit);
+}
+
+bool Scene::FinishClosest(const Ray& ray, const RTCRayHit& rh, SurfaceHit* hit) const {
     hit->t = rh.ray.tfar;
     hit->prim_id = rh.hit.primID;
     hit->b1 = rh.hit.u;
