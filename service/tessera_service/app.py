@@ -21,7 +21,7 @@ from .auth import AuthGate, parse_networks, require_user
 from .http_guard import accept_error_handler
 from .inspection_pool import InspectionPool
 from .redis_acl import aof_replay_problem, redacted
-from .routers import actions, apidocs, blobs, compare, farm, jobs, monitor, priority, scaling, tasks, workers
+from .routers import actions, apidocs, blobs, compare, farm, jobs, monitor, priority, scaling, submit, tasks, workers
 from .schemas import Health, Problem
 from .settings import Settings
 from .store import JobStore
@@ -97,6 +97,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.aredis = aredis  # for the event streams
     errors = {401: {"model": Problem, "description": "missing or invalid bearer token"},
               503: {"model": Problem, "description": "the job store (redis) is unavailable"}}
+    app.include_router(submit.router, dependencies=[Depends(require_user)], responses=errors)
     app.include_router(jobs.router, dependencies=[Depends(require_user)], responses=errors)
     app.include_router(farm.router, dependencies=[Depends(require_user)], responses=errors)
     app.include_router(compare.router, dependencies=[Depends(require_user)], responses=errors)
@@ -189,7 +190,7 @@ class UploadLimit:
         if scope["type"] != "http" or scope["method"] != "POST" or scope["path"].rstrip("/") != self.path:
             await self.app(scope, receive, send)
             return
-        too_large = jobs.upload_too_large(self.file_limit)
+        too_large = submit.upload_too_large(self.file_limit)
         length = dict(scope["headers"]).get(b"content-length")
         if length is not None and length.isdigit() and int(length) > self.max_bytes:
             await JSONResponse({"detail": too_large.detail}, status_code=413)(scope, receive, send)

@@ -134,7 +134,7 @@ def encode_image(rgba: np.ndarray, spec: JobSpec, fmt: str, aovs: dict[str, np.n
 
             s = spec.settings
             kind = farm_variance_kind(s, aovs)
-            metadata = images.render_metadata(s.max_spp if s.adaptive else s.spp, s.seed, spec.scene_name,
+            metadata = images.render_metadata(s.max_spp if s.adaptive else s.spp, s.sample_seed, spec.scene_name,
                                               s.integrator, kind)
             # The noise asked for and reached, as a local render writes them (the scene
             # file's own hash is local only: the farm holds the uploaded bundle).

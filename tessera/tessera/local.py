@@ -16,7 +16,7 @@ from tqdm import tqdm
 
 from tessera_base import images, integrators
 from tessera_base.film import SplatSums, add_denoised, assemble_image, black_image_warning, pass_image, render_tile_pass, run_scene_pass
-from tessera_base.convergence import PassAccumulator, combine_passes, image_finished, tile_finished
+from tessera_base.convergence import PassAccumulator, combine_passes, image_stops, tile_stops
 from tessera_base.protocol import RenderSettings, TileRect, TileResult, in_crop, job_tiles, pass_range
 
 
@@ -47,12 +47,14 @@ class LocalRenderResult:
 
 
 def render_tile_passes(scene, settings: RenderSettings, rect: TileRect, threads: int = 0,
-                       deadline: float | None = None, integrator: str | None = None,
+                       started: float | None = None, integrator: str | None = None,
                        aovs_out: dict | None = None) -> tuple[np.ndarray, int, int]:
     """One tile, pass after pass as the farm renders it, combined as the farm combines it.
-    Returns (rgba, samples, passes). `deadline` (time.monotonic()) plays the time_limit.
+    Returns (rgba, samples, passes). `started` (time.monotonic()) is when the time limit
+    started counting.
     With settings.aovs, their combined tile layers go into `aovs_out` (name -> array)."""
-    results = _tile_passes(scene, settings, rect, threads, deadline, integrator)
+    results = _tile_passes(scene, settings, rect, threads,
+                           time.monotonic() if started is None else started, integrator)
     image = assemble_image(settings, {rect.index: results}, partial=True, with_aovs=aovs_out is not None,
                            tiles=[rect])
     if aovs_out is not None:
@@ -63,7 +65,7 @@ def render_tile_passes(scene, settings: RenderSettings, rect: TileRect, threads:
 
 
 def _tile_passes(scene, settings: RenderSettings, rect: TileRect, threads: int,
-                 deadline: float | None, integrator: str) -> list[TileResult]:
+                 started: float, integrator: str) -> list[TileResult]:
     """A tile's passes until it is finished, as the worker decides it (per-tile stopping;
     the per-sample variance is always rendered, the mean does not change)."""
     results: list[TileResult] = []
@@ -74,8 +76,7 @@ def _tile_passes(scene, settings: RenderSettings, rect: TileRect, threads: int,
         if not settings.adaptive:
             return results
         mean, var, samples = combine_passes(results)
-        if tile_finished(settings, p, mean, var, samples) or (
-                deadline is not None and time.monotonic() >= deadline):
+        if tile_stops(settings, p, mean, var, samples, lambda: time.monotonic() - started):
             return results
 
 
@@ -103,12 +104,12 @@ def _render_image(scene, settings: RenderSettings, threads: int, progress: bool,
         result.integrator = integrator
         return result
     start = time.perf_counter()
-    deadline = time.monotonic() + settings.time_limit if settings.time_limit else None
+    started = time.monotonic()
     per_tile: dict[int, list[TileResult]] = {}
     with tqdm(total=sum(t.width * t.height for t in tiles), unit="px", unit_scale=True, disable=not progress,
               desc="render", dynamic_ncols=True) as bar:
         for t in tiles:
-            per_tile[t.index] = _tile_passes(scene, settings, t, threads, deadline, integrator)
+            per_tile[t.index] = _tile_passes(scene, settings, t, threads, started, integrator)
             bar.update(t.width * t.height)
     image = assemble_image(settings, per_tile, with_aovs=True, tiles=tiles)
     samples = sum(r.spp * t.width * t.height for t in tiles for r in per_tile[t.index])
@@ -135,7 +136,7 @@ def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, th
     samples = 0
     acc = PassAccumulator()
     start = time.perf_counter()
-    deadline = time.monotonic() + settings.time_limit if settings.time_limit else None
+    started = time.monotonic()
     p = 0
     with tqdm(total=sum(t.width * t.height for t in tiles), unit="px", unit_scale=True, disable=not progress,
               desc=f"render ({integrator})", dynamic_ncols=True) as bar:
@@ -158,9 +159,7 @@ def _render_lockstep(scene, settings: RenderSettings, integrator: str, tiles, th
             if pass_range(settings, p + 1) is None:
                 break
             acc = acc.add(in_crop(settings, pass_image(width, height, this_pass, sums)), spp)
-            # A time limit belongs to the noise target: a fixed spp renders every pass.
-            if image_finished(settings, p, acc) or (settings.adaptive and deadline is not None
-                                                    and time.monotonic() >= deadline):
+            if image_stops(settings, p, acc, lambda: time.monotonic() - started):
                 break
             p += 1
     image = assemble_image(settings, per_tile, sums, with_aovs=True, tiles=tiles)

@@ -85,7 +85,8 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
            frame: float | None = None, root: str | Path | None = None,
            default_light: bool = True, subdivision_level: int | None = None,
            camera: str | None = None, shutter: tuple[float, float] | None = None,
-           variants: Sequence[str] = (), crop: tuple[int, int, int, int] | None = None) -> Image:
+           variants: Sequence[str] = (), crop: tuple[int, int, int, int] | None = None,
+           **settings: Any) -> Image:
     """Renders `scene` locally and returns the image.
 
     `scene` is a USD file or .zip/.usdz bundle path, or a scene already loaded with
@@ -103,12 +104,15 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
     `target_error` renders to a noise target instead of a fixed spp (min_spp, max_spp,
     time_limit bound it). `crop` (x0, y0, x1, y1, exclusive) renders only that region
     (pixels outside it stay 0; write the image with the same crop). Everything else is as
-    for `tessera render`.
+    for `tessera render`; any other render setting (tessera_base.protocol.SETTINGS, e.g.
+    seed_offset) is a keyword of its own name.
 
     Raises tessera_renderer.SceneError when the scene cannot be read, ValueError for
     settings out of range (pydantic's ValidationError is a ValueError)."""
-    from tessera_base.protocol import RenderSettings
+    from tessera_base.protocol import SETTINGS, RenderSettings
 
+    if unknown := sorted(set(settings) - set(SETTINGS)):
+        raise TypeError(f"render() got an unknown setting {unknown[0]!r} (settings: {', '.join(SETTINGS)})")
     loaded = _load(scene, frame=frame, root=root, default_light=default_light,
                    subdivision_level=subdivision_level, camera=camera, shutter=shutter, variants=variants)
     width, height = res or (loaded.width, loaded.height)
@@ -116,7 +120,7 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
                     target_error=target_error, min_spp=min_spp, max_spp=max_spp, time_limit=time_limit)
     settings = RenderSettings(width=width, height=height, spp=spp, seed=seed, aovs=list(aovs),
                               denoise=denoise, integrator_params=dict(integrator_params or {}), crop=crop,
-                              **{k: v for k, v in optional.items() if v is not None})
+                              **{k: v for k, v in optional.items() if v is not None}, **settings)
     if settings.denoise:
         from tessera_base.denoise import unavailable_reason
 
@@ -160,7 +164,7 @@ def render_scene(scene, settings, *, scene_name: str, threads: int = 0, progress
         layers.setdefault("spp", result.spp)
     variance_kind = result.variance_kind if "variance" in layers and result.variance is not None else None
     metadata: dict[str, Any] = render_metadata(settings.max_spp if settings.adaptive else settings.spp,
-                                               settings.seed, scene_name, settings.integrator, variance_kind)
+                                               settings.sample_seed, scene_name, settings.integrator, variance_kind)
     from tessera_base.exr_header import noise_attributes
 
     from tessera_base.protocol import in_crop

@@ -1,10 +1,12 @@
 """How passes combine and when a render has converged: per-tile means and variances
 (combine_passes, combine_aovs), per-tile noise targets, and the batch-means estimate of a
-lockstep job's whole-image error."""
+lockstep job's whole-image error; and when a render stops (tile_stops, image_stops: noise
+target, max_spp and time limit, for local renders and workers alike)."""
 from __future__ import annotations
 
 import struct
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -217,3 +219,32 @@ def image_finished(settings: RenderSettings, pass_index: int, acc: PassAccumulat
         return False
     error = acc.error()
     return error is not None and error <= settings.target_error
+
+
+# ------------------------------------------------------------------ when to stop
+# The one place that enforces a render's stopping rules (noise target, max_spp, time
+# limit) for local renders and workers alike. `elapsed` is called only when the noise
+# has not stopped the render: seconds since the job started (a worker reads the job's
+# start from Redis, a local render its own clock), or None when not known.
+Elapsed = Callable[[], "float | None"]
+
+
+def time_is_up(settings: RenderSettings, elapsed: Elapsed) -> bool:
+    """Whether `time_limit` stops the render. It belongs to the noise target: a fixed spp
+    renders every pass however long it takes."""
+    if not settings.adaptive or settings.time_limit is None:
+        return False
+    seconds = elapsed()
+    return seconds is not None and seconds >= settings.time_limit
+
+
+def tile_stops(settings: RenderSettings, pass_index: int, rgba: np.ndarray,
+               variance: np.ndarray | None, samples: int, elapsed: Elapsed) -> bool:
+    """Whether a tile (per-tile stopping) gets no pass after `pass_index`."""
+    return (not settings.adaptive or tile_finished(settings, pass_index, rgba, variance, samples)
+            or time_is_up(settings, elapsed))
+
+
+def image_stops(settings: RenderSettings, pass_index: int, acc: PassAccumulator, elapsed: Elapsed) -> bool:
+    """Whether a lockstep job gets no pass after `pass_index`; `acc` holds passes 0..pass_index."""
+    return image_finished(settings, pass_index, acc) or time_is_up(settings, elapsed)

@@ -226,7 +226,7 @@ def run_scene_pass(scene, settings: RenderSettings, iteration: int, *, integrato
     (render_tile_pass's scene_product). What local renders and the worker's scene tasks
     both run. A pure function of (scene, integrator, its params, seed, iteration), so the
     farm's product, and with it its image, equals the local one bit for bit."""
-    return scene.scene_pass(integrator, iteration, seed=settings.seed, max_depth=settings.max_depth,
+    return scene.scene_pass(integrator, iteration, seed=settings.sample_seed, max_depth=settings.max_depth,
                             threads=threads, integrator_params=dict(settings.integrator_params))
 
 
@@ -261,7 +261,7 @@ def render_tile_pass(scene, settings: RenderSettings, rect: TileRect, pass_index
         splats = np.zeros((settings.height, settings.width, 3), np.int64)
         batch_splats = np.zeros((len(ranges), settings.height, settings.width, 3), np.int64) if ranges else None
     batch_rgb = np.empty((len(ranges), rect.height, rect.width, 3), np.float32) if ranges else None
-    common = dict(width=settings.width, height=settings.height, seed=settings.seed,
+    common = dict(width=settings.width, height=settings.height, seed=settings.sample_seed,
                   max_depth=settings.max_depth, threads=threads, integrator=integrator,
                   integrator_params=dict(settings.integrator_params), scene_product=scene_product)
     started = time.perf_counter()

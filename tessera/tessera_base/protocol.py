@@ -17,13 +17,14 @@ import re
 import struct
 import zlib
 from dataclasses import dataclass
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, Field, field_serializer, field_validator, model_validator
 
 from . import integrators
 from .denoise import DENOISE_AOVS
+from .settings_spec import RENDER, SUBMIT, Takes, parse_json_object, parse_list, parse_numbers, settings_of
 
 SCHEMA_VERSION = 2
 
@@ -120,68 +121,101 @@ class RenderSettings(BaseModel):
     up to max_spp samples, until their relative noise (see `tile_error`) is at most
     target_error, or until `time_limit` seconds after the job started."""
 
-    width: int = Field(ge=1, le=16384)
-    height: int = Field(ge=1, le=16384)
-    spp: int = Field(default=64, ge=1, le=1 << 20, description="samples per pixel (fixed mode)")
-    seed: int = Field(default=0, ge=0, le=2**32 - 1)
-    max_depth: int = Field(default=64, ge=1, le=1024)
-    tile_size: int = Field(default=64, ge=8, le=4096)
-    target_error: float | None = Field(
+    # Each field annotated with Takes is a render setting: the CLI options, the API's form
+    # fields and the Python API's keywords are generated from it (settings_spec).
+    width: Annotated[int, Takes(cli=(), form_help="default: the scene's render settings, else 512")] = Field(
+        ge=1, le=16384, description="image width in pixels")
+    height: Annotated[int, Takes(cli=(), form_help="default: the scene's render settings, else 512")] = Field(
+        ge=1, le=16384, description="image height in pixels")
+    spp: Annotated[int, Takes()] = Field(default=64, ge=1, le=1 << 20, description="samples per pixel (fixed mode)")
+    seed: Annotated[int, Takes()] = Field(default=0, ge=0, le=2**32 - 1, description="random seed")
+    # Added within schema 2 with a default that changes nothing, so earlier messages stay
+    # valid and keep their images.
+    seed_offset: Annotated[int, Takes()] = Field(
+        default=0, ge=0, le=2**32 - 1,
+        description="added to the seed (modulo 2^32): another independent render of the same job settings "
+                    "(a second look at its noise, or each frame of a sequence its own) while "
+                    "the seed stays the one the settings name")
+    max_depth: Annotated[int, Takes()] = Field(default=64, ge=1, le=1024, description="maximum path length (bounces)")
+    tile_size: Annotated[int, Takes(flag="--tile")] = Field(default=64, ge=8, le=4096, description="tile edge in pixels")
+    target_error: Annotated[float | None, Takes(
+        argparse=dict(nargs="?", const=0.01, metavar="REL"),
+        cli_help="render to a relative noise target instead of a fixed --spp (default target 0.01 = 1 %)")] = Field(
         default=None, gt=0, le=1, allow_inf_nan=False,
         description="relative noise to stop at (0.01 = 1 %); unset: fixed spp")
-    min_spp: int = Field(default=16, ge=1, le=1 << 20,
+    min_spp: Annotated[int, Takes()] = Field(default=16, ge=1, le=1 << 20,
                          description="samples of the first pass (noise-target mode)")
-    max_spp: int = Field(default=1024, ge=1, le=1 << 20,
+    max_spp: Annotated[int, Takes()] = Field(default=1024, ge=1, le=1 << 20,
                          description="most samples any pixel gets (noise-target mode)")
-    time_limit: float | None = Field(
+    time_limit: Annotated[float | None, Takes()] = Field(
         default=None, gt=0, le=7 * 86400, allow_inf_nan=False,
         description="seconds after the job starts when no further passes begin "
                     "(noise-target mode; makes the image depend on timing)")
-    integrator: str = Field(
+    # The CLI's --integrator is hand-made: it checks the name before the renderer loads.
+    integrator: Annotated[str, Takes(cli=())] = Field(
         default_factory=integrators.default,
         description="light transport method: a name from the renderer's registry, or auto "
                     "(`tessera render --integrator help`, docs/integrators.md)")
     # Added within schema 2: optional, so earlier messages stay valid.
-    auto_pilot: str | None = Field(
+    auto_pilot: Annotated[str | None, Takes(cli=())] = Field(
         default=None, max_length=4096,
         description="what `auto` measured before the job was sent (tessera.pilot's JSON: the choice "
                     "and each candidate's efficiency), when the client resolved it; logged with the "
                     "job and written to the image's tessera:auto")
     # Added within schema 2: optional with an empty default, so earlier messages stay valid.
-    integrator_params: dict[str, float] = Field(
+    integrator_params: Annotated[dict[str, float], Takes(
+        cli=(), parse=parse_json_object,
+        form_help='the integrator\'s own settings as a JSON object of name -> number, e.g. {"max_distance": 2} '
+                  'for ao ("inf" as a string for infinity; docs/integrators.md)')] = Field(
         default_factory=dict,
         description="the integrator's own settings, NAME -> number, as its registry entry declares "
                     "them (`tessera render --integrator help`; e.g. ao's max_distance); inf allowed")
-    aovs: list[Literal["albedo", "normal", "depth", "spp", "variance"]] = Field(
+    aovs: Annotated[list[Literal["albedo", "normal", "depth", "spp", "variance"]],
+                    Takes(parse=str, argparse=dict(metavar="LIST"),
+                          form_help="comma-separated extra EXR layers: albedo, normal, depth, spp, variance, "
+                                    "or all (docs/aovs.md)")] = Field(
         default_factory=list,
         description="extra per-pixel outputs written as EXR layers beside RGBA "
                     "(docs/aovs.md): albedo, normal, depth, spp, variance")
 
-    default_light: bool = Field(
+    default_light: Annotated[bool, Takes(flag="--no-default-light", argparse=dict(action="store_false"),
+                                         cli_help="a scene without any light renders black instead of "
+                                                  "getting the default lighting (white dome + camera key light)")] = Field(
         default=True, description="light a stage that has no light (emissive geometry counts) with "
                                   "the default lighting: a white dome and a camera-relative key light "
                                   "(docs/scene-translation.md); false renders such a stage black")
 
     # Added within schema 2: optional, None meaning the renderer's default, so earlier
     # messages stay valid and keep their images.
-    subdivision_level: int | None = Field(
+    subdivision_level: Annotated[int | None, Takes(argparse=dict(metavar="N"))] = Field(
         default=None, ge=0, le=6,
         description="how many times subdivision surfaces are refined (0-6; default: the renderer's, "
                     "2; 0 renders their control cage; docs/scene-translation.md)")
-    camera: str | None = Field(
+    camera: Annotated[str | None, Takes(argparse=dict(metavar="PRIM_PATH"))] = Field(
         default=None, min_length=1, max_length=1024, pattern=r"^/\S*$",
         description="the path of the Camera prim to render through (default: the RenderSettings' "
                     "camera, else the first camera, else a three-quarter view framing the scene)")
-    frame: float | None = Field(
+    # The CLI's --frame is hand-made: it excludes --frames, which is no setting of one image.
+    frame: Annotated[float | None, Takes(cli=())] = Field(
         default=None, allow_inf_nan=False, ge=-1e9, le=1e9,
         description="the USD time code to render (default: the stage's startTimeCode, else the "
                     "default time; docs/motion.md)")
-    shutter: tuple[float, float] | None = Field(
+    shutter: Annotated[tuple[float, float] | None, Takes(
+        parse=parse_numbers(2, float, "OPEN,CLOSE (two time codes)"), argparse=dict(metavar="OPEN,CLOSE"),
+        cli_help="motion blur over [frame+OPEN, frame+CLOSE] in time codes, replacing the camera's "
+                 "shutter:open/close; 0,0 renders without motion blur (docs/motion.md)",
+        form_help="OPEN,CLOSE in time codes from the frame, replacing the camera's shutter:open/close "
+                  "(0,0: no motion blur; docs/motion.md); empty: the camera's")] = Field(
         default=None,
         description="(open, close) in time codes from the frame, replacing the camera's "
                     "shutter:open/close; [0, 0] renders without motion blur (docs/motion.md)")
 
-    variants: list[str] | None = Field(
+    variants: Annotated[list[str] | None, Takes(
+        flag="--variant", parse=parse_list, cli_parse=lambda text: parse_variant(text) and text,
+        argparse=dict(action="append", metavar="PRIM:SET=VALUE"),
+        cli_help="render with this variant selected, e.g. /Car:color=red (repeatable)",
+        form_help="comma-separated variant selections, each /Prim/Path:set=value (checked when a worker "
+                  "composes the stage: an unknown prim, set or variant fails the job naming the choices)")] = Field(
         default=None, max_length=256,
         description="variant selections to render with, each /Prim/Path:set=value, in place of the "
                     "stage's own (docs/scene-translation.md, \"Variants\")")
@@ -257,7 +291,7 @@ class RenderSettings(BaseModel):
     # local render, the service's merge), never in a worker; it needs the albedo and
     # normal AOVs, so they are asked for here (their own sample stream: the colour does not
     # change). docs/denoise.md.
-    denoise: bool = Field(
+    denoise: Annotated[bool, Takes()] = Field(
         default=False,
         description="add an Open Image Denoise layer (denoised.R/G/B) and preview beside the "
                     "raw image; adds the albedo and normal AOVs (docs/denoise.md)")
@@ -265,7 +299,10 @@ class RenderSettings(BaseModel):
     # Added within schema 2 like aovs: the region the EXR holds (x0, y0, x1, y1; x1, y1
     # exclusive) as its data window inside the full display window (docs/aovs.md). Only
     # the tiles meeting it are rendered, cut to it (job_tiles), unless the integrator splats.
-    crop: tuple[int, int, int, int] | None = Field(
+    crop: Annotated[tuple[int, int, int, int] | None, Takes(
+        parse=parse_numbers(4, int, "X0,Y0,X1,Y1"), argparse=dict(metavar="X0,Y0,X1,Y1"),
+        form_help="x0,y0,x1,y1 (x1, y1 exclusive): the EXR holds only this region, as its data window "
+                  "inside the full frame (docs/aovs.md); empty: the whole image")] = Field(
         default=None,
         description="write only this pixel region x0,y0,x1,y1 (x1, y1 exclusive) of the image "
                     "to the EXR, as its data window inside the full-frame display window")
@@ -307,6 +344,11 @@ class RenderSettings(BaseModel):
     @property
     def adaptive(self) -> bool:
         return self.target_error is not None
+
+    @property
+    def sample_seed(self) -> int:
+        """The seed the samples are drawn with (what the image's tessera:seed records)."""
+        return (self.seed + self.seed_offset) % 2**32
 
     @property
     def lockstep(self) -> bool:
@@ -351,6 +393,10 @@ def pass_range(settings: RenderSettings, pass_index: int) -> tuple[int, int] | N
             return None
         start, end = end, min(end + min(end, largest), last)
     return start, end - start
+
+
+# Every render setting and the routes that take it (settings_spec), in field order.
+SETTINGS = settings_of(RenderSettings)
 
 
 class TileRect(BaseModel):

@@ -426,3 +426,36 @@ def test_variant_selections_are_prim_set_and_variant():
     assert RenderSettings(width=8, height=8, variants=[]).variants is None
     with pytest.raises(ValueError, match="must be /Prim/Path:set=value"):
         RenderSettings(width=8, height=8, variants=["wheels=sedan"])
+
+
+def test_a_spec_written_before_seed_offset_still_reads_and_draws_its_own_seed():
+    """Schema 2 without seed_offset (as a farm before it stored jobs in Redis): it reads,
+    and its samples use its seed unchanged, so its image keeps its bits."""
+    old = ('{"schema_version": 2, "job_id": "' + "a" * 32 + '", "scene_hash": "' + "b" * 64 + '", '
+           '"scene_name": "s.usda", "settings": {"width": 8, "height": 8, "spp": 4, "seed": 9}}')
+    spec = protocol.JobSpec.model_validate_json(old)
+    assert spec.settings.seed_offset == 0 and spec.settings.sample_seed == 9
+    # The control: an offset changes the seed drawn, modulo 2^32.
+    later = spec.settings.model_copy(update={"seed_offset": 2**32 - 8})
+    assert later.sample_seed == 1
+
+
+def test_the_time_limit_stops_a_noise_target_render_at_its_second_and_never_a_fixed_spp():
+    """convergence's one time-limit check, as local renders and workers call it (the clock
+    is passed in: no waiting here)."""
+    def never():
+        raise AssertionError("the clock was read although nothing depends on it")
+
+    s = RenderSettings(width=8, height=8, target_error=0.01, min_spp=16, max_spp=64, time_limit=10)
+    flat = np.ones((4, 4, 4), np.float32)
+    noisy = np.full((4, 4, 3), 0.16, np.float32)  # 7.5 % noise: the target is not reached
+    assert not convergence.tile_stops(s, 0, flat, noisy, 16, lambda: 9.99)
+    assert convergence.tile_stops(s, 0, flat, noisy, 16, lambda: 10.0)
+    assert not convergence.tile_stops(s, 0, flat, noisy, 16, lambda: None)  # start unknown
+    assert convergence.tile_stops(s, 0, flat, noisy / 1e4, 16, never)  # the noise stopped it
+    fixed = RenderSettings(width=8, height=8, spp=16, time_limit=10)
+    assert not convergence.time_is_up(fixed, never)  # a fixed spp renders every pass
+    assert not convergence.time_is_up(s.model_copy(update={"time_limit": None}), never)
+    one = convergence.PassAccumulator().add(np.ones((4, 4, 4), np.float32), 16)
+    assert not convergence.image_stops(s, 0, one, lambda: 9.99)  # one pass cannot judge its noise
+    assert convergence.image_stops(s, 0, one, lambda: 10.0)

@@ -180,7 +180,7 @@ def test_submit_uses_scene_resolution_and_creates_tiles(api, redis_client):
     assert job["state"] == "queued" and job["tiles_total"] == 36
     assert redis_client.zscore(rdb.JOB_INDEX, job["id"]) is not None
     status = api.get(f"/jobs/{job['id']}").json()
-    assert status["settings"] == {"width": 512, "height": 512, "spp": 4, "seed": 0,
+    assert status["settings"] == {"width": 512, "height": 512, "spp": 4, "seed": 0, "seed_offset": 0,
                                   "max_depth": 64, "tile_size": 100, "target_error": None,
                                   "min_spp": 16, "max_spp": 1024, "time_limit": None,
                                   "integrator": "path", "auto_pilot": None, "integrator_params": {}, "aovs": [],

@@ -20,7 +20,6 @@ scene that does not load, fails the job at once: those would fail the same way a
 """
 from __future__ import annotations
 
-import contextlib
 import fnmatch
 import hashlib
 import logging
@@ -31,32 +30,27 @@ import signal
 import socket
 import threading
 import time
-from pathlib import PurePosixPath
 
 import redis
 
-from tessera_base import film, integrators, protocol
-from tessera_base import convergence
+from tessera_base import protocol
 from tessera_queue import redis_schema as rdb
-from tessera_queue.data_store import DataStore, ObjectMissing, default_root, is_digest
+from tessera_queue.data_store import DataStore, default_root
 from tessera_base.process import private_tempdir, remove_orphaned_tempdirs
 from tessera_queue.tasks import TileTask
 
 from .child import Abandoned, RenderChild, RenderFailed
+from .liveness import CLAIM_MIN_IDLE_MS, REAP_INTERVAL, Liveness  # noqa: F401 (the tests read CLAIM_MIN_IDLE_MS here)
+from .passes import PassPolicy
+from .redis_values import out_of_memory as _out_of_memory, text as _text, to_float as _float
+from .results import ResultStore
+from .scene_cache import SceneCache
 from .settings import WorkerSettings
 from .stop_grace import HandBack, StopGrace
 
 log = logging.getLogger("tessera.worker")
 
-HEARTBEAT_TTL = 5.0        # seconds a worker counts as alive after its last heartbeat
 IDLE_WAIT = 1.0            # longest wait for a wake-up token when there is no work
-REAP_INTERVAL = 2.0        # seconds between looks for tiles held by dead workers
-CLAIM_MIN_IDLE_MS = 1000   # two reapers do not both claim a tile claimed within this time
-MAX_DEATH_DELIVERIES = 10  # a tile whose worker died this often is poisoned
-OOM_BACKOFF_MIN = 0.25     # first wait after Redis refused a result for lack of memory
-OOM_BACKOFF_MAX = 10.0
-SCENE_FILES = 8            # scene files kept on local disk (least recently used go)
-PRODUCTS_KEPT = 4          # scene-pass products kept in memory (least recently used go)
 SCENE_TASK = -1            # a fault rule's target "#scene": scene-wide tasks, not tiles
 
 
@@ -111,7 +105,10 @@ def _install_signal_handlers(stop: threading.Event):
     return restore
 
 
-class Worker:
+class Worker(SceneCache, ResultStore, PassPolicy, Liveness):
+    """The Redis loop and one task's handling; its other roles are the mixins' (scene
+    cache, result storage, pass policy, liveness), each in its own module."""
+
     def __init__(self, settings: WorkerSettings, name: str | None = None):
         self.settings = settings
         self.name = name or default_worker_name()
@@ -287,59 +284,6 @@ class Worker:
         if completed == 1:
             log.info("job %s done", job_id)
 
-    def _store(self, task: TileTask, result, args: list, stop: threading.Event | None):
-        """Stores a rendered pass (store_tile.lua): the result with its splats folded into the
-        job's splat sums, in one transaction, so that a pass is summed exactly once however
-        often it is delivered. Redis refusing the write for lack of memory (maxmemory with
-        noeviction) does not lose the pass: it is kept here and stored again after a
-        backoff, until it fits or the worker stops (then the entry stays pending and is
-        rendered again). Returns the script's result, or None if it gave up."""
-        keys = self._keys(task.job_id, task.scene_hash) + [rdb.worker_key(self.name)]
-        names = film.SplatSums.fields_of(result)
-        s = task.settings
-        delay = OOM_BACKOFF_MIN
-        while True:
-            try:
-                if not names:
-                    data = protocol.encode_tile(task.tile, **_tile_fields(result))
-                    return self.scripts.store_tile(keys=keys, args=_store_args(args, data))
-                return self._store_folded(task, result, args, keys, names)
-            except redis.ResponseError as e:
-                if not _out_of_memory(e):
-                    raise
-                if stop is None or stop.is_set():
-                    log.error("redis is out of memory; leaving tile %d (pass %d) of job %s "
-                              "pending for a retry", task.tile.index, task.pass_index, task.job_id)
-                    return None
-                log.error("redis is out of memory (its maxmemory is reached) and refused tile %d "
-                          "(pass %d) of job %s, %dx%d; keeping it and trying again in %.1f s",
-                          task.tile.index, task.pass_index, task.job_id, s.width, s.height, delay)
-                if stop.wait(delay):
-                    return None
-                delay = min(2 * delay, OOM_BACKOFF_MAX)
-
-    def _store_folded(self, task: TileTask, result, args: list, keys: list, names: list[str]):
-        s = task.settings
-        splats_key = rdb.job_splats_key(task.job_id)
-        with self.redis.pipeline(transaction=True) as pipe:
-            while True:
-                try:
-                    pipe.watch(splats_key)
-                    stored = pipe.hmget(splats_key, names)
-                    sums = film.SplatSums(s.width, s.height)
-                    for name, data in zip(names, stored):
-                        if data is not None:
-                            sums.decode_into(name, data)
-                    light = sums.fold(result)
-                    pairs = [v for n in names for v in (n, sums.encode(n))]
-                    data = protocol.encode_tile(task.tile, **_tile_fields(light))
-                    pipe.multi()
-                    self.scripts.store_tile(keys=keys, args=_store_args(args, data, pairs),
-                                            client=pipe)
-                    return pipe.execute()[0]
-                except redis.WatchError:
-                    continue  # another tile of the job was stored meanwhile: add again
-
     def _render(self, task: TileTask, scene_pass: bool = False):
         """Renders a tile pass in the render process, or with `scene_pass` computes a scene
         pass's product; returns (TileResult or product bytes, seconds)."""
@@ -414,115 +358,6 @@ class Worker:
         log.info("job %s: scene pass %d computed in %.3f s (%d bytes)%s", job_id, p, seconds,
                  len(product), "" if stored == 1 else "; it was already stored")
 
-    def _scene_product(self, task: TileTask) -> bytes | None:
-        """The product a tile pass of a scene-pass integrator reads (None for the others):
-        fetched once per worker and iteration, kept by its content hash."""
-        if not integrators.scene_passes(task.settings.integrator):
-            return None
-        digest = _text(self.redis.hget(rdb.job_key(task.job_id), rdb.product_field(task.pass_index)))
-        product = self._products.get(digest) if digest else None
-        if product is None and digest:
-            product = self.redis.hget(rdb.job_products_key(task.job_id), digest)
-        if product is None:
-            decided = _text(self.redis.hget(rdb.job_key(task.job_id), "decided_pass"))
-            if decided is not None and int(decided) >= task.pass_index:
-                # A late duplicate of a tile its pass already holds (decide_pass.lua dropped
-                # the pass's product with the barrier): nothing to render.
-                raise Abandoned(f"pass {task.pass_index} is complete")
-            raise RenderFailed(f"the scene pass {task.pass_index} product is missing", fatal=True)
-        self._products[digest] = self._products.pop(digest, product)  # most recently used last
-        while len(self._products) > PRODUCTS_KEPT:
-            self._products.pop(next(iter(self._products)))
-        return product
-
-    def _tile_final(self, task: TileTask, this, started_at: float | None) -> bool:
-        """Whether the tile needs no further pass (per-tile noise target)."""
-        s, rect = task.settings, task.tile
-        if not s.adaptive or s.lockstep:
-            return True  # lockstep: the pass barrier decides (_decide)
-        earlier = []
-        if task.pass_index > 0:
-            fields = [rdb.result_field(rect.index, p) for p in range(task.pass_index)]
-            stored = self.redis.hmget(rdb.job_tiles_key(task.job_id), fields)
-            if any(d is None for d in stored):
-                # Cannot happen (a pass is queued only after the previous one is stored)
-                # unless the job's results expired; finish the tile with what it has.
-                return True
-            earlier = [protocol.decode_tile(d) for d in stored]
-        mean, var, samples = convergence.combine_passes(earlier + [this])
-        final = convergence.tile_finished(s, task.pass_index, mean, var, samples)
-        if not final and s.time_limit is not None:
-            if started_at is None:
-                started_at = _float(self.redis.hget(rdb.job_key(task.job_id), "started_at"))
-            final = started_at is not None and time.time() - started_at >= s.time_limit
-        return final
-
-    def _decide(self, task: TileTask, entry_id: bytes, started_at: float | None) -> None:
-        """A lockstep pass barrier: adds the pass's whole-image estimate to the job's
-        accumulator and queues the next pass for every tile, or finishes the job. Tiles are
-        read one at a time, so memory stays at a few full frames."""
-        job_id, s, p = task.job_id, task.settings, task.pass_index
-        key = rdb.job_key(job_id)
-        # Read together (decide_pass.lua writes both at once): read apart, a barrier
-        # reclaimed from a slow worker could see the other's accumulator of pass p + 1 with
-        # the decision still unread, and fail a healthy job.
-        with self.redis.pipeline(transaction=True) as pipe:
-            pipe.hget(key, "decided_pass")
-            pipe.get(rdb.job_passes_key(job_id))
-            decided, accumulated = pipe.execute()
-        decided = _text(decided)
-        if decided and int(decided) >= p:  # a redelivery
-            self._ack(rdb.job_queue_key(job_id), entry_id)
-            return
-        acc = convergence.PassAccumulator.from_bytes(accumulated)
-        if acc.passes != p:
-            self._fail(job_id, f"pass barrier {p} found {acc.passes} passes accumulated",
-                       task.scene_hash)
-            self._ack(rdb.job_queue_key(job_id), entry_id)
-            return
-        grid = protocol.job_tiles(s)
-        tiles_key = rdb.job_tiles_key(job_id)
-        results = []
-        for rect in grid:
-            data = self.redis.hget(tiles_key, rdb.result_field(rect.index, p))
-            if data is None:  # expired or the job was deleted under us
-                log.warning("job %s: pass %d of tile %d is gone; barrier dropped", job_id, p,
-                            rect.index)
-                self._ack(rdb.job_queue_key(job_id), entry_id)
-                return
-            try:
-                results.append(protocol.decode_tile(data))
-            except ValueError as e:  # corrupt: the job cannot be merged either
-                self._fail(job_id, f"tile {rect.index} pass {p}: unreadable result: {e}",
-                           task.scene_hash)
-                self._ack(rdb.job_queue_key(job_id), entry_id)
-                return
-        sums = film.SplatSums(s.width, s.height)
-        name = film.SplatSums.pass_field(p)
-        stored = self.redis.hget(rdb.job_splats_key(job_id), name)
-        if stored is not None:
-            try:
-                sums.decode_into(name, stored)
-            except ValueError as e:
-                self._fail(job_id, f"pass {p}: unreadable splat sum: {e}", task.scene_hash)
-                self._ack(rdb.job_queue_key(job_id), entry_id)
-                return
-        acc = acc.add(protocol.in_crop(s, film.pass_image(s.width, s.height, results, sums)), results[0].spp)
-        del results
-        finished = convergence.image_finished(s, p, acc)
-        if not finished and s.adaptive and s.time_limit is not None:  # a fixed spp renders every pass
-            if started_at is None:
-                started_at = _float(self.redis.hget(key, "started_at"))
-            finished = started_at is not None and time.time() - started_at >= s.time_limit
-        error = acc.error()
-        log.info("job %s: pass %d done, image noise %s; %s", job_id, p,
-                 "unknown" if error is None else f"{error:.3%}", "finished" if finished else "next pass")
-        tasks = [] if finished else [t.model_dump_json() for t in task.iteration_tasks(p + 1)]
-        if self.scripts.decide_pass(keys=self._keys(job_id, task.scene_hash),
-                                    args=[job_id, p, 1 if finished else 0, repr(time.time()),
-                                          entry_id, acc.to_bytes(), *tasks]) == 1:
-            log.info("job %s done", job_id)
-
     def _failed(self, task: TileTask, entry_id: bytes, message: str, fatal: bool) -> None:
         where = (f"the scene pass of iteration {task.pass_index} of {task.scene_name!r}" if task.scene_pass
                  else f"tile {task.tile.index} (pass {task.pass_index}) of {task.scene_name!r}")
@@ -580,157 +415,6 @@ class Worker:
             pipe.xdel(queue, entry_id)
             pipe.execute()
 
-    def _scene_source(self, task: TileTask, blob_version: str | None) -> dict:
-        """Where the render process gets the task's scene: the translated blob another
-        worker stored in the data store (no USD parsing), else the scene file, translated
-        here and written as a blob (`blob_out`) that _share_blob then stores for the others."""
-        suffix = PurePosixPath(task.scene_name).suffix.lower()
-        level, camera = task.settings.subdivision_level, task.settings.camera
-        # A subdivision level other than the default translates to other triangles, another
-        # camera to other camera-relative coordinates: each its own blob (and cached Scene),
-        # never the default one.
-        variant = "" if level is None else f".subdiv{level}"
-        # The same bytes as a .usdz and as a .zip may have different root layers (the
-        # package's first member; the zip's named or only top-level one): never share.
-        if suffix == ".usdz":
-            variant = ".usdz" + variant
-        if camera is not None:
-            variant += ".cam" + hashlib.sha256(camera.encode()).hexdigest()[:16]
-        # Another time code or shutter: other positions and motion steps.
-        frame, shutter = task.settings.frame, task.settings.shutter
-        if frame is not None or shutter is not None:
-            variant += ".t" + hashlib.sha256(repr((frame, shutter)).encode()).hexdigest()[:16]
-        # Other variant selections: another composed stage.
-        selections = [list(protocol.parse_variant(v)) for v in task.settings.variants or ()]
-        if selections:
-            variant += ".v" + hashlib.sha256(repr(selections).encode()).hexdigest()[:16]
-        source = {"scene_key": f"{task.scene_hash}{variant}{suffix}", "scene_path": None,
-                  "blob_path": None, "blob_out": None, "subdivision_level": level, "camera": camera,
-                  "frame": frame, "shutter": None if shutter is None else list(shutter),
-                  "variants": selections}
-        if blob_version is None:
-            source["scene_path"] = self._scene_file(task)
-            return source
-        blob_version += variant
-        name = f"{task.scene_hash}.{blob_version}.blob"
-        path = self._scene_files.get(name)
-        if path is not None and os.path.exists(path):
-            self._scene_files[name] = self._scene_files.pop(name)
-            source["blob_path"] = path
-            return source
-        named = self.redis.hget(rdb.scene_key(task.scene_hash), rdb.translated_field(blob_version))
-        if named is not None and not is_digest(named):
-            # The blob itself, as farms before the data store kept it (until the scene expires).
-            path = os.path.join(self._tmpdir, name)
-            with open(path, "wb") as f:
-                f.write(named)
-            self._remember_file(name, path)
-            source["blob_path"] = path
-            return source
-        digest = _text(named)
-        if digest:
-            path = os.path.join(self._tmpdir, name)
-            try:
-                self.data.copy_to(digest, path)
-                self._remember_file(name, path)
-                source["blob_path"] = path
-                return source
-            except ObjectMissing as exc:
-                log.warning("translating %s here: its translated scene is not usable: %s",
-                            task.scene_name, exc)
-        source["scene_path"] = self._scene_file(task)
-        source["blob_out"] = os.path.join(self._tmpdir, name)
-        return source
-
-    def _share_blob(self, task: TileTask, path: str) -> None:
-        """Stores a blob this worker translated in the data store, named once (HSETNX
-        semantics) in the scene's hash, which then holds it."""
-        if not os.path.exists(path):
-            return
-        self.redis.hincrby(rdb.STATS, "scene_translations", 1)
-        name = os.path.basename(path)
-        self._remember_file(name, path)
-        blob_version = name[len(task.scene_hash) + 1:-len(".blob")]
-        hasher = hashlib.sha256()
-        with open(path, "rb") as f:
-            while chunk := f.read(1 << 20):
-                hasher.update(chunk)
-        digest, size = hasher.hexdigest(), os.path.getsize(path)
-        # Held by the scene's own hash, so that it lives exactly as long as the scene; only
-        # if the scene is still there (a blob of an expired scene would be swept at once).
-        key, field = rdb.scene_key(task.scene_hash), rdb.translated_field(blob_version)
-        with self.redis.pipeline(transaction=True) as pipe:
-            try:
-                pipe.watch(key)
-                if not pipe.exists(key):
-                    return
-                named = _text(pipe.hget(key, field))
-                if named:
-                    pipe.unwatch()
-                    if named == digest:  # the same bytes: restores a file that went missing
-                        self.data.write_file(digest, path)
-                    return
-                pipe.multi()
-                pipe.hset(key, field, digest)
-                self.data.hold(pipe, digest, size, key)  # index first: see data_store
-                pipe.execute()
-            except redis.WatchError:
-                return  # the scene changed meanwhile (another blob, an expiry): skip sharing
-        self.data.write_file(digest, path)
-
-    def _remember_file(self, name: str, path: str) -> None:
-        self._scene_files[name] = path
-        while len(self._scene_files) > SCENE_FILES:
-            old = next(iter(self._scene_files))
-            path = self._scene_files.pop(old)
-            with contextlib.suppress(OSError):
-                os.unlink(path)
-                if os.path.dirname(path) != self._tmpdir:  # a scene's own directory
-                    os.rmdir(os.path.dirname(path))
-
-    def _scene_file(self, task: TileTask) -> str:
-        """A local file with the task's scene, alone in a directory of its own under the
-        name the API's pre-flight gave it (protocol.scene_file_name): the bundle a loose
-        layer sees here is the one that passed pre-flight, and holds no other scene."""
-        suffix = PurePosixPath(task.scene_name).suffix.lower()
-        key = f"{task.scene_hash}{suffix}"
-        path = self._scene_files.get(key)
-        if path is not None and os.path.exists(path):
-            self._scene_files[key] = self._scene_files.pop(key)  # most recently used last
-            return path
-        if not self.redis.exists(rdb.scene_key(task.scene_hash)):
-            raise RenderFailed(f"cannot load scene {task.scene_name!r}: scene "
-                               f"{task.scene_hash} is missing from the store", fatal=True)
-        os.makedirs(os.path.join(self._tmpdir, task.scene_hash), exist_ok=True)
-        path = os.path.join(self._tmpdir, task.scene_hash, protocol.scene_file_name(suffix))
-        try:
-            try:
-                self.data.copy_to(task.scene_hash, path)
-            except ObjectMissing:
-                if not self._adopt_legacy_scene(task.scene_hash):
-                    raise
-                self.data.copy_to(task.scene_hash, path)
-        except ObjectMissing as exc:
-            # This worker's data directory, not the scene: another worker may render it.
-            raise RenderFailed(f"cannot read scene {task.scene_name!r}: {exc}", fatal=False) from None
-        self._remember_file(key, path)
-        return path
-
-    def _adopt_legacy_scene(self, scene_hash: str) -> bool:
-        """Moves a scene's bytes that a farm before the data store kept in its hash (field
-        `data`) into the data store; False if there are none."""
-        key = rdb.scene_key(scene_hash)
-        data = self.redis.hget(key, "data")
-        if data is None or hashlib.sha256(data).hexdigest() != scene_hash:
-            return False
-        with self.redis.pipeline(transaction=True) as pipe:
-            self.data.hold(pipe, scene_hash, len(data), key)  # index first: see data_store
-            pipe.hset(key, "size", len(data))
-            pipe.execute()
-        self.data.write_bytes(scene_hash, data)
-        self.redis.hdel(key, "data")
-        return True
-
     def _fault_for(self, task: TileTask) -> str | None:
         target = SCENE_TASK if task.scene_pass else task.tile.index
         for kind, pattern, tile in self._faults:
@@ -738,96 +422,6 @@ class Worker:
                 return kind
         return None
 
-    # ----------------------------------------------------------------- liveness
-    def _beat(self) -> None:
-        key = rdb.worker_key(self.name)
-        with self.redis.pipeline(transaction=True) as pipe:
-            pipe.hset(key, mapping={"host": socket.gethostname(), "pid": os.getpid(),
-                                    "started_at": repr(self.started_at),
-                                    "beat_at": repr(time.time()), "current": self.current})
-            pipe.hsetnx(key, "tiles_done", 0)
-            pipe.hsetnx(key, "failures", 0)
-            pipe.pexpire(key, int(self.heartbeat_ttl * 1000))
-            pipe.sadd(rdb.WORKERS, self.name)
-            pipe.execute()
-
-    def _heartbeat_loop(self, stop: threading.Event) -> None:
-        interval = max(0.1, self.heartbeat_ttl / 5)
-        while not stop.wait(interval):
-            try:
-                self._beat()
-            except redis.RedisError as e:
-                log.debug("heartbeat failed: %s", e)
-
-    def _alive(self, name: str) -> bool:
-        return bool(self.redis.exists(rdb.worker_key(name)))
-
-    def _reap(self, stop: threading.Event) -> None:
-        """Claims and renders the tiles held by workers whose heartbeat has expired, then
-        removes those workers from the queues' groups."""
-        # Counted so that /workers and the tests can tell that a reaper looked.
-        self.redis.hincrby(rdb.worker_key(self.name), "reaps", 1)
-        for job_id in [_text(j) for j in self.redis.smembers(rdb.ACTIVE)]:
-            queue = rdb.job_queue_key(job_id)
-            try:
-                summary = self.redis.xpending(queue, rdb.WORKER_GROUP)
-            except redis.ResponseError:  # the queue ended (job finished) meanwhile
-                continue
-            for consumer in summary.get("consumers") or []:
-                dead = _text(consumer["name"])
-                mine = dead == self.name
-                if not mine and self._alive(dead):
-                    continue
-                if mine:
-                    # The reaper runs between tiles, so an entry of ours is not being
-                    # rendered: Redis failed while it was being stored. Render it again.
-                    log.info("retrying %s tile(s) of job %s left pending by a redis error",
-                             consumer["pending"], job_id)
-                else:
-                    log.info("worker %s is gone; taking over its %s pending tile(s) of job %s",
-                             dead, consumer["pending"], job_id)
-                for pending in self.redis.xpending_range(queue, rdb.WORKER_GROUP, min="-",
-                                                         max="+", count=100, consumername=dead):
-                    if stop.is_set():
-                        return
-                    # One at a time, so that a tile is not held while others render.
-                    claimed = self.redis.xclaim(queue, rdb.WORKER_GROUP, self.name,
-                                                CLAIM_MIN_IDLE_MS, [pending["message_id"]])
-                    for entry_id, fields in claimed:
-                        if not mine:
-                            self.redis.hincrby(rdb.STATS, "reclaimed", 1)
-                        if pending["times_delivered"] >= MAX_DEATH_DELIVERIES:
-                            self._poison_by_deaths(job_id, entry_id, fields,
-                                                   pending["times_delivered"])
-                        else:
-                            self._process(job_id, entry_id, fields)
-                if not mine and self.scripts.drop_idle_consumer(keys=[queue],
-                                                         args=[rdb.WORKER_GROUP, dead]):
-                    log.info("removed dead worker %s from job %s's queue", dead, job_id)
-        for name in [_text(n) for n in self.redis.smembers(rdb.WORKERS)]:
-            if name != self.name and not self._alive(name):
-                self.redis.srem(rdb.WORKERS, name)
-
-    def _poison_by_deaths(self, job_id: str, entry_id: bytes, fields, deliveries: int) -> None:
-        try:
-            tile = TileTask.from_fields(fields or {}).tile.index
-        except ValueError:
-            tile = "?"
-        message = (f"tile {tile} was delivered {deliveries} times and the worker holding it "
-                   f"died each time")
-        self._fail(job_id, message)
-        self._ack(rdb.job_queue_key(job_id), entry_id)
-
-    def _leave(self) -> None:
-        """On a clean exit: stop counting as alive."""
-        try:
-            self.redis.delete(rdb.worker_key(self.name))
-            self.redis.srem(rdb.WORKERS, self.name)
-            for job_id in [_text(j) for j in self.redis.smembers(rdb.ACTIVE)]:
-                self.scripts.drop_idle_consumer(keys=[rdb.job_queue_key(job_id)],
-                                         args=[rdb.WORKER_GROUP, self.name])
-        except redis.RedisError as e:
-            log.debug("could not leave cleanly: %s", e)
 
 
 def _parse_faults(spec: str) -> list[tuple[str, str, int | None]]:
@@ -846,34 +440,3 @@ def _size(n: int) -> str:
     return "none" if n <= 0 else f"{n / (1 << 30):g} GiB"
 
 
-def _text(value) -> str:
-    if value is None:
-        return ""
-    return value.decode() if isinstance(value, bytes) else str(value)
-
-
-def _float(value) -> float | None:
-    text = _text(value)
-    return float(text) if text else None
-
-
-def _out_of_memory(error: redis.ResponseError) -> bool:
-    """Redis refused a write at its maxmemory (noeviction); redis-py strips the OOM code
-    from some of these (errors inside scripts and transactions)."""
-    return isinstance(error, redis.exceptions.OutOfMemoryError) or "maxmemory" in str(error)
-
-
-def _tile_fields(result) -> dict:
-    """encode_tile's keyword arguments for a TileResult."""
-    return dict(rgba=result.rgba, pass_index=result.pass_index, sample_start=result.sample_start,
-                spp=result.spp, variance=result.variance, splat_rect=result.splat_rect,
-                splat=result.splat, light_paths=result.light_paths, aovs=result.aovs,
-                splat_exponent=result.splat_exponent, batches=result.batches)
-
-
-def _store_args(args: list, data: bytes, pairs: list = ()) -> list:
-    """store_tile.lua's ARGV: `args` with the encoded result and the time filled in, then
-    the splat sum (field, value) pairs."""
-    out = list(args)
-    out[2], out[6] = data, repr(time.time())
-    return out + [len(pairs) // 2, *pairs]

@@ -15,7 +15,7 @@ from tessera_tools.compare import ALPHA, CompareReport
 from ..compare_process import CompareRefused, compare_in_child
 from ..inspection_pool import InspectionPool, PoolFull
 from ..settings import Settings
-from .jobs import _save_upload, upload_too_large
+from .submit import _save_upload, upload_too_large
 
 FILES = 2
 FORM_OVERHEAD = 1 << 20
