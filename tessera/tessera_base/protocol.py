@@ -388,7 +388,8 @@ def job_tiles(settings: "RenderSettings", integrator: str | None = None) -> list
     sample, seed), so the crop's pixels equal the full render's bit for bit. Not for an
     integrator that splats (`integrator`, default settings.integrator; `auto` may): a
     crop pixel also gathers the light paths started from every other pixel, so those
-    render the whole grid."""
+    render the whole grid, the crop as the renderer's camera window (film.render_tile_pass:
+    outside it only the light paths are traced, bdpt and vcm skip their camera work)."""
     s = settings
     grid = tile_grid(s.width, s.height, s.tile_size)
     if s.crop is None:
