@@ -716,8 +716,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
                    help="write only this pixel region (X1, Y1 exclusive) as the EXR's data "
                         "window, the full frame as its display window; only the region is "
-                        "rendered (light, bdpt and vcm trace the whole frame: light paths from "
-                        "anywhere land in it); the PNG preview is the region")
+                        "rendered (light, bdpt and vcm still trace every pixel's light paths, "
+                        "which land in it; bdpt and vcm skip the camera work outside it); the PNG "
+                        "preview is the region")
     r.add_argument("--no-variance", action="store_true",
                    help="write no variance and spp layers (a smaller EXR that `tessera compare` "
                         "cannot judge); it saves little time: the noise estimate comes from the "
