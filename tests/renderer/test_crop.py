@@ -184,3 +184,17 @@ def test_a_camera_window_outside_the_image_is_refused():
     for bad, message in [((0, 0, 65, 8), "inside the image"), ((8, 4, 8, 9), "x0 < x1")]:
         with pytest.raises(ValueError, match=message):
             scene.render_tile(0, 0, 16, 16, width=64, height=48, spp=1, camera_window=bad)
+
+
+def test_the_aovs_outside_the_camera_window_are_zero():
+    """Outside the window every layer is 0, as for the pixels a cropped path render never
+    reaches (the depth too, not the +inf of a pixel that saw nothing)."""
+    from tessera_renderer import load_scene
+
+    scene = load_scene(CORNELL)
+    names = ("albedo", "normal", "depth", "spp")
+    for window, expect_zero in (((40, 0, 64, 48), True), (None, False)):
+        _, layers = scene.render_tile(16, 16, 16, 16, width=64, height=48, spp=2, seed=5, integrator="bdpt",
+                                      splats=np.zeros((48, 64, 3), np.int64), aovs=names, camera_window=window)
+        for name in names:
+            assert (not layers[name].any()) == expect_zero, name  # without the window: the control
