@@ -5,9 +5,12 @@
 The Cornell box at 512x512, one scene load, then for each repetition every case in turn
 (interleaved, so a busy neighbour slows all cases alike): the full frame and crops of 1/4
 (`--crop 128,64,384,320`) and 1/16 of it with path (only the tiles meeting the crop are
-rendered, cut to it: protocol.job_tiles), and the full frame and the 1/4 crop with light
-(a splatting integrator traces every pixel's light paths even for a crop: the expected
-ratio is 1). The scene load is outside the timings. Writes docs/benchmarks/crop.md.
+rendered, cut to it: protocol.job_tiles) and with bdpt (every pixel's light subpath is
+traced, since its splats may land in the crop, but outside the crop no camera subpath and
+no strategy but the splats), the full frame and the 1/4 crop with vcm (as bdpt, and its
+scene pass of shared light vertices stays whole) and with light (nothing to skip but one
+camera ray a sample: the expected ratio is about 1). The scene load is outside the
+timings. Writes docs/benchmarks/crop.md.
 """
 from __future__ import annotations
 
@@ -18,8 +21,11 @@ import time
 
 from common import CORNELL, OUT, fmt, summary
 
-CASES = [("path", None), ("path", (128, 64, 384, 320)), ("path", (192, 192, 320, 320)),
-         ("light", None), ("light", (128, 64, 384, 320))]
+QUARTER, SIXTEENTH = (128, 64, 384, 320), (192, 192, 320, 320)
+CASES = [("path", None), ("path", QUARTER), ("path", SIXTEENTH),
+         ("bdpt", None), ("bdpt", QUARTER), ("bdpt", SIXTEENTH),
+         ("vcm", None), ("vcm", QUARTER),
+         ("light", None), ("light", QUARTER)]
 
 
 def main() -> None:
@@ -55,9 +61,13 @@ def main() -> None:
                      f"{area:.4g} | {fmt(t, digits=3)} | {fmt(ratios, digits=3)} |")
     lines += ["", "path renders only the tiles meeting the crop, cut to it, so its time follows the "
               "area; what stays is the per-render overhead (tile set-up, image assembly over the "
-              "full frame). light (and bdpt, vcm) traces every pixel's light paths, whose "
-              "splats land in the crop too: its crop costs what the full frame costs "
-              "(docs/aovs.md, \"Crop\")."]
+              "full frame). The splatting integrators trace every pixel's light subpath, whose "
+              "splats land in the crop too. Outside the crop bdpt and vcm skip the camera subpath "
+              "and every strategy but those splats (t = 1), so their crop costs the light "
+              "subpaths and their camera connections over the whole frame plus the full work of "
+              "the crop's own pixels; vcm's scene pass (the shared light vertices) stays whole "
+              "as well. light has only one camera ray a sample to skip: its crop costs about "
+              "what its full frame costs (docs/aovs.md, \"Crop\")."]
     text = "\n".join(lines) + "\n"
     (OUT / "crop.md").write_text(text)
     print(text)

@@ -93,6 +93,10 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
     if (uint64_t(options.sample_start) + options.spp > 0xFFFFFFFFull)
         throw std::invalid_argument("sample indices must stay below 2^32");
     if (options.max_depth < 0) throw std::invalid_argument("max_depth must be >= 0");
+    const std::optional<TileRect>& window = options.camera_window;
+    if (window && (window->width == 0 || window->height == 0 || uint64_t(window->x0) + window->width > camera.width ||
+                   uint64_t(window->y0) + window->height > camera.height))
+        throw std::invalid_argument("the camera window must be a non-empty region inside the image");
     if (!kFullFeatures && (camera.HasLens() || camera.Moves() || aovs.any()))
         throw std::invalid_argument("this renderer build (TESSERA_LAMBERT_ONLY) renders through a still pinhole "
                                     "camera and without AOVs only");
@@ -117,6 +121,10 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
     for (uint32_t b = 0; b < batches.count; ++b)
         batch_films.emplace_back(splats, camera.width, camera.height, scene.splat_exponent(),
                                  batches.splats + size_t(b) * camera.width * camera.height * 3);
+    if (window) {
+        film.KeepOnly(window->x0, window->y0, window->width, window->height);
+        for (SplatFilm& f : batch_films) f.KeepOnly(window->x0, window->y0, window->width, window->height);
+    }
     // Every integrator's camera samples get their instants, those whose tiles read a scene
     // pass's product too: its photons and light vertices were traced at instants of their
     // own (LightPathInstant), its radiosity solution at mid-shutter (docs/motion.md).
@@ -145,6 +153,10 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
         for (uint32_t i = range.begin(); i != range.end(); ++i) {
             const uint32_t x = tile.x0 + i % tile.width, y = tile.y0 + i / tile.width;
             const uint64_t pixel_index = uint64_t(y) * camera.width + x;
+            // Outside the camera window a pixel's own estimate is not wanted: it stays 0, and
+            // only a splatting integrator's light paths are traced (their splats may land inside).
+            const bool inside = !window || window->Contains(x, y);
+            const uint32_t spp_here = inside || info.splats ? options.spp : 0;
             // Double sums in sample order: the same pixel always sums the same values in
             // the same order, whatever thread runs it.
             double sum_r = 0, sum_g = 0, sum_b = 0, sum_a = 0;
@@ -157,7 +169,7 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
             uint32_t batch_end = options.sample_start +
                                  (batches.count ? VarianceBatchRange(options.spp, batches.count, 0).second : options.spp);
             double batch_r = 0, batch_g = 0, batch_b = 0;
-            const uint32_t end = options.sample_start + options.spp;
+            const uint32_t end = options.sample_start + spp_here;
             for (uint32_t s0 = options.sample_start; s0 < end; s0 += chunk) {
                 const uint32_t count = std::min(chunk, end - s0);
                 batch_samples.clear();
@@ -179,7 +191,7 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                     Ray ray = cam.GenerateRay(float(x) + jitter.x, float(y) + jitter.y, u_lens);
                     float t_min, t_max;
                     cam.ClipRange(ray.d, &t_min, &t_max);
-                    if (want_aovs) {
+                    if (want_aovs && inside) {
                         // Its own sample stream, so the image is the same with or without AOVs.
                         const RayCounters before = tls_ray_counters;
                         PixelSampler aov_sampler(options.seed, pixel_index, s, /*stream=*/2, options.sampler);
@@ -195,7 +207,7 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                             ++aov_hits;
                         }
                     }
-                    const CameraSample cs{ray, t_min, t_max, options.seed, pixel_index, s, options.sampler};
+                    const CameraSample cs{ray, t_min, t_max, options.seed, pixel_index, s, options.sampler, inside};
                     if (in_batches) {
                         batch_samples.push_back({ray, t_min, t_max, sampler});
                         continue;
@@ -207,7 +219,9 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                 // Summed in sample order, however the samples were estimated.
                 for (uint32_t s = s0; s < s0 + count; ++s) {
                     const PathSample& ps = results[s - s0];
-                    if (!IsFinite(ps.radiance)) {
+                    if (!inside) {
+                        // Not wanted: an integrator that ignores camera_work computed it all the same.
+                    } else if (!IsFinite(ps.radiance)) {
                         if (nonfinite.fetch_add(1) == 0) {
                             std::lock_guard<std::mutex> lock(first_mutex);
                             stats.first_nonfinite_pixel_x = x;
@@ -255,7 +269,12 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
                 v[1] = float(var(sum_g, sq_g));
                 v[2] = float(var(sum_b, sq_b));
             }
-            if (want_aovs) {
+            if (want_aovs && !inside) {
+                for (float* layer : {aovs.albedo, aovs.normal})
+                    if (layer) std::fill_n(layer + 3 * size_t(i), 3, 0.f);
+                if (aovs.depth) aovs.depth[i] = 0.f;
+                if (aovs.samples) aovs.samples[i] = 0.f;
+            } else if (want_aovs) {
                 for (int c = 0; c < 3; ++c) {
                     if (aovs.albedo) aovs.albedo[3 * size_t(i) + c] = float(aov_albedo[c] * inv);
                     if (aovs.normal) aovs.normal[3 * size_t(i) + c] = float(aov_normal[c] * inv);
@@ -276,7 +295,15 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
     tbb::task_arena arena(threads);
     arena.execute([&] { tbb::parallel_for(tbb::blocked_range<uint32_t>(0, n_pixels, 8), render_range); });
 
-    stats.samples = uint64_t(n_pixels) * options.spp;
+    uint64_t sampled_pixels = n_pixels;  // a splatting integrator samples every pixel for its light paths
+    if (window && !info.splats) {
+        const auto overlap = [](uint32_t a0, uint32_t a1, uint32_t b0, uint32_t b1) {
+            return uint64_t(std::max<int64_t>(0, int64_t(std::min(a1, b1)) - int64_t(std::max(a0, b0))));
+        };
+        sampled_pixels = overlap(tile.x0, tile.x0 + tile.width, window->x0, window->x0 + window->width) *
+                         overlap(tile.y0, tile.y0 + tile.height, window->y0, window->y0 + window->height);
+    }
+    stats.samples = sampled_pixels * options.spp;
     stats.nonfinite_samples = nonfinite.load();
     stats.light_paths = info.splats ? stats.samples : 0;
     stats.rejected_splats = rejected_splats.load();

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -15,6 +16,11 @@
 #include "scene.h"
 
 namespace tessera {
+
+struct TileRect {
+    uint32_t x0 = 0, y0 = 0, width = 0, height = 0;
+    bool Contains(uint32_t x, uint32_t y) const { return x - x0 < width && y - y0 < height; }
+};
 
 struct RenderOptions {
     uint32_t spp = 16;  // samples per pixel in this call
@@ -28,10 +34,11 @@ struct RenderOptions {
     // (RunScenePass below); empty for the others.
     std::string scene_product;
     SamplerKind sampler = SamplerKind::kOwenSobol;
-};
-
-struct TileRect {
-    uint32_t x0 = 0, y0 = 0, width = 0, height = 0;
+    // A crop: the pixels whose own estimate is wanted; unset, every pixel. A pixel outside
+    // it comes out 0 (every output) and its splats are dropped, but a splatting
+    // integrator still traces its light paths, whose splats may land inside
+    // (CameraSample::camera_work): the window's pixels equal a full render's bit for bit.
+    std::optional<TileRect> camera_window;
 };
 
 struct RenderStats {

@@ -26,7 +26,14 @@ public:
     // `data` holds width * height * 3 int64 (RGB), zeroed by the caller. `also`, if not
     // null, is a second such buffer that receives every splat too (a variance batch's).
     SplatFilm(int64_t* data, uint32_t width, uint32_t height, int exponent = 0, int64_t* also = nullptr)
-        : data_(data), also_(also), width_(width), height_(height), scale_(SplatScale(exponent)) {}
+        : data_(data), also_(also), width_(width), height_(height), scale_(SplatScale(exponent)),
+          keep_w_(width), keep_h_(height) {}
+
+    // Keeps only the splats landing in [x0, x0 + w) x [y0, y0 + h) (a crop: the pixels
+    // outside it are not wanted); the others are dropped as accepted, not as bad splats.
+    void KeepOnly(uint32_t x0, uint32_t y0, uint32_t w, uint32_t h) {
+        keep_x0_ = x0, keep_y0_ = y0, keep_w_ = w, keep_h_ = h;
+    }
 
     // Adds `value` at continuous raster position (px, py); safe from many threads.
     // Returns false (adding nothing) for a value that is not finite and >= 0, or too large
@@ -41,6 +48,7 @@ public:
             if (!(v >= 0.0) || !(v < 9.0e18)) return false;  // NaN, negative, or overflow
             q[c] = std::llround(v);
         }
+        if (x - keep_x0_ >= keep_w_ || y - keep_y0_ >= keep_h_) return true;
         const size_t at = 3 * (size_t(y) * width_ + x);
         for (int64_t* buffer : {data_, also_}) {
             if (!buffer) continue;
@@ -58,6 +66,7 @@ private:
     int64_t* also_;
     uint32_t width_, height_;
     double scale_;
+    uint32_t keep_x0_ = 0, keep_y0_ = 0, keep_w_, keep_h_;
 };
 
 }  // namespace tessera

@@ -609,11 +609,12 @@ NB_MODULE(_core, m) {
            const std::string& integrator, std::optional<SplatArray> splats, const std::string& sampler,
            const std::vector<std::string>& aovs, const std::map<std::string, float>& integrator_params,
            std::optional<nb::bytes> scene_product, std::optional<BatchSplatArray> batch_splats,
-           std::optional<BatchRgbArray> batch_rgb) {
+           std::optional<BatchRgbArray> batch_rgb, std::optional<std::array<uint32_t, 4>> camera_window) {
             RenderOptions options{.spp = spp, .seed = seed, .max_depth = max_depth, .threads = threads,
                                   .sample_start = sample_start, .integrator = integrator,
                                   .integrator_params = integrator_params, .sampler = ParseSampler(sampler)};
             if (scene_product) options.scene_product.assign(scene_product->c_str(), scene_product->size());
+            if (const auto& w = camera_window) options.camera_window = TileRect{(*w)[0], (*w)[1], (*w)[2], (*w)[3]};
             int64_t* splat_data = nullptr;
             if (splats) {
                 if (splats->shape(0) != camera.height || splats->shape(1) != camera.width)
@@ -683,7 +684,7 @@ NB_MODULE(_core, m) {
         "threads"_a = 0, "sample_start"_a = 0, "with_variance"_a = false, "integrator"_a = "path",
         "splats"_a = nb::none(), "sampler"_a = "sobol", "aovs"_a = std::vector<std::string>{},
         "integrator_params"_a = std::map<std::string, float>{}, "scene_product"_a = nb::none(),
-        "batch_splats"_a = nb::none(), "batch_rgb"_a = nb::none(),
+        "batch_splats"_a = nb::none(), "batch_rgb"_a = nb::none(), "camera_window"_a = nb::none(),
         "Renders samples [sample_start, sample_start + spp) of a tile; returns (rgba float32 [h, w, 4] mean, "
         "stats dict). With with_variance, stats['variance'] is float32 [h, w, 3]: the per-channel sample "
         "variance. integrator: a name from integrators(), integrator_params its extra settings; one that "
@@ -694,7 +695,8 @@ NB_MODULE(_core, m) {
         "stats['closest_rays'] / stats['shadow_rays']: Embree queries the integrator made. batch_splats "
         "(int64 (K, height, width, 3)) and batch_rgb (float32 (K, h, w, 3)): a splatting "
         "integrator's K variance batches made in the same pass (render.h VarianceBatches); batch k's "
-        "splats are added to batch_splats[k] as well as to `splats`.");
+        "splats are added to batch_splats[k] as well as to `splats`. camera_window (x0, y0, w, h): a crop "
+        "(render.h RenderOptions::camera_window).");
 
     m.def(
         "scene_pass",

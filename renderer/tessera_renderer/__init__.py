@@ -220,7 +220,8 @@ class Scene:
                     sampler: str = "sobol", aovs=(), stats: dict | None = None,
                     integrator_params: dict[str, float] | None = None,
                     scene_product: bytes | None = None, camera: "_core.Camera | None" = None,
-                    batch_splats: np.ndarray | None = None, batch_rgb: np.ndarray | None = None):
+                    batch_splats: np.ndarray | None = None, batch_rgb: np.ndarray | None = None,
+                    camera_window: tuple[int, int, int, int] | None = None):
         """Renders pixels [x0, x0+w) x [y0, y0+h) of a width x height image, averaging samples
         [sample_start, sample_start + spp) of each pixel. Returns float32 linear RGBA of shape
         (h, w, 4); with return_variance, (rgba, variance) where variance is float32 (h, w, 3),
@@ -244,9 +245,22 @@ class Scene:
         split as convergence.batch_ranges splits them; batch k's splats are added to
         batch_splats[k] as well as to `splats`, and its camera mean is written to
         batch_rgb[k], each what a render of that range alone gives, bit for bit. Releases
-        the GIL."""
+        the GIL.
+
+        camera_window (x0, y0, x1, y1; x1, y1 exclusive): a crop. Pixels outside it come out 0
+        in every output and splats landing outside it are dropped; a splatting integrator
+        still traces their light paths (their splats may land inside), so the window's
+        pixels equal a render without it bit for bit, and bdpt and vcm skip the camera
+        subpaths outside it (docs/aovs.md, "Crop")."""
         width = width or self.width
         height = height or self.height
+        window = None
+        if camera_window is not None:
+            wx0, wy0, wx1, wy1 = (int(v) for v in camera_window)
+            if not (0 <= wx0 < wx1 and 0 <= wy0 < wy1):
+                raise ValueError(f"camera_window {wx0},{wy0},{wx1},{wy1} is not (x0, y0, x1, y1) with "
+                                 "0 <= x0 < x1 and 0 <= y0 < y1")
+            window = (wx0, wy0, wx1 - wx0, wy1 - wy0)
         integrator = self.resolve_integrator(integrator or _core.integrators()[0]["name"])
         aovs = [aovs] if isinstance(aovs, str) else list(aovs)
         unknown = [a for a in aovs if a not in AOV_NAMES]
@@ -261,7 +275,8 @@ class Scene:
                                        spp, seed, max_depth, threads, sample_start, want_variance,
                                        integrator, splats, sampler, core_aovs,
                                        {k: float(v) for k, v in (integrator_params or {}).items()},
-                                       scene_product, batch_splats, batch_rgb)
+                                       scene_product, batch_splats, batch_rgb,
+                                       window)
         if stats is not None:
             stats.update({k: v for k, v in info.items() if not isinstance(v, np.ndarray)})
         if info["rejected_splats"]:

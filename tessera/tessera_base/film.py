@@ -263,7 +263,10 @@ def render_tile_pass(scene, settings: RenderSettings, rect: TileRect, pass_index
     batch_rgb = np.empty((len(ranges), rect.height, rect.width, 3), np.float32) if ranges else None
     common = dict(width=settings.width, height=settings.height, seed=settings.sample_seed,
                   max_depth=settings.max_depth, threads=threads, integrator=integrator,
-                  integrator_params=dict(settings.integrator_params), scene_product=scene_product)
+                  integrator_params=dict(settings.integrator_params), scene_product=scene_product,
+                  # A splatting integrator's tiles cover the frame (their light paths splat into
+                  # the crop): the window keeps their camera work and splats to the crop.
+                  camera_window=settings.crop)
     started = time.perf_counter()
     out = scene.render_tile(rect.x0, rect.y0, rect.width, rect.height, spp=spp,
                             sample_start=sample_start, return_variance=want_variance,
@@ -359,6 +362,13 @@ def assemble_image(settings: RenderSettings, passes_by_tile: dict[int, list[Tile
             if layers.get(name) is None:
                 raise ValueError(f"tile {index} has no {name} AOV (rendered by a worker without AOVs?)")
             buf[window] = np.asarray(layers[name], np.float32).reshape(rect.height, rect.width, -1)
+    if s.crop is not None:
+        # A splatting integrator's tiles cover the frame (for their light paths), but only
+        # the crop's pixels were sampled for themselves: outside it every layer is 0.
+        x0, y0, x1, y1 = s.crop
+        outside = np.ones(spp.shape, bool)
+        outside[y0:y1, x0:x1] = False
+        spp[outside] = 0
     splats = _splats_of(s.width, s.height, used, sums, None,
                         lambda r: (r.splat_rect, r.splat) if r.splat is not None else None)
     out = Assembled(full, variance, spp, aovs, splatting=splats is not None)

@@ -298,14 +298,17 @@ class RenderSettings(BaseModel):
 
     # Added within schema 2 like aovs: the region the EXR holds (x0, y0, x1, y1; x1, y1
     # exclusive) as its data window inside the full display window (docs/aovs.md). Only
-    # the tiles meeting it are rendered, cut to it (job_tiles), unless the integrator splats.
+    # the tiles meeting it are rendered, cut to it (job_tiles), unless the integrator splats;
+    # every tile then passes it to the core as the camera window (film.render_tile_pass).
     crop: Annotated[tuple[int, int, int, int] | None, Takes(
         parse=parse_numbers(4, int, "X0,Y0,X1,Y1"), argparse=dict(metavar="X0,Y0,X1,Y1"),
         form_help="x0,y0,x1,y1 (x1, y1 exclusive): the EXR holds only this region, as its data window "
                   "inside the full frame (docs/aovs.md); empty: the whole image")] = Field(
         default=None,
         description="write only this pixel region x0,y0,x1,y1 (x1, y1 exclusive) of the image "
-                    "to the EXR, as its data window inside the full-frame display window")
+                    "to the EXR, as its data window inside the full-frame display window; only "
+                    "the region is rendered (light, bdpt and vcm still trace every pixel's light "
+                    "paths, which land in it; bdpt and vcm skip the camera work outside it)")
 
     @field_validator("crop", mode="before")
     @classmethod
@@ -434,7 +437,8 @@ def job_tiles(settings: "RenderSettings", integrator: str | None = None) -> list
     sample, seed), so the crop's pixels equal the full render's bit for bit. Not for an
     integrator that splats (`integrator`, default settings.integrator; `auto` may): a
     crop pixel also gathers the light paths started from every other pixel, so those
-    render the whole grid."""
+    render the whole grid, the crop as the renderer's camera window (film.render_tile_pass:
+    outside it only the light paths are traced, bdpt and vcm skip their camera work)."""
     s = settings
     grid = tile_grid(s.width, s.height, s.tile_size)
     if s.crop is None:

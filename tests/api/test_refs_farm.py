@@ -60,9 +60,11 @@ def test_farm_reference_equals_the_local_one(farm_url, tmp_path, integrator):
     assert {k: meta[0][k] for k in shared} == {k: meta[1][k] for k in shared}
 
 
-def test_crop_job_field_writes_the_region_as_data_window(farm_url, tmp_path):
+@pytest.mark.parametrize("integrator", ["path", "bdpt"])
+def test_crop_job_field_writes_the_region_as_data_window(farm_url, tmp_path, integrator):
     """The job field `crop`: the farm queues only the tiles meeting the region (2 of the 6
-    tiles of 8 px), its EXR holds the region as its data window inside the full display
+    tiles of 8 px; bdpt all 6, for every pixel's light paths, with the region as their
+    camera window), its EXR holds the region as its data window inside the full display
     window, with the pixels of the same job rendered whole, bit for bit, and its PNG is
     the region."""
     import httpx
@@ -73,12 +75,12 @@ def test_crop_job_field_writes_the_region_as_data_window(farm_url, tmp_path):
             with open(CORNELL, "rb") as f:
                 r = client.post("/jobs", files={"file": ("cornell.usda", f)},
                                 data={"width": "24", "height": "16", "spp": "8", "seed": "2", "tile_size": "8",
-                                      **extra})
+                                      "integrator": integrator, **extra})
             if name == "bad":
                 assert r.status_code == 422 and "not a non-empty region" in r.text, r.text
                 continue
             assert r.status_code == 201, r.text
-            assert r.json()["tiles_total"] == {"full": 6, "crop": 2}[name]
+            assert r.json()["tiles_total"] == {"full": 6, "crop": 2 if integrator == "path" else 6}[name]
             job = r.json()["id"]
             while (state := client.get(f"/jobs/{job}").json()["state"]) not in ("done", "failed", "cancelled"):
                 import time

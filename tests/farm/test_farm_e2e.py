@@ -317,21 +317,23 @@ def test_worker_does_not_import_the_service():
 
 
 
-@pytest.mark.parametrize("integrator", ["bdpt", "light"])
-def test_splatting_integrators_on_the_farm_equal_a_local_render(farm, tmp_path, integrator):
+@pytest.mark.parametrize("integrator, crop", [("bdpt", None), ("light", None), ("bdpt", (12, 4, 30, 20))],
+                         ids=["bdpt", "light", "bdpt-crop"])
+def test_splatting_integrators_on_the_farm_equal_a_local_render(farm, tmp_path, integrator, crop):
     """Light paths splat onto other tiles' pixels: the farm sums every tile's splat layer
     (exact integers) and normalises by all light paths, so the merged image equals the local
-    render bit for bit, however the two workers shared the tiles."""
+    render bit for bit, however the two workers shared the tiles; with a crop too, whose
+    tiles skip their camera work outside it (docs/aovs.md, "Crop")."""
     from tessera.local import render_image
 
     form = dict(width=40, height=24, spp=4, seed=5, max_depth=8, tile_size=16, integrator=integrator)
-    r = submit(farm, CORNELL, **form)
+    r = submit(farm, CORNELL, **form, **({"crop": ",".join(map(str, crop))} if crop else {}))
     assert r.status_code == 201, r.text
     status = wait_for_job(farm, r.json()["id"], processes=farm.processes, expect="done")
     actual = download_exr(farm, status["id"], tmp_path / "farm.exr")
-    local = render_image(load_scene(str(CORNELL)), RenderSettings(**form), progress=False,
+    local = render_image(load_scene(str(CORNELL)), RenderSettings(**form, crop=crop), progress=False,
                          variance=False).rgba
-    images.write_exr(tmp_path / "local.exr", local)
+    images.write_exr(tmp_path / "local.exr", local, crop=crop)
     assert_bit_identical(actual, images.read_exr(tmp_path / "local.exr"))
     assert actual[..., :3].mean() > 0.01
 

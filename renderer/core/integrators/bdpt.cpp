@@ -29,7 +29,7 @@ IntegratorEntry BDPTIntegratorEntry() {
 
 PathSample BDPTIntegrator::SampleStrategies(const Scene& scene, const Camera& camera, const Ray& camera_ray,
                                             PixelSampler& camera_sampler, PixelSampler& light_sampler,
-                                            SplatFilm& film, uint64_t* rejected_splats) const {
+                                            SplatFilm& film, uint64_t* rejected_splats, bool camera_work) const {
     // Per-thread vertex storage, reused: no allocation per sample.
     thread_local std::vector<Vertex> camera_path, light_path;
     if (camera_path.size() < size_t(max_depth_) + 2) camera_path.resize(size_t(max_depth_) + 2);
@@ -37,13 +37,13 @@ PathSample BDPTIntegrator::SampleStrategies(const Scene& scene, const Camera& ca
 
     Walker walker(scene, camera, max_depth_);
     PathSample result;
-    const int n_camera = walker.CameraSubpath(camera_ray, camera_sampler, camera_path.data());
+    const int n_camera = CameraSubpathFor(walker, camera, camera_ray, camera_sampler, camera_path.data(), camera_work);
     const int n_light = walker.LightSubpath(light_sampler, light_path.data());
     if (n_camera > 1 && camera_path[1].type == VertexType::kSurface) result.alpha = 1.f;
 
     Color L(0.f);
     Vertex sampled;  // the strategy's own endpoint (s = 1 or t = 1), set by Connect
-    for (int t = 1; t <= n_camera; ++t) {
+    for (int t = 1; t <= (camera_work ? n_camera : 1); ++t) {
         for (int s = 0; s <= n_light; ++s) {
             const int depth = t + s - 2;
             if ((s == 1 && t == 1) || depth < 0 || depth > max_depth_) continue;

@@ -24,15 +24,16 @@ public:
                       SplatFilm& film, IntegratorCounters* counters) const override {
         PixelSampler light_sampler = cs.Stream(1);
         return SampleStrategies(scene, camera, cs.ray, sampler, light_sampler, film,
-                                counters ? &counters->rejected_splats : nullptr);
+                                counters ? &counters->rejected_splats : nullptr, cs.camera_work);
     }
 
     // One pixel sample: returns the camera-side estimate for the pixel and splats the
     // t = 1 strategies onto `film`. `camera_sampler` and `light_sampler` must be distinct
-    // streams of the same pixel sample.
+    // streams of the same pixel sample. Without `camera_work` (a pixel outside a crop) only
+    // the t = 1 strategies are made, the same splats bit for bit, and black is returned.
     PathSample SampleStrategies(const Scene& scene, const Camera& camera, const Ray& camera_ray,
                                 PixelSampler& camera_sampler, PixelSampler& light_sampler, SplatFilm& film,
-                                uint64_t* rejected_splats) const;
+                                uint64_t* rejected_splats, bool camera_work = true) const;
 
 private:
     int max_depth_;

@@ -414,4 +414,16 @@ private:
     int max_depth_;
 };
 
+// The camera subpath of a pixel sample, or for one without camera work (a pixel outside a
+// crop, whose only wanted strategies are t = 1) as little of it as keeps those strategies'
+// splats: they read no camera vertex, only the lens sample Connect draws from the camera
+// stream after the subpath. A pinhole or orthographic camera ignores that sample, so the
+// subpath is skipped (1: the camera's own vertex, unread by t = 1); a thin lens needs the
+// full render's value, so the subpath is traced to draw it at the same dimension.
+inline int CameraSubpathFor(const Walker& walker, const Camera& camera, const Ray& ray, PixelSampler& sampler,
+                            Vertex* path, bool camera_work) {
+    if (!camera_work && !camera.HasLens()) return 1;
+    return walker.CameraSubpath(ray, sampler, path);
+}
+
 }  // namespace tessera::bdpt_internal

@@ -128,6 +128,11 @@ struct CameraSample {
     uint64_t pixel_index = 0;
     uint32_t sample_index = 0;
     SamplerKind sampler_kind = SamplerKind::kOwenSobol;
+    // False for a pixel outside the render's camera window (a crop): its own estimate is
+    // discarded, only its light paths' splats are wanted. A splatting integrator may then
+    // skip its camera-side work, but the splats it makes must be those of a full render,
+    // bit for bit (the same sampler values).
+    bool camera_work = true;
     PixelSampler Stream(uint32_t stream) const {
         return PixelSampler(seed, pixel_index, sample_index, stream, sampler_kind);
     }

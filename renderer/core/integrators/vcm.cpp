@@ -277,12 +277,15 @@ public:
         // merging off the image is bdpt's bit for bit).
         Walker walker(scene, camera, max_depth_);
         PathSample result;
-        const int n_camera = walker.CameraSubpath(cs.ray, sampler, camera_path.data());
+        // Outside a crop (no camera work) only the t = 1 splats are made: their MIS weights
+        // read the light subpath and eta only; the scene pass's light vertices stay whole.
+        const int n_camera =
+            CameraSubpathFor(walker, camera, cs.ray, sampler, camera_path.data(), cs.camera_work);
         const int n_light = walker.LightSubpath(light_sampler, light_path.data());
         if (n_camera > 1 && camera_path[1].type == VertexType::kSurface) result.alpha = 1.f;
         Color L(0.f);
         Vertex sampled;  // the strategy's own endpoint (s = 1 or t = 1), set by Connect
-        for (int t = 1; t <= n_camera; ++t) {
+        for (int t = 1; t <= (cs.camera_work ? n_camera : 1); ++t) {
             for (int s = 0; s <= n_light; ++s) {
                 const int depth = t + s - 2;
                 if ((s == 1 && t == 1) || depth < 0 || depth > max_depth_) continue;
@@ -297,7 +300,7 @@ public:
                 }
             }
         }
-        if (eta > 0.f)
+        if (eta > 0.f && cs.camera_work)
             for (int t = 2; t <= n_camera; ++t) L += Merge(camera_path.data(), t, slice, eta);
         result.radiance = L;
         return result;
