@@ -135,8 +135,8 @@ NB_MODULE(_core, m) {
             "motion_instances[k] moves through motion_time_steps[k] (2-129) matrices evenly spaced over the "
             "shutter, taken in order from motion_transforms float32 (total steps, 4, 4), interpolated "
             "linearly between them (renderer/core/scene/scene.h). Moving lights: light "
-            "light_motion_indices[k] of kind light_motion_kinds[k] (uint8: 1 sphere, 2 point, 3 distant, 4 "
-            "dome with index 0) moves rigidly through light_motion_time_steps[k] world-space transforms "
+            "light_motion_indices[k] of kind light_motion_kinds[k] (uint8: the kind's position in "
+            "light_kinds(); the dome has index 0) moves rigidly through light_motion_time_steps[k] world-space transforms "
             "(light_motion_transforms float32 (total steps, 4, 4), row-vector convention) applied to it as "
             "described above. material_shaping float32 (materials, 14): per material the shaping columns "
             "of a point light: a shaped area light's emission about its emitting normal (shaped 1) or its "
@@ -156,6 +156,17 @@ NB_MODULE(_core, m) {
         .def_prop_ro("num_stored_triangles", &Scene::num_stored_triangles)
         .def_prop_ro("splat_exponent", &Scene::splat_exponent,
                      "splats are fixed point in units of 2^splat_exponent (SPLAT_SCALE / 2^e per unit)");
+
+    m.def(
+        "light_kinds",
+        [] {
+            nb::list kinds;
+            for (const LightKindInfo& k : LightKindInfos())
+                kinds.append(nb::make_tuple(nb::str(k.name), k.moves));
+            return kinds;
+        },
+        "The core's light kinds as (name, can move rigidly) in LightKind order: a moving light's "
+        "light_motion_kinds entry is its kind's position here.");
 
     m.def("embree_memory_bytes", &EmbreeMemoryBytes,
           "Bytes Embree holds right now (BVHs and geometry buffers), from its device memory monitor.");

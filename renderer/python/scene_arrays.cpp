@@ -183,8 +183,8 @@ void AddExtras(SceneDesc* d, const Extras& x) {
                 "light_motion_kinds needs light_motion_indices, light_motion_time_steps and light_motion_transforms");
         for (size_t k = 0; k < x.light_motion_kinds->shape(0); ++k) {
             const uint8_t kind = (*x.light_motion_kinds)(k);
-            if (kind < uint8_t(LightKind::kSphere) || kind > uint8_t(LightKind::kDome))
-                throw std::invalid_argument("light_motion_kinds: 1 sphere, 2 point, 3 distant or 4 dome, not " +
+            if (kind >= LightKinds::kCount || !LightKindInfos()[kind].moves)
+                throw std::invalid_argument("light_motion_kinds: " + MovingKindNames() + ", not " +
                                             std::to_string(kind));
             d->light_motion_kinds.push_back(LightKind(kind));
         }
