@@ -220,8 +220,9 @@ Scene::Scene(const SceneDesc& desc)
         d.direction = d.direction / len;
     }
     if (!IsNonNegativeFinite(desc.dome_radiance)) throw std::invalid_argument("dome radiance must be finite and >= 0");
-    lights_.Of<DomeLight>().assign(
-        1, DomeLight(desc.dome_radiance, desc.dome_width, desc.dome_height, desc.dome_rgb, desc.dome_world_to_light));
+    // Built in place: a copy would hold the texture and its distribution twice at once.
+    lights_.Of<DomeLight>().emplace_back(desc.dome_radiance, desc.dome_width, desc.dome_height, desc.dome_rgb,
+                                         desc.dome_world_to_light);
 
     // From here on Embree objects exist: a throw must release them, since a constructor
     // that throws never runs its destructor.
