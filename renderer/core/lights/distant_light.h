@@ -81,4 +81,75 @@ inline void SampleInfiniteEmission(Vec3 wo, float pdf_dir, Color L, Vec2 u_pos, 
 
 inline float InfiniteEmissionPdfPosition(float scene_radius) { return 1.f / (kPi * scene_radius * scene_radius); }
 
+// A distant light's emitter keeps its cone's 1 - cos(half angle) (0: a delta light).
+template <>
+struct EmitterOf<DistantLight> {
+    static constexpr const char* kName = "distant";
+    static constexpr bool kMoves = true;
+
+    template <class S, class E>
+    static bool Sample(const S& s, const E& e, Vec3, Vec2 u, LightSample* out) {
+        typename S::LightFrame f;
+        s.FrameOf(e, &f);
+        if (!s.lights_.template Of<DistantLight>()[e.index].Sample(u, e.one_minus_cos, out)) return false;
+        out->wi = f.ToWorldDir(out->wi);
+        return true;
+    }
+    template <class S, class E>
+    static bool SampleEmission(const S& s, const E& e, Vec2 u_pos, Vec2 u_dir, float, EmissionSample* out) {
+        float pdf_dir = 1.f;
+        Color L;
+        Vec3 wo;
+        s.lights_.template Of<DistantLight>()[e.index].SampleEmissionDirection(u_dir, e.one_minus_cos, &wo, &pdf_dir,
+                                                                              &L);
+        typename S::LightFrame f;
+        s.FrameOf(e, &f);
+        wo = f.ToWorldDir(wo);
+        SampleInfiniteEmission(wo, pdf_dir, L, u_pos, s.scene_center_, s.scene_radius_, out);
+        out->delta_light = e.one_minus_cos == 0.f;
+        return true;
+    }
+    template <class S, class E>
+    static float PdfDirection(const S&, const E& e, Vec3, Vec3) {
+        return DistantLight::PdfDirection(e.one_minus_cos);
+    }
+    template <class S, class E>
+    static bool EmissionToward(const S&, const E&, const EmissionSample&, Vec3, Color*, float*) {
+        return false;
+    }
+    template <class S, class E>
+    static float PdfPosition(const S& s, const E&) {
+        return InfiniteEmissionPdfPosition(s.scene_radius_);
+    }
+    template <class E>
+    static bool Infinite(const E&) {
+        return true;
+    }
+    template <class E>
+    static bool Delta(const E& e) {
+        return e.one_minus_cos == 0.f;
+    }
+    template <class S, class E>
+    static Color Environment(const S& s, const E& e, Vec3 dir, float* pdf) {
+        typename S::LightFrame f;
+        s.FrameOf(e, &f);
+        return s.lights_.template Of<DistantLight>()[e.index].Radiance(f.ToLightDir(dir), e.one_minus_cos, pdf);
+    }
+    // A cone (not a delta light) is also seen by rays that escape: at_infinity.
+    template <class S, class Add>
+    static void AddEmitters(const S& s, Add&& add) {
+        const auto& distants = s.lights_.template Of<DistantLight>();
+        const double disk_area = kPi * double(s.scene_radius_) * s.scene_radius_;
+        for (uint32_t i = 0; i < distants.size(); ++i) {
+            const DistantLight& d = distants[i];
+            if (IsBlack(d.radiance)) continue;
+            float sin_half = std::sin(d.half_angle);
+            float omc = d.half_angle > 0.f ? ConeOneMinusCos(sin_half * sin_half) : 0.f;
+            // Irradiance on a facing surface: E = L pi sin^2 (cone), or the stored E (delta).
+            double irradiance = double(Luminance(d.radiance)) * (omc > 0.f ? kPi * sin_half * sin_half : 1.0);
+            add(i, 0.f, omc, irradiance * disk_area, omc > 0.f);
+        }
+    }
+};
+
 }  // namespace tessera

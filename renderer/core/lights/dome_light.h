@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "distribution_2d.h"
+#include "distant_light.h"
 #include "light.h"
 
 namespace tessera {
@@ -128,6 +129,71 @@ private:
     std::vector<float> rgb_;  // h_ rows of w_ RGB texels
     float m_[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
     Distribution2D distribution_;  // proportional to luminance * sin(theta) over (u, v)
+};
+
+// The scene has one dome (index 0), an emitter when it is active.
+template <>
+struct EmitterOf<DomeLight> {
+    static constexpr const char* kName = "dome";
+    static constexpr bool kMoves = true;
+
+    template <class S, class E>
+    static bool Sample(const S& s, const E& e, Vec3, Vec2 u, LightSample* out) {
+        typename S::LightFrame f;
+        s.FrameOf(e, &f);
+        if (!s.lights_.template Of<DomeLight>()[e.index].SampleLight(u, out)) return false;
+        out->wi = f.ToWorldDir(out->wi);
+        return true;
+    }
+    template <class S, class E>
+    static bool SampleEmission(const S& s, const E& e, Vec2 u_pos, Vec2 u_dir, float, EmissionSample* out) {
+        float pdf_dir = 1.f;
+        Color L;
+        Vec3 wo = -s.lights_.template Of<DomeLight>()[e.index].Sample(u_dir, &pdf_dir, &L);  // light travels away
+        if (!(pdf_dir > 0.f)) return false;
+        typename S::LightFrame f;
+        s.FrameOf(e, &f);
+        wo = f.ToWorldDir(wo);
+        SampleInfiniteEmission(wo, pdf_dir, L, u_pos, s.scene_center_, s.scene_radius_, out);
+        out->delta_light = false;
+        return true;
+    }
+    template <class S, class E>
+    static float PdfDirection(const S& s, const E& e, Vec3, Vec3 w) {
+        typename S::LightFrame f;
+        s.FrameOf(e, &f);
+        return s.lights_.template Of<DomeLight>()[e.index].PdfDirection(f.ToLightDir(w));
+    }
+    template <class S, class E>
+    static bool EmissionToward(const S&, const E&, const EmissionSample&, Vec3, Color*, float*) {
+        return false;
+    }
+    template <class S, class E>
+    static float PdfPosition(const S& s, const E&) {
+        return InfiniteEmissionPdfPosition(s.scene_radius_);
+    }
+    template <class E>
+    static bool Infinite(const E&) {
+        return true;
+    }
+    template <class E>
+    static bool Delta(const E&) {
+        return false;
+    }
+    template <class S, class E>
+    static Color Environment(const S& s, const E& e, Vec3 dir, float* pdf) {
+        typename S::LightFrame f;
+        s.FrameOf(e, &f);
+        return s.lights_.template Of<DomeLight>()[e.index].Radiance(f.ToLightDir(dir), pdf);
+    }
+    template <class S, class Add>
+    static void AddEmitters(const S& s, Add&& add) {
+        const DomeLight& dome = s.lights_.template Of<DomeLight>()[0];
+        if (!dome.active()) return;
+        const double disk_area = kPi * double(s.scene_radius_) * s.scene_radius_;
+        const double mean = dome.MeanLuminance();  // solid-angle mean of the texture's luminance
+        add(0, 0.f, 0.f, 4.0 * kPi * disk_area * double(Luminance(dome.radiance())) * mean, true);
+    }
 };
 
 }  // namespace tessera

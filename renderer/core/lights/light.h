@@ -1,10 +1,10 @@
 // What every light kind hands the integrators: a sample of the light seen from a point
 // (next event estimation) and a sample of light leaving it (light subpaths). Each kind
-// lives in its own file (area triangles, spheres, points, distant lights, the dome) with
-// the same operations: Sample, SampleEmission, and the densities PdfDirection and
-// PdfPosition of SampleEmission. Scene dispatches on LightKind (a tag, not a virtual
-// call): the kinds are few and fixed by USD, and the hot loops stay free of indirection
-// and allocation.
+// lives in its own file (area triangles, spheres, points, distant lights, the dome): the
+// light itself, and EmitterOf<Kind>, what the Scene's emitter queries ask of it (Sample,
+// SampleEmission, the densities PdfDirection and PdfPosition of SampleEmission, ...).
+// The kinds are listed once, in light_kinds.h; Scene dispatches on LightKind (a tag, not
+// a virtual call), so the hot loops stay free of indirection and allocation.
 #pragma once
 
 #include <cstdint>
@@ -13,7 +13,13 @@
 
 namespace tessera {
 
-enum class LightKind : uint8_t { kTriangle, kSphere, kPoint, kDistant, kDome };
+// A kind's position in LightKinds (light_kinds.h): kKindOf<PointLight>, never a literal.
+enum class LightKind : uint8_t {};
+
+// A kind as an emitter of the Scene: specialised in the kind's own file, beside the light.
+// Its static functions take the scene (S, a friend's view of it) and the emitter record E.
+template <typename Kind>
+struct EmitterOf;
 
 struct LightSample {
     Color radiance;  // arriving at the reference point (for delta lights, already / distance^2)

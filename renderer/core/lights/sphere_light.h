@@ -67,4 +67,59 @@ struct SphereLight {
     static float PdfDirection(Vec3 n, Vec3 w) { return std::max(0.f, Dot(n, w)) * kInvPi; }
 };
 
+// The sphere is also scene geometry (hits on it are emitter hits: Scene::Emitted, EmitterPdf);
+// SphereAt gives it at this thread's shutter time.
+template <>
+struct EmitterOf<SphereLight> {
+    static constexpr const char* kName = "sphere";
+    static constexpr bool kMoves = true;
+
+    template <class S, class E>
+    static bool Sample(const S& s, const E& e, Vec3 ref, Vec2 u, LightSample* out) {
+        return s.SphereAt(e.index).Sample(ref, u, out);
+    }
+    template <class S, class E>
+    static bool SampleEmission(const S& s, const E& e, Vec2 u_pos, Vec2 u_dir, float, EmissionSample* out) {
+        if (!s.SphereAt(e.index).SampleEmission(u_pos, u_dir, e.area, out)) return false;
+        out->Le_unshaped = out->Le;
+        return true;
+    }
+    template <class S, class E>
+    static float PdfDirection(const S&, const E&, Vec3 n, Vec3 w) {
+        return SphereLight::PdfDirection(n, w);
+    }
+    template <class S, class E>
+    static bool EmissionToward(const S&, const E&, const EmissionSample& es, Vec3 w, Color* Le_cos, float* pdf_dir) {
+        const float c = Dot(es.n, w);
+        *pdf_dir = SphereLight::PdfDirection(es.n, w);
+        if (c > 0.f) *Le_cos = es.Le_unshaped * c;
+        return true;
+    }
+    template <class S, class E>
+    static float PdfPosition(const S& s, const E& e) {
+        return 1.f / s.EmitterArea(e);
+    }
+    template <class E>
+    static bool Infinite(const E&) {
+        return false;
+    }
+    template <class E>
+    static bool Delta(const E&) {
+        return false;
+    }
+    template <class S, class E>
+    static Color Environment(const S&, const E&, Vec3, float*) {
+        return Color(0.f);
+    }
+    template <class S, class Add>
+    static void AddEmitters(const S& s, Add&& add) {
+        const auto& spheres = s.lights_.template Of<SphereLight>();
+        for (uint32_t i = 0; i < spheres.size(); ++i) {
+            if (IsBlack(spheres[i].radiance)) continue;
+            float area = 4.f * kPi * spheres[i].radius * spheres[i].radius;
+            add(i, area, 0.f, double(Luminance(spheres[i].radiance)) * area * kPi, false);
+        }
+    }
+};
+
 }  // namespace tessera

@@ -93,4 +93,74 @@ inline float TriangleLightPdfDirection(bool two_sided, Vec3 n, Vec3 w) {
     return std::max(0.f, Dot(n, w)) * kInvPi;
 }
 
+// Emissive triangles are scene geometry: the Scene makes their emitters from its meshes
+// (BuildGeometryAndLights) and resolves one for a query (TriangleLightOf); their emission
+// is the material's, textured and shaped.
+template <>
+struct EmitterOf<TriangleLight> {
+    static constexpr const char* kName = "triangle";
+    static constexpr bool kMoves = false;  // moves with its mesh or instance instead
+
+    template <class S, class E>
+    static bool Sample(const S& s, const E& e, Vec3 ref, Vec2 u, LightSample* out) {
+        if (!s.TriangleLightOf(e).Sample(
+                ref, u, [&](float b1, float b2) { return s.TriangleEmission(e.mesh, e.index, b1, b2); }, out))
+            return false;
+        const auto& m = s.MaterialOf(e.mesh, e.index);
+        if (m.emission_shaping >= 0)  // toward ref, about the side it faces
+            out->radiance =
+                out->radiance * s.EmissionShaping(m, Dot(out->n, out->wi) <= 0.f ? out->n : -out->n, -out->wi);
+        return true;
+    }
+    template <class S, class E>
+    static bool SampleEmission(const S& s, const E& e, Vec2 u_pos, Vec2 u_dir, float u_side, EmissionSample* out) {
+        if (!s.TriangleLightOf(e).SampleEmission(
+                u_pos, u_dir, u_side,
+                [&](float b1, float b2) { return s.TriangleEmission(e.mesh, e.index, b1, b2); }, out))
+            return false;
+        out->Le_unshaped = out->Le;
+        const auto& m = s.MaterialOf(e.mesh, e.index);
+        if (m.emission_shaping >= 0) {  // out->n is the side it leaves from
+            const Color f = s.EmissionShaping(m, out->n, out->wo);
+            out->beta = out->beta * f;
+            out->Le = out->Le * f;
+        }
+        return true;
+    }
+    template <class S, class E>
+    static float PdfDirection(const S& s, const E& e, Vec3 n, Vec3 w) {
+        return TriangleLightPdfDirection(s.MaterialOf(e.mesh, e.index).two_sided_emission, n, w);
+    }
+    template <class S, class E>
+    static bool EmissionToward(const S& s, const E& e, const EmissionSample& es, Vec3 w, Color* Le_cos,
+                               float* pdf_dir) {
+        const auto& m = s.MaterialOf(e.mesh, e.index);
+        *pdf_dir = TriangleLightPdfDirection(m.two_sided_emission, es.n, w);
+        const float c = Dot(es.n, w);
+        if (!(c > 0.f) && !(m.two_sided_emission && c < 0.f)) return true;
+        const Vec3 side = c > 0.f ? es.n : -es.n;
+        const Color Le = m.emission_shaping < 0 ? es.Le_unshaped : es.Le_unshaped * s.EmissionShaping(m, side, w);
+        *Le_cos = Le * std::abs(c);
+        return true;
+    }
+    template <class S, class E>
+    static float PdfPosition(const S& s, const E& e) {
+        return 1.f / s.EmitterArea(e);
+    }
+    template <class E>
+    static bool Infinite(const E&) {
+        return false;
+    }
+    template <class E>
+    static bool Delta(const E&) {
+        return false;
+    }
+    template <class S, class E>
+    static Color Environment(const S&, const E&, Vec3, float*) {
+        return Color(0.f);
+    }
+    template <class S, class Add>
+    static void AddEmitters(const S&, Add&&) {}  // made from the meshes, before every other kind
+};
+
 }  // namespace tessera

@@ -467,16 +467,16 @@ TEST(Motion, MovingPointSphereAndDistantLightsGiveTheClosedFormIrradiance) {
     const std::vector<double> frozen = SlidingLightColumns(I, h, 0.0, 0.0);
     SceneDesc point = LitPlate();
     point.point_lights.push_back({Vec3(0, 0, -3 + float(h)), Color(float(I))});
-    AddLightMotion(point, LightKind::kPoint, 0, {Translation(float(xa), 0, 0), Translation(float(xb), 0, 0)});
+    AddLightMotion(point, kKindOf<PointLight>, 0, {Translation(float(xa), 0, 0), Translation(float(xb), 0, 0)});
     SceneDesc sphere = LitPlate();
     sphere.sphere_lights.push_back({Vec3(0, 0, -3 + float(h)), float(r), Color(float(I / (kPi * r * r)))});
-    AddLightMotion(sphere, LightKind::kSphere, 0, {Translation(float(xa), 0, 0), Translation(float(xb), 0, 0)});
+    AddLightMotion(sphere, kKindOf<SphereLight>, 0, {Translation(float(xa), 0, 0), Translation(float(xb), 0, 0)});
     const float E0 = 2.f, turn = kPi / 3.f;
     SceneDesc distant = LitPlate();
     distant.distant_lights.push_back({Vec3(0, 0, -1), 0.f, Color(E0)});
     std::vector<std::vector<float>> turning;
     for (int k = 0; k < 65; ++k) turning.push_back(RotationY(turn * float(k) / 64.f));
-    AddLightMotion(distant, LightKind::kDistant, 0, turning);
+    AddLightMotion(distant, kKindOf<DistantLight>, 0, turning);
     const std::vector<double> turned(kW, 0.5 / kPi * E0 * std::sin(turn) / turn), straight(kW, 0.5 / kPi * E0);
 
     struct Case {
@@ -526,7 +526,7 @@ TEST(Motion, MovingLightsAreSeenAndSampledWhereTheyAreAtTheInstant) {
     const float L = 2.f;
     SceneDesc d = SlidingEmitter(0.f, 0.f, 0.f);
     d.sphere_lights.push_back({Vec3(0, 0, -3), 0.5f, Color(L)});
-    AddLightMotion(d, LightKind::kSphere, 0, {Translation(-1.f, 0, 0), Translation(0.5f, 0, 0)});
+    AddLightMotion(d, kKindOf<SphereLight>, 0, {Translation(-1.f, 0, 0), Translation(0.5f, 0, 0)});
     const Scene scene(d);
     std::vector<double> expected(kW, 0.0);
     const int n = 80;  // the midpoint rule on the disk's indicator: within 1e-3 L of exact
@@ -562,7 +562,7 @@ TEST(Motion, MovingLightsAreSeenAndSampledWhereTheyAreAtTheInstant) {
         if (moving) {
             std::vector<std::vector<float>> steps;
             for (int k = 0; k < 33; ++k) steps.push_back(RotationY(0.5f * kPi * float(k) / 32.f));
-            AddLightMotion(s, LightKind::kDome, 0, steps);
+            AddLightMotion(s, kKindOf<DomeLight>, 0, steps);
         }
         return s;
     };
@@ -608,9 +608,9 @@ TEST(Motion, MovingLightsAreSeenAndSampledWhereTheyAreAtTheInstant) {
     // from x = -1 to 3 and a distant light turning a quarter turn about y.
     SceneDesc lights = LitPlate();
     lights.point_lights.push_back({Vec3(0, 0, 0), Color(1.f)});
-    AddLightMotion(lights, LightKind::kPoint, 0, {Translation(-1, 0, 0), Translation(3, 0, 0)});
+    AddLightMotion(lights, kKindOf<PointLight>, 0, {Translation(-1, 0, 0), Translation(3, 0, 0)});
     lights.distant_lights.push_back({Vec3(0, 0, -1), 0.f, Color(1.f)});
-    AddLightMotion(lights, LightKind::kDistant, 0, {RotationY(0.f), RotationY(0.25f * kPi), RotationY(0.5f * kPi)});
+    AddLightMotion(lights, kKindOf<DistantLight>, 0, {RotationY(0.f), RotationY(0.25f * kPi), RotationY(0.5f * kPi)});
     const Scene moving_lights(lights);
     ASSERT_EQ(moving_lights.num_emitters(), 2u);  // the point, then the distant light
     for (float t : {0.f, 0.5f, 1.f}) {
@@ -659,13 +659,13 @@ TEST(Motion, StaticScenesHaveNoMotionAndInvalidMotionIsRefused) {
     // Moving lights: an existing light, listed once, 2 to 129 finite, invertible steps.
     SceneDesc lit = LitPlate();
     lit.point_lights.push_back({Vec3(0, 0, 0), Color(1.f)});
-    AddLightMotion(lit, LightKind::kPoint, 0, {Translation(0, 0, 0), Translation(1, 0, 0)});
+    AddLightMotion(lit, kKindOf<PointLight>, 0, {Translation(0, 0, 0), Translation(1, 0, 0)});
     EXPECT_TRUE(Scene(lit).has_motion());
     SceneDesc bad = lit;
     bad.light_motion_indices = {1};
     EXPECT_THROW(Scene{bad}, std::invalid_argument);
     bad = lit;
-    bad.light_motion_kinds = {LightKind::kSphere};
+    bad.light_motion_kinds = {kKindOf<SphereLight>};
     EXPECT_THROW(Scene{bad}, std::invalid_argument);
     bad = lit;
     bad.light_motion_transforms[13] = std::nanf("");
@@ -674,7 +674,7 @@ TEST(Motion, StaticScenesHaveNoMotionAndInvalidMotionIsRefused) {
     bad.light_motion_transforms.pop_back();
     EXPECT_THROW(Scene{bad}, std::invalid_argument);
     bad = lit;
-    AddLightMotion(bad, LightKind::kPoint, 0, {Translation(0, 0, 0), Translation(1, 0, 0)});
+    AddLightMotion(bad, kKindOf<PointLight>, 0, {Translation(0, 0, 0), Translation(1, 0, 0)});
     EXPECT_THROW(Scene{bad}, std::invalid_argument);
     bad = lit;
     std::fill(bad.light_motion_transforms.begin(), bad.light_motion_transforms.begin() + 12, 0.f);

@@ -144,10 +144,13 @@ int64_t EmbreeMemoryBytes() {
 
 Scene::Scene(const SceneDesc& desc)
     : materials_(desc.materials),
-      emission_shapings_(desc.emission_shapings),
-      spheres_(desc.sphere_lights),
-      points_(desc.point_lights),
-      distants_(desc.distant_lights) {
+      emission_shapings_(desc.emission_shapings) {
+    lights_.Of<SphereLight>() = desc.sphere_lights;
+    lights_.Of<PointLight>() = desc.point_lights;
+    lights_.Of<DistantLight>() = desc.distant_lights;
+    std::vector<SphereLight>& spheres = lights_.Of<SphereLight>();
+    std::vector<PointLight>& points = lights_.Of<PointLight>();
+    std::vector<DistantLight>& distants = lights_.Of<DistantLight>();
     for (Material& mat : materials_) MakeExactLambertian(mat);
     if constexpr (!kFullFeatures) RequireLambertOnly(desc, materials_);
     textures_ = TextureSet(desc.images, desc.textures);
@@ -200,15 +203,15 @@ Scene::Scene(const SceneDesc& desc)
             pv && (MakePreviewSurfaceBSDF(*pv, TransportMode::Radiance).HasDelta() ||
                    (material_has_textures_.back() && (tex[kSlotRoughness] >= 0 || tex[kSlotClearcoatRoughness] >= 0))));
     }
-    for (size_t s = 0; s < spheres_.size(); ++s)
-        if (!IsFinite(spheres_[s].center) || !(spheres_[s].radius > 0.f) || !std::isfinite(spheres_[s].radius) ||
-            !IsNonNegativeFinite(spheres_[s].radiance))
+    for (size_t s = 0; s < spheres.size(); ++s)
+        if (!IsFinite(spheres[s].center) || !(spheres[s].radius > 0.f) || !std::isfinite(spheres[s].radius) ||
+            !IsNonNegativeFinite(spheres[s].radiance))
             throw std::invalid_argument("sphere light " + std::to_string(s) + " has a bad centre, radius or radiance");
-    for (size_t i = 0; i < points_.size(); ++i)
-        if (!IsFinite(points_[i].position) || !IsNonNegativeFinite(points_[i].intensity))
+    for (size_t i = 0; i < points.size(); ++i)
+        if (!IsFinite(points[i].position) || !IsNonNegativeFinite(points[i].intensity))
             throw std::invalid_argument("point light " + std::to_string(i) + " has a bad position or intensity");
-    for (size_t i = 0; i < distants_.size(); ++i) {
-        DistantLight& d = distants_[i];
+    for (size_t i = 0; i < distants.size(); ++i) {
+        DistantLight& d = distants[i];
         float len = Length(d.direction);
         if (!IsFinite(d.direction) || !(len > 0.f) || !(d.half_angle >= 0.f) || !(d.half_angle < 0.5f * kPi) ||
             !IsNonNegativeFinite(d.radiance))
@@ -217,7 +220,9 @@ Scene::Scene(const SceneDesc& desc)
         d.direction = d.direction / len;
     }
     if (!IsNonNegativeFinite(desc.dome_radiance)) throw std::invalid_argument("dome radiance must be finite and >= 0");
-    dome_ = DomeLight(desc.dome_radiance, desc.dome_width, desc.dome_height, desc.dome_rgb, desc.dome_world_to_light);
+    // Built in place: a copy would hold the texture and its distribution twice at once.
+    lights_.Of<DomeLight>().emplace_back(desc.dome_radiance, desc.dome_width, desc.dome_height, desc.dome_rgb,
+                                         desc.dome_world_to_light);
 
     // From here on Embree objects exist: a throw must release them, since a constructor
     // that throws never runs its destructor.
@@ -304,6 +309,7 @@ void Scene::BuildCurves(const SceneDesc& desc, RTCDevice device) {
 
 // The BVHs (the world's, one per prototype, the instances), then the light table.
 void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
+    const std::vector<SphereLight>& spheres = lights_.Of<SphereLight>();
     RTCDevice device = EmbreeDevice();
     scene_ = rtcNewScene(device);
     // Watertight triangle test: a closed mesh must not leak light through its edges.
@@ -320,26 +326,26 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
               kTriangleGeometry, "");
     BuildLightMotion(desc);
     BuildCurves(desc, device);
-    if (!spheres_.empty()) {
+    if (!spheres.empty()) {
         RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_SPHERE_POINT);
         // Moving spheres all have the same step count (BuildLightMotion): one vertex buffer
         // per step, each sphere where its motion puts it then.
         uint32_t steps = 1;
-        for (const LightMotion& m : sphere_motion_) steps = std::max(steps, m.time_steps);
+        for (const LightMotion& m : light_motions_.Of<SphereLight>()) steps = std::max(steps, m.time_steps);
         if (steps > 1) rtcSetGeometryTimeStepCount(geom, steps);
         for (uint32_t k = 0; k < steps; ++k) {
             auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, k, RTC_FORMAT_FLOAT4,
-                                                                   4 * sizeof(float), spheres_.size()));
+                                                                   4 * sizeof(float), spheres.size()));
             CheckDevice(device, "allocating sphere buffers");
-            for (size_t s = 0; s < spheres_.size(); ++s) {
-                const LightMotion& m = sphere_motion_[s];
+            for (size_t s = 0; s < spheres.size(); ++s) {
+                const LightMotion& m = light_motions_.Of<SphereLight>()[s];
                 const Vec3 c = m.time_steps > 1
-                                   ? TransformPoint(&light_motion_m_[12 * size_t(m.first_step + k)], spheres_[s].center)
-                                   : spheres_[s].center;
+                                   ? TransformPoint(&light_motion_m_[12 * size_t(m.first_step + k)], spheres[s].center)
+                                   : spheres[s].center;
                 vb[4 * s + 0] = c.x;
                 vb[4 * s + 1] = c.y;
                 vb[4 * s + 2] = c.z;
-                vb[4 * s + 3] = spheres_[s].radius;
+                vb[4 * s + 3] = spheres[s].radius;
             }
         }
         rtcSetGeometryIntersectFilterFunction(geom, SphereOutsideOnly);
@@ -434,7 +440,7 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
     RTCBounds b;
     rtcGetSceneBounds(scene_, &b);
     Vec3 lo(b.lower_x, b.lower_y, b.lower_z), hi(b.upper_x, b.upper_y, b.upper_z);
-    for (const PointLight& p : points_) {
+    for (const PointLight& p : lights_.Of<PointLight>()) {
         lo = Vec3(std::min(lo.x, p.position.x), std::min(lo.y, p.position.y), std::min(lo.z, p.position.z));
         hi = Vec3(std::max(hi.x, p.position.x), std::max(hi.y, p.position.y), std::max(hi.z, p.position.z));
     }
@@ -461,7 +467,7 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
         // only guards a transform that shrinks it below float range.
         const float area = std::max(1e-30f, 0.5f * Length(Cross(p[1] - p[0], p[2] - p[0])));
         const uint32_t mi = meshes_[mesh].material[prim];
-        emitters_.push_back({LightKind::kTriangle, prim, area, 0.f, mesh, instance});
+        emitters_.push_back({kKindOf<TriangleLight>, prim, area, 0.f, mesh, instance});
         power.push_back(double(Luminance(emission_estimate[mi])) * area * kPi *
                         (materials_[mi].two_sided_emission ? 2.0 : 1.0));
     };
@@ -507,37 +513,18 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
         for (uint32_t t = 0; t < mesh.num_triangles; ++t)
             if (mesh.emitter[t] >= 0) add_triangle_emitter(instances_[i].mesh, t, i);
     }
-    sphere_emitter_.assign(spheres_.size(), kNoEmitter);
-    for (uint32_t s = 0; s < spheres_.size(); ++s) {
-        if (IsBlack(spheres_[s].radiance)) continue;
-        float area = 4.f * kPi * spheres_[s].radius * spheres_[s].radius;
-        sphere_emitter_[s] = int32_t(emitters_.size());
-        emitters_.push_back({LightKind::kSphere, s, area, 0.f});
-        power.push_back(double(Luminance(spheres_[s].radiance)) * area * kPi);
-    }
-    for (uint32_t i = 0; i < points_.size(); ++i) {
-        if (IsBlack(points_[i].intensity)) continue;
-        emitters_.push_back({LightKind::kPoint, i, 0.f, 0.f});
-        power.push_back(4.0 * kPi * double(Luminance(points_[i].intensity)));
-    }
-    const double disk_area = kPi * double(scene_radius_) * scene_radius_;
-    for (uint32_t i = 0; i < distants_.size(); ++i) {
-        const DistantLight& d = distants_[i];
-        if (IsBlack(d.radiance)) continue;
-        float sin_half = std::sin(d.half_angle);
-        float omc = d.half_angle > 0.f ? ConeOneMinusCos(sin_half * sin_half) : 0.f;
-        if (omc > 0.f) environment_lights_.push_back(uint32_t(emitters_.size()));
-        emitters_.push_back({LightKind::kDistant, i, 0.f, omc});
-        // Irradiance on a facing surface: E = L pi sin^2 (cone), or the stored E (delta).
-        double irradiance = double(Luminance(d.radiance)) * (omc > 0.f ? kPi * sin_half * sin_half : 1.0);
-        power.push_back(irradiance * disk_area);
-    }
-    if (dome_.active()) {
-        const double mean = dome_.MeanLuminance();  // solid-angle mean of the texture's luminance
-        environment_lights_.push_back(uint32_t(emitters_.size()));
-        emitters_.push_back({LightKind::kDome, 0, 0.f, 0.f});
-        power.push_back(4.0 * kPi * disk_area * double(Luminance(dome_.radiance())) * mean);
-    }
+    // Every other kind adds its own emitters, in LightKinds order.
+    ForEachLightKind([&](auto kind) {
+        using Kind = typename decltype(kind)::type;
+        EmitterOf<Kind>::AddEmitters(*this, [&](uint32_t index, float area, float one_minus_cos, double p, bool at_infinity) {
+            if (at_infinity) environment_lights_.push_back(uint32_t(emitters_.size()));
+            emitters_.push_back({kKindOf<Kind>, index, area, one_minus_cos});
+            power.push_back(p);
+        });
+    });
+    sphere_emitter_.assign(lights_.Of<SphereLight>().size(), kNoEmitter);
+    for (uint32_t i = 0; i < emitters_.size(); ++i)
+        if (emitters_[i].kind == kKindOf<SphereLight>) sphere_emitter_[emitters_[i].index] = int32_t(i);
     light_sampler_ = LightSampler(power);
     BuildLightBVH(power, desc.light_selection);
     // Triangle lights that stand still, resolved once (corners, area, sidedness): next event
@@ -545,7 +532,7 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
     if (motion_m_.empty() && !has_deformation_) {
         still_triangle_lights_.resize(emitters_.size());
         for (size_t i = 0; i < emitters_.size(); ++i)
-            if (emitters_[i].kind == LightKind::kTriangle) still_triangle_lights_[i] = ResolveTriangleLight(emitters_[i]);
+            if (emitters_[i].kind == kKindOf<TriangleLight>) still_triangle_lights_[i] = ResolveTriangleLight(emitters_[i]);
     }
 
     // The splat film's unit (splat_film.h): the power of two nearest the radiance the lights
@@ -563,26 +550,28 @@ void Scene::BuildLightMotion(const SceneDesc& desc) {
     const size_t n = desc.light_motion_kinds.size();
     if (desc.light_motion_indices.size() != n || desc.light_motion_time_steps.size() != n)
         throw std::invalid_argument("light_motion_kinds, _indices and _time_steps need one entry each per moving light");
-    sphere_motion_.assign(spheres_.size(), {});
-    point_motion_.assign(points_.size(), {});
-    distant_motion_.assign(distants_.size(), {});
-    dome_motion_ = {};
+    ForEachLightKind([&](auto kind) {
+        using Kind = typename decltype(kind)::type;
+        if constexpr (EmitterOf<Kind>::kMoves) light_motions_.Of<Kind>().assign(lights_.Of<Kind>().size(), {});
+    });
     // Moving spheres share the sphere geometry's steps: the largest count among them.
     uint32_t sphere_steps = 0;
     for (size_t k = 0; k < n; ++k)
-        if (desc.light_motion_kinds[k] == LightKind::kSphere)
+        if (desc.light_motion_kinds[k] == kKindOf<SphereLight>)
             sphere_steps = std::max(sphere_steps, desc.light_motion_time_steps[k]);
     size_t offset = 0;
     for (size_t k = 0; k < n; ++k) {
         const LightKind kind = desc.light_motion_kinds[k];
         const uint32_t index = desc.light_motion_indices[k], steps = desc.light_motion_time_steps[k];
         const std::string what = "moving light " + std::to_string(k) + ": ";
-        LightMotion* slot = kind == LightKind::kSphere && index < sphere_motion_.size()     ? &sphere_motion_[index]
-                            : kind == LightKind::kPoint && index < point_motion_.size()     ? &point_motion_[index]
-                            : kind == LightKind::kDistant && index < distant_motion_.size() ? &distant_motion_[index]
-                            : kind == LightKind::kDome && index == 0                        ? &dome_motion_
-                                                                                            : nullptr;
-        if (!slot) throw std::invalid_argument(what + "no such sphere, point, distant or dome light");
+        LightMotion* slot = nullptr;
+        if (uint8_t(kind) < LightKinds::kCount)
+            VisitLightKind(kind, [&](auto tag) {
+                using Kind = typename decltype(tag)::type;
+                if constexpr (EmitterOf<Kind>::kMoves)
+                    if (index < light_motions_.Of<Kind>().size()) slot = &light_motions_.Of<Kind>()[index];
+            });
+        if (!slot) throw std::invalid_argument(what + "no such light of a kind that moves (" + MovingKindNames() + ")");
         if (slot->time_steps > 1) throw std::invalid_argument(what + "the light is listed twice");
         if (steps < 2 || steps > kMaxTimeSteps)
             throw std::invalid_argument(what + "needs 2 to " + std::to_string(kMaxTimeSteps) + " time steps");
@@ -596,7 +585,7 @@ void Scene::BuildLightMotion(const SceneDesc& desc) {
             const double det = NormalMatrixOf(m + 12 * j, normals);
             if (!(std::abs(det) > 1e-12)) throw std::invalid_argument(what + "a transform is singular");
         }
-        const uint32_t stored = kind == LightKind::kSphere ? sphere_steps : steps;
+        const uint32_t stored = kind == kKindOf<SphereLight> ? sphere_steps : steps;
         *slot = {stored, uint32_t(light_motion_m_.size() / 12)};
         for (uint32_t j = 0; j < stored; ++j) {
             // Resampling at the shared count: this light's own matrix at that step's instant.
@@ -622,20 +611,17 @@ const float* Scene::MovingLightAt(const LightMotion& motion, float* scratch, flo
 
 const Scene::LightMotion& Scene::MotionOf(const Emitter& e) const {
     static const LightMotion still;
-    switch (e.kind) {
-        case LightKind::kSphere: return sphere_motion_[e.index];
-        case LightKind::kPoint: return point_motion_[e.index];
-        case LightKind::kDistant: return distant_motion_[e.index];
-        case LightKind::kDome: return dome_motion_;
-        case LightKind::kTriangle: break;
-    }
-    return still;
+    return VisitLightKind(e.kind, [&](auto kind) -> const LightMotion& {
+        using Kind = typename decltype(kind)::type;
+        if constexpr (EmitterOf<Kind>::kMoves) return light_motions_.Of<Kind>()[e.index];
+        else return still;
+    });
 }
 
 SphereLight Scene::SphereAt(uint32_t s) const {
     float m[12], n[9];
-    SphereLight light = spheres_[s];
-    if (const float* xf = LightMotionAt(sphere_motion_[s], m, n)) light.center = TransformPoint(xf, light.center);
+    SphereLight light = lights_.Of<SphereLight>()[s];
+    if (const float* xf = LightMotionAt(light_motions_.Of<SphereLight>()[s], m, n)) light.center = TransformPoint(xf, light.center);
     return light;
 }
 

@@ -14,16 +14,12 @@
 #include <vector>
 
 #include "bsdf.h"
-#include "distant_light.h"
-#include "dome_light.h"
-#include "light.h"
 #include "bvh_light_sampler.h"
+#include "light.h"
+#include "light_kinds.h"
 #include "light_sampler.h"
 #include "math.h"
-#include "point_light.h"
-#include "sphere_light.h"
 #include "texture.h"
-#include "triangle_light.h"
 
 namespace tessera {
 
@@ -297,7 +293,7 @@ public:
     // Radiance leaving emitter e at the hit toward wo.
     Color Emitted(int32_t emitter, const SurfaceHit& hit, Vec3 wo) const;
 
-    // All lights (area emitters first, then points, distant lights, the dome), chosen by power.
+    // All lights (area emitters first, then the other kinds in LightKinds order), chosen by power.
     const LightSampler& light_sampler() const { return light_sampler_; }
     // Next event estimation's choice of a light for a shading point p with normal n (zero:
     // any orientation). With at least kMinLightBVHEmitters still area emitters, those are
@@ -385,12 +381,16 @@ public:
     size_t num_stored_triangles() const;
 
 private:
+    // A light kind's emitter functions (lights/*.h) read the scene's lights, frames and
+    // materials directly: they are the scene's emitter queries, split by kind.
+    template <typename>
+    friend struct EmitterOf;
     void BuildGeometryAndLights(const SceneDesc& desc);
     void BoundDeltaSurfaces();
     void ReleaseEmbree() noexcept;
     struct Emitter {
-        LightKind kind = LightKind::kTriangle;
-        uint32_t index = 0;  // into triangles (of `mesh`), spheres, point or distant lights
+        LightKind kind = kKindOf<TriangleLight>;
+        uint32_t index = 0;  // into triangles (of `mesh`), or the lights of its kind
         float area = 0.f;    // triangle (world space) and sphere
         float one_minus_cos = 0.f;  // distant cone
         uint32_t mesh = 0;               // triangle: its mesh
@@ -459,6 +459,21 @@ private:
     const float* EmitterMotionAt(const Emitter& e, float* scratch, float* n_scratch) const {
         return !kFullFeatures || light_motion_m_.empty() ? nullptr : LightMotionAt(MotionOf(e), scratch, n_scratch);
     }
+    // A light at this thread's shutter time: maps between the world and the light as the
+    // scene describes it (identity for a light that stands still).
+    struct LightFrame {
+        const float* m = nullptr;
+        float m_scratch[12], n[9];
+        Vec3 ToWorldDir(Vec3 d) const { return m ? Normalize(TransformVector(m, d)) : d; }
+        Vec3 ToWorldPoint(Vec3 p) const { return m ? TransformPoint(m, p) : p; }
+        Vec3 ToLightDir(Vec3 d) const { return m ? Normalize(TransformByInverse(n, d)) : d; }
+        Vec3 ToLightPoint(Vec3 p) const { return m ? TransformByInverse(n, p - Vec3(m[3], m[7], m[11])) : p; }
+    };
+    // Emitter e's frame now; false when it stands still.
+    bool FrameOf(const Emitter& e, LightFrame* f) const {
+        f->m = EmitterMotionAt(e, f->m_scratch, f->n);
+        return f->m != nullptr;
+    }
     SphereLight SphereAt(uint32_t s) const;  // the sphere at this thread's shutter time
     const LightMotion& MotionOf(const Emitter& e) const;  // a still one for triangles
 
@@ -525,12 +540,12 @@ private:
         const LightShaping& s = emission_shapings_[m.emission_shaping];
         return s.FactorAbout(s.about_axis ? s.axis : n, w);
     }
-    std::vector<SphereLight> spheres_;
-    std::vector<PointLight> points_;
-    std::vector<DistantLight> distants_;
-    DomeLight dome_;
-    std::vector<LightMotion> sphere_motion_, point_motion_, distant_motion_;  // one per light
-    LightMotion dome_motion_;
+    template <typename Kind>
+    using LightsOf = std::vector<Kind>;  // the dome: one, active or not
+    template <typename Kind>
+    using MotionsOf = std::vector<LightMotion>;  // one per light of a kind that moves
+    PerLightKind<LightsOf> lights_;
+    PerLightKind<MotionsOf> light_motions_;
     std::vector<float> light_motion_m_;
     Vec3 scene_center_;
     Vec3 delta_center_;

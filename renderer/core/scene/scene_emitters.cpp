@@ -1,6 +1,7 @@
 // Scene queries about emitters: which emitter a hit is, what it emits, and sampling and
-// densities of emission for next event estimation and light paths (the light kinds are
-// in lights/; the Scene's list of emitters is built in scene.cpp).
+// densities of emission for next event estimation and light paths. Each query dispatches
+// on the emitter's kind to EmitterOf<Kind> in the kind's own file (lights/, listed in
+// light_kinds.h); the Scene's list of emitters is built in scene.cpp.
 #include "scene.h"
 
 #include <algorithm>
@@ -12,21 +13,6 @@
 #include "sampling.h"
 
 namespace tessera {
-
-namespace {
-
-// A light at this thread's shutter time: maps between the world and the light as the
-// scene describes it (identity for a light that stands still).
-struct LightFrame {
-    const float* m = nullptr;
-    float m_scratch[12], n[9];
-    Vec3 ToWorldDir(Vec3 d) const { return m ? Normalize(TransformVector(m, d)) : d; }
-    Vec3 ToWorldPoint(Vec3 p) const { return m ? TransformPoint(m, p) : p; }
-    Vec3 ToLightDir(Vec3 d) const { return m ? Normalize(TransformByInverse(n, d)) : d; }
-    Vec3 ToLightPoint(Vec3 p) const { return m ? TransformByInverse(n, p - Vec3(m[3], m[7], m[11])) : p; }
-};
-
-}  // namespace
 
 int32_t Scene::EmitterAt(const SurfaceHit& hit) const {
     if constexpr (!kFullFeatures) return meshes_[0].emitter[hit.prim_id];
@@ -40,7 +26,7 @@ int32_t Scene::EmitterAt(const SurfaceHit& hit) const {
 Color Scene::Emitted(int32_t emitter, const SurfaceHit& hit, Vec3 wo) const {
     if (emitter < 0) return Color(0.f);
     const Emitter& e = emitters_[emitter];
-    if (kFullFeatures && e.kind == LightKind::kSphere) return spheres_[e.index].radiance;
+    if (kFullFeatures && e.kind == kKindOf<SphereLight>) return lights_.Of<SphereLight>()[e.index].radiance;
     const Material& m = MaterialOf(e.mesh, e.index);
     if (!m.two_sided_emission && !(Dot(hit.ng, wo) > 0.f)) return Color(0.f);
     const Color Le = TriangleEmission(e.mesh, e.index, hit.b1, hit.b2);
@@ -71,153 +57,38 @@ bool Scene::SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) 
     if constexpr (!kFullFeatures)
         return TriangleLightOf(e).Sample(
             ref, u, [&](float b1, float b2) { return TriangleEmission(e.mesh, e.index, b1, b2); }, out);
-    LightFrame f;
-    f.m = EmitterMotionAt(e, f.m_scratch, f.n);
-    switch (e.kind) {
-        case LightKind::kPoint:
-            if (!points_[e.index].Sample(f.ToLightPoint(ref), out)) return false;
-            if (f.m) {  // sampled as the light stands in its description: back to where it is now
-                out->p = f.ToWorldPoint(out->p);
-                out->wi = f.ToWorldDir(out->wi);
-            }
-            return true;
-        case LightKind::kDistant:
-            if (!distants_[e.index].Sample(u, e.one_minus_cos, out)) return false;
-            out->wi = f.ToWorldDir(out->wi);
-            return true;
-        case LightKind::kDome:
-            if (!dome_.SampleLight(u, out)) return false;
-            out->wi = f.ToWorldDir(out->wi);
-            return true;
-        case LightKind::kSphere: return SphereAt(e.index).Sample(ref, u, out);
-        case LightKind::kTriangle: {
-            if (!TriangleLightOf(e).Sample(
-                    ref, u, [&](float b1, float b2) { return TriangleEmission(e.mesh, e.index, b1, b2); }, out))
-                return false;
-            const Material& m = MaterialOf(e.mesh, e.index);
-            if (m.emission_shaping >= 0)  // toward ref, about the side it faces
-                out->radiance = out->radiance * EmissionShaping(m, Dot(out->n, out->wi) <= 0.f ? out->n : -out->n,
-                                                                -out->wi);
-            return true;
-        }
-    }
-    return false;
+    return VisitLightKind(e.kind, [&](auto kind) {
+        return EmitterOf<typename decltype(kind)::type>::Sample(*this, e, ref, u, out);
+    });
 }
 
 bool Scene::SampleEmission(uint32_t emitter, Vec2 u_pos, Vec2 u_dir, float u_side, EmissionSample* out) const {
     const Emitter& e = emitters_[emitter];
     out->on_surface = false;
-    switch (e.kind) {
-        case LightKind::kTriangle: {
-            if (!TriangleLightOf(e).SampleEmission(
-                    u_pos, u_dir, u_side,
-                    [&](float b1, float b2) { return TriangleEmission(e.mesh, e.index, b1, b2); }, out))
-                return false;
-            out->Le_unshaped = out->Le;
-            const Material& m = MaterialOf(e.mesh, e.index);
-            if (m.emission_shaping >= 0) {  // out->n is the side it leaves from
-                const Color f = EmissionShaping(m, out->n, out->wo);
-                out->beta = out->beta * f;
-                out->Le = out->Le * f;
-            }
-            return true;
-        }
-        case LightKind::kSphere:
-            if (!SphereAt(e.index).SampleEmission(u_pos, u_dir, e.area, out)) return false;
-            out->Le_unshaped = out->Le;
-            return true;
-        case LightKind::kPoint: {
-            if (!points_[e.index].SampleEmission(u_dir, out)) return false;
-            LightFrame f;
-            if ((f.m = EmitterMotionAt(e, f.m_scratch, f.n))) {
-                out->p = f.ToWorldPoint(out->p);
-                out->wo = f.ToWorldDir(out->wo);
-            }
-            return true;
-        }
-        case LightKind::kDistant:
-        case LightKind::kDome: {
-            float pdf_dir = 1.f;
-            Color L;
-            Vec3 wo;
-            if (e.kind == LightKind::kDome) {
-                wo = -dome_.Sample(u_dir, &pdf_dir, &L);  // light travels away from the dome
-                if (!(pdf_dir > 0.f)) return false;
-            } else {
-                distants_[e.index].SampleEmissionDirection(u_dir, e.one_minus_cos, &wo, &pdf_dir, &L);
-            }
-            LightFrame f;
-            f.m = EmitterMotionAt(e, f.m_scratch, f.n);
-            wo = f.ToWorldDir(wo);
-            SampleInfiniteEmission(wo, pdf_dir, L, u_pos, scene_center_, scene_radius_, out);
-            out->delta_light = e.kind == LightKind::kDistant && e.one_minus_cos == 0.f;
-            return true;
-        }
-    }
-    return false;
+    return VisitLightKind(e.kind, [&](auto kind) {
+        return EmitterOf<typename decltype(kind)::type>::SampleEmission(*this, e, u_pos, u_dir, u_side, out);
+    });
 }
 
 float Scene::EmissionPdfDirection(uint32_t emitter, Vec3 n, Vec3 w) const {
     const Emitter& e = emitters_[emitter];
-    switch (e.kind) {
-        case LightKind::kPoint: return PointLight::PdfDirection();
-        case LightKind::kSphere: return SphereLight::PdfDirection(n, w);
-        case LightKind::kTriangle:
-            return TriangleLightPdfDirection(MaterialOf(e.mesh, e.index).two_sided_emission, n, w);
-        case LightKind::kDistant: return DistantLight::PdfDirection(e.one_minus_cos);
-        case LightKind::kDome: {
-            LightFrame f;
-            f.m = EmitterMotionAt(e, f.m_scratch, f.n);
-            return dome_.PdfDirection(f.ToLightDir(w));
-        }
-    }
-    return 0.f;
+    return VisitLightKind(e.kind, [&](auto kind) {
+        return EmitterOf<typename decltype(kind)::type>::PdfDirection(*this, e, n, w);
+    });
 }
 
 bool Scene::EmissionToward(uint32_t emitter, const EmissionSample& es, Vec3 w, Color* Le_cos, float* pdf_dir) const {
     const Emitter& e = emitters_[emitter];
     *Le_cos = Color(0.f);
     *pdf_dir = 0.f;
-    switch (e.kind) {
-        case LightKind::kSphere: {
-            const float c = Dot(es.n, w);
-            *pdf_dir = SphereLight::PdfDirection(es.n, w);
-            if (c > 0.f) *Le_cos = es.Le_unshaped * c;
-            return true;
-        }
-        case LightKind::kTriangle: {
-            const Material& m = MaterialOf(e.mesh, e.index);
-            *pdf_dir = TriangleLightPdfDirection(m.two_sided_emission, es.n, w);
-            const float c = Dot(es.n, w);
-            if (!(c > 0.f) && !(m.two_sided_emission && c < 0.f)) return true;
-            const Vec3 side = c > 0.f ? es.n : -es.n;
-            const Color Le = m.emission_shaping < 0 ? es.Le_unshaped : es.Le_unshaped * EmissionShaping(m, side, w);
-            *Le_cos = Le * std::abs(c);
-            return true;
-        }
-        case LightKind::kPoint: {
-            LightFrame f;
-            f.m = EmitterMotionAt(e, f.m_scratch, f.n);
-            *pdf_dir = PointLight::PdfDirection();
-            *Le_cos = points_[e.index].intensity * points_[e.index].shaping.Factor(f.ToLightDir(w));
-            return true;
-        }
-        case LightKind::kDistant:
-        case LightKind::kDome: return false;
-    }
-    return false;
+    return VisitLightKind(e.kind, [&](auto kind) {
+        return EmitterOf<typename decltype(kind)::type>::EmissionToward(*this, e, es, w, Le_cos, pdf_dir);
+    });
 }
 
 float Scene::EmissionPdfPosition(uint32_t emitter) const {
     const Emitter& e = emitters_[emitter];
-    switch (e.kind) {
-        case LightKind::kPoint: return PointLight::PdfPosition();
-        case LightKind::kSphere:
-        case LightKind::kTriangle: return 1.f / EmitterArea(e);
-        case LightKind::kDistant:
-        case LightKind::kDome: return InfiniteEmissionPdfPosition(scene_radius_);
-    }
-    return 0.f;
+    return VisitLightKind(e.kind, [&](auto kind) { return EmitterOf<typename decltype(kind)::type>::PdfPosition(*this, e); });
 }
 
 float Scene::InfiniteLightDensity(Vec3 w) const {
@@ -231,30 +102,29 @@ float Scene::InfiniteLightDensity(Vec3 w) const {
 }
 
 bool Scene::IsInfiniteLight(uint32_t emitter) const {
-    LightKind k = emitters_[emitter].kind;
-    return k == LightKind::kDistant || k == LightKind::kDome;
+    const Emitter& e = emitters_[emitter];
+    return VisitLightKind(e.kind, [&](auto kind) { return EmitterOf<typename decltype(kind)::type>::Infinite(e); });
 }
 
 bool Scene::IsDeltaLight(uint32_t emitter) const {
     const Emitter& e = emitters_[emitter];
-    return e.kind == LightKind::kPoint || (e.kind == LightKind::kDistant && e.one_minus_cos == 0.f);
+    return VisitLightKind(e.kind, [&](auto kind) { return EmitterOf<typename decltype(kind)::type>::Delta(e); });
 }
 
 Color Scene::EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const {
-    LightFrame f;
-    f.m = EmitterMotionAt(e, f.m_scratch, f.n);
-    if (e.kind == LightKind::kDome) return dome_.Radiance(f.ToLightDir(dir), pdf);
-    return distants_[e.index].Radiance(f.ToLightDir(dir), e.one_minus_cos, pdf);
+    return VisitLightKind(e.kind, [&](auto kind) {
+        return EmitterOf<typename decltype(kind)::type>::Environment(*this, e, dir, pdf);
+    });
 }
 
 float Scene::EmitterPdf(uint32_t emitter, Vec3 ref, const SurfaceHit& hit) const {
     const Emitter& e = emitters_[emitter];
-    if (kFullFeatures && e.kind == LightKind::kSphere) return SphereAt(e.index).Pdf(ref);
+    if (kFullFeatures && e.kind == kKindOf<SphereLight>) return SphereAt(e.index).Pdf(ref);
     return TriangleLightPdf(ref, hit.p, hit.ng, EmitterArea(e));
 }
 
 float Scene::EmitterArea(const Emitter& e) const {
-    const bool reshaped = kFullFeatures && has_motion() && e.kind == LightKind::kTriangle &&
+    const bool reshaped = kFullFeatures && has_motion() && e.kind == kKindOf<TriangleLight> &&
                           (meshes_[e.mesh].time_steps > 1 ||
                            (e.instance != kNoInstance && instances_[e.instance].time_steps > 1));
     if (!reshaped) return e.area;
@@ -269,7 +139,7 @@ void Scene::BuildLightBVH(const std::vector<double>& power, SceneDesc::LightSele
     if (selection == SceneDesc::LightSelection::kPower) return;
     // Still triangles only: a moving or deforming emitter's bounds would hold at one instant.
     auto still = [&](const Emitter& e) {
-        return e.kind == LightKind::kTriangle && meshes_[e.mesh].time_steps <= 1 &&
+        return e.kind == kKindOf<TriangleLight> && meshes_[e.mesh].time_steps <= 1 &&
                (e.instance == kNoInstance || instances_[e.instance].time_steps <= 1);
     };
     std::vector<LightBounds> bounds;

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import numpy as np
 
+from .. import _core
 from . import gprims, light_shaping
 from .camera import CameraDesc, _unit
 from .errors import SceneError, read_float, read_floats
@@ -60,13 +61,13 @@ class LightReader:
         steps chosen as for any moving prim (usd/motion.py) on a box of the light's size."""
         spheres, points, distants, dome = before
         if len(self.sphere_lights) > spheres:
-            kind, index, size = LIGHT_MOTION_KINDS["sphere"], spheres, self.sphere_lights[-1][3]
+            kind, index, size = light_kind_number("sphere"), spheres, self.sphere_lights[-1][3]
         elif len(self.point_lights) > points:
-            kind, index, size = LIGHT_MOTION_KINDS["point"], points, 1.0
+            kind, index, size = light_kind_number("point"), points, 1.0
         elif len(self.distant_lights) > distants:
-            kind, index, size = LIGHT_MOTION_KINDS["distant"], distants, 1.0
+            kind, index, size = light_kind_number("distant"), distants, 1.0
         elif self.dome_light is not None and dome is None:
-            kind, index, size = LIGHT_MOTION_KINDS["dome"], 0, 1.0
+            kind, index, size = light_kind_number("dome"), 0, 1.0
         else:
             return  # skipped
         # The tolerance is relative to the light's size around where it stands at the frame.
@@ -279,8 +280,13 @@ class LightReader:
                            "world_to_light": np.linalg.inv(l2w).tolist(), "path": str(prim.GetPath())}
 
 
-# The core's LightKind numbers for moving lights (SceneData.light_motion_kinds).
-LIGHT_MOTION_KINDS = {"sphere": 1, "point": 2, "distant": 3, "dome": 4}
+def light_kind_number(name: str) -> int:
+    """The core's LightKind number of a kind that can move (SceneData.light_motion_kinds):
+    the core lists its kinds (lights/light_kinds.h), this file does not copy them."""
+    for number, (kind, moves) in enumerate(_core.light_kinds()):
+        if kind == name and moves:
+            return number
+    raise ValueError(f"the renderer core has no light kind {name!r} that can move")
 
 # The one line a light-less stage gets; Scene rewrites it when default lighting is off.
 NO_LIGHT_WARNING = ("the scene has no lights: lit by the default lighting (a white dome of radiance "

@@ -13,9 +13,10 @@ from pxr import Gf, Usd, UsdGeom, UsdLux
 from scipy import stats
 
 from tessera import render
-from tessera_renderer import SceneError, load_scene
+from tessera_renderer import SceneError, _core, load_scene
 from tessera_renderer.scene_blob import scene_from_blob, translate_to_blob
 from tessera_renderer.usd import translate_stage
+from tessera_renderer.usd.lights import light_kind_number
 from tessera_renderer.usd.motion import MAX_TIME_STEPS, MOTION_TOLERANCE
 from usd_fixtures import add_camera, add_material, add_mesh, add_render_settings, emission_only, new_stage
 
@@ -269,6 +270,15 @@ def test_a_moving_scene_travels_in_its_blob_and_renders_the_same(tmp_path):
     np.testing.assert_array_equal(render(from_blob, spp=32, seed=3, variance=False).rgba, local)
     still = scene_from_blob(translate_to_blob(path, shutter=(0, 0)))
     assert not still.has_motion
+
+
+def test_moving_light_kind_numbers_come_from_the_core():
+    """usd/lights.py reads the kind numbers from the core's list (lights/light_kinds.h), not
+    a copy: the numbers blobs have always carried, and a kind that cannot move is refused."""
+    assert [name for name, _ in _core.light_kinds()][:5] == ["triangle", "sphere", "point", "distant", "dome"]
+    assert [light_kind_number(k) for k in ("sphere", "point", "distant", "dome")] == [1, 2, 3, 4]
+    with pytest.raises(ValueError, match="triangle"):
+        light_kind_number("triangle")  # triangles move with their mesh, not as lights
 
 
 def test_moving_lights_follow_usd_relative_to_the_camera(tmp_path):
