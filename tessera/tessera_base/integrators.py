@@ -104,7 +104,8 @@ def iteration_share_cap(name: str, values: dict[str, float]) -> int | None:
 
 
 def progressive(name: str) -> bool:
-    """Whether `name`'s iterations trace batches of paths (its `iteration_cap`: sppm, vcm):
+    """Whether `name`'s iterations trace batches of paths (its `iteration_cap`: sppm, vcm,
+    photon_direct):
     its estimate converges only as iterations add batches and shrink the radius, so even a
     fixed-spp render runs in passes (protocol.pass_range). For `auto`: no (the integrators
     it may pick in a fixed-spp render have no such cap)."""

@@ -363,7 +363,7 @@ class RenderSettings(BaseModel):
         pixel, which per-tile stopping would break. `auto` may resolve to such an integrator,
         and a farm cannot know before it loads the scene, so it is scheduled the same way
         (local renders follow the same rule, so farm and local images stay identical).
-        A fixed-spp render of a progressive integrator (sppm, vcm) has several passes too,
+        A fixed-spp render of a progressive integrator (sppm, vcm, photon_direct) has several passes too,
         each with its scene pass, and advances the same way to its last."""
         if not self.adaptive:
             return integrators.progressive(self.integrator)
@@ -376,7 +376,7 @@ def pass_range(settings: RenderSettings, pass_index: int) -> tuple[int, int] | N
     iterations trace batches of paths they stop doubling at its cap (iteration_share_cap
     times min_spp) and stay there, so that every iteration's paths keep up with its samples.
 
-    A fixed spp is one pass, except for a progressive integrator (sppm, vcm): its iterations
+    A fixed spp is one pass, except for a progressive integrator (sppm, vcm, photon_direct): its iterations
     (fresh photons or light paths, a smaller radius) must grow with the samples asked for,
     or its error stops falling where one iteration's paths leave it. Its passes are then
     those of a noise target with min_spp = 1 and max_spp = spp, all of them: 1, 1, 2, 4, ...

@@ -146,9 +146,10 @@ def test_pass_schedule_stops_doubling_at_a_merging_integrators_cap():
 
 
 def test_a_fixed_spp_of_a_progressive_integrator_runs_the_noise_target_passes_from_one_sample():
-    """sppm and vcm converge only as iterations add photons or light paths (issue 46: a
-    fixed spp was one pass and plateaued): a fixed spp runs the passes of a noise target
-    with min_spp 1 and max_spp = spp, all of them; other integrators keep one pass."""
+    """sppm, vcm and photon_direct converge only as iterations add photons or light paths
+    (issue 46: a fixed spp was one pass and plateaued): a fixed spp runs the passes of a
+    noise target with min_spp 1 and max_spp = spp, all of them; other integrators keep one
+    pass."""
     def ranges(integrator, spp, params=None):
         s = RenderSettings(width=8, height=8, spp=spp, integrator=integrator, integrator_params=params or {})
         out, p = [], 0
@@ -163,7 +164,10 @@ def test_a_fixed_spp_of_a_progressive_integrator_runs_the_noise_target_passes_fr
                                    (128, 64), (192, 64)]
     assert ranges("sppm", 1) == [(0, 1)]
     assert ranges("vcm", 3) == [(0, 1), (1, 1), (2, 1)]
-    for integrator in ("path", "bdpt", "photon_direct", "auto"):
+    # photon_direct: batches of 200000 photons, at most 2e6 an iteration (8 batches).
+    assert ranges("photon_direct", 64) == [(0, 1), (1, 1), (2, 2), (4, 4), (8, 8), (16, 8), (24, 8), (32, 8),
+                                           (40, 8), (48, 8), (56, 8)]
+    for integrator in ("path", "bdpt", "auto"):
         assert ranges(integrator, 256) == [(0, 256)], integrator
 
 
@@ -282,13 +286,13 @@ def test_splat_unit_exponent_round_trips_and_scales_the_image():
 def test_integrators_that_cannot_stop_per_tile_take_noise_targets_in_lockstep():
     """Lockstep follows the registry's stop_per_tile capability; `auto` is scheduled in
     lockstep because one of the integrators it may pick cannot stop per tile. A fixed spp
-    is lockstep only for the progressive integrators (an iteration_cap: sppm, vcm), whose
-    fixed spp runs in passes."""
+    is lockstep only for the progressive integrators (an iteration_cap: sppm, vcm,
+    photon_direct), whose fixed spp runs in passes."""
     from tessera_renderer import _core
     registry = _core.integrators()
     assert {i["stop_per_tile"] for i in registry} == {True, False}  # both kinds are exercised
     progressive = {i["name"] for i in registry if i.get("iteration_cap")}
-    assert progressive == {"sppm", "vcm"}
+    assert progressive == {"sppm", "vcm", "photon_direct"}
     for info in registry:
         s = protocol.RenderSettings(width=8, height=8, target_error=0.05, integrator=info["name"])
         assert s.adaptive and s.lockstep == (not info["stop_per_tile"]), info["name"]

@@ -35,7 +35,7 @@ struct Link {
 class Hierarchy {
 public:
     Hierarchy(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& s)
-        : scene_(scene), settings_(s), eps_(1e-4f * std::max(1.f, scene.scene_radius())) {
+        : scene_(scene), settings_(s), eps_(RadiosityLengthScale(scene)) {
         const auto& el = mesh.elements();
         for (const auto& src : mesh.sources()) {
             Node root;
@@ -279,7 +279,7 @@ RadiositySolution SolveHierarchical(const Scene& scene, const RadiosityMesh& mes
                                       ? Color(0.f)
                                       : n.rho * GatherIrradiance(scene, n.c, s ? -n.n : n.n, lights,
                                                                  settings.light_samples, settings.seed, 2 * i + s,
-                                                                 1e-4f * std::max(1.f, scene.scene_radius()));
+                                                                 RadiosityLengthScale(scene));
                 }
             });
         });

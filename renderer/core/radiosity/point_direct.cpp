@@ -20,7 +20,7 @@ constexpr uint64_t kCentroidStreams = uint64_t(1) << 35;
 
 PointDirect::PointDirect(const Scene& scene, const RadiosityMesh& mesh, const RadiositySettings& settings)
     : scene_(scene), mesh_(mesh), settings_(settings), unmeshed_(UnmeshedLights(scene, mesh)) {
-    eps_ = 1e-4f * std::max(1.f, scene.scene_radius());
+    eps_ = RadiosityLengthScale(scene);
     const auto& el = mesh.elements();
     for (uint32_t e = 0; e < el.size(); ++e)
         if ((!IsBlack(el[e].emission[0]) || !IsBlack(el[e].emission[1])) && el[e].area > 0.f) emissive_.push_back(e);
@@ -78,7 +78,7 @@ std::vector<Color> VertexPointDirect(const Scene& scene, const RadiosityMesh& me
     // offsets inside its elements: at the border itself its shadow rays would start on the
     // wall and find it in the way (the seams along a room's edges went dark). An inner
     // vertex's elements surround it, so it hardly moves.
-    const float nudge = 4e-4f * std::max(1.f, scene.scene_radius());
+    const float nudge = 4.f * RadiosityLengthScale(scene);
     for (size_t v = 0; v < nv; ++v) {
         if (!(area[v] > 0.f)) continue;
         const Vec3 d = inward[v] / area[v];

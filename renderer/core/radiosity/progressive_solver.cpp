@@ -68,7 +68,7 @@ void GatherUnmeshedDirect(const Scene& scene, const RadiosityMesh& mesh, const R
     const std::vector<uint32_t> other_lights = UnmeshedLights(scene, mesh);
     if (other_lights.empty()) return;
     const std::vector<RadiosityElement>& el = mesh.elements();
-    const float eps = 1e-4f * std::max(1.f, scene.scene_radius());
+    const float eps = RadiosityLengthScale(scene);
     arena.execute([&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, 2 * el.size(), 64), [&](const tbb::blocked_range<size_t>& r) {
             const ShutterTimeScope instant(settings.shutter_time);
@@ -121,7 +121,7 @@ RadiositySolution SolveProgressive(const Scene& scene, const RadiosityMesh& mesh
     const size_t n = el.size();
     RadiositySolution sol = ZeroSolution(n);
     if (n == 0) return sol;
-    const float eps = 1e-4f * std::max(1.f, scene.scene_radius());
+    const float eps = RadiosityLengthScale(scene);
     tbb::task_arena arena(settings.threads > 0 ? settings.threads : tbb::this_task_arena::max_concurrency());
 
     // Step 1a: lights that are not meshed, gathered per element side.

@@ -56,7 +56,7 @@ RadiosityMesh::RadiosityMesh(const Scene& scene, float target_size, const std::v
     if (!(target_size > 0.f) || !std::isfinite(target_size))
         throw std::invalid_argument("radiosity element_size must be a finite number > 0");
     // Welding tolerance: far below any element, far above rounding in the corners.
-    quantum_ = 1e-4f * std::max(1.f, scene.scene_radius());
+    quantum_ = RadiosityLengthScale(scene);
     // Count first: a tiny element_size must be refused before it allocates (a worker
     // must not run out of memory on a bad setting).
     double cells = 0.0;

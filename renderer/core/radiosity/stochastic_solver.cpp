@@ -75,7 +75,7 @@ std::vector<Color> Shoot(const Scene& scene, const RadiosityMesh& mesh, const Ra
     *cast += count;
     uint64_t landed_rays = 0, *landed = &landed_rays;
 
-    const float eps = 1e-4f * std::max(1.f, scene.scene_radius());
+    const float eps = RadiosityLengthScale(scene);
     const bool through_delta = scene.has_delta_surfaces();
     const uint64_t chunks = (count + kChunkRays - 1) / kChunkRays;
     std::vector<std::vector<Deposit>> deposits(kBlockChunks);

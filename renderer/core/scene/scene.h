@@ -331,6 +331,7 @@ public:
     bool IsInfiniteLight(uint32_t emitter) const;
     bool IsDeltaLight(uint32_t emitter) const;
     float scene_radius() const { return scene_radius_; }
+    Vec3 scene_center() const { return scene_center_; }
     // Splats are stored in units of 2^splat_exponent() (see SplatFilm).
     int splat_exponent() const { return splat_exponent_; }
 
