@@ -71,6 +71,9 @@ struct IntegratorInfo {
     // Shades what it sees of curves (Embree round curves). Radiosity reads every surface
     // from its element mesh, which has no curves: they show black there.
     bool shades_curves = true;
+    // Renders participating media (docs/media.md). One that does not refuses a scene with
+    // media when created (Integrator::Create) rather than render it as if they were absent.
+    bool handles_media = false;
     std::vector<IntegratorParam> params = {};
     // What a pixel estimates: "radiance", or another quantity (ao: "ambient occlusion"),
     // which the integrator matrix checks on its own closed forms.

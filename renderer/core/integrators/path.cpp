@@ -16,6 +16,7 @@ const IntegratorInfo& PathIntegrator::Info() {
         .name = "path",
         .description = "path tracing: next event estimation, MIS with BSDF sampling, Russian roulette",
         .complete = true,
+        .handles_media = true,
         .params = {{"rr_depth", "vertex index (0 = the first hit) from which Russian roulette may end a path "
                                 "(default 2; 5 reaches an error sooner in closed diffuse scenes)"},
                    {"lanes", "lane width of the lane-group kernel for all-Lambertian still scenes: 0 (the scalar "
@@ -48,6 +49,7 @@ IntegratorEntry PathIntegratorEntry() {
 }
 
 PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const {
+    if (kFullFeatures && scene.has_media()) return TraceMedia(scene, ray, sampler, t_min, t_max);
     return scene.all_lambertian() ? Trace<DiffuseBSDF>(scene, ray, sampler, t_min, t_max)
                                   : Trace<BSDF>(scene, ray, sampler, t_min, t_max);
 }

@@ -42,6 +42,8 @@ private:
     // compute the same image to the bit on such a scene.
     template <typename Shading>
     PathSample Trace(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const;
+    // The kernel for scenes with participating media (path_media.cpp).
+    PathSample TraceMedia(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const;
     int max_depth_;
     int roulette_depth_;
     int lanes_;

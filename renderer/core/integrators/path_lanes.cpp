@@ -15,7 +15,8 @@ int DefaultLaneWidth() {
 }
 
 bool LaneKernelApplies(const Scene& scene) {
-    return scene.all_lambertian() && scene.packets_apply() && !scene.has_motion();
+    // Media need the media kernel's free flights (path_media.cpp), whatever the surfaces are.
+    return scene.all_lambertian() && scene.packets_apply() && !scene.has_motion() && !scene.has_media();
 }
 
 namespace {

@@ -99,6 +99,9 @@ std::unique_ptr<Integrator> Integrator::Create(std::string_view name, const Inte
                 throw std::invalid_argument("integrator '" + std::string(name) + "' has no setting '" + param +
                                             "' (" + (names.empty() ? "it takes none" : "known: " + names) + ")");
         }
+        if (scene.has_media() && !info.handles_media)
+            throw std::invalid_argument("the " + std::string(name) + " integrator does not render participating "
+                                        "media, and the scene has some (docs/media.md): render it with path");
         return e.create(settings, scene);
     }
     throw std::invalid_argument("unknown integrator '" + std::string(name) + "' (known: " + KnownNames() + ")");

@@ -57,6 +57,7 @@ void RequireLambertOnly(const SceneDesc& d, const std::vector<Material>& materia
     if (!d.prototypes.empty() || !d.instance_prototype.empty()) refuse("instances");
     if (!d.motion_instances.empty() || !d.light_motion_kinds.empty()) refuse("motion");
     if (!d.curve_segments.empty()) refuse("curves");
+    if (!d.media.empty()) refuse("participating media");
     if (!d.sphere_lights.empty() || !d.point_lights.empty() || !d.distant_lights.empty() ||
         !IsBlack(d.dome_radiance))
         refuse("lights other than emissive triangles");
@@ -228,6 +229,7 @@ Scene::Scene(const SceneDesc& desc)
     // that throws never runs its destructor.
     try {
         BuildGeometryAndLights(desc);
+        BuildMedia(desc);
     } catch (...) {
         ReleaseEmbree();
         throw;

@@ -19,6 +19,7 @@
 #include "light_kinds.h"
 #include "light_sampler.h"
 #include "math.h"
+#include "medium.h"
 #include "texture.h"
 
 namespace tessera {
@@ -57,6 +58,10 @@ struct Material {
     // A shaped area light (UsdLux ShapingAPI on a Rect or Disk light): its emission times
     // SceneDesc::emission_shapings[emission_shaping] about the emitting normal; -1: none.
     int32_t emission_shaping = -1;
+    // The media on either side (media/medium.h; docs/media.md), and whether the surface is
+    // only their boundary: no BSDF, rays pass it unchanged (pbrt-v4's material-less surfaces).
+    MediumInterface media;
+    bool interface_only = false;
 };
 
 // A triangle mesh as flat arrays: the world's, or an instancing prototype's (in its own space).
@@ -123,6 +128,7 @@ struct SceneDesc {
     enum class LightSelection : uint8_t { kAuto, kPower, kBVH };
     LightSelection light_selection = LightSelection::kAuto;
     std::vector<Material> materials;
+    std::vector<HomogeneousMedium> media;  // Material::media's indices
     std::vector<LightShaping> emission_shapings;  // Material::emission_shaping (axes used when about_axis)
     std::vector<SphereLight> sphere_lights;
     std::vector<PointLight> point_lights;
@@ -350,6 +356,19 @@ public:
         const int64_t mi = MaterialIndexAt(hit);
         return mi < 0 ? Color(0.f) : materials_[size_t(mi)].albedo;
     }
+    // Participating media (media/scene_media.cpp; docs/media.md). has_media: some material
+    // bounds a medium; scenes without pay nothing (PathIntegrator::Li picks its kernel by it).
+    bool has_media() const { return has_media_; }
+    const HomogeneousMedium& medium(int32_t i) const { return media_[size_t(i)]; }
+    const MediumInterface& MediumInterfaceAt(const SurfaceHit& hit) const;
+    bool IsInterfaceOnly(const SurfaceHit& hit) const;
+    // The medium at p (-1: vacuum), from the side of the first boundary a ray from p meets.
+    int32_t MediumAt(Vec3 p) const;
+    // Beer-Lambert transmittance from p (a surface point with normal ng and error bound, or
+    // a medium point: ng = 0) in `medium` to a light sample, through pure interfaces; zero
+    // when any other surface blocks it.
+    Color Transmittance(Vec3 p, float p_error, Vec3 ng, int32_t medium, const LightSample& ls) const;
+
     // Some material has a delta lobe (a smooth mirror, clear glass): transport radiosity's
     // form factors do not carry (radiosity_product.cpp picks the stochastic solver then).
     bool has_delta_surfaces() const {
@@ -387,6 +406,9 @@ private:
     template <typename>
     friend struct EmitterOf;
     void BuildGeometryAndLights(const SceneDesc& desc);
+    void BuildMedia(const SceneDesc& desc);
+    std::vector<HomogeneousMedium> media_;
+    bool has_media_ = false;
     void BoundDeltaSurfaces();
     void ReleaseEmbree() noexcept;
     struct Emitter {
