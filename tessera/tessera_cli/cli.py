@@ -9,6 +9,8 @@ import os
 import sys
 from pathlib import Path
 
+from .dicing_options import add_dicing_options, dicing_from_args
+
 
 def _resolution(text: str) -> tuple[int, int]:
     try:
@@ -141,7 +143,8 @@ def _render_one(args: argparse.Namespace) -> int:
         scene = load_scene(scene_path, frame=args.frame, root=_local_root(args),
                            default_light=not args.no_default_light,
                            subdivision_level=args.subdivision_level, camera=args.camera,
-                           shutter=args.shutter, variants=[parse_variant(v) for v in args.variants or ()])
+                           shutter=args.shutter, variants=[parse_variant(v) for v in args.variants or ()],
+                           dicing=dicing_from_args(args))
     except SceneError as exc:
         hint = ("; if that folder is yours, let assets resolve within it with --root DIR, "
                 "or render without --sandbox"
@@ -200,6 +203,8 @@ def _render_one(args: argparse.Namespace) -> int:
                  f"({len(data.motion_instances)} moving)")
     print(f"{scene_path.name}: {scene.num_triangles} triangles{instanced}, {scene.num_emitters} emitters; "
           f"{width}x{height}, {samples}, seed {settings.seed}{when}", file=sys.stderr)
+    if getattr(data, "subdivision_summary", None):
+        print(data.subdivision_summary, file=sys.stderr)
     try:
         image = render_scene(scene, settings, scene_name=scene_path.name, threads=args.threads,
                              progress=not args.quiet, variance=not args.no_variance,
@@ -710,6 +715,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_default_light_option(r)
     _add_denoise_option(r)
     _add_subdivision_option(r)
+    add_dicing_options(r)
     _add_camera_option(r)
     _add_variant_option(r)
     _add_time_options(r, frames=True)
