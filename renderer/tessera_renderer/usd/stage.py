@@ -65,6 +65,7 @@ class _Translator(MeshReader, InstanceReader, MaterialReader, LightReader, Motio
         self.subdivided_meshes = 0
         self.subdivision_levels: Counter = Counter()
         self.dicing_plan: dict[str, int] | None = None
+        self.dicing_without_camera = False
         self.time = time
         self.warn = warn
         self.bundle = bundle
@@ -310,8 +311,9 @@ def translate_stage(path: str, frame: float | None = None, *, bundle=None, insta
     (_move_to_camera); without, they are world coordinates. Raises SceneError with a
     readable message. `subdivision_level` is how many times subdivision surfaces are
     refined (0: their control cage); with `dicing` (usd/dicing.py) each mesh's level is
-    chosen from its size on screen instead, and `subdivision_level` is ignored. `camera`, a Camera prim's path, is the camera to
-    render through instead of the RenderSettings' (or the first found). `frame` is the time
+    chosen from its size on screen instead (`subdivision_level` then serves only a stage
+    without a camera). `camera`, a Camera prim's path, is the camera to render through
+    instead of the RenderSettings' (or the first found). `frame` is the time
     code to render (default: the stage's startTimeCode, else the default time); `shutter`
     (open, close), offsets from it in time codes, replaces the camera's shutter:open/close
     (usd/motion.py; (0, 0) renders without motion blur). `variants`, (prim path, variant
@@ -522,8 +524,7 @@ def _dicing_plan(stage, time, tr, camera: str | None, dicing: Dicing) -> dict[st
     settings = _find_render_settings(stage, quiet)
     prim = select_camera(stage, camera, settings, _visible_cameras(stage, time), quiet)
     if prim is None:
-        tr._count_note(f"subdivision surfaces are refined {tr.subdivision_level} times everywhere: "
-                       f"dicing needs the stage's camera")
+        tr.dicing_without_camera = True  # said by the first subdivision mesh, if any
         return None
     resolution = dicing.resolution
     res = settings.GetResolutionAttr().Get(time) if settings else None
@@ -546,7 +547,8 @@ def _subdivision_summary(tr, data: SceneData, dicing: Dicing | None) -> str | No
     levels = ", ".join(f"{n} at level {lv}" for lv, n in sorted(tr.subdivision_levels.items()))
     how = (f"diced at {dicing.rate:g} px (maximum level {dicing.max_level}, {dicing.memory_mb:g} MB budget)"
            if getattr(tr, "dicing_plan", None) is not None else "fixed level")
-    return (f"subdivision: {tr.subdivided_meshes} meshes {how}: {levels}; {stored} triangles stored, "
+    meshes = f"{tr.subdivided_meshes} mesh{'es' if tr.subdivided_meshes != 1 else ''}"
+    return (f"subdivision: {meshes} {how}: {levels}; {stored} triangles stored, "
             f"{nbytes / 2 ** 20:.1f} MB of geometry")
 
 

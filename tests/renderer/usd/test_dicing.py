@@ -186,7 +186,7 @@ def test_tessera_render_dices_at_the_resolution_asked_and_logs_one_line(tmp_path
     path = tmp_path / "cube.usda"
     _cubes([near]).Export(str(path))
     out = str(tmp_path / "c.exr")
-    for extra, line in ((["--res", "64x64"], "1 meshes diced at 1 px (maximum level 4, 1024 MB budget): "
+    for extra, line in ((["--res", "64x64"], "1 mesh diced at 1 px (maximum level 4, 1024 MB budget): "
                                              f"1 at level 4; {2 * 4 ** 4 * 6} triangles stored"),
                         (["--res", "64x64", "--dicing-rate", "4"], f"1 at level 3; {2 * 4 ** 3 * 6} triangles"),
                         (["--res", "128x128", "--dicing-max-level", "6"], f"1 at level 6; {2 * 4 ** 6 * 6} triangles"),
@@ -196,3 +196,17 @@ def test_tessera_render_dices_at_the_resolution_asked_and_logs_one_line(tmp_path
         err = capsys.readouterr().err
         assert line in err, (extra, err)
         assert err.count("subdivision: ") == 1
+
+
+def test_without_a_camera_the_fixed_level_is_used_and_said_once():
+    stage = _cubes([20.0, 30.0])
+    stage.RemovePrim("/Cam")
+    data = _translate(stage)
+    assert len(data.indices) == 2 * (2 * 4 ** 2 * 6)  # both cubes at level 2
+    said = [w for w in data.warnings if "dicing needs the stage's camera" in w]
+    assert said == ["subdivision meshes refined at the fixed level 2: dicing needs the stage's camera "
+                    "(2 times)"], data.warnings
+    # Control: a stage without subdivision surfaces says nothing about dicing.
+    for prim in ("/Cube0", "/Cube1"):
+        UsdGeom.Mesh(stage.GetPrimAtPath(prim)).CreateSubdivisionSchemeAttr("none")
+    assert not any("dicing" in w for w in _translate(stage).warnings)
