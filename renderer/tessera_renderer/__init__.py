@@ -506,7 +506,7 @@ def _rows(table, columns: int) -> np.ndarray:
 def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path | None = None,
                instancing: str = "auto", default_light: bool = True,
                subdivision_level: int | None = None, camera: str | None = None,
-               shutter: tuple[float, float] | None = None, variants=()) -> Scene:
+               shutter: tuple[float, float] | None = None, variants=(), dicing=None) -> Scene:
     """Reads a bundle (.usda/.usdc/.usd, .usdz or .zip) through the sandbox and builds it.
     For a loose layer, `root` (default: its directory) is the bundle every asset must stay
     in; `root="/"` trusts the local filesystem (what `tessera render` does by default). `instancing`: "auto" (default: Embree instances, one BVH per prototype, unless
@@ -514,7 +514,10 @@ def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path
     instance copied). `default_light`: a stage without any light (emissive geometry
     counts as light) gets the default lighting, announced in one warning; off, it renders
     black. `subdivision_level`: how many times subdivision surfaces are refined (default
-    tessera_renderer.usd.subdivision.DEFAULT_LEVEL; 0 renders their control cage).
+    tessera_renderer.usd.subdivision.DEFAULT_LEVEL; 0 renders their control cage). `dicing`:
+    a tessera_renderer.usd.dicing.Dicing (rate in pixels, maximum level, memory budget,
+    resolution) choosing each mesh's level from its size in the camera, when
+    `subdivision_level` is None.
     `camera`: the path of the Camera prim to render through (default: the RenderSettings'
     camera, else the first camera, else a default view). `frame`: the time code to render
     (default: the stage's startTimeCode, else the default time); `shutter`: (open, close)
@@ -529,7 +532,8 @@ def load_scene(path: str | Path, frame: float | None = None, *, root: str | Path
     data = translate_stage(str(path), frame, root=None if root is None else str(root),
                            instancing=instancing,
                            subdivision_level=DEFAULT_LEVEL if subdivision_level is None else subdivision_level,
-                           camera=camera, shutter=shutter, variants=tuple(variants))
+                           camera=camera, shutter=shutter, variants=tuple(variants),
+                           dicing=dicing if subdivision_level is None else None)
     scene = Scene(data, default_light=default_light)
     for w in scene.warnings:
         log.warning("%s: %s", path.name, w)

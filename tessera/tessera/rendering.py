@@ -4,6 +4,7 @@ tessera_base.film), so the image's splats are already normalised whatever the in
 and the pixels equal the CLI's and the farm's bit for bit."""
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
@@ -86,7 +87,7 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
            default_light: bool = True, subdivision_level: int | None = None,
            camera: str | None = None, shutter: tuple[float, float] | None = None,
            variants: Sequence[str] = (), crop: tuple[int, int, int, int] | None = None,
-           **settings: Any) -> Image:
+           dicing=None, **settings: Any) -> Image:
     """Renders `scene` locally and returns the image.
 
     `scene` is a USD file or .zip/.usdz bundle path, or a scene already loaded with
@@ -104,8 +105,10 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
     `target_error` renders to a noise target instead of a fixed spp (min_spp, max_spp,
     time_limit bound it). `crop` (x0, y0, x1, y1, exclusive) renders only that region
     (pixels outside it stay 0; write the image with the same crop). Everything else is as
-    for `tessera render`; any other render setting (tessera_base.protocol.SETTINGS, e.g.
-    seed_offset) is a keyword of its own name.
+    for `tessera render`; `dicing` (tessera_renderer.usd.dicing.Dicing) chooses subdivision
+    levels from the camera when `subdivision_level` is None (its resolution defaults to `res`);
+    any other render setting (tessera_base.protocol.SETTINGS, e.g. seed_offset) is a keyword
+    of its own name.
 
     Raises tessera_renderer.SceneError when the scene cannot be read, ValueError for
     settings out of range (pydantic's ValidationError is a ValueError)."""
@@ -114,7 +117,9 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
     if unknown := sorted(set(settings) - set(SETTINGS)):
         raise TypeError(f"render() got an unknown setting {unknown[0]!r} (settings: {', '.join(SETTINGS)})")
     loaded = _load(scene, frame=frame, root=root, default_light=default_light,
-                   subdivision_level=subdivision_level, camera=camera, shutter=shutter, variants=variants)
+                   subdivision_level=subdivision_level, camera=camera, shutter=shutter, variants=variants,
+                   dicing=dicing if dicing is None or dicing.resolution or not res else
+                   dataclasses.replace(dicing, resolution=tuple(res)))
     width, height = res or (loaded.width, loaded.height)
     optional = dict(integrator=integrator, max_depth=max_depth, tile_size=tile_size,
                     target_error=target_error, min_spp=min_spp, max_spp=max_spp, time_limit=time_limit)
@@ -184,7 +189,8 @@ def render_scene(scene, settings, *, scene_name: str, threads: int = 0, progress
     return Image(result.rgba, layers, metadata)
 
 
-def _load(scene, *, frame, root, default_light, subdivision_level, camera, shutter=None, variants=()):
+def _load(scene, *, frame, root, default_light, subdivision_level, camera, shutter=None, variants=(),
+          dicing=None):
     if not isinstance(scene, (str, Path)):
         return scene
     from tessera_base.protocol import parse_variant
@@ -195,4 +201,5 @@ def _load(scene, *, frame, root, default_light, subdivision_level, camera, shutt
     except ValueError as exc:
         raise SceneError(str(exc)) from None
     return load_scene(scene, frame=frame, root=root, default_light=default_light,
-                      subdivision_level=subdivision_level, camera=camera, shutter=shutter, variants=selections)
+                      subdivision_level=subdivision_level, camera=camera, shutter=shutter, variants=selections,
+                      dicing=dicing)

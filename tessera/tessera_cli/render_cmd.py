@@ -7,6 +7,7 @@ from pathlib import Path
 
 from tessera_base.settings_spec import RENDER
 
+from .dicing_options import dicing_from_args
 from .options import settings_error, settings_from_args, settings_problem
 
 def cmd_render(args: argparse.Namespace) -> int:
@@ -66,7 +67,8 @@ def _render_one(args: argparse.Namespace) -> int:
         scene = load_scene(scene_path, frame=args.frame, root=_local_root(args),
                            default_light=values.get("default_light", True),
                            subdivision_level=args.subdivision_level, camera=args.camera,
-                           shutter=args.shutter, variants=[parse_variant(v) for v in args.variants or ()])
+                           shutter=args.shutter, variants=[parse_variant(v) for v in args.variants or ()],
+                           dicing=dicing_from_args(args))
     except SceneError as exc:
         hint = ("; if that folder is yours, let assets resolve within it with --root DIR, "
                 "or render without --sandbox"
@@ -118,6 +120,8 @@ def _render_one(args: argparse.Namespace) -> int:
                  f"({len(data.motion_instances)} moving)")
     print(f"{scene_path.name}: {scene.num_triangles} triangles{instanced}, {scene.num_emitters} emitters; "
           f"{width}x{height}, {samples}, seed {settings.seed}{when}", file=sys.stderr)
+    if getattr(data, "subdivision_summary", None):
+        print(data.subdivision_summary, file=sys.stderr)
     try:
         image = render_scene(scene, settings, scene_name=scene_path.name, threads=args.threads,
                              progress=not args.quiet, variance=not args.no_variance,

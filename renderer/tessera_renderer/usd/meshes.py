@@ -302,17 +302,25 @@ class MeshReader:
         return points, tris, face_of_tri, normals, uv_set, len(counts)
 
     def _subdivision_level(self, counts, scheme: str, path: str) -> int:
-        """The job's refinement level, lowered for a mesh whose refined triangles would pass
-        its share of the triangle limit (with a note)."""
+        """The job's refinement level (or the dicing pass's for this mesh), lowered for a
+        mesh whose refined triangles would pass its share of the triangle limit (with a note)."""
         n_quads = int(counts.sum()) if scheme != "loop" else 0  # an n-gon makes n quads
         n_tris = len(counts)
         budget = self.limits.triangles // subdivision.MESH_SHARE_OF_TRIANGLE_LIMIT
-        level = self.subdivision_level
+        wanted = self.subdivision_level
+        if self.dicing_plan is not None:
+            # Meshes the dicing pass did not meet (none expected) keep the fixed level.
+            wanted = self.dicing_plan.get(path, wanted)
+        elif self.dicing_without_camera:
+            self._count_note(f"subdivision meshes refined at the fixed level {wanted}: dicing needs the "
+                             f"stage's camera")
+        level = wanted
         while level > 1 and subdivision.refined_triangles(n_quads, n_tris, scheme, level) > budget:
             level -= 1
-        if level < self.subdivision_level:
+        if level < wanted:
             self._count_note(f"subdivision meshes refined to level {level} instead of "
-                             f"{self.subdivision_level} to stay within {budget} triangles each")
+                             f"{wanted} to stay within {budget} triangles each")
+        self.subdivision_levels[level] += 1
         return level
 
     def _refined_geometry(self, refined, api, shape, counts, face_indices, path):

@@ -82,3 +82,7 @@ class SceneData:
     # intensity x 2^exposure x luminance(color), as "path (type, intensity I)"; for a
     # light-less stage the default lighting (or its emission), None without either.
     brightest_light: str | None = None
+    # The render log's line on subdivision surfaces (levels, stored triangles, geometry
+    # bytes; stage._subdivision_summary), None without any. Not carried by the scene blob:
+    # the farm refines at the job's fixed level.
+    subdivision_summary: str | None = None

@@ -34,6 +34,7 @@ from .lights import (DEFAULT_LIGHTING_NAME, NO_LIGHT_WARNING, LightReader, _emit
 from .materials import _COLOR_INPUTS, MaterialReader, _MaterialTable, _SCALAR_INPUTS, _as_tuple
 from .meshes import _Chunk, MeshReader, _face_normals, _normalized
 from .motion import Shutter, MotionReader, render_time, shutter_interval
+from .dicing import Dicing
 from .scene_data import SceneData
 
 
@@ -62,6 +63,9 @@ class _Translator(MeshReader, InstanceReader, MaterialReader, LightReader, Motio
         self.stage = stage
         self.subdivision_level = subdivision_level
         self.subdivided_meshes = 0
+        self.subdivision_levels: Counter = Counter()
+        self.dicing_plan: dict[str, int] | None = None
+        self.dicing_without_camera = False
         self.time = time
         self.warn = warn
         self.bundle = bundle
@@ -296,7 +300,7 @@ def translate_stage(path: str, frame: float | None = None, *, bundle=None, insta
                     camera_relative: bool = True,
                     subdivision_level: int = subdivision.DEFAULT_LEVEL, camera: str | None = None,
                     shutter: tuple[float, float] | None = None,
-                    variants: Sequence[tuple[str, str, str]] = ()) -> SceneData:
+                    variants: Sequence[tuple[str, str, str]] = (), dicing: Dicing | None = None) -> SceneData:
     """Opens a USD file through the bundle sandbox and translates it. `instancing` is
     "flatten" (every instance copied into the flat arrays), "instances" (prototypes +
     instance transforms, prototypes kept out of the flat arrays; the core builds one BVH
@@ -306,8 +310,10 @@ def translate_stage(path: str, frame: float | None = None, *, bundle=None, insta
     the camera's position, so that float32 holds them as finely as the view needs
     (_move_to_camera); without, they are world coordinates. Raises SceneError with a
     readable message. `subdivision_level` is how many times subdivision surfaces are
-    refined (0: their control cage). `camera`, a Camera prim's path, is the camera to
-    render through instead of the RenderSettings' (or the first found). `frame` is the time
+    refined (0: their control cage); with `dicing` (usd/dicing.py) each mesh's level is
+    chosen from its size on screen instead (`subdivision_level` then serves only a stage
+    without a camera). `camera`, a Camera prim's path, is the camera to render through
+    instead of the RenderSettings' (or the first found). `frame` is the time
     code to render (default: the stage's startTimeCode, else the default time); `shutter`
     (open, close), offsets from it in time codes, replaces the camera's shutter:open/close
     (usd/motion.py; (0, 0) renders without motion blur). `variants`, (prim path, variant
@@ -319,7 +325,8 @@ def translate_stage(path: str, frame: float | None = None, *, bundle=None, insta
     stage = bundle_mod.open_stage(bundle, variants)
     data = translate_opened_stage(stage, frame, bundle=bundle, instancing=instancing,
                                   default_light=default_light, camera_relative=camera_relative,
-                                  subdivision_level=subdivision_level, camera=camera, shutter=shutter)
+                                  subdivision_level=subdivision_level, camera=camera, shutter=shutter,
+                                  dicing=dicing)
     data.warnings[:0] = bundle.warnings
     data._bundle = bundle  # keeps an unpack directory (and the textures in it) alive
     return data
@@ -328,7 +335,8 @@ def translate_stage(path: str, frame: float | None = None, *, bundle=None, insta
 def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, instancing: str = "flatten",
                            default_light: bool = False, limits=None, camera_relative: bool = True,
                            subdivision_level: int = subdivision.DEFAULT_LEVEL,
-                           camera: str | None = None, shutter: tuple[float, float] | None = None) -> SceneData:
+                           camera: str | None = None, shutter: tuple[float, float] | None = None,
+                           dicing: Dicing | None = None) -> SceneData:
     from pxr import Usd, UsdGeom
 
     from .bundle import DEFAULT_LIMITS
@@ -341,12 +349,12 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
         # keeps. Such scenes are translated again, flattened.
         data = translate_opened_stage(stage, frame, bundle=bundle, instancing="instances",
                                       default_light=default_light, limits=limits, camera_relative=camera_relative,
-                                      subdivision_level=subdivision_level, camera=camera, shutter=shutter)
+                                      subdivision_level=subdivision_level, camera=camera, shutter=shutter, dicing=dicing)
         if not getattr(data, "_native_prototype_lights", 0):
             return data
         flat = translate_opened_stage(stage, frame, bundle=bundle, instancing="flatten",
                                       default_light=default_light, limits=limits, camera_relative=camera_relative,
-                                      subdivision_level=subdivision_level, camera=camera, shutter=shutter)
+                                      subdivision_level=subdivision_level, camera=camera, shutter=shutter, dicing=dicing)
         flat.warnings.append("lights inside native instances: the scene was flattened so that they render")
         return flat
     limits = limits or (bundle.limits if bundle is not None else DEFAULT_LIMITS)
@@ -364,6 +372,8 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
         shutter_camera = select_camera(stage, camera, settings, _visible_cameras(stage, time), lambda _message: None)
         shutter_interval_ = shutter_interval(shutter_camera, time, shutter)
     tr = _Translator(stage, time, warn, bundle, limits, instancing, subdivision_level, shutter_interval_)
+    if dicing is not None:
+        tr.dicing_plan = _dicing_plan(stage, time, tr, camera, dicing)
     tr.skin()
     predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate) if instancing == "flatten" \
         else Usd.PrimDefaultPredicate
@@ -500,7 +510,46 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     if default_light:
         apply_default_lighting(data)
     data._native_prototype_lights = tr.native_prototype_lights
+    data.subdivision_summary = _subdivision_summary(tr, data, dicing)
     return data
+
+
+def _dicing_plan(stage, time, tr, camera: str | None, dicing: Dicing) -> dict[str, int] | None:
+    """Levels per mesh path for the camera the render will use (select_camera's choice,
+    made before the walk as for the shutter), or None without a camera: the default view
+    is fitted to the refined geometry, so it cannot decide the refinement."""
+    from . import dicing as dicing_mod
+
+    quiet = lambda _message: None  # noqa: E731  (the walk's own choice warns)
+    settings = _find_render_settings(stage, quiet)
+    prim = select_camera(stage, camera, settings, _visible_cameras(stage, time), quiet)
+    if prim is None:
+        tr.dicing_without_camera = True  # said by the first subdivision mesh, if any
+        return None
+    resolution = dicing.resolution
+    res = settings.GetResolutionAttr().Get(time) if settings else None
+    if resolution is None:
+        resolution = (int(res[0]), int(res[1])) if res is not None and min(res) >= 1 else DEFAULT_RESOLUTION
+    view = _camera_from_prim(prim, tr.xform_cache, time, quiet)
+    return dicing_mod.plan(stage, time, tr.xform_cache, view, dicing, tuple(resolution), tr.instancing,
+                           tr._count_note)
+
+
+def _subdivision_summary(tr, data: SceneData, dicing: Dicing | None) -> str | None:
+    """One line for the render log: how subdivision surfaces were refined, the triangles
+    stored and the bytes the translated geometry holds."""
+    if not tr.subdivided_meshes:
+        return None
+    arrays = [data.positions, data.indices, data.triangle_material, data.shading_normals, data.uvs]
+    arrays += [a for proto in data.prototypes for a in proto.values()]
+    nbytes = sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))
+    stored = len(data.indices) + sum(len(proto["indices"]) for proto in data.prototypes)
+    levels = ", ".join(f"{n} at level {lv}" for lv, n in sorted(tr.subdivision_levels.items()))
+    how = (f"diced at {dicing.rate:g} px (maximum level {dicing.max_level}, {dicing.memory_mb:g} MB budget)"
+           if getattr(tr, "dicing_plan", None) is not None else "fixed level")
+    meshes = f"{tr.subdivided_meshes} mesh{'es' if tr.subdivided_meshes != 1 else ''}"
+    return (f"subdivision: {meshes} {how}: {levels}; {stored} triangles stored, "
+            f"{nbytes / 2 ** 20:.1f} MB of geometry")
 
 
 def stage_is_animated(stage) -> bool:
