@@ -84,10 +84,10 @@ def zip_scene(folder: Path, root_layer: str, out: Path) -> Path:
     return out
 
 
+@pytest.mark.shared_scenes
 def test_real_scenes_render_through_the_farm_as_zip_bundles(farm, tmp_path):
     from test_real_scenes import ROOTS, SCENES
 
-    assert SCENES.is_dir(), f"{SCENES} is missing"
     jobs = {}
     for k, (folder, rel, _, checks) in enumerate(ROOTS):
         bundle = zip_scene(SCENES / folder, rel, tmp_path / f"{k}-{folder}.zip")
