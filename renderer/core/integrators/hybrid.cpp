@@ -13,6 +13,7 @@
 #include <stdexcept>
 
 #include "bsdf.h"
+#include "bsdf_step.h"
 #include "direct_light.h"
 #include "integrator.h"
 #include "radiosity_product.h"
@@ -86,12 +87,10 @@ public:
             const Vec3 wo_local = frame.ToLocal(wo);
             if (!lights.empty() && bsdf.IsNonSpecular())
                 L += beta * SampleDirectLight(scene, hit, bsdf, frame, wo, sampler, /*mis=*/false);
-            const float uc = sampler.Get1D();
-            const std::optional<BSDFSample> bs = bsdf.Sample_f(wo_local, uc, sampler.Get2D());
-            if (!bs || !(bs->pdf > 0.f) || IsBlack(bs->f)) break;
-            const Vec3 wi = Normalize(frame.FromLocal(bs->wi));
-            if (!SidesAgree(wo, wi, hit.ng, wo_local, bs->wi)) break;
-            beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf);
+            const std::optional<BSDFStep> step = SampleBSDFStep(bsdf, frame, wo, wo_local, hit.ng, sampler, beta);
+            if (!step) break;
+            const BSDFSample* bs = &step->sample;
+            const Vec3 wi = step->wi;
             specular_bounce = bs->is_specular;
             // A non-delta scattering makes this vertex x: from here the next non-delta
             // surface is read from the solution.

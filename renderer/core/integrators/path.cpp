@@ -5,6 +5,7 @@
 #include <type_traits>
 
 #include "bsdf.h"
+#include "bsdf_step.h"
 #include "direct_light.h"
 #include "path_lanes.h"
 #include "sampling.h"
@@ -109,12 +110,10 @@ PathSample PathIntegrator::Trace(const Scene& scene, Ray ray, PixelSampler& samp
             L += beta * SampleDirectLight(scene, hit, bsdf, frame, wo, sampler, /*mis=*/true);
 
         // BSDF sampling continues the path.
-        const float uc = sampler.Get1D();
-        const std::optional<BSDFSample> bs = bsdf.Sample_f(wo_local, uc, sampler.Get2D());
-        if (!bs || !(bs->pdf > 0.f) || IsBlack(bs->f)) break;
-        const Vec3 wi = Normalize(frame.FromLocal(bs->wi));
-        if (!SidesAgree(wo, wi, hit.ng, wo_local, bs->wi)) break;
-        beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf);
+        const std::optional<BSDFStep> step = SampleBSDFStep(bsdf, frame, wo, wo_local, hit.ng, sampler, beta);
+        if (!step) break;
+        const BSDFSample* bs = &step->sample;
+        const Vec3 wi = step->wi;
         bsdf_pdf = bs->pdf;
         specular_bounce = bs->is_specular;
         if (bs->is_transmission) eta_scale *= bs->eta * bs->eta;

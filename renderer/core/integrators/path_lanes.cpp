@@ -4,6 +4,7 @@
 #include <stdexcept>
 
 #include "bsdf.h"
+#include "bsdf_step.h"
 #include "direct_light.h"
 #include "sampling.h"
 
@@ -85,12 +86,10 @@ void ShadeVertex(const Scene& scene, int max_depth, int roulette_depth, LaneGrou
         g.nee_beta[i] = beta;
         g.light[i] = SampleDirectLightUnshadowed(scene, hit, bsdf, frame, wo, sampler, /*mis=*/true);
     }
-    const float uc = sampler.Get1D();
-    const std::optional<BSDFSample> bs = bsdf.Sample_f(wo_local, uc, sampler.Get2D());
-    if (!bs || !(bs->pdf > 0.f) || IsBlack(bs->f)) return;
-    const Vec3 wi = Normalize(frame.FromLocal(bs->wi));
-    if (!SidesAgree(wo, wi, hit.ng, wo_local, bs->wi)) return;
-    beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf);
+    const std::optional<BSDFStep> step = SampleBSDFStep(bsdf, frame, wo, wo_local, hit.ng, sampler, beta);
+    if (!step) return;
+    const BSDFSample* bs = &step->sample;
+    const Vec3 wi = step->wi;
     g.bsdf_pdf[i] = bs->pdf;
     g.specular_bounce[i] = bs->is_specular;
     // Lambertian reflection never refracts: the scalar kernel's eta scale stays 1.

@@ -14,6 +14,7 @@
 #include <limits>
 
 #include "bsdf.h"
+#include "bsdf_step.h"
 #include "path.h"
 #include "phase.h"
 #include "sampling.h"
@@ -169,12 +170,10 @@ PathSample PathIntegrator::TraceMedia(const Scene& scene, Ray ray, PixelSampler&
                             },
                             [&](Vec3 wi) { return boundary.After(hit.ng, wi, medium); });
 
-        const float uc = sampler.Get1D();
-        const std::optional<BSDFSample> bs = bsdf.Sample_f(wo_local, uc, sampler.Get2D());
-        if (!bs || !(bs->pdf > 0.f) || IsBlack(bs->f)) break;
-        const Vec3 wi = Normalize(frame.FromLocal(bs->wi));
-        if (!SidesAgree(wo, wi, hit.ng, wo_local, bs->wi)) break;
-        beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf);
+        const std::optional<BSDFStep> step = SampleBSDFStep(bsdf, frame, wo, wo_local, hit.ng, sampler, beta);
+        if (!step) break;
+        const BSDFSample* bs = &step->sample;
+        const Vec3 wi = step->wi;
         scatter_pdf = bs->pdf;
         specular_bounce = bs->is_specular;
         if (bs->is_transmission) eta_scale *= bs->eta * bs->eta;

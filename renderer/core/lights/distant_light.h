@@ -81,9 +81,27 @@ inline void SampleInfiniteEmission(Vec3 wo, float pdf_dir, Color L, Vec2 u_pos, 
 
 inline float InfiniteEmissionPdfPosition(float scene_radius) { return 1.f / (kPi * scene_radius * scene_radius); }
 
+// What the kinds at infinity (distant lights, the dome) answer alike: their light leaves
+// from the scene's bounding disk (SampleInfiniteEmission), and no light subpath vertex lies
+// on them to connect toward. Their EmitterOf derives from it.
+struct InfiniteEmitterAnswers {
+    template <class S, class E>
+    static bool EmissionToward(const S&, const E&, const EmissionSample&, Vec3, Color*, float*) {
+        return false;
+    }
+    template <class S, class E>
+    static float PdfPosition(const S& s, const E&) {
+        return InfiniteEmissionPdfPosition(s.scene_radius_);
+    }
+    template <class E>
+    static bool Infinite(const E&) {
+        return true;
+    }
+};
+
 // A distant light's emitter keeps its cone's 1 - cos(half angle) (0: a delta light).
 template <>
-struct EmitterOf<DistantLight> {
+struct EmitterOf<DistantLight> : InfiniteEmitterAnswers {
     static constexpr const char* kName = "distant";
     static constexpr bool kMoves = true;
 
@@ -112,18 +130,6 @@ struct EmitterOf<DistantLight> {
     template <class S, class E>
     static float PdfDirection(const S&, const E& e, Vec3, Vec3) {
         return DistantLight::PdfDirection(e.one_minus_cos);
-    }
-    template <class S, class E>
-    static bool EmissionToward(const S&, const E&, const EmissionSample&, Vec3, Color*, float*) {
-        return false;
-    }
-    template <class S, class E>
-    static float PdfPosition(const S& s, const E&) {
-        return InfiniteEmissionPdfPosition(s.scene_radius_);
-    }
-    template <class E>
-    static bool Infinite(const E&) {
-        return true;
     }
     template <class E>
     static bool Delta(const E& e) {

@@ -133,7 +133,7 @@ private:
 
 // The scene has one dome (index 0), an emitter when it is active.
 template <>
-struct EmitterOf<DomeLight> {
+struct EmitterOf<DomeLight> : InfiniteEmitterAnswers {
     static constexpr const char* kName = "dome";
     static constexpr bool kMoves = true;
 
@@ -163,18 +163,6 @@ struct EmitterOf<DomeLight> {
         typename S::LightFrame f;
         s.FrameOf(e, &f);
         return s.lights_.template Of<DomeLight>()[e.index].PdfDirection(f.ToLightDir(w));
-    }
-    template <class S, class E>
-    static bool EmissionToward(const S&, const E&, const EmissionSample&, Vec3, Color*, float*) {
-        return false;
-    }
-    template <class S, class E>
-    static float PdfPosition(const S& s, const E&) {
-        return InfiniteEmissionPdfPosition(s.scene_radius_);
-    }
-    template <class E>
-    static bool Infinite(const E&) {
-        return true;
     }
     template <class E>
     static bool Delta(const E&) {

@@ -21,6 +21,28 @@ enum class LightKind : uint8_t {};
 template <typename Kind>
 struct EmitterOf;
 
+// What the kinds with a surface in the scene (triangles, spheres) answer alike: a point on
+// them is chosen by area, they are neither at infinity nor delta lights, and a ray that
+// escapes the scene sees nothing of them. Their EmitterOf derives from it.
+struct AreaEmitterAnswers {
+    template <class S, class E>
+    static float PdfPosition(const S& s, const E& e) {
+        return 1.f / s.EmitterArea(e);
+    }
+    template <class E>
+    static bool Infinite(const E&) {
+        return false;
+    }
+    template <class E>
+    static bool Delta(const E&) {
+        return false;
+    }
+    template <class S, class E>
+    static Color Environment(const S&, const E&, Vec3, float*) {
+        return Color(0.f);
+    }
+};
+
 struct LightSample {
     Color radiance;  // arriving at the reference point (for delta lights, already / distance^2)
     Vec3 wi;         // unit direction from the reference point to the light

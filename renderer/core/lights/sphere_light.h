@@ -70,7 +70,7 @@ struct SphereLight {
 // The sphere is also scene geometry (hits on it are emitter hits: Scene::Emitted, EmitterPdf);
 // SphereAt gives it at this thread's shutter time.
 template <>
-struct EmitterOf<SphereLight> {
+struct EmitterOf<SphereLight> : AreaEmitterAnswers {
     static constexpr const char* kName = "sphere";
     static constexpr bool kMoves = true;
 
@@ -94,22 +94,6 @@ struct EmitterOf<SphereLight> {
         *pdf_dir = SphereLight::PdfDirection(es.n, w);
         if (c > 0.f) *Le_cos = es.Le_unshaped * c;
         return true;
-    }
-    template <class S, class E>
-    static float PdfPosition(const S& s, const E& e) {
-        return 1.f / s.EmitterArea(e);
-    }
-    template <class E>
-    static bool Infinite(const E&) {
-        return false;
-    }
-    template <class E>
-    static bool Delta(const E&) {
-        return false;
-    }
-    template <class S, class E>
-    static Color Environment(const S&, const E&, Vec3, float*) {
-        return Color(0.f);
     }
     template <class S, class Add>
     static void AddEmitters(const S& s, Add&& add) {

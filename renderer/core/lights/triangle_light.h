@@ -97,7 +97,7 @@ inline float TriangleLightPdfDirection(bool two_sided, Vec3 n, Vec3 w) {
 // (BuildGeometryAndLights) and resolves one for a query (TriangleLightOf); their emission
 // is the material's, textured and shaped.
 template <>
-struct EmitterOf<TriangleLight> {
+struct EmitterOf<TriangleLight> : AreaEmitterAnswers {
     static constexpr const char* kName = "triangle";
     static constexpr bool kMoves = false;  // moves with its mesh or instance instead
 
@@ -142,22 +142,6 @@ struct EmitterOf<TriangleLight> {
         const Color Le = m.emission_shaping < 0 ? es.Le_unshaped : es.Le_unshaped * s.EmissionShaping(m, side, w);
         *Le_cos = Le * std::abs(c);
         return true;
-    }
-    template <class S, class E>
-    static float PdfPosition(const S& s, const E& e) {
-        return 1.f / s.EmitterArea(e);
-    }
-    template <class E>
-    static bool Infinite(const E&) {
-        return false;
-    }
-    template <class E>
-    static bool Delta(const E&) {
-        return false;
-    }
-    template <class S, class E>
-    static Color Environment(const S&, const E&, Vec3, float*) {
-        return Color(0.f);
     }
     template <class S, class Add>
     static void AddEmitters(const S&, Add&&) {}  // made from the meshes, before every other kind

@@ -405,6 +405,8 @@ private:
     // materials directly: they are the scene's emitter queries, split by kind.
     template <typename>
     friend struct EmitterOf;
+    friend struct AreaEmitterAnswers;      // what the area kinds' EmitterOf share
+    friend struct InfiniteEmitterAnswers;  // what the kinds at infinity share
     void BuildGeometryAndLights(const SceneDesc& desc);
     void BuildMedia(const SceneDesc& desc);
     std::vector<HomogeneousMedium> media_;
