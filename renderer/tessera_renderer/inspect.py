@@ -1,10 +1,13 @@
 """Pre-flight of an untrusted scene, meant to run in a child process:
 
-    python -m tessera_renderer.inspect FILE [VARIANTS]
+    python -m tessera_renderer.inspect FILE [VARIANTS [SUBDIVISION_LEVEL [DICING]]]
 
 VARIANTS: a JSON list of [prim path, variant set, variant] selections the stage is composed
 with, as the render will compose it (the missing layers that matter are the ones the
-selection uses).
+selection uses). SUBDIVISION_LEVEL: the job's level, or - for the renderer's. DICING: the
+job's screen-space dicing as JSON (tessera_base.protocol.dicing_of, plus "camera": the job's
+camera prim or null), so that the translated size is measured at the levels the workers
+will choose.
 
 Prints one JSON object: {"ok": true, "width", "height", "warnings", "triangles", "curve_segments", "lights",
 "cameras", "camera_note", "animated", "translated_bytes" (scene_blob.blob_size), "unlit_warnings"}, the last present for a stage without any light: the warnings of a
@@ -32,15 +35,18 @@ CENSUS_HEADROOM = 512 << 20
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     try:
-        if len(argv) not in (1, 2, 3):
+        if len(argv) not in (1, 2, 3, 4):
             raise ValueError("wrong number of arguments")
         variants = [tuple(str(x) for x in v) for v in json.loads(argv[1])] if len(argv) >= 2 else []
         if any(len(v) != 3 for v in variants):
             raise ValueError("each variant selection is [prim path, variant set, variant]")
         # The job's subdivision level: the translated size it is held to is that level's.
-        level = int(argv[2]) if len(argv) == 3 else None
+        level = int(argv[2]) if len(argv) >= 3 and argv[2] != "-" else None
+        dicing = json.loads(argv[3]) if len(argv) == 4 else None
+        if dicing is not None and not (isinstance(dicing, dict) and "rate" in dicing):
+            raise ValueError("DICING is a JSON object with a rate")
     except ValueError as exc:
-        print(json.dumps({"ok": False, "error": f"usage: python -m tessera_renderer.inspect FILE [VARIANTS [SUBDIVISION_LEVEL]] ({exc})"}))
+        print(json.dumps({"ok": False, "error": f"usage: python -m tessera_renderer.inspect FILE [VARIANTS [SUBDIVISION_LEVEL [DICING]]] ({exc})"}))
         return 2
     from . import Scene, SceneError
     from .usd.bundle import open_bundle, open_stage
@@ -48,6 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     from .usd import translate_stage
     from .usd.camera import CAMERA_CHOICE_NOTE, camera_paths
     from .scene_blob import blob_size
+    from .usd.dicing import Dicing
 
     try:
         bundle = open_bundle(argv[0])
@@ -60,8 +67,10 @@ def main(argv: list[str] | None = None) -> int:
             raise SceneError("the scene's face counts are too large to count within the "
                              f"pre-flight's memory (triangle limit {bundle.limits.triangles})") from None
         bundle.warnings[:] = warnings  # translate_stage opens the stage again and adds its own
+        diced = {} if dicing is None or level is not None else \
+            {"dicing": Dicing.from_json(dicing), "camera": dicing.get("camera")}
         data = translate_stage(argv[0], bundle=bundle, instancing="auto", variants=variants,
-                               **({} if level is None else {"subdivision_level": level}))
+                               **({} if level is None else {"subdivision_level": level}), **diced)
         translated_bytes = blob_size(data)
         scene = Scene(data)
         del data

@@ -73,18 +73,19 @@ def format_tag() -> str:
 def translate_to_blob(path: str | Path, frame: float | None = None, *, root: str | Path | None = None,
                       instancing: str = "auto", subdivision_level: int | None = None,
                       camera: str | None = None, shutter: tuple[float, float] | None = None,
-                      variants=()) -> bytes:
+                      variants=(), dicing=None) -> bytes:
     """Sandboxes, pre-flights and translates a bundle; returns the blob. SceneError for
     bad input. A light-less stage's default lighting travels in the blob unapplied:
     scene_from_blob(blob, default_light=...) decides. `frame`, `subdivision_level`,
-    `camera`, `shutter` and `variants` as in load_scene."""
+    `camera`, `shutter`, `variants` and `dicing` as in load_scene."""
     from .usd import translate_stage
     from .usd.subdivision import DEFAULT_LEVEL
 
     data = translate_stage(str(path), frame, root=None if root is None else str(root),
                            instancing=instancing,
                            subdivision_level=DEFAULT_LEVEL if subdivision_level is None else subdivision_level,
-                           camera=camera, shutter=shutter, variants=tuple(variants))
+                           camera=camera, shutter=shutter, variants=tuple(variants),
+                           dicing=dicing if subdivision_level is None else None)
     try:
         return scene_data_to_blob(data)
     finally:

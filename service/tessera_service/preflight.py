@@ -72,20 +72,23 @@ class SceneInfo:
 
 def inspect_scene(path: str, *, timeout: float, memory_bytes: int,
                   max_triangles: int | None = None, variants: Sequence[tuple[str, str, str]] = (),
-                  subdivision_level: int | None = None) -> SceneInfo:
+                  subdivision_level: int | None = None, dicing: dict | None = None) -> SceneInfo:
     """Inspects the scene in a child process; `max_triangles`: its triangle limit
     (default: the renderer's own, TESSERA_MAX_TRIANGLES); `variants`: (prim path, set,
     variant) selections the stage is composed with, as the render will; translated at the
-    job's `subdivision_level` (default: the renderer's), as the render will be."""
+    job's `subdivision_level` (default: the renderer's) or diced as its `dicing` asks
+    (protocol.dicing_of and its "camera"), as the render will be."""
     # One malloc arena per thread reserves 64 MB of address space each, up to 8 per core:
     # on a many-core host that alone would eat the limit. Two arenas cost nothing here.
     env = {**os.environ, "MALLOC_ARENA_MAX": "2"}
     if max_triangles is not None:
         env["TESSERA_MAX_TRIANGLES"] = str(max_triangles)
     try:
-        extra = [json.dumps([list(v) for v in variants])] if variants or subdivision_level is not None else []
-        if subdivision_level is not None:
-            extra.append(str(int(subdivision_level)))
+        extra = [json.dumps([list(v) for v in variants])]
+        if subdivision_level is not None or dicing is not None:
+            extra.append("-" if subdivision_level is None else str(int(subdivision_level)))
+        if dicing is not None:
+            extra.append(json.dumps(dicing))
         proc = subprocess.run([sys.executable, "-m", INSPECT_MODULE, path, *extra],
                               stdin=subprocess.DEVNULL, capture_output=True, env=env,
                               timeout=timeout, preexec_fn=limited_child(memory_bytes))

@@ -4,7 +4,6 @@ tessera_base.film), so the image's splats are already normalised whatever the in
 and the pixels equal the CLI's and the farm's bit for bit."""
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
@@ -87,7 +86,7 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
            default_light: bool = True, subdivision_level: int | None = None,
            camera: str | None = None, shutter: tuple[float, float] | None = None,
            variants: Sequence[str] = (), crop: tuple[int, int, int, int] | None = None,
-           dicing=None, **settings: Any) -> Image:
+           **settings: Any) -> Image:
     """Renders `scene` locally and returns the image.
 
     `scene` is a USD file or .zip/.usdz bundle path, or a scene already loaded with
@@ -105,8 +104,8 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
     `target_error` renders to a noise target instead of a fixed spp (min_spp, max_spp,
     time_limit bound it). `crop` (x0, y0, x1, y1, exclusive) renders only that region
     (pixels outside it stay 0; write the image with the same crop). Everything else is as
-    for `tessera render`; `dicing` (tessera_renderer.usd.dicing.Dicing) chooses subdivision
-    levels from the camera when `subdivision_level` is None (its resolution defaults to `res`);
+    for `tessera render`; `dicing_rate` (with `dicing_max_level`, `dicing_memory`) chooses
+    subdivision levels from the camera at `res` when `subdivision_level` is None;
     any other render setting (tessera_base.protocol.SETTINGS, e.g. seed_offset) is a keyword
     of its own name.
 
@@ -118,8 +117,8 @@ def render(scene: str | Path | Any, *, spp: int = 64, integrator: str | None = N
         raise TypeError(f"render() got an unknown setting {unknown[0]!r} (settings: {', '.join(SETTINGS)})")
     loaded = _load(scene, frame=frame, root=root, default_light=default_light,
                    subdivision_level=subdivision_level, camera=camera, shutter=shutter, variants=variants,
-                   dicing=dicing if dicing is None or dicing.resolution or not res else
-                   dataclasses.replace(dicing, resolution=tuple(res)))
+                   dicing=(settings.get("dicing_rate"), settings.get("dicing_max_level"),
+                           settings.get("dicing_memory"), res))
     width, height = res or (loaded.width, loaded.height)
     optional = dict(integrator=integrator, max_depth=max_depth, tile_size=tile_size,
                     target_error=target_error, min_spp=min_spp, max_spp=max_spp, time_limit=time_limit)
@@ -195,6 +194,7 @@ def _load(scene, *, frame, root, default_light, subdivision_level, camera, shutt
         return scene
     from tessera_base.protocol import parse_variant
     from tessera_renderer import SceneError, load_scene
+    from tessera_renderer.usd.dicing import Dicing
 
     try:
         selections = [parse_variant(v) for v in variants]
@@ -202,4 +202,4 @@ def _load(scene, *, frame, root, default_light, subdivision_level, camera, shutt
         raise SceneError(str(exc)) from None
     return load_scene(scene, frame=frame, root=root, default_light=default_light,
                       subdivision_level=subdivision_level, camera=camera, shutter=shutter, variants=selections,
-                      dicing=dicing)
+                      dicing=Dicing.requested(*dicing) if dicing else None)

@@ -191,6 +191,21 @@ class RenderSettings(BaseModel):
         default=None, ge=0, le=6,
         description="how many times subdivision surfaces are refined (0-6; default: the renderer's, "
                     "2; 0 renders their control cage; docs/scene-translation.md)")
+    # Added within schema 2: optional, None keeping the fixed level, so earlier messages stay
+    # valid and keep their images. The level each mesh gets is a function of the stage, the
+    # camera, the image's width and height and these three: every worker of a job dices alike.
+    dicing_rate: Annotated[float | None, Takes(argparse=dict(metavar="PX"))] = Field(
+        default=None, gt=0, le=1024, allow_inf_nan=False,
+        description="dice subdivision surfaces to the camera: without subdivision_level, each mesh is "
+                    "refined until its edges are at most this many pixels long in the image, e.g. 1 "
+                    "(default: off, the fixed level 2; docs/scene-translation.md, \"Subdivision dicing\")")
+    dicing_max_level: Annotated[int | None, Takes(argparse=dict(metavar="N"))] = Field(
+        default=None, ge=1, le=6,
+        description="with dicing_rate: no mesh is refined more than this many times, 1-6 (default 4)")
+    dicing_memory: Annotated[float | None, Takes(argparse=dict(metavar="MB"))] = Field(
+        default=None, gt=0, le=1 << 20, allow_inf_nan=False,
+        description="with dicing_rate: levels are lowered, largest meshes first, until the refined "
+                    "triangles' estimated memory fits this many MB (default 1024)")
     camera: Annotated[str | None, Takes(argparse=dict(metavar="PRIM_PATH"))] = Field(
         default=None, min_length=1, max_length=1024, pattern=r"^/\S*$",
         description="the path of the Camera prim to render through (default: the RenderSettings' "
@@ -418,6 +433,17 @@ class JobSpec(BaseModel):
     settings: RenderSettings
     priority: int = Field(default=DEFAULT_PRIORITY, ge=MIN_PRIORITY, le=MAX_PRIORITY)
     max_attempts: int = Field(default=DEFAULT_MAX_ATTEMPTS, ge=1, le=100)
+
+
+def dicing_of(settings: RenderSettings) -> dict | None:
+    """The screen-space dicing a job asks for, as JSON values
+    (tessera_renderer.usd.dicing.Dicing.from_json reads them): None with a fixed
+    subdivision_level or without dicing_rate. Measured at the job's full frame, never a
+    tile's or the crop's, so that every worker of the job refines alike."""
+    if settings.subdivision_level is not None or settings.dicing_rate is None:
+        return None
+    return {"rate": settings.dicing_rate, "max_level": settings.dicing_max_level,
+            "memory_mb": settings.dicing_memory, "resolution": [settings.width, settings.height]}
 
 
 def tile_grid(width: int, height: int, tile_size: int) -> list[TileRect]:

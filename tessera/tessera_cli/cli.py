@@ -11,7 +11,6 @@ from pathlib import Path
 
 from tessera_base.settings_spec import RENDER, SUBMIT
 
-from .dicing_options import add_dicing_options
 from .options import (add_frame_options, add_integrator_option, add_setting_options, int_range,
                       integrator_param, integrator_params, positive, resolution)
 from .render_cmd import cmd_render
@@ -152,7 +151,6 @@ def build_parser() -> argparse.ArgumentParser:
     add_setting_options(r, RENDER)
     add_integrator_option(r, renders=True)
     add_frame_options(r)
-    add_dicing_options(r)
     r.add_argument("--no-variance", action="store_true",
                    help="write no variance and spp layers (a smaller EXR that `tessera compare` "
                         "cannot judge); it saves little time: the noise estimate comes from the "

@@ -7,7 +7,6 @@ from pathlib import Path
 
 from tessera_base.settings_spec import RENDER
 
-from .dicing_options import dicing_from_args
 from .options import settings_error, settings_from_args, settings_problem
 
 def cmd_render(args: argparse.Namespace) -> int:
@@ -49,6 +48,7 @@ def _render_one(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
     from tessera_renderer import NonFiniteSampleError, SceneError, load_scene
+    from tessera_renderer.usd.dicing import Dicing
 
     from tessera_base.images import write_png_preview
     from tessera_base.protocol import RenderSettings
@@ -68,7 +68,8 @@ def _render_one(args: argparse.Namespace) -> int:
                            default_light=values.get("default_light", True),
                            subdivision_level=args.subdivision_level, camera=args.camera,
                            shutter=args.shutter, variants=[parse_variant(v) for v in args.variants or ()],
-                           dicing=dicing_from_args(args))
+                           dicing=Dicing.requested(values.get("dicing_rate"), values.get("dicing_max_level"),
+                                                   values.get("dicing_memory"), args.res))
     except SceneError as exc:
         hint = ("; if that folder is yours, let assets resolve within it with --root DIR, "
                 "or render without --sandbox"

@@ -17,6 +17,7 @@ def _submit_pilot(args: argparse.Namespace):
     one measured choice that every worker renders, and its numbers."""
     from tessera_base.protocol import RenderSettings, parse_variant, parse_frames
     from tessera_renderer import load_scene
+    from tessera_renderer.usd.dicing import Dicing
 
     from tessera.pilot import run_pilot
 
@@ -25,7 +26,9 @@ def _submit_pilot(args: argparse.Namespace):
         frame = float(parse_frames(args.frames)[0])
     scene = load_scene(Path(args.scene), frame=frame, default_light=args.default_light is not False,
                        subdivision_level=args.subdivision_level, camera=args.camera, shutter=args.shutter,
-                       variants=[parse_variant(v) for v in args.variants or ()])
+                       variants=[parse_variant(v) for v in args.variants or ()],
+                       dicing=Dicing.requested(args.dicing_rate, args.dicing_max_level, args.dicing_memory,
+                                               args.res))
     width, height = args.res or (scene.width, scene.height)
     return run_pilot(scene, RenderSettings(width=width, height=height, max_depth=args.max_depth or 64))
 

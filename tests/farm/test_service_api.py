@@ -185,7 +185,8 @@ def test_submit_uses_scene_resolution_and_creates_tiles(api, redis_client):
                                   "min_spp": 16, "max_spp": 1024, "time_limit": None,
                                   "integrator": "path", "auto_pilot": None, "integrator_params": {}, "aovs": [],
                                   "default_light": True, "denoise": False, "crop": None,
-                                  "subdivision_level": None, "camera": None,
+                                  "subdivision_level": None, "dicing_rate": None, "dicing_max_level": None,
+                                  "dicing_memory": None, "camera": None,
                                   "frame": None, "shutter": None, "variants": None}
     assert status["priority"] == protocol.DEFAULT_PRIORITY
     # One queue entry per tile, and the job is ready to be served.

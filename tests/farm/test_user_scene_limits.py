@@ -121,3 +121,41 @@ def test_a_higher_subdivision_level_is_held_to_the_translated_size_limit(api, tm
     assert r.status_code == 422, r.text
     assert "TESSERA_USER_MAX_TRANSLATED_BYTES" in r.json()["detail"]
     assert submit("2").status_code == 201  # the level's own verdict, not level 4's
+
+
+def test_a_diced_job_is_held_to_the_translated_size_limit_at_its_diced_levels(api, tmp_path):
+    """With dicing_rate the pre-flight dices as the workers will (the job's frame and
+    camera): the same 400 quads seen from 2 units away in a 16-pixel frame have cage
+    edges of about 1.5 pixels, so a rate of 4 px refines them once (3,200 triangles,
+    within Bob's 1 MiB) and a rate of 0.05 px four times, the default maximum (204,800
+    triangles, about 12 MB: over it). A verdict for one rate is not reused for another."""
+    from pxr import Usd, UsdGeom, Vt
+    import numpy as np
+
+    path = tmp_path / "near_cage.usdc"
+    stage = Usd.Stage.CreateNew(str(path))
+    camera = UsdGeom.Camera.Define(stage, "/Cam")
+    camera.AddTranslateOp().Set((0.0, 0.0, 2.0))
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Cage")
+    n = 400
+    xs = np.arange(n + 1, dtype=np.float32)
+    points = np.concatenate([np.stack([xs, np.zeros_like(xs), np.zeros_like(xs)], -1),
+                             np.stack([xs, np.ones_like(xs), np.zeros_like(xs)], -1)]) * 0.05
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(points))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(n, 4, np.int32)))
+    k = np.arange(n, dtype=np.int32)
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.stack([k, k + 1, k + n + 2, k + n + 1], -1).ravel()))
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.catmullClark)
+    stage.GetRootLayer().Save()
+
+    def submit(rate: str) -> httpx.Response:
+        data = {"width": "16", "height": "16", "spp": "1", "dicing_rate": rate}
+        return api.post("/jobs", files={"file": (path.name, path.read_bytes())}, data=data,
+                        headers={"Authorization": "Bearer bob-token"})
+
+    r = submit("4")
+    assert r.status_code == 201, r.text  # control: one level is within the limit
+    r = submit("0.05")
+    assert r.status_code == 422, r.text
+    assert "TESSERA_USER_MAX_TRANSLATED_BYTES" in r.json()["detail"]
+    assert submit("4").status_code == 201  # the rate's own verdict, not the finer one's

@@ -9,7 +9,7 @@ On start it sends ("hello", blob_version): the renderer's translated-scene blob 
 (None if this renderer has no blob API). Then, per request:
 
 Request: dict(serial, scene_key, scene_path, blob_path, blob_out, settings (RenderSettings
-JSON), tile (TileRect fields), pass_index, threads, variance, batches, default_light, subdivision_level, camera, frame, shutter, variants, fault). The scene
+JSON), tile (TileRect fields), pass_index, threads, variance, batches, default_light, subdivision_level, dicing (Dicing.to_json), camera, frame, shutter, variants, fault). The scene
 comes from the blob file `blob_path` if given (no USD involved), else is translated from
 `scene_path`; with `blob_out`, the translation is also written there as a blob for other
 workers. The pass is rendered by tessera_base.film.render_tile_pass, as local renders do.
@@ -60,19 +60,21 @@ def _blob_api():
 
 def _load(req: dict, blob_api):
     from tessera_renderer import load_scene
+    from tessera_renderer.usd.dicing import Dicing
 
     lit, level, camera = req.get("default_light", True), req.get("subdivision_level"), req.get("camera")
     frame, shutter = req.get("frame"), req.get("shutter")
     shutter = None if shutter is None else tuple(shutter)
     variants = [tuple(v) for v in req.get("variants") or ()]  # (prim path, set, variant), parsed
+    dicing = Dicing.from_json(req["dicing"]) if req.get("dicing") else None
     if blob_api is None:
         return load_scene(req["scene_path"], frame, default_light=lit, subdivision_level=level, camera=camera,
-                          shutter=shutter, variants=variants)
+                          shutter=shutter, variants=variants, dicing=dicing)
     if req.get("blob_path"):
         with open(req["blob_path"], "rb") as f:
             return blob_api.scene_from_blob(f.read(), default_light=lit)
     blob = blob_api.translate_to_blob(req["scene_path"], frame, subdivision_level=level, camera=camera,
-                                      shutter=shutter, variants=variants)
+                                      shutter=shutter, variants=variants, dicing=dicing)
     if req.get("blob_out"):
         tmp = req["blob_out"] + ".part"
         with open(tmp, "wb") as f:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import json
 import logging
 import os
 from pathlib import PurePosixPath
@@ -61,6 +62,11 @@ class SceneCache:
         # camera to other camera-relative coordinates: each its own blob (and cached Scene),
         # never the default one.
         variant = "" if level is None else f".subdiv{level}"
+        # Dicing (without a fixed level) chooses levels from the camera at the job's full
+        # frame size, never a tile's: every worker translates the same triangles.
+        dicing = protocol.dicing_of(task.settings)
+        if dicing is not None:
+            variant += ".dice" + hashlib.sha256(json.dumps(dicing, sort_keys=True).encode()).hexdigest()[:16]
         # The same bytes as a .usdz and as a .zip may have different root layers (the
         # package's first member; the zip's named or only top-level one): never share.
         if suffix == ".usdz":
@@ -76,7 +82,8 @@ class SceneCache:
         if selections:
             variant += ".v" + hashlib.sha256(repr(selections).encode()).hexdigest()[:16]
         source = {"scene_key": f"{task.scene_hash}{variant}{suffix}", "scene_path": None,
-                  "blob_path": None, "blob_out": None, "subdivision_level": level, "camera": camera,
+                  "blob_path": None, "blob_out": None, "subdivision_level": level, "dicing": dicing,
+                  "camera": camera,
                   "frame": frame, "shutter": None if shutter is None else list(shutter),
                   "variants": selections}
         if blob_version is None:

@@ -57,6 +57,25 @@ class Dicing:
             raise SceneError(f"dicing resolution must be (width, height) in pixels, not {self.resolution!r}")
 
 
+    @classmethod
+    def requested(cls, rate: float | None, max_level: int | None = None, memory_mb: float | None = None,
+                  resolution: tuple[int, int] | None = None) -> "Dicing | None":
+        """The Dicing the render settings dicing_rate, dicing_max_level and dicing_memory
+        ask for (None: that setting's default), at `resolution`; None without a rate."""
+        if rate is None:
+            return None
+        given = dict(max_level=max_level, memory_mb=memory_mb)
+        return cls(rate=rate, resolution=None if resolution is None else tuple(resolution),
+                   **{k: v for k, v in given.items() if v is not None})
+
+    @classmethod
+    def from_json(cls, value: dict) -> "Dicing":
+        """The Dicing of tessera_base.protocol.dicing_of's answer (a farm job's request, as
+        the worker hands it to its render process and the pre-flight to its inspection)."""
+        return cls.requested(value["rate"], value.get("max_level"), value.get("memory_mb"),
+                             value.get("resolution"))
+
+
 def pixel_size(camera, resolution: tuple[int, int]) -> float:
     """Width of one pixel: at unit depth for a perspective camera, in scene units for an
     orthographic one (the window is fitted to the image's aspect, so pixels are square)."""

@@ -4,6 +4,7 @@ user's limits, the settings' checks. Following the job is routers/jobs.py's."""
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 import math
 import os
@@ -109,9 +110,15 @@ def create_job(
         if (reason := unavailable_reason()) is not None:
             raise HTTPException(422, f"denoise: this server cannot denoise: {reason}")
     # Check what can be checked before the (slow) inspection; resolution comes later.
-    _render_settings(width=width if width is not None else 1,
-                     height=height if height is not None else 1,
-                     **{k: v for k, v in params.items() if k != "crop"})  # the frame size is not known yet
+    early = _render_settings(width=width if width is not None else 1,
+                             height=height if height is not None else 1,
+                             **{k: v for k, v in params.items() if k != "crop"})  # the frame size is not known yet
+    # Dicing is measured at the frame the job renders: the size asked, else the stage's own
+    # (which the inspection reads), through the job's camera.
+    dicing = protocol.dicing_of(early)
+    if dicing is not None:
+        dicing.update(resolution=[width, height] if width is not None and height is not None else None,
+                      camera=params.get("camera"))
 
     with tempfile.TemporaryDirectory(prefix=f"tessera-upload-{os.getpid()}-") as tmp:
         path = Path(tmp, protocol.scene_file_name(suffix))
@@ -119,7 +126,7 @@ def create_job(
                       else _assemble(request, packed, path, settings.max_upload_bytes, user))
         try:
             info = _inspect(request, path, scene_hash, params.get("variants") or (), user,
-                            params.get("subdivision_level"))
+                            params.get("subdivision_level"), dicing)
         except HTTPException as exc:
             if packed is not None or suffix in (".zip", ".usdz") or exc.status_code != 422:
                 raise
@@ -203,10 +210,11 @@ def _loose_layer_detail(detail: str, stored: str, uploaded: str) -> str:
 
 
 def _inspect(request: Request, path: Path, scene_hash: str, variants: Sequence[str], user: User,
-             subdivision_level: int | None = None) -> SceneInfo:
+             subdivision_level: int | None = None, dicing: dict | None = None) -> SceneInfo:
     """The scene's pre-flight, composed with the job's variant selections and translated at
     its subdivision level (a level above the default multiplies what subdivision surfaces
-    cost): remembered (passed or refused) for this exact file, selection and level, else
+    cost) or diced as it asks: remembered (passed or refused) for this exact file, selection,
+    level and dicing, else
     inspected in a slot of the bounded pool (429 when it is full); then held to `user`'s
     limits on declared triangles and translated size."""
     settings: Settings = request.app.state.settings
@@ -223,7 +231,10 @@ def _inspect(request: Request, path: Path, scene_hash: str, variants: Sequence[s
     limits = f"{max_triangles}/{settings.preflight_memory_bytes}/{settings.preflight_timeout:g}/t"
     if subdivision_level is not None:
         limits += f"/s{subdivision_level}"
-    info = _inspect_limited(request, path, scene_hash, variants, max_triangles, limits, why, subdivision_level)
+    elif dicing is not None:
+        limits += "/d" + hashlib.sha256(json.dumps(dicing, sort_keys=True).encode()).hexdigest()[:16]
+    info = _inspect_limited(request, path, scene_hash, variants, max_triangles, limits, why, subdivision_level,
+                            dicing)
     if info.translated_bytes > user_translated:
         raise HTTPException(422, f"the scene cannot be rendered: it translates to "
                                  f"{_size(info.translated_bytes)}, more than the "
@@ -233,7 +244,8 @@ def _inspect(request: Request, path: Path, scene_hash: str, variants: Sequence[s
 
 
 def _inspect_limited(request: Request, path: Path, scene_hash: str, variants: Sequence[str],
-                     max_triangles: int, limits: str, why: str, subdivision_level: int | None = None) -> SceneInfo:
+                     max_triangles: int, limits: str, why: str, subdivision_level: int | None = None,
+                     dicing: dict | None = None) -> SceneInfo:
     settings: Settings = request.app.state.settings
     store: JobStore = request.app.state.store
     pool: InspectionPool = request.app.state.inspections
@@ -252,7 +264,7 @@ def _inspect_limited(request: Request, path: Path, scene_hash: str, variants: Se
                                          memory_bytes=settings.preflight_memory_bytes,
                                          max_triangles=max_triangles,
                                          variants=[protocol.parse_variant(v) for v in variants],
-                                         subdivision_level=subdivision_level)
+                                         subdivision_level=subdivision_level, dicing=dicing)
                 except PreflightRejected as e:
                     store.count_inspection(rejected=True)
                     if e.lasting:  # (a timeout under load says nothing of the file)

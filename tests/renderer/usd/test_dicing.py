@@ -152,7 +152,7 @@ def test_a_mesh_filling_the_frame_renders_as_at_level_two(tmp_path):
     path = tmp_path / "ball.usda"
     quads = _quad_sphere(path, 5.5)
     diced = render(path, res=(48, 48), spp=32, seed=3, integrator="path", variance=False,
-                   dicing=Dicing(rate=1.0))
+                   dicing_rate=1.0)
     fixed = render(path, res=(48, 48), spp=32, seed=3, integrator="path", variance=False,
                    subdivision_level=2)
     # The cage's edges (~0.39 long at depth ~4.5) span ~10 pixels: level 4, not 2.
