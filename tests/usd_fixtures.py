@@ -135,3 +135,33 @@ def Mesh "Floor" {
     point3f[] points = [(-50, 0, -50), (-50, 0, 50), (50, 0, 50), (50, 0, -50)]
 }
 """
+
+
+def save_stage(stage) -> str:
+    stage.GetRootLayer().Save()
+    return stage.GetRootLayer().realPath
+
+
+def add_quad(stage, path="/Quad", size=1.0, z=0.0, material=None, display=None):
+    s = size
+    mesh = add_mesh(stage, path, [(-s, -s, z), (s, -s, z), (s, s, z), (-s, s, z)], [4], [0, 1, 2, 3],
+                    material=material)
+    if display is not None:
+        mesh.CreateDisplayColorAttr([Gf.Vec3f(*display)])
+    return mesh
+
+
+def lightless_quad(tmp_path, albedo=0.5):
+    stage = new_stage(tmp_path / "prop.usda")
+    add_quad(stage, display=(albedo, albedo, albedo))
+    return save_stage(stage)
+
+
+def write_four_texel_png(path):
+    """2 x 2 texels, rows top to bottom: red, green / blue, white. In st (t up):
+    (0.25, 0.25) is blue, (0.75, 0.75) green, (0.75, 0.25) white, (0.25, 0.75) red."""
+    import numpy as np
+    import OpenImageIO as oiio
+
+    px = np.array([[[255, 0, 0], [0, 255, 0]], [[0, 0, 255], [255, 255, 255]]], np.uint8)
+    oiio.ImageBuf(px).write(str(path))

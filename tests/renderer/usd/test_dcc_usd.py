@@ -16,26 +16,12 @@ import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
 from conftest import SHARED_SCENES, require_shared_scenes
-from tessera_renderer import Scene, load_scene
+from tessera_renderer import load_scene
 from tessera_renderer.scene_blob import scene_from_blob, translate_to_blob
 from tessera_renderer.usd import translate_stage
-from usd_fixtures import add_material, add_mesh, new_stage
+from usd_fixtures import add_material, add_mesh, add_quad, lightless_quad, new_stage, save_stage, write_four_texel_png
 
 SCENES = SHARED_SCENES
-
-
-def _save(stage) -> str:
-    stage.GetRootLayer().Save()
-    return stage.GetRootLayer().realPath
-
-
-def _quad(stage, path="/Quad", size=1.0, z=0.0, material=None, display=None):
-    s = size
-    mesh = add_mesh(stage, path, [(-s, -s, z), (s, -s, z), (s, s, z), (-s, s, z)], [4], [0, 1, 2, 3],
-                    material=material)
-    if display is not None:
-        mesh.CreateDisplayColorAttr([Gf.Vec3f(*display)])
-    return mesh
 
 
 def _mean_and_error(scene, w, h, spp, seed, albedo):
@@ -56,14 +42,10 @@ def _agrees(mean, se, expected):
 
 
 # -- 1. light-less stages get default lighting ------------------------------------------
-def _lightless_quad(tmp_path, albedo=0.5):
-    stage = new_stage(tmp_path / "prop.usda")
-    _quad(stage, display=(albedo, albedo, albedo))
-    return _save(stage)
 
 
 def test_lightless_stage_is_lit_by_a_dome_and_a_camera_key_light(tmp_path):
-    path = _lightless_quad(tmp_path)
+    path = lightless_quad(tmp_path)
     scene = load_scene(path)
     light_lines = [w for w in scene.warnings if "light" in w]
     assert len(light_lines) == 1 and "default lighting" in light_lines[0]
@@ -82,7 +64,7 @@ def test_lightless_stage_is_lit_by_a_dome_and_a_camera_key_light(tmp_path):
 
 
 def test_default_lighting_can_be_switched_off_and_then_says_black(tmp_path):
-    path = _lightless_quad(tmp_path)
+    path = lightless_quad(tmp_path)
     dark = load_scene(path, default_light=False)
     assert [w for w in dark.warnings if "light" in w] == [
         "the scene has no lights and default lighting is off: it renders black"]
@@ -100,7 +82,7 @@ def test_cli_no_default_light(tmp_path):
 
     from tessera_cli.cli import main
 
-    path = _lightless_quad(tmp_path)
+    path = lightless_quad(tmp_path)
     for flag, lit in (([], True), (["--no-default-light"], False)):
         out = tmp_path / f"o{len(flag)}.exr"
         assert main(["render", path, "--res", "16x16", "--spp", "2", "-q", "-o", str(out)] + flag) == 0
@@ -120,8 +102,8 @@ def test_emissive_only_stage_is_not_lightless(tmp_path):
     import OpenImageIO as oiio
 
     stage = new_stage(tmp_path / "emit.usda")
-    _quad(stage, material=add_material(stage, "/Looks/E", (0, 0, 0), emissive=(2.0, 2.0, 2.0)))
-    data = translate_stage(_save(stage))
+    add_quad(stage, material=add_material(stage, "/Looks/E", (0, 0, 0), emissive=(2.0, 2.0, 2.0)))
+    data = translate_stage(save_stage(stage))
     assert data.default_lights is None and not any("no lights" in w for w in data.warnings)
     # Emission from a texture (constant emissiveColor is only the fallback, 0 here).
     oiio.ImageBuf(np.full((2, 2, 3), 255, np.uint8)).write(str(tmp_path / "e.png"))
@@ -132,8 +114,8 @@ def test_emissive_only_stage_is_not_lightless(tmp_path):
     tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("./e.png")
     UsdShade.Shader(stage.GetPrimAtPath("/Looks/E/Surface")).GetInput("emissiveColor").ConnectToSource(
         tex.ConnectableAPI(), "rgb")
-    _quad(stage, material=mat)
-    scene = load_scene(_save(stage))
+    add_quad(stage, material=mat)
+    scene = load_scene(save_stage(stage))
     assert scene.data.default_lights is None and scene.data.dome_light is None
     assert not any("no lights" in w for w in scene.warnings)
     # The quad emits the texture (white, radiance 1): the image shows it, not black.
@@ -145,7 +127,7 @@ def test_preflight_reports_the_unlit_warnings_for_a_lightless_stage(tmp_path, ca
 
     from tessera_renderer import inspect
 
-    assert inspect.main([_lightless_quad(tmp_path)]) == 0
+    assert inspect.main([lightless_quad(tmp_path)]) == 0
     info = json.loads(capsys.readouterr().out)
     assert any("default lighting" in w for w in info["warnings"])
     assert "the scene has no lights and default lighting is off: it renders black" in info["unlit_warnings"]
@@ -161,15 +143,6 @@ def _pixel_of(scene, world_point, w, h):
     x = (0.5 + 0.5 * (p @ np.asarray(c.right)) / depth / tan_w) * w
     y = (0.5 - 0.5 * (p @ np.asarray(c.up)) / depth / tan_h) * h
     return int(y), int(x)
-
-
-def _four_texel_png(path):
-    """2 x 2 texels, rows top to bottom: red, green / blue, white. In st (t up):
-    (0.25, 0.25) is blue, (0.75, 0.75) green, (0.75, 0.25) white, (0.25, 0.75) red."""
-    import OpenImageIO as oiio
-
-    px = np.array([[[255, 0, 0], [0, 255, 0]], [[0, 0, 255], [255, 255, 255]]], np.uint8)
-    oiio.ImageBuf(px).write(str(path))
 
 
 def _emissive_textured_material(stage, path, uv_name, via_interface):
@@ -196,7 +169,7 @@ def _emissive_textured_material(stage, path, uv_name, via_interface):
 
 
 def test_uv_sets_by_name_per_subset_through_interface_inputs(tmp_path):
-    _four_texel_png(tmp_path / "four.png")
+    write_four_texel_png(tmp_path / "four.png")
     stage = new_stage(tmp_path / "uvsets.usda")
     # Three unit quads in a row, one mesh; each face is a GeomSubset with its own material.
     pts = [(x + dx, y, 0) for x in (-3, -1, 1) for dx, y in ((0, -1), (2, -1), (2, 1), (0, 1))]
@@ -212,7 +185,7 @@ def test_uv_sets_by_name_per_subset_through_interface_inputs(tmp_path):
     for face, mat in enumerate(mats):
         subset = binding.CreateMaterialBindSubset(f"face{face}", [face])
         UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(mat)
-    scene = load_scene(_save(stage))
+    scene = load_scene(save_stage(stage))
     assert any("'Missing_uv'" in w and "default set" in w for w in scene.warnings)
     w, h = 96, 48
     img = scene.render_tile(0, 0, w, h, width=w, height=h, spp=4)
@@ -237,9 +210,9 @@ def _red_asset_layer(folder: Path, texture="./tex.png") -> Path:
     tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")
     UsdShade.Shader(stage.GetPrimAtPath("/Asset/Looks/M/Surface")).GetInput("emissiveColor").ConnectToSource(
         tex.ConnectableAPI(), "rgb")
-    _quad(stage, "/Asset/Quad", material=mat)
+    add_quad(stage, "/Asset/Quad", material=mat)
     stage.SetDefaultPrim(stage.GetPrimAtPath("/Asset"))
-    _save(stage)
+    save_stage(stage)
     return folder / "asset.usda"
 
 
@@ -255,7 +228,7 @@ def _set_referencing(path: Path, asset: str) -> str:
     stage = new_stage(path)
     stage.DefinePrim("/Set/A").GetReferences().AddReference(asset)
     stage.SetDefaultPrim(stage.GetPrimAtPath("/Set"))
-    return _save(stage)
+    return save_stage(stage)
 
 
 def _centre_is_red(scene):
@@ -427,7 +400,7 @@ def test_camera_less_stage_is_framed_tightly_from_three_quarters(tmp_path, up, f
     cube = UsdGeom.Cube.Define(stage, "/Cube")
     cube.CreateSizeAttr(2.0)
     cube.AddTranslateOp().Set(Gf.Vec3d(10, -4, 3))  # framing follows the bounds, wherever
-    scene = load_scene(_save(stage))
+    scene = load_scene(save_stage(stage))
     assert any("three-quarter" in w for w in scene.warnings)
     w, h = 64, 48
     rgba, aov = scene.render_tile(0, 0, w, h, width=w, height=h, spp=4, aovs=("normal",))
@@ -464,15 +437,15 @@ def _pane_scene(tmp_path, name, **inputs):
     from usd_fixtures import add_camera
 
     stage = new_stage(tmp_path / f"{name}.usda")
-    _quad(stage, "/Backdrop", size=4.0, z=-1.0, material=add_material(stage, "/Looks/Bd", (0, 0, 0), (1, 1, 1)))
+    add_quad(stage, "/Backdrop", size=4.0, z=-1.0, material=add_material(stage, "/Looks/Bd", (0, 0, 0), (1, 1, 1)))
     glass = add_material(stage, "/Looks/Glass", (0, 0, 0))
     shader = UsdShade.Shader(stage.GetPrimAtPath("/Looks/Glass/Surface"))
     for key, value in inputs.items():
         kind = Sdf.ValueTypeNames.Token if isinstance(value, str) else Sdf.ValueTypeNames.Float
         shader.CreateInput(key, kind).Set(value)
-    _quad(stage, "/Pane", size=1.0, z=0.0, material=glass)
+    add_quad(stage, "/Pane", size=1.0, z=0.0, material=glass)
     add_camera(stage, "/Camera", translate=(0, 0, 5), focal=50.0, haperture=36.0, vaperture=36.0)
-    return load_scene(_save(stage))
+    return load_scene(save_stage(stage))
 
 
 def test_partial_opacity_is_presence_as_usdview_shows_it(tmp_path):
@@ -515,8 +488,8 @@ def test_normal_maps_without_scale_and_bias_warn_once_per_asset(tmp_path):
         tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("./n.png")
         UsdShade.Shader(stage.GetPrimAtPath(f"/Looks/M{k}/Surface")).CreateInput(
             "normal", Sdf.ValueTypeNames.Normal3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
-        _quad(stage, f"/Q{k}", z=float(k), material=mat)
-    data = translate_stage(_save(stage))
+        add_quad(stage, f"/Q{k}", z=float(k), material=mat)
+    data = translate_stage(save_stage(stage))
     lines = [w for w in data.warnings if "normal maps" in w]
     assert len(lines) == 1 and "usdview" in lines[0], data.warnings
     # Read as authored: the texture's scale and bias stay the schema's (1, 0).
@@ -570,7 +543,7 @@ def _skinned_bar(tmp_path):
     binding.CreateJointIndicesPrimvar(False, 1).Set([0] * 4 + [1] * 8)  # rows at y >= 1: the tip
     binding.CreateJointWeightsPrimvar(False, 1).Set([1.0] * 12)
     binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1))
-    return _save(stage)
+    return save_stage(stage)
 
 
 def test_a_skinned_mesh_posed_during_the_shutter_deforms_through_its_pose(tmp_path):
@@ -602,7 +575,7 @@ def test_a_skinned_mesh_posed_during_the_shutter_deforms_through_its_pose(tmp_pa
     op = stage.GetPrimAtPath("/Rig").GetAttribute("xformOp:translate")
     op.Set(Gf.Vec3d(5, 0, 0), 3.0)
     op.Set(Gf.Vec3d(6, 0, 0), 7.0)
-    _save(stage)
+    save_stage(stage)
     moving = translate_stage(path, frame=5, shutter=(-2.0, 2.0), camera_relative=False)
     assert len(moving.motion_instances) == 1
     xs = np.asarray(moving.motion_transforms, np.float64).reshape(-1, 4, 4)[:, 3, 0]
@@ -628,259 +601,10 @@ def test_skinned_mesh_is_posed_at_the_render_frame(tmp_path):
     from usd_fixtures import add_camera
     stage = Usd.Stage.Open(path)
     add_camera(stage, "/Camera", translate=(4.5, 1.0, 10), focal=50.0, haperture=36.0, vaperture=36.0)
-    _save(stage)
+    save_stage(stage)
     w = h = 48
     for frame, tip_covered in ((1, False), (10, True)):
         scene = load_scene(path, frame=frame)
         alpha = scene.render_tile(0, 0, w, h, width=w, height=h, spp=4)[..., 3]
         row, col = _pixel_of(scene, (4.2, 1.0, 0.0), w, h)  # on the bent tip, off the rest bar
         assert (alpha[row, col] > 0.5) == tip_covered, (frame, alpha[row, col])
-
-
-# -- 5. MaterialX looks ---------------------------------------------------------------------
-def _mtlx_node(stage, path, ident, **inputs):
-    node = UsdShade.Shader.Define(stage, path)
-    node.CreateIdAttr(ident)
-    for name, (kind, value) in inputs.items():
-        node.CreateInput(name, kind).Set(value)
-    return node
-
-
-def test_inline_materialx_standard_surface_with_an_image_node(tmp_path):
-    """What Houdini's Karma material builder and Omniverse write: outputs:mtlx:surface ->
-    ND_standard_surface_surfaceshader, base and emission colour from ND_image_color3 in a
-    NodeGraph whose texcoord is a ND_geompropvalue_vector2 naming the UV set."""
-    _four_texel_png(tmp_path / "four.png")
-    stage = new_stage(tmp_path / "houdini.usda")
-    mat = UsdShade.Material.Define(stage, "/Looks/M")
-    graph = UsdShade.NodeGraph.Define(stage, "/Looks/M/NG")
-    uv = _mtlx_node(stage, "/Looks/M/NG/uv", "ND_geompropvalue_vector2",
-                    geomprop=(Sdf.ValueTypeNames.String, "uv_houdini"))
-    img = _mtlx_node(stage, "/Looks/M/NG/img", "ND_image_color3")
-    img.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("./four.png")
-    img.GetInput("file").GetAttr().SetColorSpace("lin_rec709")
-    img.CreateInput("texcoord", Sdf.ValueTypeNames.Float2).ConnectToSource(uv.ConnectableAPI(), "out")
-    graph.CreateOutput("color", Sdf.ValueTypeNames.Color3f).ConnectToSource(img.ConnectableAPI(), "out")
-    surf = _mtlx_node(stage, "/Looks/M/Surface", "ND_standard_surface_surfaceshader",
-                      base=(Sdf.ValueTypeNames.Float, 0.0), emission=(Sdf.ValueTypeNames.Float, 1.0),
-                      specular=(Sdf.ValueTypeNames.Float, 0.0), metalness=(Sdf.ValueTypeNames.Float, 0.25))
-    surf.CreateInput("emission_color", Sdf.ValueTypeNames.Color3f).ConnectToSource(graph.GetOutput("color"))
-    surf.CreateOutput("surface", Sdf.ValueTypeNames.Token)
-    mat.CreateSurfaceOutput("mtlx").ConnectToSource(surf.ConnectableAPI(), "surface")
-    mesh = _quad(stage, material=mat)
-    UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("uv_houdini", Sdf.ValueTypeNames.TexCoord2fArray,
-                                            UsdGeom.Tokens.vertex).Set([Gf.Vec2f(0.75, 0.75)] * 4)
-    scene = load_scene(_save(stage))
-    assert not any("grey" in w for w in scene.warnings), scene.warnings
-    assert scene.data.material_params["metallic"].max() == pytest.approx(0.25)
-    img = scene.render_tile(0, 0, 16, 16, width=16, height=16, spp=2)
-    np.testing.assert_allclose(img[8, 8, :3], (0.0, 1.0, 0.0), atol=0.01)  # the green texel
-
-
-def test_inline_open_pbr_constants_map_to_the_bsdf(tmp_path):
-    stage = new_stage(tmp_path / "openpbr.usda")
-    mat = UsdShade.Material.Define(stage, "/Looks/M")
-    surf = _mtlx_node(stage, "/Looks/M/S", "ND_open_pbr_surface_surfaceshader",
-                      base_color=(Sdf.ValueTypeNames.Color3f, Gf.Vec3f(0.2, 0.4, 0.6)),
-                      base_weight=(Sdf.ValueTypeNames.Float, 0.5),
-                      specular_roughness=(Sdf.ValueTypeNames.Float, 0.7),
-                      coat_weight=(Sdf.ValueTypeNames.Float, 0.3),
-                      geometry_opacity=(Sdf.ValueTypeNames.Float, 0.6))
-    surf.CreateOutput("surface", Sdf.ValueTypeNames.Token)
-    mat.CreateSurfaceOutput("mtlx").ConnectToSource(surf.ConnectableAPI(), "surface")
-    _quad(stage, material=mat)
-    d = translate_stage(_save(stage))
-    np.testing.assert_allclose(d.albedo[0], (0.1, 0.2, 0.3), atol=1e-6)  # base_color x base_weight
-    p = d.material_params
-    assert p["roughness"][0] == pytest.approx(0.7) and p["clearcoat"][0] == pytest.approx(0.3)
-    assert p["ior"][0] == pytest.approx(1.5)  # the node definition's default specular_ior
-    assert p["opacity"][0] == pytest.approx(0.6) and p["opacity_threshold"][0] < 0  # coverage: presence
-    assert p["preview_surface"][0] == 1.0
-
-
-def test_materialx_document_referenced_from_usd(tmp_path):
-    """The usdMtlx convention (OpenChessSet-style looks): a Material prim references a
-    .mtlx document's material; usd-core cannot compose it, Tessera reads it itself."""
-    import MaterialX as mx
-
-    _four_texel_png(tmp_path / "four.png")
-    doc = mx.createDocument()
-    graph = doc.addNodeGraph("NG_look")
-    image = graph.addNode("image", "img", "color3")
-    image.setInputValue("file", "four.png", "filename")
-    image.getInput("file").setColorSpace("lin_rec709")
-    graph.addOutput("out", "color3").setConnectedNode(image)
-    shader = doc.addNode("standard_surface", "SR_look", "surfaceshader")
-    shader.setInputValue("base", 0.0)
-    shader.setInputValue("specular", 0.0)
-    shader.setInputValue("emission", 1.0)
-    emission = shader.addInput("emission_color", "color3")
-    emission.setNodeGraphString("NG_look")
-    emission.setOutputString("out")
-    doc.addMaterialNode("Look", shader)
-    mx.writeToXmlFile(doc, str(tmp_path / "look.mtlx"))
-    stage = new_stage(tmp_path / "chess.usda")
-    mat = UsdShade.Material.Define(stage, "/Looks/Look")
-    mat.GetPrim().GetReferences().AddReference("./look.mtlx", "/MaterialX/Materials/Look")
-    mesh = _quad(stage, material=mat)
-    UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
-                                            UsdGeom.Tokens.vertex).Set([Gf.Vec2f(0.25, 0.25)] * 4)
-    scene = load_scene(_save(stage))
-    assert not any("grey" in w for w in scene.warnings), scene.warnings
-    img = scene.render_tile(0, 0, 16, 16, width=16, height=16, spp=2)
-    np.testing.assert_allclose(img[8, 8, :3], (0.0, 0.0, 1.0), atol=0.01)  # the blue texel
-
-
-def test_one_summary_line_names_every_grey_material(tmp_path):
-    stage = new_stage(tmp_path / "grey.usda")
-    odd = UsdShade.Material.Define(stage, "/Looks/Odd")
-    s = _mtlx_node(stage, "/Looks/Odd/S", "ND_gltf_pbr_surfaceshader")
-    s.CreateOutput("surface", Sdf.ValueTypeNames.Token)
-    odd.CreateSurfaceOutput("mtlx").ConnectToSource(s.ConnectableAPI(), "surface")
-    empty = UsdShade.Material.Define(stage, "/Looks/Empty")
-    _quad(stage, "/A", material=odd)
-    _quad(stage, "/B", z=1.0, material=empty)
-    data = translate_stage(_save(stage))
-    lines = [w for w in data.warnings if "grey" in w]
-    assert lines == ["2 material(s) fell back to the default grey: /Looks/Empty (no surface shader), "
-                     "/Looks/Odd (ND_gltf_pbr_surfaceshader)"], data.warnings
-
-
-@pytest.mark.shared_scenes
-def test_real_teapot_keeps_its_universal_preview_surface():
-    path = SCENES / "usdwg_intent_vfx_instancing" / "assets" / "teapot" / "mtl.usd"
-    data = translate_stage(str(path), root=str(SCENES / "usdwg_intent_vfx_instancing"))
-    # Both surfaces are authored; the universal UsdPreviewSurface (green) wins, as in Storm.
-    assert any(np.allclose(a, (0.107700236, 0.90119886, 0.038153667), atol=1e-6) for a in data.albedo)
-
-
-def test_a_referenced_mtlx_is_not_reported_as_a_composition_error(tmp_path):
-    import MaterialX as mx
-
-    doc = mx.createDocument()
-    shader = doc.addNode("standard_surface", "SR", "surfaceshader")
-    shader.setInputValue("base_color", mx.Color3(0.1, 0.2, 0.3))
-    doc.addMaterialNode("Look", shader)
-    mx.writeToXmlFile(doc, str(tmp_path / "look.mtlx"))
-    stage = new_stage(tmp_path / "s.usda")
-    mat = UsdShade.Material.Define(stage, "/Looks/Look")
-    mat.GetPrim().GetReferences().AddReference("./look.mtlx", "/MaterialX/Materials/Look")
-    _quad(stage, material=mat)
-    data = translate_stage(_save(stage))
-    assert not any(w.startswith("composition") for w in data.warnings), data.warnings
-    # standard_surface: base (default 1) x base_color
-    np.testing.assert_allclose(data.albedo[0], (0.1, 0.2, 0.3), atol=1e-6)
-
-
-def test_render_child_honours_the_job_setting(tmp_path):
-    """The worker's render process builds the Scene from one blob with or without the
-    default lighting, as the task's settings say."""
-    from tessera_worker.render_child import _blob_api, _load
-
-    path = _lightless_quad(tmp_path)
-    api, _ = _blob_api()
-    lit = _load({"scene_path": path, "default_light": True}, api)
-    unlit = _load({"scene_path": path, "default_light": False}, api)
-    assert lit.render_tile(0, 0, 8, 8, width=8, height=8, spp=2)[4, 4, 0] > 0.2
-    assert unlit.render_tile(0, 0, 8, 8, width=8, height=8, spp=2)[..., :3].max() == 0.0
-
-
-def test_materialx_math_on_an_image_folds_into_the_texture(tmp_path):
-    """Affine math a look builder writes around an image -- image x colour + colour, and a
-    mix of the image with a constant by a constant weight -- renders as that arithmetic on
-    the texel (emission seen head-on, the green texel (0, 1, 0)); two images multiplied are
-    not evaluated and say so."""
-    _four_texel_png(tmp_path / "four.png")
-    colour = Sdf.ValueTypeNames.Color3f
-
-    def scene_with(name: str, build) -> str:
-        stage = new_stage(tmp_path / f"{name}.usda")
-        mat = UsdShade.Material.Define(stage, "/Looks/M")
-        img = _mtlx_node(stage, "/Looks/M/img", "ND_image_color3")
-        img.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("./four.png")
-        img.GetInput("file").GetAttr().SetColorSpace("lin_rec709")
-        out = build(stage, img)
-        surf = _mtlx_node(stage, "/Looks/M/Surface", "ND_standard_surface_surfaceshader",
-                          base=(Sdf.ValueTypeNames.Float, 0.0), emission=(Sdf.ValueTypeNames.Float, 1.0),
-                          specular=(Sdf.ValueTypeNames.Float, 0.0))
-        surf.CreateInput("emission_color", colour).ConnectToSource(out.ConnectableAPI(), "out")
-        surf.CreateOutput("surface", Sdf.ValueTypeNames.Token)
-        mat.CreateSurfaceOutput("mtlx").ConnectToSource(surf.ConnectableAPI(), "surface")
-        mesh = _quad(stage, material=mat)
-        UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
-                                                UsdGeom.Tokens.vertex).Set([Gf.Vec2f(0.75, 0.75)] * 4)
-        return _save(stage)
-
-    def scaled_and_offset(stage, img):
-        mul = _mtlx_node(stage, "/Looks/M/mul", "ND_multiply_color3", in2=(colour, Gf.Vec3f(0.5, 0.25, 0.5)))
-        mul.CreateInput("in1", colour).ConnectToSource(img.ConnectableAPI(), "out")
-        add = _mtlx_node(stage, "/Looks/M/add", "ND_add_color3", in2=(colour, Gf.Vec3f(0.1, 0.2, 0.0)))
-        add.CreateInput("in1", colour).ConnectToSource(mul.ConnectableAPI(), "out")
-        return add
-
-    def mixed(stage, img):
-        mix = _mtlx_node(stage, "/Looks/M/mix", "ND_mix_color3", bg=(colour, Gf.Vec3f(1.0, 0.0, 0.0)),
-                         mix=(Sdf.ValueTypeNames.Float, 0.25))
-        mix.CreateInput("fg", colour).ConnectToSource(img.ConnectableAPI(), "out")
-        return mix
-
-    def squared(stage, img):
-        mul = _mtlx_node(stage, "/Looks/M/sq", "ND_multiply_color3")
-        for inp in ("in1", "in2"):
-            mul.CreateInput(inp, colour).ConnectToSource(img.ConnectableAPI(), "out")
-        return mul
-
-    # green x (0.5, 0.25, 0.5) + (0.1, 0.2, 0); 0.25 x green + 0.75 x red.
-    for name, build, want in (("affine", scaled_and_offset, (0.1, 0.45, 0.0)), ("mix", mixed, (0.75, 0.25, 0.0))):
-        scene = load_scene(scene_with(name, build))
-        assert not any("not evaluated" in w for w in scene.warnings), scene.warnings
-        img = scene.render_tile(0, 0, 16, 16, width=16, height=16, spp=2)
-        np.testing.assert_allclose(img[8, 8, :3], want, atol=0.01, err_msg=name)
-    warnings = translate_stage(scene_with("square", squared)).warnings
-    assert any("two images is not evaluated" in w for w in warnings), warnings
-
-
-def _two_looks_mtlx(path):
-    """A MaterialX document as Houdini writes an asset's looks: two standard_surface
-    materials, "Red" and "Blue", with authored base colours."""
-    import MaterialX as mx
-
-    doc = mx.createDocument()
-    for name, color in (("Red", (0.7, 0.1, 0.05)), ("Blue", (0.05, 0.2, 0.6))):
-        shader = doc.addNode("standard_surface", f"SR_{name}", "surfaceshader")
-        shader.setInputValue("base_color", mx.Color3(*color))
-        doc.addMaterialNode(name, shader)
-    mx.writeToXmlFile(doc, str(path))
-
-
-@pytest.mark.parametrize("arc", ["reference", "payload", "sublayer", "bound prim"])
-def test_mtlx_layers_referenced_payloaded_or_sublayered_bind_as_the_file_binds_them(tmp_path, arc):
-    """Issue 43: `references = @./asset_mat.mtlx@</MaterialX/Materials>` on a scope (or a
-    payload, or the document as a sublayer): usd-core composes no prim there, the meshes'
-    bindings dangle; Tessera reads each bound material from the document. A binding to a
-    material the document lacks is named in the one grey line (negative control)."""
-    _two_looks_mtlx(tmp_path / "asset_mat.mtlx")
-    stage = new_stage(tmp_path / "asset.usda")
-    prefix = ""
-    if arc == "sublayer":
-        stage.GetRootLayer().subLayerPaths.append("./asset_mat.mtlx")
-        looks = "/MaterialX/Materials"
-    elif arc == "bound prim":  # typeless prims, each referencing the material its arc names
-        looks, prefix = "/Asset/Looks", "M_"
-        for look in ("Red", "Blue", "Green"):
-            stage.OverridePrim(f"{looks}/{prefix}{look}").GetReferences().AddReference(
-                "./asset_mat.mtlx", f"/MaterialX/Materials/{look}")
-    else:
-        scope = stage.DefinePrim("/Asset/Materials", "Scope")
-        (scope.GetReferences().AddReference if arc == "reference" else scope.GetPayloads().AddPayload)(
-            "./asset_mat.mtlx", "/MaterialX/Materials")
-        looks = "/Asset/Materials"
-    for k, (name, look) in enumerate((("A", "Red"), ("B", "Blue"), ("C", "Green"))):
-        mesh = _quad(stage, f"/Asset/Geo/{name}", z=float(k))
-        UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).GetDirectBindingRel().SetTargets([f"{looks}/{prefix}{look}"])
-    data = translate_stage(_save(stage))
-    for authored in ((0.7, 0.1, 0.05), (0.05, 0.2, 0.6)):  # standard_surface: base 1 x base_color
-        assert any(np.allclose(a, authored, atol=1e-6) for a in data.albedo), (authored, data.albedo)
-    lines = [w for w in data.warnings if "grey" in w]
-    assert lines == [f"1 material(s) fell back to the default grey: {looks}/{prefix}Green (no material 'Green' in "
-                     f"asset_mat.mtlx)"], data.warnings
