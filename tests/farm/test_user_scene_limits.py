@@ -86,21 +86,16 @@ def test_the_issues_file_is_refused_under_the_default_limits(redis_server, tmp_p
     assert "TESSERA_USER_MAX_TRIANGLES" in r.json()["detail"]
 
 
-def test_a_higher_subdivision_level_is_held_to_the_translated_size_limit(api, tmp_path):
-    """The job's subdivision level multiplies what its subdivision surfaces cost (x16 per
-    two levels): the pre-flight translates at that level. 400 Catmull-Clark quads are
-    12,800 triangles at the default level 2 (about 0.75 MB translated, within Bob's 1 MiB);
-    at level 4, 204,800 triangles (about 12 MB), over it. Before, the level-2 verdict let
-    the level-4 job through."""
+def _row_of_cage_quads(path, camera_distance: float):
+    """400 Catmull-Clark quads 0.05 wide in a row along x, a camera on +z at the distance."""
     from pxr import Usd, UsdGeom, Vt
     import numpy as np
 
-    path = tmp_path / "cage.usdc"
     stage = Usd.Stage.CreateNew(str(path))
     camera = UsdGeom.Camera.Define(stage, "/Cam")
-    camera.AddTranslateOp().Set((0.0, 0.0, 60.0))
+    camera.AddTranslateOp().Set((0.0, 0.0, camera_distance))
     mesh = UsdGeom.Mesh.Define(stage, "/World/Cage")
-    n = 400  # a row of quads along x
+    n = 400
     xs = np.arange(n + 1, dtype=np.float32)
     points = np.concatenate([np.stack([xs, np.zeros_like(xs), np.zeros_like(xs)], -1),
                              np.stack([xs, np.ones_like(xs), np.zeros_like(xs)], -1)]) * 0.05
@@ -110,6 +105,15 @@ def test_a_higher_subdivision_level_is_held_to_the_translated_size_limit(api, tm
     mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.stack([k, k + 1, k + n + 2, k + n + 1], -1).ravel()))
     mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.catmullClark)
     stage.GetRootLayer().Save()
+    return path
+
+def test_a_higher_subdivision_level_is_held_to_the_translated_size_limit(api, tmp_path):
+    """The job's subdivision level multiplies what its subdivision surfaces cost (x16 per
+    two levels): the pre-flight translates at that level. 400 Catmull-Clark quads are
+    12,800 triangles at the default level 2 (about 0.75 MB translated, within Bob's 1 MiB);
+    at level 4, 204,800 triangles (about 12 MB), over it. Before, the level-2 verdict let
+    the level-4 job through."""
+    path = _row_of_cage_quads(tmp_path / "cage.usdc", camera_distance=60.0)
 
     def submit(level: str | None) -> httpx.Response:
         data = {"width": "16", "height": "16", "spp": "1", **({"subdivision_level": level} if level else {})}
@@ -129,24 +133,7 @@ def test_a_diced_job_is_held_to_the_translated_size_limit_at_its_diced_levels(ap
     edges of about 1.5 pixels, so a rate of 4 px refines them once (3,200 triangles,
     within Bob's 1 MiB) and a rate of 0.05 px four times, the default maximum (204,800
     triangles, about 12 MB: over it). A verdict for one rate is not reused for another."""
-    from pxr import Usd, UsdGeom, Vt
-    import numpy as np
-
-    path = tmp_path / "near_cage.usdc"
-    stage = Usd.Stage.CreateNew(str(path))
-    camera = UsdGeom.Camera.Define(stage, "/Cam")
-    camera.AddTranslateOp().Set((0.0, 0.0, 2.0))
-    mesh = UsdGeom.Mesh.Define(stage, "/World/Cage")
-    n = 400
-    xs = np.arange(n + 1, dtype=np.float32)
-    points = np.concatenate([np.stack([xs, np.zeros_like(xs), np.zeros_like(xs)], -1),
-                             np.stack([xs, np.ones_like(xs), np.zeros_like(xs)], -1)]) * 0.05
-    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(points))
-    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(n, 4, np.int32)))
-    k = np.arange(n, dtype=np.int32)
-    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.stack([k, k + 1, k + n + 2, k + n + 1], -1).ravel()))
-    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.catmullClark)
-    stage.GetRootLayer().Save()
+    path = _row_of_cage_quads(tmp_path / "near_cage.usdc", camera_distance=2.0)
 
     def submit(rate: str) -> httpx.Response:
         data = {"width": "16", "height": "16", "spp": "1", "dicing_rate": rate}
