@@ -11,7 +11,20 @@ tests=$(ls -t "$ROOT"/build/*/renderer/tessera_core_tests 2>/dev/null | grep -v 
 LONG_TESTS=$(sed -e 's/#.*//' -e 's/[[:space:]]//g' "$ROOT/scripts/cpp-long-tests.txt" | grep -v '^$' | paste -sd:)
 status=0
 echo "[quick] C++ unit tests without the long renders ($tests)"
-"$tests" --gtest_brief=1 --gtest_filter="-$LONG_TESTS" || status=1
+# Two shards at once (GoogleTest's sharding), one per core: most tests are single-threaded.
+SHARDS=$(nproc)
+log=$(mktemp -d)
+pids=()
+for i in $(seq 0 $((SHARDS - 1))); do
+  GTEST_TOTAL_SHARDS=$SHARDS GTEST_SHARD_INDEX=$i "$tests" --gtest_brief=1 --gtest_filter="-$LONG_TESTS" \
+    > "$log/shard-$i.log" 2>&1 &
+  pids+=($!)
+done
+for i in "${!pids[@]}"; do
+  wait "${pids[$i]}" || status=1
+  cat "$log/shard-$i.log"
+done
+rm -rf "$log"
 echo "[quick] Python tests, not slow"
 cd "$ROOT" && "$VENV/bin/python" -m pytest -m "not slow" "$@" || status=1
 if [ $status -eq 0 ]; then echo "[quick] all passed"; else echo "[quick] FAILED"; fi
