@@ -148,3 +148,29 @@ def test_closed_orientation_welds_seams_and_rejects_open_meshes():
     assert media.closed_orientation(split, np.arange(len(split)).reshape(-1, 3)) == 1
     assert media.absorption((1.0, math.exp(-2.0), 0.0), 0.5) == pytest.approx(
         (0.0, 4.0, -math.log(media.MIN_TRANSMISSION_COLOR) / 0.5))
+
+
+def test_a_referenced_mtlx_document_gives_the_same_interior(tmp_path):
+    """The usdMtlx convention (a Material prim referencing a .mtlx document's material, as
+    OpenChessSet-style assets do): the same absorption as inline MaterialX."""
+    import MaterialX as mx
+
+    color, depth = (0.7, 0.4, 0.9), 0.25
+    doc = mx.createDocument()
+    shader = doc.addNode("standard_surface", "SR_glass", "surfaceshader")
+    shader.setInputValue("transmission", 1.0)
+    shader.setInputValue("transmission_color", mx.Color3(*color))
+    shader.setInputValue("transmission_depth", depth)
+    doc.addMaterialNode("Glass", shader)
+    mx.writeToXmlFile(doc, str(tmp_path / "glass.mtlx"))
+    stage = new_stage(tmp_path / "referenced.usda")
+    mat = UsdShade.Material.Define(stage, "/Looks/Glass")
+    mat.GetPrim().GetReferences().AddReference("./glass.mtlx", "/MaterialX/Materials/Glass")
+    pts, counts, idx = box_inward_faces((-1, -1, -1), (1, 1, 1))
+    add_mesh(stage, "/Box", pts, counts, [i for q in range(0, len(idx), 4) for i in reversed(idx[q:q + 4])],
+             material=mat)
+    add_camera(stage, "/Camera", translate=(0, 0, 10))
+    stage.GetRootLayer().Save()
+    data = load_scene(stage.GetRootLayer().realPath).data
+    np.testing.assert_allclose(data.media[:, :3], [[-math.log(c) / depth for c in color]], rtol=1e-6)
+    assert tuple(data.material_media[data.triangle_material[0]]) == (0, -1)
