@@ -35,6 +35,7 @@ class _MaterialTable:
         self._index: dict[Any, int] = {}
         self.textures: list[dict] = []
         self._tex_index: dict[Any, int] = {}
+        self.has_interiors = False  # some row has an absorbing interior (usd/media.py)
 
     def add_texture(self, tex: dict) -> int:
         # JSON text as the key: values include lists and the UsdTransform2d dict.
@@ -50,6 +51,7 @@ class _MaterialTable:
         # An absorbing interior (sigma_a, usd/media.py) and the side it lies on, or a tint
         # of the transmission at the surface.
         interior, side, tint = surface.get("interior"), surface.get("medium_side"), surface.get("tint")
+        self.has_interiors = self.has_interiors or interior is not None
         key = (tuple(sorted((k, v) for k, v in surface["values"].items())),
                tuple(sorted(surface["textures"].items())), bool(two_sided), preview, shaping, interior, side, tint)
         if key not in self._index:
@@ -214,6 +216,8 @@ class MaterialReader:
         closed mesh's faces keep their medium (on the side opposite the normals, or on
         theirs for a mesh wound inward); faces that close no volume tint their surface
         instead, with one warning."""
+        if not self.materials.has_interiors:  # the common case: no per-chunk work
+            return chunk
         rows = self.materials.rows
         glass = [int(r) for r in np.unique(chunk.material) if rows[int(r)].get("interior") is not None]
         if not glass:
