@@ -79,7 +79,8 @@ NB_MODULE(_core, m) {
                std::optional<Matrices> light_motion_transforms, std::optional<PointLightRows> material_shaping,
                std::optional<IesTables> ies_tables, std::optional<InArray<float, 4>> curve_points,
                std::optional<InVector<uint32_t>> curve_segments, std::optional<InVector<uint8_t>> curve_flags,
-               std::optional<InVector<uint32_t>> curve_material, const std::string& light_selection) {
+               std::optional<InVector<uint32_t>> curve_material, std::optional<InArray<float, 7>> media,
+               std::optional<InArray<int32_t, 2>> material_media, const std::string& light_selection) {
                 SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
                                           sphere_lights, point_lights, distant_lights, dome_radiance, preview_params,
                                           preview_mask, dome_texture, dome_world_to_light, shading_normals,
@@ -89,7 +90,7 @@ NB_MODULE(_core, m) {
                                         motion_time_steps, motion_transforms, light_motion_kinds,
                                         light_motion_indices, light_motion_time_steps, light_motion_transforms,
                                         material_shaping, ies_tables, curve_points, curve_segments,
-                                        curve_flags, curve_material});
+                                        curve_flags, curve_material, media, material_media});
                 if (light_selection == "power") desc.light_selection = SceneDesc::LightSelection::kPower;
                 else if (light_selection == "bvh") desc.light_selection = SceneDesc::LightSelection::kBVH;
                 else if (light_selection != "auto")
@@ -110,14 +111,14 @@ NB_MODULE(_core, m) {
             "light_motion_time_steps"_a = nb::none(), "light_motion_transforms"_a = nb::none(),
             "material_shaping"_a = nb::none(), "ies_tables"_a = nb::none(), "curve_points"_a = nb::none(),
             "curve_segments"_a = nb::none(), "curve_flags"_a = nb::none(), "curve_material"_a = nb::none(),
-            "light_selection"_a = "auto",
+            "media"_a = nb::none(), "material_media"_a = nb::none(), "light_selection"_a = "auto",
             "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
             "(x, y, z, r, g, b intensity W/sr, then optionally the shaping columns of light_shaping.h: "
             "shaped, axis xyz, cutoff, smooth start, focus, focus tint rgb, IES table + 1 (0 none), horizontal "
             "angle 0 axis xyz); distant_lights (dx, dy, dz travel direction, half angle in "
             "radians, r, g, b radiance, or irradiance when the half angle is 0); dome_radiance (r, g, b); "
             "preview_params (specular rgb, metallic, roughness, ior, clearcoat, clearcoat_roughness, opacity, "
-            "opacity_threshold, use_specular_workflow, 3 unused) for the materials where preview_mask is set: "
+            "opacity_threshold, use_specular_workflow, 1 - transmission tint rgb (0 0 0: clear)) for the materials where preview_mask is set: "
             "those are UsdPreviewSurfaces, the others pure Lambertian. dome_texture: float32 (h, w, 3) lat-long "
             "(OpenEXR convention) multiplied by dome_radiance; dome_world_to_light: its 3x3 rotation; "
             "shading_normals: float32 (triangles, 3, 3) world-space corner normals. uvs: float32 (triangles, 3, "
@@ -145,9 +146,13 @@ NB_MODULE(_core, m) {
             "horizontal angle 0..360 (5 degrees apart), named by the shaping columns. Curves (round linear, "
             "world space): curve_points float32 (points, 4) x y z radius; per segment curve_segments uint32 "
             "(its first point; it ends at the next), curve_flags uint8 (1: a segment before it on the same "
-            "curve, 2: one after it) and curve_material uint32.")
+            "curve, 2: one after it) and curve_material uint32. Homogeneous media (docs/media.md): media float32 "
+            "(media, 7) sigma_a rgb, sigma_s rgb (per unit length), Henyey-Greenstein g; material_media int32 "
+            "(materials, 2) the medium inside (opposite the geometric normal) and outside each material, -1 "
+            "vacuum.")
         .def_prop_ro("has_motion", &Scene::has_motion)
         .def_prop_ro("has_delta_surfaces", &Scene::has_delta_surfaces)
+        .def_prop_ro("has_media", &Scene::has_media)
         .def_prop_ro("num_triangles", &Scene::num_triangles)
         .def_prop_ro("num_curve_segments", &Scene::num_curve_segments)
         .def_prop_ro("num_emitters", &Scene::num_emitters)
@@ -241,6 +246,7 @@ NB_MODULE(_core, m) {
                 d["stop_per_tile"] = info.stop_per_tile;
                 d["complete"] = info.complete;
                 d["delta_caustics"] = info.delta_caustics;
+                d["handles_media"] = info.handles_media;
                 d["shades_curves"] = info.shades_curves;
                 using Pilot = IntegratorInfo::PilotCandidate;
                 d["pilot_candidate"] = info.pilot_candidate == Pilot::kAlways ? "always"

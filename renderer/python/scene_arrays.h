@@ -65,6 +65,10 @@ struct Extras {
     std::optional<InVector<uint32_t>> curve_segments;
     std::optional<InVector<uint8_t>> curve_flags;
     std::optional<InVector<uint32_t>> curve_material;
+    // Homogeneous media (media/medium.h): rows sigma_a rgb, sigma_s rgb, g; and per material
+    // the medium inside and outside it (-1: vacuum), docs/media.md.
+    std::optional<InArray<float, 7>> media;
+    std::optional<InArray<int32_t, 2>> material_media;
 };
 
 // Checks the extra tables against the description's triangles and materials and adds them.

@@ -72,6 +72,9 @@ class Scene:
                               curve_segments=np.ascontiguousarray(curves["segments"], np.uint32),
                               curve_flags=np.ascontiguousarray(curves["flags"], np.uint8),
                               curve_material=np.ascontiguousarray(curves["material"], np.uint32))
+            if getattr(data, "media", None) is not None:
+                extras.update(media=np.ascontiguousarray(data.media, np.float32).reshape(-1, 7),
+                              material_media=np.ascontiguousarray(data.material_media, np.int32).reshape(-1, 2))
             uvs = getattr(data, "uvs", None)
             if uvs is not None and len(uvs) and extras.get("texture_table") is not None:
                 extras["uvs"] = np.ascontiguousarray(uvs, dtype=np.float32).reshape(-1, 3, 2)
@@ -148,7 +151,15 @@ class Scene:
         the scene, so every worker resolves it the same way. Other names pass through."""
         if name != "auto":
             return name
+        if self.has_media:
+            # Only integrators that handle media accept a scene with them (docs/media.md).
+            return next(i["name"] for i in integrators() if i["complete"] and i.get("handles_media"))
         return _core.auto_integrator(self.has_delta_caustics())
+
+    @property
+    def has_media(self) -> bool:
+        """Some material bounds a participating medium (absorbing glass, docs/media.md)."""
+        return bool(getattr(self._core, "has_media", False))
 
     def has_delta_surfaces(self) -> bool:
         """Some material may have a delta lobe (a smooth mirror, clear glass): where photon
@@ -327,6 +338,8 @@ def _preview_table(params: dict | None, rows: int):
     table[:, 0:3] = np.asarray(params["specular_color"], np.float32).reshape(rows, 3)
     for k, name in enumerate(_PREVIEW_COLUMNS):
         table[:, 3 + k] = np.asarray(params[name], np.float32).reshape(rows)
+    if "transmission_tint" in params:  # stored as 1 - tint: zeros are clear glass
+        table[:, 11:14] = 1.0 - np.asarray(params["transmission_tint"], np.float32).reshape(rows, 3)
     return table, np.asarray(params["preview_surface"], bool).reshape(rows)
 
 

@@ -56,8 +56,9 @@ BLOB_VERSION = 1
 # shaped Cylinder lights (about their -Z) and Distant lights (along their direction),
 # still curves of the world as Embree round curves (SceneData.curves); 11: light-lessness
 # by UsdLux lights and the measured power of material emission (usd/emission.py), and
-# SceneData.brightest_light.
-TRANSLATOR_VERSION = 11
+# SceneData.brightest_light; 12: MaterialX transmission colour and depth (absorbing
+# interiors of closed meshes, SceneData.media and material_media; a tint at depth 0).
+TRANSLATOR_VERSION = 12
 _ALIGN = 64
 _LIGHT_MOTION_FIELDS = ("light_motion_kinds", "light_motion_indices", "light_motion_time_steps",
                         "light_motion_transforms")
@@ -121,6 +122,9 @@ def _blob_arrays(data: SceneData) -> dict[str, np.ndarray]:
         arrays["material_shaping"] = data.material_shaping
     if getattr(data, "ies_tables", None) is not None:
         arrays["ies_tables"] = data.ies_tables
+    for key in ("media", "material_media"):
+        if getattr(data, key, None) is not None:
+            arrays[key] = getattr(data, key)
     for key, value in (getattr(data, "curves", None) or {}).items():
         arrays[f"curves.{key}"] = value
     for key, value in data.material_params.items():
@@ -281,6 +285,7 @@ def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
         **{k: arrays[k] for k in _LIGHT_MOTION_FIELDS if k in arrays},
         material_shaping=arrays.get("material_shaping"),
         ies_tables=arrays.get("ies_tables"),
+        media=arrays.get("media"), material_media=arrays.get("material_media"),
         curves={k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("curves.")} or None,
         time_code=meta.get("time_code"),
         shutter=None if meta.get("shutter") is None else tuple(meta["shutter"]))

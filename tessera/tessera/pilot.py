@@ -114,6 +114,9 @@ def candidates(scene, settings) -> tuple[str, ...]:
     """The integrators the pilot measures for this scene and render (the registry's rule)."""
     from tessera_base.integrators import pilot_candidates
 
+    if getattr(scene, "has_media", False):
+        # Only integrators that handle media accept the scene: nothing to measure between.
+        return (scene.resolve_integrator("auto"),)
     return pilot_candidates(mirrors_or_glass=scene.has_delta_surfaces(), noise_target=settings.adaptive,
                             delta_caustics=scene.has_delta_caustics())
 
@@ -173,6 +176,9 @@ def run_pilot(scene, settings, threads: int = 0, seed: int = 0x51107) -> Pilot:
 
     w, h = pilot_size(settings.width, settings.height)
     names = candidates(scene, settings)
+    if getattr(scene, "has_media", False):
+        return Pilot(choice=names[0], size=(w, h), spp=0, repeats=0,
+                     reason=f"the scene has participating media, which only {names[0]} renders: no pilot")
     missed = f"a delta light lights a caustic {', '.join(left_out(names))} cannot reach"
     if len(names) == 1:
         return Pilot(choice=names[0], size=(w, h), spp=0, repeats=0, reason=f"{missed}: {names[0]} without a pilot")

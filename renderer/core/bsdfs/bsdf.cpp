@@ -237,7 +237,8 @@ Color DielectricBSDF::f(Vec3 wo, Vec3 wi) const {
     if (IsSpecular() || wo.z == 0.f) return Color(0.f);
     float e = eta_;
     if (wo.z < 0.f) wo = FlipZ(wo), wi = FlipZ(wi), e = 1.f / eta_;
-    return EvalRoughDielectric(distrib_, e, mode_, wo, wi).f;
+    const Color f = EvalRoughDielectric(distrib_, e, mode_, wo, wi).f;
+    return wi.z < 0.f ? f * tint_ : f;
 }
 
 float DielectricBSDF::PDF(Vec3 wo, Vec3 wi) const {
@@ -256,7 +257,7 @@ std::optional<BSDFSample> DielectricBSDF::Sample_f(Vec3 wo, float uc, Vec2 u) co
 
     if (eta_ == 1.f) {
         // Index-matched: no reflection, no bending, no radiance scaling.
-        return BSDFSample{Color(1.f / w.z), -wo, 1.f, true, true, 1.f};
+        return BSDFSample{tint_ * (1.f / w.z), -wo, 1.f, true, true, 1.f};
     }
     if (distrib_.EffectivelySmooth()) {
         float R = FrDielectric(w.z, e), T = 1.f - R;
@@ -268,7 +269,7 @@ std::optional<BSDFSample> DielectricBSDF::Sample_f(Vec3 wo, float uc, Vec2 u) co
         if (!Refract(w, Vec3(0.f, 0.f, 1.f), e, &wi) || !(wi.z < 0.f)) return std::nullopt;
         float ft = T / std::abs(wi.z);
         if (mode_ == TransportMode::Radiance) ft /= e * e;
-        return BSDFSample{Color(ft), out(wi), T, true, true, e};
+        return BSDFSample{tint_ * ft, out(wi), T, true, true, e};
     }
 
     Vec3 wm = distrib_.Sample_wm(w, u);
@@ -283,7 +284,7 @@ std::optional<BSDFSample> DielectricBSDF::Sample_f(Vec3 wo, float uc, Vec2 u) co
     }
     RoughDielectricEval ev = EvalRoughDielectric(distrib_, e, mode_, w, wi);
     if (!(ev.pdf > 0.f)) return std::nullopt;
-    return BSDFSample{ev.f, out(wi), ev.pdf, false, transmit, transmit ? e : 1.f};
+    return BSDFSample{transmit ? ev.f * tint_ : ev.f, out(wi), ev.pdf, false, transmit, transmit ? e : 1.f};
 }
 
 // ---------------------------------------------------------------------------------------
@@ -558,7 +559,7 @@ BSDF MakePreviewSurfaceBSDF(const MaterialParams& p, TransportMode mode) {
     const float opacity = cutout_mode ? 1.f : Clamp01(p.opacity);
     const float ior = std::isfinite(p.ior) && p.ior > 0.f ? p.ior : 1.5f;
     const float alpha = TrowbridgeReitz::RoughnessToAlpha(p.roughness);
-    if (opacity == 0.f) return DielectricBSDF(ior, alpha, mode);
+    if (opacity == 0.f) return DielectricBSDF(ior, alpha, mode, Clamp01(p.transmission_tint));
     const bool no_coat = !(Clamp01(p.clearcoat) > 0.f);
     if (opacity == 1.f && no_coat && !p.use_specular_workflow && Clamp01(p.metallic) == 1.f) {
         Color c = Clamp01(p.diffuse_color);

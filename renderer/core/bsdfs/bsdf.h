@@ -149,7 +149,10 @@ private:
 // pass-through wi = -wo at any roughness (the generalized half vector is undefined).
 class DielectricBSDF {
 public:
-    DielectricBSDF(float eta, float alpha, TransportMode mode) : eta_(eta), distrib_(alpha), mode_(mode) {}
+    // `tint` multiplies every transmission through the interface (MaterialX's
+    // transmission_color at transmission_depth 0: coloured glass without an interior).
+    DielectricBSDF(float eta, float alpha, TransportMode mode, Color tint = Color(1.f))
+        : eta_(eta), distrib_(alpha), mode_(mode), tint_(tint) {}
     Color f(Vec3 wo, Vec3 wi) const;
     std::optional<BSDFSample> Sample_f(Vec3 wo, float uc, Vec2 u) const;
     float PDF(Vec3 wo, Vec3 wi) const;
@@ -162,6 +165,7 @@ private:
     float eta_;
     TrowbridgeReitz distrib_;
     TransportMode mode_;
+    Color tint_;
 };
 
 // The UsdPreviewSurface inputs a path tracer honours, with the spec's defaults.
@@ -177,6 +181,9 @@ struct MaterialParams {
     float opacity = 1.f;
     float opacity_threshold = 0.f;
     float ior = 1.5f;
+    // Multiplies transmission through a fully transmissive surface (opacity 0): the colour
+    // of MaterialX transmission at depth 0, applied at each crossing. 1: clear.
+    Color transmission_tint = Color(1.f);
 };
 
 // What an untextured PreviewSurfaceBSDF computes from the angle to the normal alone,

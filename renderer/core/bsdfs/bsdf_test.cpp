@@ -814,3 +814,37 @@ TEST(BsdfPreviewSurface, TableReproducesTheDirectEvaluation) {
         EXPECT_GT(worst_wrong, 4e-4) << "roughness " << p.roughness;
     }
 }
+
+// MaterialX transmission at depth 0 (docs/media.md): the tint multiplies every
+// transmission, from either side, smooth and rough, and leaves reflection alone; the
+// untinted dielectric is the same BSDF bit for bit.
+TEST(BsdfDelta, DielectricTintMultipliesTransmissionOnly) {
+    const Color tint(0.9f, 0.5f, 0.2f);
+    for (float alpha : {0.f, 0.3f})
+        for (float ct : {0.8f, -0.9f}) {  // from inside: steep enough to escape (no total reflection)
+            const DielectricBSDF clear(1.5f, alpha, TransportMode::Radiance), tinted(1.5f, alpha, TransportMode::Radiance, tint);
+            const Vec3 wo = Dir(ct, 0.5f);
+            int transmissions = 0, reflections = 0;
+            for (int i = 0; i < 256; ++i) {
+                PixelSampler s(5, uint64_t(i), 0);
+                const float uc = s.Get1D();
+                const Vec2 u = s.Get2D();
+                auto a = clear.Sample_f(wo, uc, u), b = tinted.Sample_f(wo, uc, u);
+                ASSERT_EQ(bool(a), bool(b));
+                if (!a) continue;
+                EXPECT_EQ(a->wi.z, b->wi.z);
+                EXPECT_EQ(a->pdf, b->pdf);
+                const Color want = a->is_transmission ? a->f * tint : a->f;
+                EXPECT_EQ(b->f.x, want.x);
+                EXPECT_EQ(b->f.y, want.y);
+                EXPECT_EQ(b->f.z, want.z);
+                if (alpha > 0.f) {
+                    const Color fa = clear.f(wo, a->wi), fb = tinted.f(wo, a->wi);
+                    EXPECT_EQ(fb.y, a->is_transmission ? fa.y * tint.y : fa.y);
+                }
+                (a->is_transmission ? transmissions : reflections)++;
+            }
+            EXPECT_GT(transmissions, 0);
+            EXPECT_GT(reflections, 0);
+        }
+}

@@ -12,6 +12,7 @@ const IntegratorInfo& LightTracer::Info() {
         .splats = true,
         .stop_per_tile = false,
         .delta_caustics = true,
+        .handles_media = true,
         .blind_to = {{"L S+ E", "a light path reaches the pinhole camera only by a connection from its last "
                                 "vertex, and a smooth mirror or glass (a delta lobe) never connects"}},
     };
@@ -38,14 +39,20 @@ PathSample DirectlyVisibleLight(const Scene& scene, const Ray& ray, float t_min,
 
 PathSample LightTracer::Sample(const Scene& scene, const Camera& camera, const CameraSample& cs, PixelSampler&,
                                SplatFilm& film, IntegratorCounters* counters) const {
-    PathSample ps = DirectlyVisibleLight(scene, cs.ray, cs.t_min, cs.t_max);
+    PathSample ps = scene.has_media() ? DirectlyVisibleLightThroughMedia(scene, cs.ray, cs.t_min, cs.t_max)
+                                      : DirectlyVisibleLight(scene, cs.ray, cs.t_min, cs.t_max);
     PixelSampler light_sampler = cs.Stream(1);
     Trace(scene, camera, light_sampler, film, counters);
     return ps;
 }
 
-bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, float p_error, Vec3 ng, Vec2 u_lens, float* px, float* py,
-                     Vec3* wc, float* importance_over_d2, Vec3* lens_point) {
+namespace {
+
+// The geometry of a camera connection, with `visible(target)` the transmittance from p to
+// the camera point `target` (0 or 1 without media).
+template <typename Visible>
+bool ConnectGeometry(const Camera& camera, Vec3 p, Vec2 u_lens, float* px, float* py, Vec3* wc,
+                     float* importance_over_d2, Vec3* lens_point, Visible&& visible) {
     if (camera.IsOrthographic()) {
         // The one film point that sees p: its projection onto the film plane.
         const Vec3 v = p - camera.origin;
@@ -54,7 +61,7 @@ bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, float p_e
         const Vec3 film = p - camera.forward * depth;
         float cos_camera;
         if (!camera.Project(film, camera.forward, px, py, &cos_camera)) return false;
-        if (!scene.Unoccluded(p, p_error, ng, film, 0.f, Vec3(0.f))) return false;
+        if (!visible(film, -camera.forward, depth)) return false;
         *wc = -camera.forward;
         *importance_over_d2 = 1.f / camera.ImagePlaneArea();  // parallel rays: no 1/d^2
         if (lens_point) *lens_point = film;
@@ -69,14 +76,37 @@ bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, float p_e
     if (!camera.Project(lens, -*wc, px, py, &cos_camera)) return false;
     const float depth = d * cos_camera;
     if (depth < camera.near || depth > camera.far) return false;
-    if (!scene.Unoccluded(p, p_error, ng, lens, 0.f, Vec3(0.f))) return false;
+    if (!visible(lens, *wc, d)) return false;
     *importance_over_d2 = 1.f / (camera.ImagePlaneArea() * cos_camera * cos_camera * cos_camera * d2);
     if (lens_point) *lens_point = lens;
     return true;
 }
 
+}  // namespace
+
+bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, float p_error, Vec3 ng, Vec2 u_lens, float* px, float* py,
+                     Vec3* wc, float* importance_over_d2, Vec3* lens_point) {
+    return ConnectGeometry(camera, p, u_lens, px, py, wc, importance_over_d2, lens_point,
+                           [&](Vec3 target, Vec3, float) { return scene.Unoccluded(p, p_error, ng, target, 0.f, Vec3(0.f)); });
+}
+
+bool ConnectToCameraThroughMedia(const Scene& scene, const Camera& camera, Vec3 p, float p_error, Vec3 ng,
+                                 const MediumInterface& boundary, int32_t medium, Vec2 u_lens, float* px, float* py,
+                                 Vec3* wc, float* importance_over_d2, Color* tr) {
+    return ConnectGeometry(camera, p, u_lens, px, py, wc, importance_over_d2, nullptr,
+                           [&](Vec3 target, Vec3 dir, float distance) {
+                               LightSample to;  // the camera point as a point "light": no surface
+                               to.wi = dir;
+                               to.distance = distance;
+                               to.p = target;
+                               *tr = scene.Transmittance(p, p_error, ng, boundary.After(ng, dir, medium), to);
+                               return !IsBlack(*tr);
+                           });
+}
+
 void LightTracer::Trace(const Scene& scene, const Camera& camera, PixelSampler& sampler, SplatFilm& film,
                         IntegratorCounters* counters) const {
+    if (scene.has_media()) return TraceMedia(scene, camera, sampler, film, counters);
     const LightSampler& lights = scene.light_sampler();
     if (lights.empty()) return;
     float pmf = 0.f;

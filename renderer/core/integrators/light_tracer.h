@@ -24,8 +24,19 @@ namespace tessera {
 bool ConnectToCamera(const Scene& scene, const Camera& camera, Vec3 p, float p_error, Vec3 ng, Vec2 u_lens, float* px, float* py,
                      Vec3* wc, float* importance_over_d2, Vec3* lens_point = nullptr);
 
+// As ConnectToCamera in a scene with media (docs/media.md): the connection leaves p into
+// the medium `boundary` gives toward the camera, having been in `medium` (a medium vertex
+// passes no boundary: ng 0), passes pure medium interfaces, and *tr gets the transmittance
+// along it (Scene::Transmittance); false where that is black. Importance as
+// ConnectToCamera's.
+bool ConnectToCameraThroughMedia(const Scene& scene, const Camera& camera, Vec3 p, float p_error, Vec3 ng,
+                                 const MediumInterface& boundary, int32_t medium, Vec2 u_lens, float* px, float* py,
+                                 Vec3* wc, float* importance_over_d2, Color* tr);
+
 // What a pinhole sees without scattering: emitters and lights at infinity along the ray.
 PathSample DirectlyVisibleLight(const Scene& scene, const Ray& ray, float t_min, float t_max);
+// The same through media: pure interfaces passed, attenuated by Beer-Lambert along the ray.
+PathSample DirectlyVisibleLightThroughMedia(const Scene& scene, const Ray& ray, float t_min, float t_max);
 
 class LightTracer final : public Integrator {
 public:
@@ -42,6 +53,9 @@ public:
                IntegratorCounters* counters) const;
 
 private:
+    // Trace's kernel for scenes with media (light_tracer_media.cpp).
+    void TraceMedia(const Scene& scene, const Camera& camera, PixelSampler& sampler, SplatFilm& film,
+                    IntegratorCounters* counters) const;
     int max_depth_;
 };
 

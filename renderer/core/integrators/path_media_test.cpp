@@ -4,23 +4,11 @@
 #include <cmath>
 #include <string>
 
-#include "scene_helpers.h"
+#include "media_scenes.h"
 
 using namespace tessera_test;
 
 namespace {
-
-// Axis-aligned box [lo, hi], faces wound outward (a closed mesh whose inside is the box).
-void AddOutwardBox(SceneDesc& d, Vec3 lo, Vec3 hi, uint32_t material) {
-    Vec3 p[8];
-    for (int i = 0; i < 8; ++i) p[i] = Vec3(i & 1 ? hi.x : lo.x, i & 2 ? hi.y : lo.y, i & 4 ? hi.z : lo.z);
-    AddQuad(d, p[0], p[2], p[3], p[1], material);  // z = lo, normal -z
-    AddQuad(d, p[4], p[5], p[7], p[6], material);  // z = hi, normal +z
-    AddQuad(d, p[0], p[1], p[5], p[4], material);  // y = lo, normal -y
-    AddQuad(d, p[2], p[6], p[7], p[3], material);  // y = hi, normal +y
-    AddQuad(d, p[0], p[4], p[6], p[2], material);  // x = lo, normal -x
-    AddQuad(d, p[1], p[3], p[7], p[5], material);  // x = hi, normal +x
-}
 
 // A unit sphere about the origin, latitude-longitude triangles wound outward.
 void AddOutwardSphere(SceneDesc& d, float r, uint32_t material, int rings = 24, int segments = 48) {
@@ -41,15 +29,6 @@ void AddOutwardSphere(SceneDesc& d, float r, uint32_t material, int rings = 24, 
                                    d.triangle_material.push_back(material);
         }
 }
-
-uint32_t AddInterface(SceneDesc& d, int32_t inside) {
-    const uint32_t m = AddMaterial(d, Color(0.f), Color(0.f));
-    d.materials[m].interface_only = true;
-    d.materials[m].media.inside = inside;
-    return m;
-}
-
-float Ch(Color c, int k) { return k == 0 ? c.x : (k == 1 ? c.y : c.z); }
 
 // An emitter of radiance Le facing the camera (z = -3) behind a slab z in [-2, -1] of
 // absorbing medium sigma_a (albedo 0), thickness 1: every pixel reads Le e^(-sigma_a).

@@ -2,12 +2,14 @@
 texture table (the MaterialReader part of the translator)."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from typing import Any
 
 import numpy as np
 
+from . import media
 from .authoring import authoring_layer
 from .errors import SceneError
 
@@ -33,6 +35,7 @@ class _MaterialTable:
         self._index: dict[Any, int] = {}
         self.textures: list[dict] = []
         self._tex_index: dict[Any, int] = {}
+        self.has_interiors = False  # some row has an absorbing interior (usd/media.py)
 
     def add_texture(self, tex: dict) -> int:
         # JSON text as the key: values include lists and the UsdTransform2d dict.
@@ -45,12 +48,18 @@ class _MaterialTable:
     def add(self, surface: dict, two_sided: bool) -> int:
         preview = bool(surface.get("preview", False))
         shaping = surface.get("shaping")  # a shaped area light's columns (light_shaping)
+        # An absorbing interior (sigma_a, usd/media.py) and the side it lies on, or a tint
+        # of the transmission at the surface.
+        interior, side, tint = surface.get("interior"), surface.get("medium_side"), surface.get("tint")
+        self.has_interiors = self.has_interiors or interior is not None
         key = (tuple(sorted((k, v) for k, v in surface["values"].items())),
-               tuple(sorted(surface["textures"].items())), bool(two_sided), preview, shaping)
+               tuple(sorted(surface["textures"].items())), bool(two_sided), preview, shaping, interior, side, tint)
         if key not in self._index:
             self._index[key] = len(self.rows)
             self.rows.append({"values": surface["values"], "textures": surface["textures"],
-                              "two_sided": bool(two_sided), "preview": preview, "shaping": shaping})
+                              "two_sided": bool(two_sided), "preview": preview, "shaping": shaping,
+                              "interior": interior, "medium_side": side, "tint": tint,
+                              "interior_color": surface.get("interior_color")})
         return self._index[key]
 
 
@@ -178,8 +187,60 @@ class MaterialReader:
             presence = values["opacityThreshold"][0] <= 0 and partial and node.value("ior") is None
         if presence:
             values["opacityThreshold"] = (PRESENCE_MODE,)
-        return {"values": values, "textures": {k: self.materials.add_texture(t) for k, t in textures.items()},
-                "preview": True}
+        out = {"values": values, "textures": {k: self.materials.add_texture(t) for k, t in textures.items()},
+               "preview": True}
+        tinted = mtlx.transmission_tint(node, self._count_note)
+        if tinted is not None:
+            color, depth = tinted
+            if any(not 0.0 < c <= 1.0 for c in color):
+                self._count_note(f"MaterialX transmission_color outside (0, 1] is clamped to it ({path})")
+                color = tuple(min(max(c, media.MIN_TRANSMISSION_COLOR), 1.0) for c in color)
+            if depth > 0.0:
+                # Beer-Lambert inside: bound to the mesh when it is closed (bind_interiors).
+                out.update(interior=media.absorption(color, depth), interior_color=color, medium_side="inside")
+            else:
+                out.update(self._surface_tint(values, color, path))
+        return out
+
+    def _surface_tint(self, values, color, path) -> dict:
+        """The transmission colour applied at the surface, on each crossing (standard_surface's
+        rule for transmission_depth 0). Only a fully transmissive surface carries it."""
+        if values["opacity"][0] > 0.0:
+            self._count_note("MaterialX transmission_color on partly transmissive surfaces (transmission "
+                             f"below 1) is not applied: only transmission 1 is tinted ({path})")
+            return {}
+        return {"tint": tuple(float(c) for c in color)}
+
+    def bind_interiors(self, chunk, path: str):
+        """The chunk with its absorbing-glass materials bound to their inside: the rows of a
+        closed mesh's faces keep their medium (on the side opposite the normals, or on
+        theirs for a mesh wound inward); faces that close no volume tint their surface
+        instead, with one warning."""
+        if not self.materials.has_interiors:  # the common case: no per-chunk work
+            return chunk
+        rows = self.materials.rows
+        glass = [int(r) for r in np.unique(chunk.material) if rows[int(r)].get("interior") is not None]
+        if not glass:
+            return chunk
+        material = chunk.material.copy()
+        for r in glass:
+            faces = chunk.material == r
+            row = rows[r]
+            orientation = media.closed_orientation(chunk.points, chunk.tris[faces])
+            surface = {"values": row["values"], "textures": row["textures"], "preview": row["preview"],
+                       "shaping": row["shaping"]}
+            if orientation == 0:
+                self._count_note("transmissive MaterialX surfaces with a transmission_depth on meshes whose faces "
+                                 "close no volume (open or inconsistently wound) have no inside to absorb in: "
+                                 "their transmission_color tints the surface instead")
+                surface.update(self._surface_tint(row["values"], row["interior_color"], path))
+            elif orientation < 0:
+                surface.update(interior=row["interior"], interior_color=row["interior_color"],
+                               medium_side="outside")
+            else:
+                continue
+            material[faces] = self.materials.add(surface, row["two_sided"])
+        return dataclasses.replace(chunk, material=material)
 
     @staticmethod
     def _dangling_binding(bind_prim):

@@ -232,6 +232,33 @@ def surface(node, defaults: dict, make_texture: Callable[..., dict | None], note
     return values, textures, presence
 
 
+# Each model's transmission colour and depth (docs/media.md, "Absorbing glass").
+_TRANSMISSION_TINT = {"standard_surface": ("transmission_color", "transmission_depth", "transmission_scatter"),
+                      "open_pbr_surface": ("transmission_color", "transmission_depth", "transmission_scatter")}
+
+
+def transmission_tint(node, note) -> tuple[tuple[float, float, float], float] | None:
+    """(transmission colour, transmission depth) of a surface that transmits (weight > 0)
+    with a colour other than white, else None. Both models mean the same: with depth d > 0
+    the colour is what light keeps after travelling d inside (Beer-Lambert, the volume's
+    absorption); with d = 0 the colour tints the refraction at the surface."""
+    if node.category not in _TRANSMISSION_TINT:
+        return None
+    weight = _constant(node, _TRANSMISSION[node.category], note)
+    if not weight or weight[0] <= 0.0:
+        return None
+    color_name, depth_name, scatter_name = _TRANSMISSION_TINT[node.category]
+    color = _fit(_constant(node, color_name, note), 3) or (1.0, 1.0, 1.0)
+    depth = _constant(node, depth_name, note) or (0.0,)
+    scatter = _fit(_constant(node, scatter_name, note), 3) or (0.0, 0.0, 0.0)
+    if any(c > 0.0 for c in scatter):
+        note(f"MaterialX {scatter_name} (scattering inside transmissive surfaces) is not read: the interior "
+             f"only absorbs ({node.ident})")
+    if all(c == 1.0 for c in color):
+        return None
+    return tuple(float(c) for c in color), float(depth[0])
+
+
 def _constant(node, name, note):
     value = node.value(name)
     if value is None and node.source(name) is not None:

@@ -60,6 +60,11 @@ class SceneData:
     # {"points": (P, 4) x y z radius, "segments": (S,) first point, "flags": (S,) uint8
     # neighbours, "material": (S,) material rows}.
     curves: dict[str, np.ndarray] | None = None
+    # Homogeneous media (usd/media.py; docs/media.md), or None: rows sigma_a rgb, sigma_s
+    # rgb, g (float32 (K, 7)), and per material row the medium inside and outside it (int32
+    # (M, 2), -1 vacuum).
+    media: np.ndarray | None = None
+    material_media: np.ndarray | None = None
     # The time code rendered (None: the default time) and the shutter interval around it
     # in absolute time codes (None: no motion blur).
     time_code: float | None = None

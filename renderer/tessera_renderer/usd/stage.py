@@ -31,6 +31,7 @@ from .errors import SceneError, local_to_world
 from .instancing import InstanceReader, _instance_corners
 from .lights import (DEFAULT_LIGHTING_NAME, NO_LIGHT_WARNING, LightReader, _emits, apply_default_lighting,
                      default_lighting)
+from .media import media_tables
 from .materials import _COLOR_INPUTS, MaterialReader, _MaterialTable, _SCALAR_INPUTS, _as_tuple
 from .meshes import _Chunk, MeshReader, _face_normals, _normalized
 from .motion import Shutter, MotionReader, render_time, shutter_interval
@@ -246,6 +247,7 @@ class _Translator(MeshReader, InstanceReader, MaterialReader, LightReader, Motio
         return dataclasses.replace(chunk, motion_points=steps)
 
     def emit(self, chunk: _Chunk, sink: list, path: str) -> None:
+        chunk = self.bind_interiors(chunk, path)
         bad_vertex = ~np.isfinite(chunk.points).all(axis=1)
         if bad_vertex.any():
             keep = ~bad_vertex[chunk.tris].any(axis=1)
@@ -443,6 +445,12 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     # BSDF on that key, which the lead turns on (tests written for Lambertian walls).
     params["preview_surface"] = np.array([r["preview"] for r in rows], np.float32)
     material_textures = {(m, name): tex for m, r in enumerate(rows) for name, tex in r["textures"].items()}
+    if any(r.get("tint") for r in rows):
+        params["transmission_tint"] = np.array([r.get("tint") or (1.0, 1.0, 1.0) for r in rows], np.float32)
+    used_rows = set(np.unique(tri_material).tolist())
+    used_rows.update(r for proto in tr.prototypes for c in proto["chunks"] for r in np.unique(c.material).tolist())
+    used_rows.update(r for m in tr.curves["material"] for r in np.unique(m).tolist())
+    media_rows, material_media = media_tables(rows, used_rows)
 
     prototypes = []
     for proto in tr.prototypes:
@@ -502,7 +510,7 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
                      motion_instances=motion_instances, motion_time_steps=motion_time_steps, **light_motion,
                      material_shaping=material_shaping,
                      ies_tables=np.stack(tr.ies_tables) if tr.ies_tables else None,
-                     curves=_curve_arrays(tr.curves),
+                     curves=_curve_arrays(tr.curves), media=media_rows, material_media=material_media,
                      motion_transforms=motion_transforms,
                      time_code=None if time.IsDefault() else float(time.GetValue()),
                      shutter=None if tr.shutter is None else (tr.shutter.open, tr.shutter.close),
