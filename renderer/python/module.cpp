@@ -79,7 +79,8 @@ NB_MODULE(_core, m) {
                std::optional<Matrices> light_motion_transforms, std::optional<PointLightRows> material_shaping,
                std::optional<IesTables> ies_tables, std::optional<InArray<float, 4>> curve_points,
                std::optional<InVector<uint32_t>> curve_segments, std::optional<InVector<uint8_t>> curve_flags,
-               std::optional<InVector<uint32_t>> curve_material, const std::string& light_selection) {
+               std::optional<InVector<uint32_t>> curve_material, std::optional<nb::dict> light_links,
+               const std::string& light_selection) {
                 SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
                                           sphere_lights, point_lights, distant_lights, dome_radiance, preview_params,
                                           preview_mask, dome_texture, dome_world_to_light, shading_normals,
@@ -89,7 +90,7 @@ NB_MODULE(_core, m) {
                                         motion_time_steps, motion_transforms, light_motion_kinds,
                                         light_motion_indices, light_motion_time_steps, light_motion_transforms,
                                         material_shaping, ies_tables, curve_points, curve_segments,
-                                        curve_flags, curve_material});
+                                        curve_flags, curve_material, light_links});
                 if (light_selection == "power") desc.light_selection = SceneDesc::LightSelection::kPower;
                 else if (light_selection == "bvh") desc.light_selection = SceneDesc::LightSelection::kBVH;
                 else if (light_selection != "auto")
@@ -110,7 +111,7 @@ NB_MODULE(_core, m) {
             "light_motion_time_steps"_a = nb::none(), "light_motion_transforms"_a = nb::none(),
             "material_shaping"_a = nb::none(), "ies_tables"_a = nb::none(), "curve_points"_a = nb::none(),
             "curve_segments"_a = nb::none(), "curve_flags"_a = nb::none(), "curve_material"_a = nb::none(),
-            "light_selection"_a = "auto",
+            "light_links"_a = nb::none(), "light_selection"_a = "auto",
             "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
             "(x, y, z, r, g, b intensity W/sr, then optionally the shaping columns of light_shaping.h: "
             "shaped, axis xyz, cutoff, smooth start, focus, focus tint rgb, IES table + 1 (0 none), horizontal "
@@ -145,11 +146,17 @@ NB_MODULE(_core, m) {
             "horizontal angle 0..360 (5 degrees apart), named by the shaping columns. Curves (round linear, "
             "world space): curve_points float32 (points, 4) x y z radius; per segment curve_segments uint32 "
             "(its first point; it ends at the next), curve_flags uint8 (1: a segment before it on the same "
-            "curve, 2: one after it) and curve_material uint32.")
+            "curve, 2: one after it) and curve_material uint32. light_links: a dict of UsdLux light and "
+            "shadow links (renderer/core/lights/light_links.h): 'illuminates' and 'shadows' uint8 (links, "
+            "groups) flags, 'material_group' uint32 and 'material_light' int32 per material (its link group; "
+            "an area light's link, -1 none), 'sphere', 'point', 'distant' int32 per light and 'dome' int32 (1,) "
+            "(-1: lights everything).")
         .def_prop_ro("has_motion", &Scene::has_motion)
         .def_prop_ro("has_delta_surfaces", &Scene::has_delta_surfaces)
         .def_prop_ro("num_triangles", &Scene::num_triangles)
         .def_prop_ro("num_curve_segments", &Scene::num_curve_segments)
+        .def_prop_ro("num_linked_lights", &Scene::num_linked_lights)
+        .def_prop_ro("has_media", &Scene::has_media)
         .def_prop_ro("num_emitters", &Scene::num_emitters)
         .def_prop_ro("uses_light_bvh", &Scene::uses_light_bvh)
         .def_prop_ro("num_instances", &Scene::num_instances)
@@ -242,6 +249,7 @@ NB_MODULE(_core, m) {
                 d["complete"] = info.complete;
                 d["delta_caustics"] = info.delta_caustics;
                 d["shades_curves"] = info.shades_curves;
+                d["honours_light_links"] = info.honours_light_links;
                 using Pilot = IntegratorInfo::PilotCandidate;
                 d["pilot_candidate"] = info.pilot_candidate == Pilot::kAlways ? "always"
                                        : info.pilot_candidate == Pilot::kMirrorsOrGlassWithNoiseTarget

@@ -65,6 +65,10 @@ struct Extras {
     std::optional<InVector<uint32_t>> curve_segments;
     std::optional<InVector<uint8_t>> curve_flags;
     std::optional<InVector<uint32_t>> curve_material;
+    // Light linking (SceneData.light_links): {"illuminates", "shadows": uint8 (links,
+    // groups); "material_group": uint32, "material_light": int32 per material; "sphere",
+    // "point", "distant": int32 per light; "dome": int32 (1,)}.
+    std::optional<nb::dict> light_links;
 };
 
 // Checks the extra tables against the description's triangles and materials and adds them.

@@ -72,6 +72,9 @@ class Scene:
                               curve_segments=np.ascontiguousarray(curves["segments"], np.uint32),
                               curve_flags=np.ascontiguousarray(curves["flags"], np.uint8),
                               curve_material=np.ascontiguousarray(curves["material"], np.uint32))
+            links = getattr(data, "light_links", None)
+            if links is not None:
+                extras["light_links"] = {k: np.ascontiguousarray(v) for k, v in links.items()}
             uvs = getattr(data, "uvs", None)
             if uvs is not None and len(uvs) and extras.get("texture_table") is not None:
                 extras["uvs"] = np.ascontiguousarray(uvs, dtype=np.float32).reshape(-1, 3, 2)
@@ -111,6 +114,15 @@ class Scene:
     def num_curve_segments(self) -> int:
         """Segments of the Embree round curves (still BasisCurves of the world)."""
         return self._core.num_curve_segments
+
+    @property
+    def num_linked_lights(self) -> int:
+        """Lights whose UsdLux light or shadow link leaves some surface out."""
+        return self._core.num_linked_lights
+
+    @property
+    def has_media(self) -> bool:
+        return self._core.has_media
 
     @property
     def num_emitters(self) -> int:

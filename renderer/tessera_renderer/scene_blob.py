@@ -56,8 +56,8 @@ BLOB_VERSION = 1
 # shaped Cylinder lights (about their -Z) and Distant lights (along their direction),
 # still curves of the world as Embree round curves (SceneData.curves); 11: light-lessness
 # by UsdLux lights and the measured power of material emission (usd/emission.py), and
-# SceneData.brightest_light.
-TRANSLATOR_VERSION = 11
+# SceneData.brightest_light; 12: UsdLux light and shadow links (SceneData.light_links).
+TRANSLATOR_VERSION = 12
 _ALIGN = 64
 _LIGHT_MOTION_FIELDS = ("light_motion_kinds", "light_motion_indices", "light_motion_time_steps",
                         "light_motion_transforms")
@@ -122,6 +122,8 @@ def _blob_arrays(data: SceneData) -> dict[str, np.ndarray]:
         arrays["ies_tables"] = data.ies_tables
     for key, value in (getattr(data, "curves", None) or {}).items():
         arrays[f"curves.{key}"] = value
+    for key, value in (getattr(data, "light_links", None) or {}).items():
+        arrays[f"light_links.{key}"] = value
     for key, value in data.material_params.items():
         arrays[f"material_params.{key}"] = value
     if data.shading_normals is not None:
@@ -281,6 +283,7 @@ def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
         material_shaping=arrays.get("material_shaping"),
         ies_tables=arrays.get("ies_tables"),
         curves={k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("curves.")} or None,
+        light_links={k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("light_links.")} or None,
         time_code=meta.get("time_code"),
         shutter=None if meta.get("shutter") is None else tuple(meta["shutter"]))
     if tmp:

@@ -18,6 +18,7 @@ const IntegratorInfo& PathIntegrator::Info() {
         .description = "path tracing: next event estimation, MIS with BSDF sampling, Russian roulette",
         .complete = true,
         .handles_media = true,
+        .honours_light_links = true,
         .params = {{"rr_depth", "vertex index (0 = the first hit) from which Russian roulette may end a path "
                                 "(default 2; 5 reaches an error sooner in closed diffuse scenes)"},
                    {"lanes", "lane width of the lane-group kernel for all-Lambertian still scenes: 0 (the scalar "
@@ -67,14 +68,28 @@ PathSample PathIntegrator::Trace(const Scene& scene, Ray ray, PixelSampler& samp
     bool specular_bounce = false; // ...and whether it came from a delta lobe (no MIS then)
     float eta_scale = 1.f;        // product of eta^2 over refractions, hidden from roulette
     Vec3 prev_p, prev_n;          // the vertex `ray` left from and its shading normal (light pmf under MIS)
+    uint32_t prev_group = Scene::kNoLinkGroup;  // ...and its link group (light links: which lights reach it)
     const LightSampler& lights = scene.light_sampler();
+    const bool links = scene.has_light_links();
+    // The weight of emission from `light` reached by BSDF sampling from the previous vertex,
+    // given the light-sampling density there. Linking: a light that does not illuminate the
+    // previous surface adds nothing, and one whose shadow link excludes some surface is
+    // left to light sampling alone (direct_light.h), as a delta light is. The camera ray
+    // (depth 0) sees every light. Light sampling chose by the previous vertex's group, so
+    // its density there is the group's (Scene::LightPmf with the group).
+    auto bsdf_hit_weight = [&](int depth, uint32_t light, auto light_pdf) -> float {
+        if (links && depth > 0 && !scene.Illuminates(light, prev_group)) return 0.f;
+        if (depth == 0 || specular_bounce) return 1.f;
+        if (links && scene.ExcludesShadows(light)) return 0.f;
+        return PowerHeuristic(bsdf_pdf, light_pdf());
+    };
 
     for (int depth = 0;; ++depth) {
         SurfaceHit hit;
         if (!(depth == 0 ? scene.Intersect(ray, &hit, t_min, t_max) : scene.Intersect(ray, &hit))) {
             // Escaped: lights at infinity (dome, distant cones), weighted like emitters.
             scene.ForEachEnvironmentLight(ray.d, [&](uint32_t light, Color Le, float pdf) {
-                float w = (depth == 0 || specular_bounce) ? 1.f : PowerHeuristic(bsdf_pdf, scene.LightPmf(prev_p, prev_n, light) * pdf);
+                const float w = bsdf_hit_weight(depth, light, [&] { return scene.LightPmf(prev_p, prev_n, light, prev_group) * pdf; });
                 L += beta * Le * w;
             });
             break;
@@ -87,10 +102,9 @@ PathSample PathIntegrator::Trace(const Scene& scene, Ray ray, PixelSampler& samp
         if (int32_t e = scene.EmitterAt(hit); e != Scene::kNoEmitter) {
             Color Le = scene.Emitted(e, hit, wo);
             if (!IsBlack(Le)) {
-                float w = 1.f;
-                if (depth > 0 && !specular_bounce)
-                    w = PowerHeuristic(bsdf_pdf, scene.LightPmf(prev_p, prev_n, uint32_t(e)) *
-                                                     scene.EmitterPdf(e, prev_p, hit));
+                const float w = bsdf_hit_weight(depth, uint32_t(e), [&] {
+                    return scene.LightPmf(prev_p, prev_n, uint32_t(e), prev_group) * scene.EmitterPdf(e, prev_p, hit);
+                });
                 L += beta * Le * w;
             }
         }
@@ -119,6 +133,7 @@ PathSample PathIntegrator::Trace(const Scene& scene, Ray ray, PixelSampler& samp
         if (bs->is_transmission) eta_scale *= bs->eta * bs->eta;
         prev_p = hit.p;
         prev_n = hit.ns;
+        if (links) prev_group = scene.LinkGroupAt(hit);
         ray = {OffsetRayOrigin(hit.p, hit.p_error, hit.ng, wi), wi};
 
         // Russian roulette from vertex roulette_depth_ on: survive with probability equal

@@ -17,7 +17,9 @@ int DefaultLaneWidth() {
 
 bool LaneKernelApplies(const Scene& scene) {
     // Media need the media kernel's free flights (path_media.cpp), whatever the surfaces are.
-    return scene.all_lambertian() && scene.packets_apply() && !scene.has_motion() && !scene.has_media();
+    // Light links need the scalar kernel's per-vertex link groups.
+    return scene.all_lambertian() && scene.packets_apply() && !scene.has_motion() && !scene.has_media() &&
+           !scene.has_light_links();
 }
 
 namespace {

@@ -60,6 +60,11 @@ class SceneData:
     # {"points": (P, 4) x y z radius, "segments": (S,) first point, "flags": (S,) uint8
     # neighbours, "material": (S,) material rows}.
     curves: dict[str, np.ndarray] | None = None
+    # UsdLux light and shadow links (usd/light_links.py), or None when no light has any:
+    # {"illuminates", "shadows": uint8 (links, groups); "material_group" uint32 and
+    # "material_light" int32 per material row; "sphere", "point", "distant" int32 per light
+    # row; "dome" int32 (1,)}, -1 for a light that lights everything.
+    light_links: dict[str, np.ndarray] | None = None
     # The time code rendered (None: the default time) and the shutter interval around it
     # in absolute time codes (None: no motion blur).
     time_code: float | None = None
