@@ -273,3 +273,62 @@ def test_links_survive_the_farm_blob(tmp_path):
     a = local.render_tile(0, 0, 4, 4, spp=8, max_depth=1)
     b = remote.render_tile(0, 0, 4, 4, spp=8, max_depth=1)
     assert np.array_equal(a, b)
+
+
+def test_native_instances_linked_differently_get_prototypes_of_their_own(tmp_path):
+    """Two instances of one prototype; the key's link excludes one of them. Each keeps its
+    own link group, so the instanced render equals the flattened one bit for bit."""
+    path = tmp_path / "instances.usda"
+    path.write_text('''#usda 1.0
+(
+    upAxis = "Y"
+)
+class Xform "Tile" {
+    def Mesh "Quad" {
+        point3f[] points = [(-1, 0, -1), (-1, 0, 1), (1, 0, 1), (1, 0, -1)]
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+        uniform token subdivisionScheme = "none"
+        color3f[] primvars:displayColor = [(0.5, 0.5, 0.5)]
+    }
+}
+def Xform "World" {
+    def Xform "A" (
+        instanceable = true
+        references = </Tile>
+    ) {
+        double3 xformOp:translate = (-1, 0, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+    def Xform "B" (
+        instanceable = true
+        references = </Tile>
+    ) {
+        double3 xformOp:translate = (1, 0, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+    def SphereLight "Key" {
+        bool treatAsPoint = 1
+        float inputs:intensity = 10
+        rel collection:lightLink:excludes = </World/A>
+        double3 xformOp:translate = (0, 2, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+}
+def Camera "Cam" {
+    double3 xformOp:translate = (0, 6, 0)
+    float xformOp:rotateX = -90
+    uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateX"]
+}
+''')
+    inst = translate_stage(str(path), instancing="auto")
+    assert len(inst.prototypes) == 2 and len(inst.instances) == 2
+    groups = {int(inst.light_links["material_group"][p["triangle_material"][0]]) for p in inst.prototypes}
+    assert len(groups) == 2
+    flat = load_scene(str(path), instancing="flatten")
+    instanced = load_scene(str(path), instancing="auto")
+    a = flat.render_tile(0, 0, 16, 16, width=16, height=16, spp=4, max_depth=1)
+    b = instanced.render_tile(0, 0, 16, 16, width=16, height=16, spp=4, max_depth=1)
+    assert np.abs(a - b).max() < 1e-5
+    # The excluded tile (left half of the image) is black, the other lit.
+    assert a[2:14, :7, :3].max() == 0.0 and a[2:14, 9:14, :3].min() > 0.0
