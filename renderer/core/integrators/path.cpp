@@ -52,15 +52,17 @@ IntegratorEntry PathIntegratorEntry() {
 
 PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const {
     if (kFullFeatures && scene.has_media()) return TraceMedia(scene, ray, sampler, t_min, t_max);
-    return scene.all_lambertian() ? Trace<DiffuseBSDF>(scene, ray, sampler, t_min, t_max)
-                                  : Trace<BSDF>(scene, ray, sampler, t_min, t_max);
+    // Links: through BSDF, which renders an all-Lambertian scene to the same bits.
+    if (kFullFeatures && scene.has_light_links()) return Trace<BSDF, true>(scene, ray, sampler, t_min, t_max);
+    return scene.all_lambertian() ? Trace<DiffuseBSDF, false>(scene, ray, sampler, t_min, t_max)
+                                  : Trace<BSDF, false>(scene, ray, sampler, t_min, t_max);
 }
 
 void PathIntegrator::SampleBatch(const Scene& scene, BatchSample* samples, PathSample* out, size_t n) const {
     TraceLanes(scene, lanes_, max_depth_, roulette_depth_, samples, out, n);
 }
 
-template <typename Shading>
+template <typename Shading, bool kLinks>
 PathSample PathIntegrator::Trace(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const {
     PathSample result;
     Color L(0.f), beta(1.f);
@@ -70,7 +72,7 @@ PathSample PathIntegrator::Trace(const Scene& scene, Ray ray, PixelSampler& samp
     Vec3 prev_p, prev_n;          // the vertex `ray` left from and its shading normal (light pmf under MIS)
     uint32_t prev_group = Scene::kNoLinkGroup;  // ...and its link group (light links: which lights reach it)
     const LightSampler& lights = scene.light_sampler();
-    const bool links = scene.has_light_links();
+    constexpr bool links = kLinks;
     // The weight of emission from `light` reached by BSDF sampling from the previous vertex,
     // given the light-sampling density there. Linking: a light that does not illuminate the
     // previous surface adds nothing, and one whose shadow link excludes some surface is
@@ -121,7 +123,7 @@ PathSample PathIntegrator::Trace(const Scene& scene, Ray ray, PixelSampler& samp
 
         // Next event estimation: one light chosen by power, one point on it.
         if (!lights.empty() && bsdf.IsNonSpecular())
-            L += beta * SampleDirectLight(scene, hit, bsdf, frame, wo, sampler, /*mis=*/true);
+            L += beta * SampleDirectLight<Shading, kLinks>(scene, hit, bsdf, frame, wo, sampler, /*mis=*/true);
 
         // BSDF sampling continues the path.
         const std::optional<BSDFStep> step = SampleBSDFStep(bsdf, frame, wo, wo_local, hit.ng, sampler, beta);
