@@ -80,7 +80,8 @@ NB_MODULE(_core, m) {
                std::optional<IesTables> ies_tables, std::optional<InArray<float, 4>> curve_points,
                std::optional<InVector<uint32_t>> curve_segments, std::optional<InVector<uint8_t>> curve_flags,
                std::optional<InVector<uint32_t>> curve_material, std::optional<InArray<float, 7>> media,
-               std::optional<InArray<int32_t, 2>> material_media, const std::string& light_selection) {
+               std::optional<InArray<int32_t, 2>> material_media, std::optional<nb::dict> light_links,
+               const std::string& light_selection) {
                 SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
                                           sphere_lights, point_lights, distant_lights, dome_radiance, preview_params,
                                           preview_mask, dome_texture, dome_world_to_light, shading_normals,
@@ -90,7 +91,7 @@ NB_MODULE(_core, m) {
                                         motion_time_steps, motion_transforms, light_motion_kinds,
                                         light_motion_indices, light_motion_time_steps, light_motion_transforms,
                                         material_shaping, ies_tables, curve_points, curve_segments,
-                                        curve_flags, curve_material, media, material_media});
+                                        curve_flags, curve_material, media, material_media, light_links});
                 if (light_selection == "power") desc.light_selection = SceneDesc::LightSelection::kPower;
                 else if (light_selection == "bvh") desc.light_selection = SceneDesc::LightSelection::kBVH;
                 else if (light_selection != "auto")
@@ -111,7 +112,8 @@ NB_MODULE(_core, m) {
             "light_motion_time_steps"_a = nb::none(), "light_motion_transforms"_a = nb::none(),
             "material_shaping"_a = nb::none(), "ies_tables"_a = nb::none(), "curve_points"_a = nb::none(),
             "curve_segments"_a = nb::none(), "curve_flags"_a = nb::none(), "curve_material"_a = nb::none(),
-            "media"_a = nb::none(), "material_media"_a = nb::none(), "light_selection"_a = "auto",
+            "media"_a = nb::none(), "material_media"_a = nb::none(), "light_links"_a = nb::none(),
+            "light_selection"_a = "auto",
             "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
             "(x, y, z, r, g, b intensity W/sr, then optionally the shaping columns of light_shaping.h: "
             "shaped, axis xyz, cutoff, smooth start, focus, focus tint rgb, IES table + 1 (0 none), horizontal "
@@ -149,12 +151,17 @@ NB_MODULE(_core, m) {
             "curve, 2: one after it) and curve_material uint32. Homogeneous media (docs/media.md): media float32 "
             "(media, 7) sigma_a rgb, sigma_s rgb (per unit length), Henyey-Greenstein g; material_media int32 "
             "(materials, 2) the medium inside (opposite the geometric normal) and outside each material, -1 "
-            "vacuum.")
+            "vacuum. light_links: a dict of UsdLux light and "
+            "shadow links (renderer/core/lights/light_links.h): 'illuminates' and 'shadows' uint8 (links, "
+            "groups) flags, 'material_group' uint32 and 'material_light' int32 per material (its link group; "
+            "an area light's link, -1 none), 'sphere', 'point', 'distant' int32 per light and 'dome' int32 (1,) "
+            "(-1: lights everything).")
         .def_prop_ro("has_motion", &Scene::has_motion)
         .def_prop_ro("has_delta_surfaces", &Scene::has_delta_surfaces)
         .def_prop_ro("has_media", &Scene::has_media)
         .def_prop_ro("num_triangles", &Scene::num_triangles)
         .def_prop_ro("num_curve_segments", &Scene::num_curve_segments)
+        .def_prop_ro("num_linked_lights", &Scene::num_linked_lights)
         .def_prop_ro("num_emitters", &Scene::num_emitters)
         .def_prop_ro("uses_light_bvh", &Scene::uses_light_bvh)
         .def_prop_ro("num_instances", &Scene::num_instances)
@@ -248,6 +255,7 @@ NB_MODULE(_core, m) {
                 d["delta_caustics"] = info.delta_caustics;
                 d["handles_media"] = info.handles_media;
                 d["shades_curves"] = info.shades_curves;
+                d["honours_light_links"] = info.honours_light_links;
                 using Pilot = IntegratorInfo::PilotCandidate;
                 d["pilot_candidate"] = info.pilot_candidate == Pilot::kAlways ? "always"
                                        : info.pilot_candidate == Pilot::kMirrorsOrGlassWithNoiseTarget

@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <string>
+#include <vector>
 
 namespace tessera::binding {
 
@@ -41,6 +42,40 @@ WrapMode ToWrap(float v) {
         case 3: return WrapMode::kBlack;
         default: return WrapMode::kRepeat;
     }
+}
+
+using FlagTable = nb::ndarray<const uint8_t, nb::shape<-1, -1>, nb::c_contig, nb::device::cpu>;
+
+template <typename T>
+std::vector<T> VectorEntry(const nb::dict& links, const char* key) {
+    if (!links.contains(key)) return {};
+    auto v = nb::cast<InVector<T>>(links[key]);
+    return std::vector<T>(v.data(), v.data() + v.shape(0));
+}
+
+void AddLightLinks(SceneDesc* d, const nb::dict& links) {
+    if (!links.contains("illuminates") || !links.contains("shadows"))
+        throw std::invalid_argument("light_links needs 'illuminates' and 'shadows' tables");
+    auto illuminates = nb::cast<FlagTable>(links["illuminates"]);
+    auto shadows = nb::cast<FlagTable>(links["shadows"]);
+    if (shadows.shape(0) != illuminates.shape(0) || shadows.shape(1) != illuminates.shape(1))
+        throw std::invalid_argument("light_links: 'illuminates' and 'shadows' must have one shape");
+    d->light_links = LightLinkTable(uint32_t(illuminates.shape(1)),
+                                    std::vector<uint8_t>(illuminates.data(), illuminates.data() + illuminates.size()),
+                                    std::vector<uint8_t>(shadows.data(), shadows.data() + shadows.size()));
+    const std::vector<uint32_t> groups = VectorEntry<uint32_t>(links, "material_group");
+    const std::vector<int32_t> lights = VectorEntry<int32_t>(links, "material_light");
+    if ((!groups.empty() && groups.size() != d->materials.size()) ||
+        (!lights.empty() && lights.size() != d->materials.size()))
+        throw std::invalid_argument("light_links: material_group and material_light need one entry per material");
+    for (size_t m = 0; m < groups.size(); ++m) d->materials[m].link_group = groups[m];
+    for (size_t m = 0; m < lights.size(); ++m) d->materials[m].light_link = lights[m];
+    d->sphere_light_link = VectorEntry<int32_t>(links, "sphere");
+    d->point_light_link = VectorEntry<int32_t>(links, "point");
+    d->distant_light_link = VectorEntry<int32_t>(links, "distant");
+    const std::vector<int32_t> dome = VectorEntry<int32_t>(links, "dome");
+    if (dome.size() > 1) throw std::invalid_argument("light_links: 'dome' holds one link");
+    d->dome_light_link = dome.empty() ? -1 : dome[0];
 }
 
 }  // namespace
@@ -189,6 +224,7 @@ void AddExtras(SceneDesc* d, const Extras& x) {
         for (size_t m = 0; m < d->materials.size(); ++m)
             d->materials[m].media = {(*x.material_media)(m, 0), (*x.material_media)(m, 1)};
     }
+    if (x.light_links) AddLightLinks(d, *x.light_links);
     if (x.light_motion_kinds) {
         if (!x.light_motion_indices || !x.light_motion_time_steps || !x.light_motion_transforms)
             throw std::invalid_argument(

@@ -69,6 +69,10 @@ struct Extras {
     // the medium inside and outside it (-1: vacuum), docs/media.md.
     std::optional<InArray<float, 7>> media;
     std::optional<InArray<int32_t, 2>> material_media;
+    // Light linking (SceneData.light_links): {"illuminates", "shadows": uint8 (links,
+    // groups); "material_group": uint32, "material_light": int32 per material; "sphere",
+    // "point", "distant": int32 per light; "dome": int32 (1,)}.
+    std::optional<nb::dict> light_links;
 };
 
 // Checks the extra tables against the description's triangles and materials and adds them.

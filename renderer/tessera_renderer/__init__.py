@@ -75,6 +75,9 @@ class Scene:
             if getattr(data, "media", None) is not None:
                 extras.update(media=np.ascontiguousarray(data.media, np.float32).reshape(-1, 7),
                               material_media=np.ascontiguousarray(data.material_media, np.int32).reshape(-1, 2))
+            links = getattr(data, "light_links", None)
+            if links is not None:
+                extras["light_links"] = {k: np.ascontiguousarray(v) for k, v in links.items()}
             uvs = getattr(data, "uvs", None)
             if uvs is not None and len(uvs) and extras.get("texture_table") is not None:
                 extras["uvs"] = np.ascontiguousarray(uvs, dtype=np.float32).reshape(-1, 3, 2)
@@ -114,6 +117,15 @@ class Scene:
     def num_curve_segments(self) -> int:
         """Segments of the Embree round curves (still BasisCurves of the world)."""
         return self._core.num_curve_segments
+
+    @property
+    def num_linked_lights(self) -> int:
+        """Lights whose UsdLux light or shadow link leaves some surface out."""
+        return self._core.num_linked_lights
+
+    @property
+    def has_media(self) -> bool:
+        return self._core.has_media
 
     @property
     def num_emitters(self) -> int:

@@ -86,6 +86,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     info = {"ok": True, "width": scene.width, "height": scene.height, "warnings": scene.warnings,
             "triangles": scene.num_triangles, "curve_segments": scene.num_curve_segments,
+            "linked_lights": scene.num_linked_lights, "media": scene.has_media,
             "lights": scene.num_emitters, "cameras": cameras, "translated_bytes": translated_bytes,
             # The warning naming the camera chosen among several: void for a job naming its own.
             "camera_note": next((w for w in scene.warnings if CAMERA_CHOICE_NOTE in w), None),

@@ -57,8 +57,9 @@ BLOB_VERSION = 1
 # still curves of the world as Embree round curves (SceneData.curves); 11: light-lessness
 # by UsdLux lights and the measured power of material emission (usd/emission.py), and
 # SceneData.brightest_light; 12: MaterialX transmission colour and depth (absorbing
-# interiors of closed meshes, SceneData.media and material_media; a tint at depth 0).
-TRANSLATOR_VERSION = 12
+# interiors of closed meshes, SceneData.media and material_media; a tint at depth 0); 13:
+# UsdLux light and shadow links (SceneData.light_links), NurbsPatch trim curves cut out.
+TRANSLATOR_VERSION = 13
 _ALIGN = 64
 _LIGHT_MOTION_FIELDS = ("light_motion_kinds", "light_motion_indices", "light_motion_time_steps",
                         "light_motion_transforms")
@@ -127,6 +128,8 @@ def _blob_arrays(data: SceneData) -> dict[str, np.ndarray]:
             arrays[key] = getattr(data, key)
     for key, value in (getattr(data, "curves", None) or {}).items():
         arrays[f"curves.{key}"] = value
+    for key, value in (getattr(data, "light_links", None) or {}).items():
+        arrays[f"light_links.{key}"] = value
     for key, value in data.material_params.items():
         arrays[f"material_params.{key}"] = value
     if data.shading_normals is not None:
@@ -287,6 +290,7 @@ def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
         ies_tables=arrays.get("ies_tables"),
         media=arrays.get("media"), material_media=arrays.get("material_media"),
         curves={k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("curves.")} or None,
+        light_links={k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("light_links.")} or None,
         time_code=meta.get("time_code"),
         shutter=None if meta.get("shutter") is None else tuple(meta["shutter"]))
     if tmp:

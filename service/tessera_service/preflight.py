@@ -55,6 +55,8 @@ class SceneInfo:
     warnings: list[str] = field(default_factory=list)
     triangles: int = 0
     curve_segments: int = 0  # Embree round curves: integrators that do not shade them are warned
+    linked_lights: int = 0  # lights with UsdLux light or shadow links: integrators that ignore them are warned
+    media: bool = False
     lights: int = 0
     # For a stage without any light: the warnings when default lighting is off.
     unlit_warnings: list[str] | None = None
@@ -111,6 +113,8 @@ def inspect_scene(path: str, *, timeout: float, memory_bytes: int,
                              warnings=[public(str(w)) for w in result.get("warnings", [])],
                              triangles=int(result.get("triangles", 0)),
                              curve_segments=int(result.get("curve_segments", 0)),
+                             linked_lights=int(result.get("linked_lights", 0)),
+                             media=bool(result.get("media", False)),
                              lights=int(result.get("lights", 0)),
                              unlit_warnings=([public(str(w)) for w in result["unlit_warnings"]]
                                              if result.get("unlit_warnings") is not None else None),

@@ -180,7 +180,9 @@ def render_scene(scene, settings, *, scene_name: str, threads: int = 0, progress
                     samples_per_second=result.samples_per_second, passes=result.passes,
                     warnings=[*getattr(scene, "warnings", []),
                               *integrators.scene_warnings(result.integrator,
-                                                          curve_segments=getattr(scene, "num_curve_segments", 0))],
+                                                          curve_segments=getattr(scene, "num_curve_segments", 0),
+                                                          linked_lights=getattr(scene, "num_linked_lights", 0),
+                                                          media=getattr(scene, "has_media", False))],
                     denoise_warning=result.denoise_warning, black_warning=result.black_warning)
     if pilot is not None:
         metadata["tessera:auto"] = pilot.to_json()

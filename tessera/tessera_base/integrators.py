@@ -118,14 +118,23 @@ def stops_per_tile(name: str) -> bool:
     return all(i["stop_per_tile"] for i in _candidates(name))
 
 
-def scene_warnings(name: str, *, curve_segments: int = 0) -> list[str]:
+def scene_warnings(name: str, *, curve_segments: int = 0, linked_lights: int = 0, media: bool = False) -> list[str]:
     """What `name` cannot render of a scene with these features, one line each (the CLI,
     local renders and the service add them to the scene's warnings). For `auto`: what any
-    integrator it may pick cannot."""
+    integrator it may pick cannot. `linked_lights`: lights with UsdLux light or shadow
+    links; `media`: the scene has participating media (path's media kernel ignores links)."""
     out = []
     if curve_segments and not all(i.get("shades_curves", True) for i in _candidates(name)):
         out.append(f"the {name} integrator does not shade curves ({curve_segments} curve segments): "
                    f"they render black; any other integrator shades them")
+    if linked_lights:
+        honouring = [i["name"] for i in integrators() if i.get("honours_light_links")]
+        if media:
+            out.append(f"{linked_lights} light(s) have UsdLux light or shadow links, which no integrator honours "
+                       f"in a scene with participating media yet: rendered as if every light lit everything")
+        elif not all(i.get("honours_light_links") for i in _candidates(name)):
+            out.append(f"the {name} integrator does not honour UsdLux light and shadow links ({linked_lights} "
+                       f"light(s) have them) in every light path; {' and '.join(honouring)} do")
     return out
 
 

@@ -108,7 +108,9 @@ def _render_one(args: argparse.Namespace) -> int:
         print(f"tessera render: invalid settings: {exc}", file=sys.stderr)
         return 2
     for w in [*scene.warnings, *integrators.scene_warnings(scene.resolve_integrator(settings.integrator),
-                                                           curve_segments=scene.num_curve_segments)]:
+                                                           curve_segments=scene.num_curve_segments,
+                                                           linked_lights=scene.num_linked_lights,
+                                                           media=scene.has_media)]:
         print(f"warning: {w}", file=sys.stderr)
     samples = (f"noise target {settings.target_error:.2%} ({settings.min_spp}-{settings.max_spp} spp)"
                if settings.adaptive else f"{settings.spp} spp")

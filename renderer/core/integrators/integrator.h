@@ -74,6 +74,10 @@ struct IntegratorInfo {
     // Renders participating media (docs/media.md). One that does not refuses a scene with
     // media when created (Integrator::Create) rather than render it as if they were absent.
     bool handles_media = false;
+    // Honours UsdLux light and shadow links (light_links.h) in every light path it
+    // estimates. One that does not is named in one warning for a scene with links
+    // (tessera_base.integrators.scene_warnings); its image ignores them where it cannot.
+    bool honours_light_links = false;
     std::vector<IntegratorParam> params = {};
     // What a pixel estimates: "radiance", or another quantity (ao: "ambient occlusion"),
     // which the integrator matrix checks on its own closed forms.

@@ -17,6 +17,7 @@ public:
         static const IntegratorInfo info{
             .name = "local",
             .description = "local shading: what the camera sees, lit directly by every light (one bounce)",
+            .honours_light_links = true,  // path's kernel, one bounce
             .blind_to = {{"L D D+ E", "one bounce: surfaces get direct light only"},
                          {"L S+ E", "one bounce: a chain of mirror or glass reflections ends after its first"}},
         };

@@ -18,6 +18,7 @@ const IntegratorInfo& PathIntegrator::Info() {
         .description = "path tracing: next event estimation, MIS with BSDF sampling, Russian roulette",
         .complete = true,
         .handles_media = true,
+        .honours_light_links = true,
         .params = {{"rr_depth", "vertex index (0 = the first hit) from which Russian roulette may end a path "
                                 "(default 2; 5 reaches an error sooner in closed diffuse scenes)"},
                    {"lanes", "lane width of the lane-group kernel for all-Lambertian still scenes: 0 (the scalar "
@@ -51,15 +52,17 @@ IntegratorEntry PathIntegratorEntry() {
 
 PathSample PathIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const {
     if (kFullFeatures && scene.has_media()) return TraceMedia(scene, ray, sampler, t_min, t_max);
-    return scene.all_lambertian() ? Trace<DiffuseBSDF>(scene, ray, sampler, t_min, t_max)
-                                  : Trace<BSDF>(scene, ray, sampler, t_min, t_max);
+    // Links: through BSDF, which renders an all-Lambertian scene to the same bits.
+    if (kFullFeatures && scene.has_light_links()) return Trace<BSDF, true>(scene, ray, sampler, t_min, t_max);
+    return scene.all_lambertian() ? Trace<DiffuseBSDF, false>(scene, ray, sampler, t_min, t_max)
+                                  : Trace<BSDF, false>(scene, ray, sampler, t_min, t_max);
 }
 
 void PathIntegrator::SampleBatch(const Scene& scene, BatchSample* samples, PathSample* out, size_t n) const {
     TraceLanes(scene, lanes_, max_depth_, roulette_depth_, samples, out, n);
 }
 
-template <typename Shading>
+template <typename Shading, bool kLinks>
 PathSample PathIntegrator::Trace(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const {
     PathSample result;
     Color L(0.f), beta(1.f);
@@ -67,14 +70,28 @@ PathSample PathIntegrator::Trace(const Scene& scene, Ray ray, PixelSampler& samp
     bool specular_bounce = false; // ...and whether it came from a delta lobe (no MIS then)
     float eta_scale = 1.f;        // product of eta^2 over refractions, hidden from roulette
     Vec3 prev_p, prev_n;          // the vertex `ray` left from and its shading normal (light pmf under MIS)
+    uint32_t prev_group = Scene::kNoLinkGroup;  // ...and its link group (light links: which lights reach it)
     const LightSampler& lights = scene.light_sampler();
+    constexpr bool links = kLinks;
+    // The weight of emission from `light` reached by BSDF sampling from the previous vertex,
+    // given the light-sampling density there. Linking: a light that does not illuminate the
+    // previous surface adds nothing, and one whose shadow link excludes some surface is
+    // left to light sampling alone (direct_light.h), as a delta light is. The camera ray
+    // (depth 0) sees every light. Light sampling chose by the previous vertex's group, so
+    // its density there is the group's (Scene::LightPmf with the group).
+    auto bsdf_hit_weight = [&](int depth, uint32_t light, auto light_pdf) -> float {
+        if (links && depth > 0 && !scene.Illuminates(light, prev_group)) return 0.f;
+        if (depth == 0 || specular_bounce) return 1.f;
+        if (links && scene.ExcludesShadows(light)) return 0.f;
+        return PowerHeuristic(bsdf_pdf, light_pdf());
+    };
 
     for (int depth = 0;; ++depth) {
         SurfaceHit hit;
         if (!(depth == 0 ? scene.Intersect(ray, &hit, t_min, t_max) : scene.Intersect(ray, &hit))) {
             // Escaped: lights at infinity (dome, distant cones), weighted like emitters.
             scene.ForEachEnvironmentLight(ray.d, [&](uint32_t light, Color Le, float pdf) {
-                float w = (depth == 0 || specular_bounce) ? 1.f : PowerHeuristic(bsdf_pdf, scene.LightPmf(prev_p, prev_n, light) * pdf);
+                const float w = bsdf_hit_weight(depth, light, [&] { return scene.LightPmf(prev_p, prev_n, light, prev_group) * pdf; });
                 L += beta * Le * w;
             });
             break;
@@ -87,10 +104,9 @@ PathSample PathIntegrator::Trace(const Scene& scene, Ray ray, PixelSampler& samp
         if (int32_t e = scene.EmitterAt(hit); e != Scene::kNoEmitter) {
             Color Le = scene.Emitted(e, hit, wo);
             if (!IsBlack(Le)) {
-                float w = 1.f;
-                if (depth > 0 && !specular_bounce)
-                    w = PowerHeuristic(bsdf_pdf, scene.LightPmf(prev_p, prev_n, uint32_t(e)) *
-                                                     scene.EmitterPdf(e, prev_p, hit));
+                const float w = bsdf_hit_weight(depth, uint32_t(e), [&] {
+                    return scene.LightPmf(prev_p, prev_n, uint32_t(e), prev_group) * scene.EmitterPdf(e, prev_p, hit);
+                });
                 L += beta * Le * w;
             }
         }
@@ -107,7 +123,7 @@ PathSample PathIntegrator::Trace(const Scene& scene, Ray ray, PixelSampler& samp
 
         // Next event estimation: one light chosen by power, one point on it.
         if (!lights.empty() && bsdf.IsNonSpecular())
-            L += beta * SampleDirectLight(scene, hit, bsdf, frame, wo, sampler, /*mis=*/true);
+            L += beta * SampleDirectLight<Shading, kLinks>(scene, hit, bsdf, frame, wo, sampler, /*mis=*/true);
 
         // BSDF sampling continues the path.
         const std::optional<BSDFStep> step = SampleBSDFStep(bsdf, frame, wo, wo_local, hit.ng, sampler, beta);
@@ -119,6 +135,7 @@ PathSample PathIntegrator::Trace(const Scene& scene, Ray ray, PixelSampler& samp
         if (bs->is_transmission) eta_scale *= bs->eta * bs->eta;
         prev_p = hit.p;
         prev_n = hit.ns;
+        if (links) prev_group = scene.LinkGroupAt(hit);
         ray = {OffsetRayOrigin(hit.p, hit.p_error, hit.ng, wi), wi};
 
         // Russian roulette from vertex roulette_depth_ on: survive with probability equal

@@ -40,7 +40,9 @@ private:
     // The kernel, for shading through BSDF (any scene) or directly with DiffuseBSDF (a
     // scene whose materials are all Lambertian: no variant dispatch per BSDF call). Both
     // compute the same image to the bit on such a scene.
-    template <typename Shading>
+    // kLinks: the scene has light links (light_links.h); a scene without pays nothing for
+    // them (the checks compile away).
+    template <typename Shading, bool kLinks>
     PathSample Trace(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const;
     // The kernel for scenes with participating media (path_media.cpp).
     PathSample TraceMedia(const Scene& scene, Ray ray, PixelSampler& sampler, float t_min, float t_max) const;

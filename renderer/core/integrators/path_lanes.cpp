@@ -17,7 +17,9 @@ int DefaultLaneWidth() {
 
 bool LaneKernelApplies(const Scene& scene) {
     // Media need the media kernel's free flights (path_media.cpp), whatever the surfaces are.
-    return scene.all_lambertian() && scene.packets_apply() && !scene.has_motion() && !scene.has_media();
+    // Light links need the scalar kernel's per-vertex link groups.
+    return scene.all_lambertian() && scene.packets_apply() && !scene.has_motion() && !scene.has_media() &&
+           !scene.has_light_links();
 }
 
 namespace {
@@ -84,7 +86,8 @@ void ShadeVertex(const Scene& scene, int max_depth, int roulette_depth, LaneGrou
     if (!scene.light_sampler().empty() && bsdf.IsNonSpecular()) {
         g.nee[i] = true;
         g.nee_beta[i] = beta;
-        g.light[i] = SampleDirectLightUnshadowed(scene, hit, bsdf, frame, wo, sampler, /*mis=*/true);
+        // Never a scene with light links (LaneKernelApplies): their checks compiled out.
+        g.light[i] = SampleDirectLightUnshadowed<DiffuseBSDF, false>(scene, hit, bsdf, frame, wo, sampler, /*mis=*/true);
     }
     const std::optional<BSDFStep> step = SampleBSDFStep(bsdf, frame, wo, wo_local, hit.ng, sampler, beta);
     if (!step) return;

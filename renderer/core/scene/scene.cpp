@@ -52,6 +52,7 @@ void RequireLambertOnly(const SceneDesc& d, const std::vector<Material>& materia
         if (mat.preview) refuse("a UsdPreviewSurface (material " + std::to_string(m) + ")");
         if (mat.textures != NoTextures()) refuse("textures (material " + std::to_string(m) + ")");
         if (mat.emission_shaping >= 0) refuse("a shaped light (material " + std::to_string(m) + ")");
+        if (mat.light_link >= 0) refuse("light links (material " + std::to_string(m) + ")");
     }
     if (!d.uvs.empty()) refuse("texture coordinates");
     if (!d.prototypes.empty() || !d.instance_prototype.empty()) refuse("instances");
@@ -528,7 +529,9 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
     for (uint32_t i = 0; i < emitters_.size(); ++i)
         if (emitters_[i].kind == kKindOf<SphereLight>) sphere_emitter_[emitters_[i].index] = int32_t(i);
     light_sampler_ = LightSampler(power);
+    if constexpr (kFullFeatures) BuildLightLinks(desc);  // before the BVH, which leaves linked lights out
     BuildLightBVH(power, desc.light_selection);
+    if (kFullFeatures && has_light_links_) BuildGroupLights(power);
     // Triangle lights that stand still, resolved once (corners, area, sidedness): next event
     // estimation asks for one at every vertex. 48 bytes per emitter.
     if (motion_m_.empty() && !has_deformation_) {

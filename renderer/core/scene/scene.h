@@ -17,6 +17,7 @@
 #include "bvh_light_sampler.h"
 #include "light.h"
 #include "light_kinds.h"
+#include "light_links.h"
 #include "light_sampler.h"
 #include "math.h"
 #include "medium.h"
@@ -62,6 +63,10 @@ struct Material {
     // only their boundary: no BSDF, rays pass it unchanged (pbrt-v4's material-less surfaces).
     MediumInterface media;
     bool interface_only = false;
+    // Light linking (light_links.h): the link group of the surfaces using this row, and for
+    // an area light's own row, its light link (-1: the default, lights everything).
+    uint32_t link_group = 0;
+    int32_t light_link = -1;
 };
 
 // A triangle mesh as flat arrays: the world's, or an instancing prototype's (in its own space).
@@ -129,6 +134,12 @@ struct SceneDesc {
     LightSelection light_selection = LightSelection::kAuto;
     std::vector<Material> materials;
     std::vector<HomogeneousMedium> media;  // Material::media's indices
+    // Light linking (light_links.h): the groups Material::link_group names, and the link
+    // of each sphere, point and distant light and of the dome (-1 or missing: the default).
+    // Area lights carry theirs in their material (Material::light_link).
+    LightLinkTable light_links;
+    std::vector<int32_t> sphere_light_link, point_light_link, distant_light_link;
+    int32_t dome_light_link = -1;
     std::vector<LightShaping> emission_shapings;  // Material::emission_shaping (axes used when about_axis)
     std::vector<SphereLight> sphere_lights;
     std::vector<PointLight> point_lights;
@@ -307,10 +318,47 @@ public:
     // of it can reach p; the other lights (and every light in smaller scenes) by power, as
     // light_sampler() chooses them. LightPmf is the probability SampleLight picks `light`
     // at (p, n): BSDF-sampled hits on an emitter weigh themselves with it under MIS.
+    // `group`: the link group of the surface at p (LinkGroupAt); in a scene with light
+    // links, only the lights that illuminate it are chosen, by the group's own tables.
+    // kNoLinkGroup (and any group in a scene without links) chooses among all lights.
     static constexpr size_t kMinLightBVHEmitters = 16;
-    bool SampleLight(float u, Vec3 p, Vec3 n, uint32_t* light, float* pmf) const;
-    float LightPmf(Vec3 p, Vec3 n, uint32_t light) const;
+    static constexpr uint32_t kNoLinkGroup = 0xFFFFFFFFu;
+    bool SampleLight(float u, Vec3 p, Vec3 n, uint32_t* light, float* pmf, uint32_t group = kNoLinkGroup) const {
+        if (kFullFeatures && group != kNoLinkGroup && has_light_links_) return SampleLinkedLight(u, p, n, light, pmf, group);
+        return SampleAnyLight(u, p, n, light, pmf);
+    }
+    float LightPmf(Vec3 p, Vec3 n, uint32_t light, uint32_t group = kNoLinkGroup) const {
+        if (kFullFeatures && group != kNoLinkGroup && has_light_links_) return LinkedLightPmf(p, n, light, group);
+        return AnyLightPmf(p, n, light);
+    }
     bool uses_light_bvh() const { return !light_bvh_.empty(); }
+
+    // Light linking and shadow linking (light_links.h). A scene without links pays one
+    // predictable branch per query: has_light_links() is false, every light lights all.
+    bool has_light_links() const { return kFullFeatures && has_light_links_; }
+    // Lights whose light or shadow link leaves some surface of the scene out.
+    size_t num_linked_lights() const { return num_linked_lights_; }
+    // The link group of the surface at a hit (group 0 for a sphere light's own surface).
+    uint32_t LinkGroupAt(const SurfaceHit& hit) const {
+        const int64_t mi = MaterialIndexAt(hit);
+        return mi < 0 ? 0u : materials_[size_t(mi)].link_group;
+    }
+    // Whether emitter `light` illuminates surfaces of link group `group`.
+    bool Illuminates(uint32_t light, uint32_t group) const {
+        return !has_light_links() || light_links_.Illuminates(emitter_link_[light], group);
+    }
+    // Whether some surface does not cast emitter `light`'s shadows. A BSDF-sampled ray stops
+    // at the first surface, shadow-casting or not, so it cannot find such a light behind
+    // one: path tracing estimates these lights by light sampling alone (MIS weight 1).
+    bool ExcludesShadows(uint32_t light) const {
+        return has_light_links() && light_links_.ExcludesShadows(emitter_link_[light]);
+    }
+    // Unoccluded(p, p_error, ng, ls) for a sample of emitter `light`: surfaces its shadow
+    // link excludes let the shadow ray through.
+    bool UnoccludedToLight(uint32_t light, Vec3 p, float p_error, Vec3 ng, const LightSample& ls) const {
+        if (!ExcludesShadows(light)) return Unoccluded(p, p_error, ng, ls);
+        return UnoccludedPastUnlinked(emitter_link_[light], p, p_error, ng, ls);
+    }
     bool SampleEmitter(uint32_t emitter, Vec3 ref, Vec2 u, LightSample* out) const;
     // Solid-angle pdf at ref of SampleEmitter having produced the point of `hit`.
     float EmitterPdf(uint32_t emitter, Vec3 ref, const SurfaceHit& hit) const;
@@ -592,6 +640,27 @@ private:
     LightSampler other_lights_;
     std::vector<uint32_t> other_light_ids_;   // other_lights_ index -> emitter
     std::vector<int32_t> other_light_index_;  // emitter -> other_lights_ index, -1 if in the BVH
+    bool SampleAnyLight(float u, Vec3 p, Vec3 n, uint32_t* light, float* pmf) const;
+    float AnyLightPmf(Vec3 p, Vec3 n, uint32_t light) const;
+    // Light linking: the table, and each emitter's link (-1: the default).
+    bool has_light_links_ = false;
+    size_t num_linked_lights_ = 0;
+    LightLinkTable light_links_;
+    std::vector<int32_t> emitter_link_;
+    void BuildLightLinks(const SceneDesc& desc);
+    // Per link group, the lights that illuminate it, chosen by power: among all of them
+    // (`all`, without a light BVH), or among those outside the BVH (`other`, taken with
+    // probability 1 - bvh_share). The BVH holds only lights without links, which
+    // illuminate every group: it is shared, and never chooses a light a group must not see.
+    struct LinkGroupLights {
+        LightSampler all, other;
+        float bvh_share = 0.f;
+    };
+    std::vector<LinkGroupLights> group_lights_;
+    void BuildGroupLights(const std::vector<double>& power);
+    bool SampleLinkedLight(float u, Vec3 p, Vec3 n, uint32_t* light, float* pmf, uint32_t group) const;
+    float LinkedLightPmf(Vec3 p, Vec3 n, uint32_t light, uint32_t group) const;
+    bool UnoccludedPastUnlinked(int32_t link, Vec3 p, float p_error, Vec3 ng, const LightSample& ls) const;
 };
 
 template <typename Visit>

@@ -7,6 +7,8 @@
 #include <algorithm>
 
 #include <cstring>
+#include <stdexcept>
+#include <string>
 #include <limits>
 
 #include "ray_counters.h"
@@ -148,6 +150,8 @@ void Scene::BuildLightBVH(const std::vector<double>& power, SceneDesc::LightSele
     for (uint32_t i = 0; i < emitters_.size(); ++i) {
         total += power[i];
         if (!still(emitters_[i]) || !(power[i] > 0.0)) continue;
+        // A linked light stays out: the BVH is shared by every link group (BuildGroupLights).
+        if (!emitter_link_.empty() && emitter_link_[i] >= 0) continue;
         const Emitter& e = emitters_[i];
         Vec3 p[3];
         const float orientation = TriangleVertices(e.mesh, e.index, e.instance, p);
@@ -177,7 +181,7 @@ void Scene::BuildLightBVH(const std::vector<double>& power, SceneDesc::LightSele
     if (other_lights_.empty()) light_bvh_share_ = 1.f;
 }
 
-bool Scene::SampleLight(float u, Vec3 p, Vec3 n, uint32_t* light, float* pmf) const {
+bool Scene::SampleAnyLight(float u, Vec3 p, Vec3 n, uint32_t* light, float* pmf) const {
     if (light_bvh_.empty()) {
         *light = light_sampler_.Sample(u, pmf);
         return true;
@@ -196,12 +200,110 @@ bool Scene::SampleLight(float u, Vec3 p, Vec3 n, uint32_t* light, float* pmf) co
     return true;
 }
 
-float Scene::LightPmf(Vec3 p, Vec3 n, uint32_t light) const {
+float Scene::AnyLightPmf(Vec3 p, Vec3 n, uint32_t light) const {
     if (light_bvh_.empty()) return light_sampler_.Pmf(light);
     if (light >= other_light_index_.size()) return 0.f;
     const int32_t o = other_light_index_[light];
     if (o < 0) return light_bvh_share_ * light_bvh_.Pmf(p, n, light);
     return (1.f - light_bvh_share_) * other_lights_.Pmf(uint32_t(o));
+}
+
+}  // namespace tessera
+
+namespace tessera {
+
+void Scene::BuildLightLinks(const SceneDesc& desc) {
+    light_links_ = desc.light_links;
+    const uint32_t groups = light_links_.num_groups();
+    for (size_t m = 0; m < materials_.size(); ++m) {
+        if (materials_[m].link_group != 0 && materials_[m].link_group >= groups)
+            throw std::invalid_argument("material " + std::to_string(m) + " has link group " +
+                                        std::to_string(materials_[m].link_group) + " of " + std::to_string(groups));
+        light_links_.Check(materials_[m].light_link, "material " + std::to_string(m));
+    }
+    auto check = [&](const std::vector<int32_t>& links, size_t lights, const char* what) {
+        if (links.size() > lights)
+            throw std::invalid_argument(std::string("more ") + what + " light links than " + what + " lights");
+        for (size_t i = 0; i < links.size(); ++i)
+            light_links_.Check(links[i], std::string(what) + " light " + std::to_string(i));
+    };
+    check(desc.sphere_light_link, desc.sphere_lights.size(), "sphere");
+    check(desc.point_light_link, desc.point_lights.size(), "point");
+    check(desc.distant_light_link, desc.distant_lights.size(), "distant");
+    light_links_.Check(desc.dome_light_link, "the dome");
+    // Lights added after translation (default lighting) have no entry: the default link.
+    auto link_of = [](const std::vector<int32_t>& links, uint32_t i) { return i < links.size() ? links[i] : -1; };
+    emitter_link_.assign(emitters_.size(), -1);
+    std::vector<uint8_t> used(light_links_.num_links(), 0);
+    for (size_t i = 0; i < emitters_.size(); ++i) {
+        const Emitter& e = emitters_[i];
+        int32_t link = -1;
+        if (e.kind == kKindOf<TriangleLight>) link = MaterialOf(e.mesh, e.index).light_link;
+        else if (e.kind == kKindOf<SphereLight>) link = link_of(desc.sphere_light_link, e.index);
+        else if (e.kind == kKindOf<PointLight>) link = link_of(desc.point_light_link, e.index);
+        else if (e.kind == kKindOf<DistantLight>) link = link_of(desc.distant_light_link, e.index);
+        else if (e.kind == kKindOf<DomeLight>) link = desc.dome_light_link;
+        emitter_link_[i] = link;
+        if (link >= 0) used[size_t(link)] = 1;
+    }
+    for (uint8_t u : used) num_linked_lights_ += u;
+    has_light_links_ = num_linked_lights_ > 0;
+    if (!has_light_links_) emitter_link_.clear();
+}
+
+void Scene::BuildGroupLights(const std::vector<double>& power) {
+    double bvh_power = 0.0;
+    if (!light_bvh_.empty())
+        for (uint32_t i = 0; i < emitters_.size(); ++i)
+            if (other_light_index_[i] < 0) bvh_power += power[i];
+    group_lights_.resize(std::max(1u, light_links_.num_groups()));
+    std::vector<double> group_power(emitters_.size());
+    for (uint32_t g = 0; g < group_lights_.size(); ++g) {
+        for (uint32_t i = 0; i < emitters_.size(); ++i) group_power[i] = Illuminates(i, g) ? power[i] : 0.0;
+        LinkGroupLights& gl = group_lights_[g];
+        if (light_bvh_.empty()) {
+            gl.all = LightSampler(group_power);
+            continue;
+        }
+        std::vector<double> other_power;
+        double other = 0.0;
+        for (uint32_t id : other_light_ids_) {
+            other_power.push_back(group_power[id]);
+            other += group_power[id];
+        }
+        gl.other = LightSampler(other_power);
+        gl.bvh_share = gl.other.empty() ? 1.f : float(bvh_power / (bvh_power + other));
+    }
+}
+
+bool Scene::SampleLinkedLight(float u, Vec3 p, Vec3 n, uint32_t* light, float* pmf, uint32_t group) const {
+    const LinkGroupLights& gl = group_lights_[group];
+    if (light_bvh_.empty()) {
+        if (gl.all.empty()) return false;  // no light illuminates the group
+        *light = gl.all.Sample(u, pmf);
+        return true;
+    }
+    const float share = gl.bvh_share;
+    if (u < share) {
+        const float ub = std::min(u / share, 0x1.fffffep-1f);
+        if (!light_bvh_.Sample(ub, p, n, light, pmf)) return false;
+        *pmf *= share;
+        return true;
+    }
+    const float uo = std::min((u - share) / (1.f - share), 0x1.fffffep-1f);
+    float other = 0.f;
+    *light = other_light_ids_[gl.other.Sample(uo, &other)];
+    *pmf = other * (1.f - share);
+    return true;
+}
+
+float Scene::LinkedLightPmf(Vec3 p, Vec3 n, uint32_t light, uint32_t group) const {
+    const LinkGroupLights& gl = group_lights_[group];
+    if (light_bvh_.empty()) return gl.all.Pmf(light);
+    if (light >= other_light_index_.size()) return 0.f;
+    const int32_t o = other_light_index_[light];
+    if (o < 0) return gl.bvh_share * light_bvh_.Pmf(p, n, light);
+    return (1.f - gl.bvh_share) * gl.other.Pmf(uint32_t(o));
 }
 
 }  // namespace tessera

@@ -342,6 +342,37 @@ bool Scene::Unoccluded(Vec3 p, float p_error, Vec3 ng, const LightSample& ls) co
     return Unoccluded(p, p_error, ng, ls.p, ls.p_error, ls.n);
 }
 
+bool Scene::UnoccludedPastUnlinked(int32_t link, Vec3 p, float p_error, Vec3 ng, const LightSample& ls) const {
+    Vec3 from, dir;
+    float t_far;
+    if (std::isinf(ls.distance)) {
+        from = OffsetRayOrigin(p, p_error, ng, ls.wi);
+        dir = ls.wi;
+        t_far = std::numeric_limits<float>::infinity();
+    } else {
+        // The two-ended offsets of Unoccluded, then its shortened segment.
+        from = OffsetRayOrigin(p, p_error, ng, ls.p - p);
+        const Vec3 to = OffsetRayOrigin(ls.p, ls.p_error, ls.n, from - ls.p);
+        const Vec3 d = to - from;
+        const float len = Length(d);
+        if (!(len > 0.f)) return false;
+        dir = d / len;
+        t_far = len * (1.f - kShadowEpsilon);
+    }
+    // Step through the surfaces that do not cast this light's shadows, as IntersectSurface
+    // steps through cutouts: each step restarts just past the previous hit.
+    const Ray ray{from, dir};
+    float t_near = 0.f;
+    for (int layer = 0; layer < 1024; ++layer) {
+        SurfaceHit hit;
+        ++tls_ray_counters.shadow;
+        if (!IntersectSurface(ray, &hit, t_near, t_far) || !(hit.t < t_far)) return true;
+        if (light_links_.CastsShadow(link, LinkGroupAt(hit))) return false;
+        t_near = NextFloatUp(hit.t) * (1.f + 1e-6f);
+    }
+    return false;
+}
+
 const Material& Scene::MaterialAt(const SurfaceHit& hit) const {
     static const Material kLightSurface{Color(0.f), Color(0.f), false, std::nullopt};
     const int64_t mi = MaterialIndexAt(hit);

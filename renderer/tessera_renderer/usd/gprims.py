@@ -218,17 +218,19 @@ def bspline_basis(knots: np.ndarray, order: int, count: int, t: np.ndarray) -> t
     return n[:, :count], dn
 
 
-def _nurbs_parameters(knots: np.ndarray, lo: float, hi: float, order: int) -> np.ndarray:
+def _nurbs_parameters(knots: np.ndarray, lo: float, hi: float, order: int, min_pieces: int = 0) -> np.ndarray:
     """NURBS_SEGMENTS samples on every non-empty knot span within [lo, hi] (one where the
-    order is 2: a linear span is flat), ends included."""
+    order is 2: a linear span is flat), ends included; at least `min_pieces` over the whole
+    range (a trimmed patch: its trim cuts the grid's triangles)."""
     breaks = np.unique(np.clip(knots, lo, hi))
-    pieces_per_span = 1 if order == 2 else NURBS_SEGMENTS
+    spans = max(1, int(np.count_nonzero(np.diff(breaks) > 0)))
+    pieces_per_span = max(1 if order == 2 else NURBS_SEGMENTS, -(-min_pieces // spans))
     pieces = [np.linspace(a, b, pieces_per_span, endpoint=False) for a, b in zip(breaks[:-1], breaks[1:]) if b > a]
     return np.concatenate(pieces + [[hi]]) if pieces else np.array([lo, hi])
 
 
 def nurbs_patch(u_count: int, v_count: int, u_order: int, v_order: int, u_knots, v_knots, points,
-                weights=None, u_range=None, v_range=None):
+                weights=None, u_range=None, v_range=None, min_pieces: int = 0):
     """A UsdGeomNurbsPatch (rational or polynomial, untrimmed) as triangles: (points,
     triangles, per-vertex normals, per-vertex (u, v)). Control points are laid out u
     fastest (points[v * u_count + u]), as RiNuPatch lays them out; the front face is the
@@ -254,7 +256,8 @@ def nurbs_patch(u_count: int, v_count: int, u_order: int, v_order: int, u_knots,
     v_lo, v_hi = max(v_lo, vk[v_order - 1]), min(v_hi, vk[v_count])
     if not (u_hi > u_lo and v_hi > v_lo):
         raise ValueError("the parameter range is empty")
-    us, vs = _nurbs_parameters(uk, u_lo, u_hi, u_order), _nurbs_parameters(vk, v_lo, v_hi, v_order)
+    us = _nurbs_parameters(uk, u_lo, u_hi, u_order, min_pieces)
+    vs = _nurbs_parameters(vk, v_lo, v_hi, v_order, min_pieces)
     bu, dbu = bspline_basis(uk, u_order, u_count, us)
     bv, dbv = bspline_basis(vk, v_order, v_count, vs)
     grid_w = w.reshape(v_count, u_count)
@@ -277,6 +280,71 @@ def nurbs_patch(u_count: int, v_count: int, u_order: int, v_order: int, u_knots,
     tris = _grid_quads(len(vs), len(us), closed=False)
     uu, vv = np.meshgrid(us, vs)
     return surface.reshape(-1, 3), tris, normals, np.stack([uu.ravel(), vv.ravel()], -1)
+
+
+# Trim curves: a trimmed patch's grid has at least this many pieces each way, each trim
+# curve this many samples per knot span. A triangle is kept when its centroid is (the
+# cut follows the grid: the kept area's error is a few cells' worth of area along the trim,
+# about 0.2 % for a disc across half the patch).
+TRIM_GRID_PIECES = 128
+TRIM_CURVE_SAMPLES = 64
+
+
+def trim_loops(counts, orders, vertex_counts, knots, ranges, points) -> list[np.ndarray]:
+    """UsdGeomNurbsPatch trim curves as closed polylines in the patch's (u, v): one (N, 2)
+    array per loop, its curves (rational B-splines over homogeneous (u, v, w) points, each
+    over its `ranges` entry) joined in order. ValueError names what is inconsistent."""
+    counts = np.asarray(counts, np.int64).reshape(-1)
+    orders = np.asarray(orders, np.int64).reshape(-1)
+    vertex_counts = np.asarray(vertex_counts, np.int64).reshape(-1)
+    knots = np.asarray(knots, np.float64).reshape(-1)
+    ranges = np.asarray(ranges, np.float64).reshape(-1, 2)
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    n = int(counts.sum())
+    if (counts < 1).any() or len(orders) != n or len(vertex_counts) != n or len(ranges) != n:
+        raise ValueError(f"trim curves: counts sum to {n} curves, with {len(orders)} orders, "
+                         f"{len(vertex_counts)} vertex counts and {len(ranges)} ranges")
+    if (orders < 2).any() or (vertex_counts < orders).any():
+        raise ValueError("trim curves: every curve needs an order >= 2 and at least that many points")
+    if len(knots) != int((vertex_counts + orders).sum()) or len(pts) != int(vertex_counts.sum()):
+        raise ValueError(f"trim curves: {len(knots)} knots and {len(pts)} points for vertex counts "
+                         f"{vertex_counts.tolist()} and orders {orders.tolist()}")
+    if not (np.isfinite(knots).all() and np.isfinite(pts).all() and (pts[:, 2] > 0).all()):
+        raise ValueError("trim curves: points must be finite with positive w")
+    loops, curve, k0, p0 = [], 0, 0, 0
+    for count in counts:
+        samples = []
+        for _ in range(int(count)):
+            order, nv = int(orders[curve]), int(vertex_counts[curve])
+            k = knots[k0:k0 + nv + order]
+            if np.any(np.diff(k) < 0):
+                raise ValueError("trim curves: knots must be non-decreasing")
+            lo, hi = max(ranges[curve, 0], k[order - 1]), min(ranges[curve, 1], k[nv])
+            if not hi > lo:
+                raise ValueError(f"trim curves: curve {curve} has an empty range")
+            spans = max(1, int(np.count_nonzero(np.diff(np.unique(np.clip(k, lo, hi))) > 0)))
+            t = np.linspace(lo, hi, spans * TRIM_CURVE_SAMPLES + 1)
+            basis, _ = bspline_basis(k, order, nv, t)
+            h = basis @ pts[p0:p0 + nv]
+            samples.append(h[:, :2] / h[:, 2:3])
+            curve, k0, p0 = curve + 1, k0 + nv + order, p0 + nv
+        loops.append(np.concatenate(samples))
+    return loops
+
+
+def inside_trim(uv: np.ndarray, loops: list[np.ndarray]) -> np.ndarray:
+    """Whether each (u, v) lies inside an odd number of the closed loops (even-odd: an
+    outer loop keeps its inside, a loop within it cuts a hole), by ray crossing along +u."""
+    u, v = uv[:, 0:1], uv[:, 1:2]
+    inside = np.zeros(len(uv), bool)
+    for loop in loops:
+        a, b = loop, np.roll(loop, -1, axis=0)
+        straddles = (a[None, :, 1] > v) != (b[None, :, 1] > v)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cross_u = a[None, :, 0] + (v - a[None, :, 1]) * (b[None, :, 0] - a[None, :, 0]) / \
+                (b[None, :, 1] - a[None, :, 1])
+        inside ^= (np.count_nonzero(straddles & (u < cross_u), axis=1) % 2).astype(bool)
+    return inside
 
 
 # -- Points ----------------------------------------------------------------------------

@@ -44,6 +44,9 @@ class InstanceReader:
                 sig.append(material(p))
                 for subset in UsdShade.MaterialBindingAPI(p).GetMaterialBindSubsets():
                     sig.append(material(subset.GetPrim()))
+            if self.light_links:
+                # Instances whose prims light links treat differently: prototypes of their own.
+                sig.append(f"link group {self.light_links.group_of(p.GetPath())}")
         return f"native:{prim.GetPrototype().GetPath()}:{'|'.join(sig)}"
 
     def add_native_instance(self, prim) -> None:

@@ -52,6 +52,13 @@ class LightReader:
             return
         before = (len(self.sphere_lights), len(self.point_lights), len(self.distant_lights), self.dome_light)
         handler(prim)
+        # Each light row of a kind gets its link, kept aligned with the kind's rows.
+        link = self.light_links.link_of(prim.GetPath())
+        for rows, links in ((self.sphere_lights, self.sphere_light_links), (self.point_lights, self.point_light_links),
+                            (self.distant_lights, self.distant_light_links)):
+            links.extend([link] * (len(rows) - len(links)))
+        if self.dome_light is not None and "link" not in self.dome_light:
+            self.dome_light["link"] = link
         if type_name in ("SphereLight", "DistantLight", "DomeLight"):
             self._add_light_motion(prim, type_name, before)
 
@@ -112,6 +119,9 @@ class LightReader:
             texture = {**texture, "scale": [*(float(x) for x in radiance), 1.0]}
             surface["textures"] = {"emissiveColor": self.materials.add_texture(texture)}
         row = self.materials.add(surface, two_sided)
+        if self.light_links:
+            row = self.materials.linked(row, self.light_links.group_of(prim.GetPath()),
+                                        self.light_links.link_of(prim.GetPath()))
         chunk = _Chunk(np.asarray(local_pts, np.float64), np.asarray(tris), np.full(len(tris), row, np.uint32),
                        uvs=None if texture is None else np.asarray(uvs, np.float32))
         mats = self.motion_steps(prim, chunk.points)  # area lights move as geometry does

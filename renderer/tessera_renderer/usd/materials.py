@@ -62,6 +62,17 @@ class _MaterialTable:
                               "interior_color": surface.get("interior_color")})
         return self._index[key]
 
+    def linked(self, row: int, group: int, light: int = -1) -> int:
+        """Row `row` for surfaces of link group `group` (light_links.py), or for the area
+        light of link `light`: the row itself for group 0 and no link."""
+        if group == 0 and light < 0:
+            return row
+        key = ("linked", row, group, light)
+        if key not in self._index:
+            self._index[key] = len(self.rows)
+            self.rows.append({**self.rows[row], "link_group": group, "light_link": light})
+        return self._index[key]
+
 
 class MaterialReader:
     """Resolves bindings into material rows and textures."""
@@ -99,7 +110,8 @@ class MaterialReader:
             if key not in self._surface_cache:
                 self._surface_cache[key] = self._read_preview_surface(material, display)
             surface = self._surface_cache[key]
-        return self.materials.add(surface, double_sided)
+        row = self.materials.add(surface, double_sided)
+        return self.materials.linked(row, self.light_links.group_of(geom_prim.GetPath())) if self.light_links else row
 
     def _plain_surface(self, display, path) -> dict:
         values = {k: v for k, v in self.defaults.items()}

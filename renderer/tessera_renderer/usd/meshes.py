@@ -397,8 +397,9 @@ class MeshReader:
         return _Chunk(pts, tris, np.full(len(tris), row, np.uint32), normals, None)
 
     def nurbs_chunk(self, prim) -> _Chunk | None:
-        """A NurbsPatch's surface tessellated (gprims.nurbs_patch), with its (u, v) as st;
-        trim curves are not cut out (one note)."""
+        """A NurbsPatch's surface tessellated (gprims.nurbs_patch), with its (u, v) as st,
+        and its trim curves cut out (gprims.trim_loops: the triangles whose centroid lies
+        inside an odd number of loops are kept)."""
         from pxr import UsdGeom
 
         t = self.time
@@ -407,6 +408,16 @@ class MeshReader:
         def get(attr, default=None):
             value = attr.Get(t)
             return default if value is None else value
+        loops = None
+        if len(get(g.GetTrimCurveCountsAttr(), [])):
+            try:
+                loops = gprims.trim_loops(get(g.GetTrimCurveCountsAttr()), get(g.GetTrimCurveOrdersAttr(), []),
+                                          get(g.GetTrimCurveVertexCountsAttr(), []),
+                                          get(g.GetTrimCurveKnotsAttr(), []), get(g.GetTrimCurveRangesAttr(), []),
+                                          get(g.GetTrimCurvePointsAttr(), []))
+            except (ValueError, TypeError) as exc:
+                self.warn(f"{prim.GetPath()}: NurbsPatch trim curves ignored (the untrimmed surface is rendered): "
+                          f"{exc}")
         try:
             u_range, v_range = get(g.GetURangeAttr()), get(g.GetVRangeAttr())
             pts, tris, nrm, uv = gprims.nurbs_patch(
@@ -414,15 +425,19 @@ class MeshReader:
                 int(get(g.GetUOrderAttr(), 0)), int(get(g.GetVOrderAttr(), 0)),
                 np.asarray(get(g.GetUKnotsAttr(), [])), np.asarray(get(g.GetVKnotsAttr(), [])),
                 np.asarray(get(g.GetPointsAttr(), [])), np.asarray(get(g.GetPointWeightsAttr(), [])),
-                None if u_range is None else tuple(u_range), None if v_range is None else tuple(v_range))
+                None if u_range is None else tuple(u_range), None if v_range is None else tuple(v_range),
+                min_pieces=gprims.TRIM_GRID_PIECES if loops is not None else 0)
         except (ValueError, TypeError) as exc:
             self.warn(f"{prim.GetPath()}: NurbsPatch skipped: {exc}")
             return None
         if not np.isfinite(pts).all():
             self.warn(f"{prim.GetPath()}: NurbsPatch with non-finite points skipped")
             return None
-        if get(g.GetTrimCurveCountsAttr()) is not None and len(get(g.GetTrimCurveCountsAttr())):
-            self._count_note("NurbsPatch trim curves are not cut out yet: the untrimmed surface is rendered")
+        if loops is not None:
+            tris = tris[gprims.inside_trim(uv[tris].mean(axis=1), loops)]
+            if len(tris) == 0:
+                self.warn(f"{prim.GetPath()}: its trim curves cut the whole NurbsPatch away")
+                return None
         if g.GetOrientationAttr().Get(t) == UsdGeom.Tokens.leftHanded:
             tris = tris[:, ::-1]
             nrm = None if nrm is None else -nrm

@@ -65,6 +65,11 @@ class SceneData:
     # (M, 2), -1 vacuum).
     media: np.ndarray | None = None
     material_media: np.ndarray | None = None
+    # UsdLux light and shadow links (usd/light_links.py), or None when no light has any:
+    # {"illuminates", "shadows": uint8 (links, groups); "material_group" uint32 and
+    # "material_light" int32 per material row; "sphere", "point", "distant" int32 per light
+    # row; "dome" int32 (1,)}, -1 for a light that lights everything.
+    light_links: dict[str, np.ndarray] | None = None
     # The time code rendered (None: the default time) and the shutter interval around it
     # in absolute time codes (None: no motion blur).
     time_code: float | None = None

@@ -29,6 +29,7 @@ from .camera import (CameraDesc, _camera_from_prim, _default_camera, _find_rende
                      select_camera)
 from .errors import SceneError, local_to_world
 from .instancing import InstanceReader, _instance_corners
+from .light_links import LightLinks
 from .lights import (DEFAULT_LIGHTING_NAME, NO_LIGHT_WARNING, LightReader, _emits, apply_default_lighting,
                      default_lighting)
 from .media import media_tables
@@ -80,6 +81,11 @@ class _Translator(MeshReader, InstanceReader, MaterialReader, LightReader, Motio
         self.ies_tables: list[np.ndarray] = []
         self.curves: dict[str, list[np.ndarray]] = {"points": [], "segments": [], "flags": [], "material": []}
         self.distant_lights: list[list[float]] = []
+        # UsdLux light and shadow links (usd/light_links.py), and each light row's link.
+        self.light_links = LightLinks(stage)
+        self.sphere_light_links: list[int] = []
+        self.point_light_links: list[int] = []
+        self.distant_light_links: list[int] = []
         self.dome_light: dict | None = None
         # UsdLux area lights (emissive triangles of their own): what makes a stage lit,
         # unlike material emission, which is weighed (usd/emission.py).
@@ -511,6 +517,7 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
                      material_shaping=material_shaping,
                      ies_tables=np.stack(tr.ies_tables) if tr.ies_tables else None,
                      curves=_curve_arrays(tr.curves), media=media_rows, material_media=material_media,
+                     light_links=_light_link_arrays(tr, rows),
                      motion_transforms=motion_transforms,
                      time_code=None if time.IsDefault() else float(time.GetValue()),
                      shutter=None if tr.shutter is None else (tr.shutter.open, tr.shutter.close),
@@ -644,6 +651,21 @@ def _assemble(chunks: list[_Chunk]):
 def _first_line(text: str) -> str:
     lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
     return "; ".join(lines[:3])[:500] if lines else "unknown error"
+
+
+def _light_link_arrays(tr, rows: list[dict]) -> dict[str, np.ndarray] | None:
+    """SceneData.light_links: the link table and who uses which link and group, or None
+    when no light has links."""
+    if not tr.light_links:
+        return None
+    illuminates, shadows = tr.light_links.tables()
+    return {"illuminates": illuminates, "shadows": shadows,
+            "material_group": np.array([r.get("link_group", 0) for r in rows], np.uint32),
+            "material_light": np.array([r.get("light_link", -1) for r in rows], np.int32),
+            "sphere": np.array(tr.sphere_light_links, np.int32),
+            "point": np.array(tr.point_light_links, np.int32),
+            "distant": np.array(tr.distant_light_links, np.int32),
+            "dome": np.array([tr.dome_light.get("link", -1) if tr.dome_light else -1], np.int32)}
 
 
 def _curve_arrays(curves: dict[str, list[np.ndarray]]) -> dict[str, np.ndarray] | None:

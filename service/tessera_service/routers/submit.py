@@ -151,7 +151,8 @@ def create_job(
         store.put_scene(scene_hash, name, path)
 
     warnings = info.warnings if render.default_light or info.unlit_warnings is None else info.unlit_warnings
-    warnings = [*warnings, *integrators.scene_warnings(render.integrator, curve_segments=info.curve_segments)]
+    warnings = [*warnings, *integrators.scene_warnings(render.integrator, curve_segments=info.curve_segments,
+                                                           linked_lights=info.linked_lights, media=info.media)]
     if render.camera is not None:  # the inspection's choice of camera is not the job's
         warnings = [w for w in warnings if w != info.camera_note]
     if frame_list is not None and len(frame_list) > 1 and not info.animated:

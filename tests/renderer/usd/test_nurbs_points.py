@@ -110,7 +110,7 @@ def test_a_cubic_patch_with_interior_knots_reproduces_its_control_plane(tmp_path
     assert len(data.indices) == 2 * 24 * 24
 
 
-def test_a_broken_patch_is_named_and_skipped_and_trim_curves_are_noted(tmp_path):
+def test_a_broken_patch_is_named_and_skipped_and_broken_trim_curves_are_named(tmp_path):
     stage = new_stage(tmp_path / "b.usda")
     bad = _quarter_cylinder(stage, "/World/Bad")
     bad.CreateUKnotsAttr([0, 0, 1, 1])  # too few knots for 3 vertices of order 3
@@ -119,8 +119,72 @@ def test_a_broken_patch_is_named_and_skipped_and_trim_curves_are_noted(tmp_path)
     stage.GetRootLayer().Save()
     data = translate_stage(str(tmp_path / "b.usda"))
     assert any("/World/Bad: NurbsPatch skipped: knot counts 4 and 4" in w for w in data.warnings), data.warnings
-    assert any("trim curves are not cut out" in w for w in data.warnings), data.warnings
-    assert len(data.indices) == 2 * 8 * 1  # the trimmed patch alone: 8 pieces of arc, 1 linear
+    assert any("/World/Trimmed: NurbsPatch trim curves ignored (the untrimmed surface is rendered): trim curves: "
+               "counts sum to 1 curves" in w for w in data.warnings), data.warnings
+    assert len(data.indices) == 2 * 8 * 1  # the trimmed patch alone, untrimmed: 8 pieces of arc, 1 linear
+
+
+SIDE, DISC = 2.0, 0.4  # a SIDE x SIDE square patch; a trim circle of radius DISC in (u, v)
+
+
+def _trimmed_square(stage, loops):
+    """A flat SIDE x SIDE bilinear patch over (u, v) in [0, 1]^2, trimmed by `loops`: each
+    a list of curves (order, knots, homogeneous (u, v, w) points), as DCC tools write them."""
+    patch = UsdGeom.NurbsPatch.Define(stage, "/World/Trimmed")
+    patch.CreateUVertexCountAttr(2)
+    patch.CreateVVertexCountAttr(2)
+    patch.CreateUOrderAttr(2)
+    patch.CreateVOrderAttr(2)
+    patch.CreateUKnotsAttr([0, 0, 1, 1])
+    patch.CreateVKnotsAttr([0, 0, 1, 1])
+    patch.CreatePointsAttr([Gf.Vec3f(0, 0, 0), Gf.Vec3f(SIDE, 0, 0), Gf.Vec3f(0, SIDE, 0), Gf.Vec3f(SIDE, SIDE, 0)])
+    curves = [c for loop in loops for c in loop]
+    patch.CreateTrimCurveCountsAttr([len(loop) for loop in loops])
+    patch.CreateTrimCurveOrdersAttr([order for order, _, _ in curves])
+    patch.CreateTrimCurveVertexCountsAttr([len(points) for _, _, points in curves])
+    patch.CreateTrimCurveKnotsAttr(Vt.DoubleArray([k for _, knots, _ in curves for k in knots]))
+    patch.CreateTrimCurveRangesAttr([Gf.Vec2d(knots[order - 1], knots[-order]) for order, knots, _ in curves])
+    patch.CreateTrimCurvePointsAttr([Gf.Vec3d(*p) for _, _, points in curves for p in points])
+    return patch
+
+
+def _circle(center, radius):
+    """The exact circle as one rational quadratic curve of 9 points (4 quarter arcs),
+    homogeneous: (u w, v w, w)."""
+    s = math.sqrt(0.5)
+    unit = [(1, 0, 1), (1, 1, s), (0, 1, 1), (-1, 1, s), (-1, 0, 1), (-1, -1, s), (0, -1, 1), (1, -1, s), (1, 0, 1)]
+    points = [((center[0] + radius * x) * w, (center[1] + radius * y) * w, w) for x, y, w in unit]
+    return (3, [0, 0, 0, 1, 1, 2, 2, 3, 3, 4, 4, 4], points)
+
+
+def _area(data):
+    tri = data.positions.astype(np.float64)[data.indices]
+    return 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+
+
+@pytest.mark.parametrize("hole", [False, True])
+def test_a_trimmed_disc_has_the_area_of_its_circle(tmp_path, hole):
+    """A square patch trimmed by a circle of radius 0.4 in (u, v), 0.8 on the 2 x 2 patch:
+    its area is pi r^2 to 0.5 % (measured 0.06 %); with a square outer loop around the
+    circle the circle is a hole, area SIDE^2 - pi r^2. Negative control: a circle 1 %
+    wider (2 % more area) fails the same check."""
+    stage = new_stage(tmp_path / "trim.usda")
+    circle = [_circle((0.5, 0.5), DISC)]
+    square = [(2, [0, 0, 1, 2, 3, 4, 4], [(0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1), (0, 0, 1)])]
+    _trimmed_square(stage, [square, circle] if hole else [circle])
+    stage.GetRootLayer().Save()
+    data = translate_stage(str(tmp_path / "trim.usda"))
+    assert not any("NurbsPatch" in w for w in data.warnings), data.warnings
+    disc = math.pi * (DISC * SIDE) ** 2
+    expected = SIDE ** 2 - disc if hole else disc
+    assert _area(data) == pytest.approx(expected, rel=0.005)
+    wider = math.pi * (1.01 * DISC * SIDE) ** 2
+    assert (SIDE ** 2 - wider if hole else wider) != pytest.approx(expected, rel=0.005)
+    # Every kept triangle's centroid is where the trim says: inside the disc, or outside it.
+    p = data.positions.astype(np.float64) + np.asarray(data.world_offset)
+    centroid = p[data.indices].mean(axis=1)[:, :2]
+    r = np.linalg.norm(centroid - SIDE * 0.5, axis=1)
+    assert ((r > DISC * SIDE) if hole else (r < DISC * SIDE)).all()
 
 
 def _points_scene(path, widths):
