@@ -79,7 +79,8 @@ NB_MODULE(_core, m) {
                std::optional<Matrices> light_motion_transforms, std::optional<PointLightRows> material_shaping,
                std::optional<IesTables> ies_tables, std::optional<InArray<float, 4>> curve_points,
                std::optional<InVector<uint32_t>> curve_segments, std::optional<InVector<uint8_t>> curve_flags,
-               std::optional<InVector<uint32_t>> curve_material, const std::string& light_selection) {
+               std::optional<InVector<uint32_t>> curve_material, const std::string& light_selection,
+               std::optional<nb::dict> light_rows) {
                 SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
                                           sphere_lights, point_lights, distant_lights, dome_radiance, preview_params,
                                           preview_mask, dome_texture, dome_world_to_light, shading_normals,
@@ -90,6 +91,7 @@ NB_MODULE(_core, m) {
                                         light_motion_indices, light_motion_time_steps, light_motion_transforms,
                                         material_shaping, ies_tables, curve_points, curve_segments,
                                         curve_flags, curve_material});
+                if (light_rows) AddLightRows(&desc, *light_rows);
                 if (light_selection == "power") desc.light_selection = SceneDesc::LightSelection::kPower;
                 else if (light_selection == "bvh") desc.light_selection = SceneDesc::LightSelection::kBVH;
                 else if (light_selection != "auto")
@@ -110,8 +112,10 @@ NB_MODULE(_core, m) {
             "light_motion_time_steps"_a = nb::none(), "light_motion_transforms"_a = nb::none(),
             "material_shaping"_a = nb::none(), "ies_tables"_a = nb::none(), "curve_points"_a = nb::none(),
             "curve_segments"_a = nb::none(), "curve_flags"_a = nb::none(), "curve_material"_a = nb::none(),
-            "light_selection"_a = "auto",
-            "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
+            "light_selection"_a = "auto", "light_rows"_a = nb::none(),
+            "Builds the BVH. light_rows: {kind name: float32 (lights, columns)} for the kinds light_kinds() "
+            "gives columns, the row layout their own files in lights/ state (the first three columns a "
+            "position). Rows of the others: Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
             "(x, y, z, r, g, b intensity W/sr, then optionally the shaping columns of light_shaping.h: "
             "shaped, axis xyz, cutoff, smooth start, focus, focus tint rgb, IES table + 1 (0 none), horizontal "
             "angle 0 axis xyz); distant_lights (dx, dy, dz travel direction, half angle in "
@@ -162,11 +166,12 @@ NB_MODULE(_core, m) {
         [] {
             nb::list kinds;
             for (const LightKindInfo& k : LightKindInfos())
-                kinds.append(nb::make_tuple(nb::str(k.name), k.moves));
+                kinds.append(nb::make_tuple(nb::str(k.name), k.moves, k.row_columns));
             return kinds;
         },
-        "The core's light kinds as (name, can move rigidly) in LightKind order: a moving light's "
-        "light_motion_kinds entry is its kind's position here.");
+        "The core's light kinds as (name, can move rigidly, row columns) in LightKind order: a moving "
+        "light's light_motion_kinds entry is its kind's position here; a kind with row columns > 0 is "
+        "handed to Scene in light_rows[name].");
 
     m.def("embree_memory_bytes", &EmbreeMemoryBytes,
           "Bytes Embree holds right now (BVHs and geometry buffers), from its device memory monitor.");

@@ -72,6 +72,10 @@ class Scene:
                               curve_segments=np.ascontiguousarray(curves["segments"], np.uint32),
                               curve_flags=np.ascontiguousarray(curves["flags"], np.uint8),
                               curve_material=np.ascontiguousarray(curves["material"], np.uint32))
+            light_rows = {kind: np.ascontiguousarray(rows, np.float32) for kind, rows in
+                          (getattr(data, "light_rows", None) or {}).items() if len(rows)}
+            if light_rows:
+                extras["light_rows"] = light_rows
             uvs = getattr(data, "uvs", None)
             if uvs is not None and len(uvs) and extras.get("texture_table") is not None:
                 extras["uvs"] = np.ascontiguousarray(uvs, dtype=np.float32).reshape(-1, 3, 2)

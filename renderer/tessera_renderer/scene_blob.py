@@ -122,6 +122,8 @@ def _blob_arrays(data: SceneData) -> dict[str, np.ndarray]:
         arrays["ies_tables"] = data.ies_tables
     for key, value in (getattr(data, "curves", None) or {}).items():
         arrays[f"curves.{key}"] = value
+    for kind, rows in (getattr(data, "light_rows", None) or {}).items():
+        arrays[f"light_rows.{kind}"] = np.asarray(rows, np.float32)
     for key, value in data.material_params.items():
         arrays[f"material_params.{key}"] = value
     if data.shading_normals is not None:
@@ -281,6 +283,7 @@ def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
         material_shaping=arrays.get("material_shaping"),
         ies_tables=arrays.get("ies_tables"),
         curves={k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("curves.")} or None,
+        light_rows={k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("light_rows.")},
         time_code=meta.get("time_code"),
         shutter=None if meta.get("shutter") is None else tuple(meta["shutter"]))
     if tmp:

@@ -74,6 +74,9 @@ struct IntegratorInfo {
     // Renders participating media (docs/media.md). One that does not refuses a scene with
     // media when created (Integrator::Create) rather than render it as if they were absent.
     bool handles_media = false;
+    // Starts paths at the lights (Scene::SampleEmission): one that does refuses a scene with a
+    // light kind that cannot start them (Scene::kind_without_light_paths: portals).
+    bool traces_light_paths = false;
     std::vector<IntegratorParam> params = {};
     // What a pixel estimates: "radiance", or another quantity (ao: "ambient occlusion"),
     // which the integrator matrix checks on its own closed forms.

@@ -73,7 +73,7 @@ PathSample PathIntegrator::Trace(const Scene& scene, Ray ray, PixelSampler& samp
         SurfaceHit hit;
         if (!(depth == 0 ? scene.Intersect(ray, &hit, t_min, t_max) : scene.Intersect(ray, &hit))) {
             // Escaped: lights at infinity (dome, distant cones), weighted like emitters.
-            scene.ForEachEnvironmentLight(ray.d, [&](uint32_t light, Color Le, float pdf) {
+            scene.ForEachEnvironmentLight(ray.o, ray.d, [&](uint32_t light, Color Le, float pdf) {
                 float w = (depth == 0 || specular_bounce) ? 1.f : PowerHeuristic(bsdf_pdf, scene.LightPmf(prev_p, prev_n, light) * pdf);
                 L += beta * Le * w;
             });
