@@ -56,8 +56,8 @@ BLOB_VERSION = 1
 # shaped Cylinder lights (about their -Z) and Distant lights (along their direction),
 # still curves of the world as Embree round curves (SceneData.curves); 11: light-lessness
 # by UsdLux lights and the measured power of material emission (usd/emission.py), and
-# SceneData.brightest_light.
-TRANSLATOR_VERSION = 11
+# SceneData.brightest_light; 12: PortalLights (SceneData.light_rows["portal"]).
+TRANSLATOR_VERSION = 12
 _ALIGN = 64
 _LIGHT_MOTION_FIELDS = ("light_motion_kinds", "light_motion_indices", "light_motion_time_steps",
                         "light_motion_transforms")

@@ -21,6 +21,7 @@
 #include "dome_light.h"
 #include "light.h"
 #include "point_light.h"
+#include "portal_light.h"
 #include "sphere_light.h"
 #include "triangle_light.h"
 
@@ -32,7 +33,7 @@ struct LightKindList {
 };
 
 // Every light kind, in LightKind order (a moving light names its kind by this number).
-using LightKinds = LightKindList<TriangleLight, SphereLight, PointLight, DistantLight, DomeLight>;
+using LightKinds = LightKindList<TriangleLight, SphereLight, PointLight, DistantLight, DomeLight, PortalLight>;
 
 namespace light_kinds_detail {
 template <typename K, typename... Ks>

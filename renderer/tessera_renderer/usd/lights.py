@@ -7,6 +7,7 @@ import numpy as np
 
 from .. import _core
 from . import gprims, light_shaping
+from . import portal_light  # noqa: F401  (registers its reader)
 from .camera import CameraDesc, _unit
 from .errors import SceneError, read_float, read_floats
 from .light_readers import READERS, reads, row_columns
