@@ -152,6 +152,14 @@ NB_MODULE(_core, m) {
             "curve, 2: one after it) and curve_material uint32.")
         .def_prop_ro("has_motion", &Scene::has_motion)
         .def_prop_ro("has_delta_surfaces", &Scene::has_delta_surfaces)
+        .def_prop_ro(
+            "kind_without_light_paths",
+            [](const Scene& s) -> std::optional<std::string> {
+                if (const char* k = s.kind_without_light_paths()) return std::string(k);
+                return std::nullopt;
+            },
+            "The name of a light kind in the scene that cannot start light paths (portal), or None: "
+            "integrators with traces_light_paths refuse the scene.")
         .def_prop_ro("num_triangles", &Scene::num_triangles)
         .def_prop_ro("num_curve_segments", &Scene::num_curve_segments)
         .def_prop_ro("num_emitters", &Scene::num_emitters)
@@ -254,6 +262,7 @@ NB_MODULE(_core, m) {
                                            : "never";
                 d["merging_alpha"] = info.merging_alpha;
                 d["view_independent_product"] = info.view_independent_product;
+                d["traces_light_paths"] = info.traces_light_paths;
                 d["estimates"] = std::string(info.estimates);
                 nb::list blind;
                 for (const PathExclusion& x : info.blind_to) {
@@ -281,7 +290,7 @@ NB_MODULE(_core, m) {
         },
         "The registered integrators in registry order: dicts of name, description, the capabilities "
         "(splats, scene_passes, stop_per_tile, complete, delta_caustics, shades_curves, iteration_cap, "
-        "pilot_candidate, merging_alpha, view_independent_product; "
+        "pilot_candidate, merging_alpha, view_independent_product, traces_light_paths; "
         "integrators/integrator.h), what a pixel estimates, the light-path classes it is blind to (dicts of "
         "paths and reason; classes from PATH_CLASSES) and "
         "params (setting name -> description).");

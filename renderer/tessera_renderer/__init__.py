@@ -154,6 +154,11 @@ class Scene:
             return name
         return _core.auto_integrator(self.has_delta_caustics())
 
+    def kind_without_light_paths(self) -> str | None:
+        """A light kind in the scene that cannot start light paths (portal), or None: the
+        integrators that trace them (traces_light_paths) refuse the scene."""
+        return self._core.kind_without_light_paths
+
     def has_delta_surfaces(self) -> bool:
         """Some material may have a delta lobe (a smooth mirror, clear glass): where photon
         merging (vcm, sppm) earns its cost, and where sppm aims its photons."""

@@ -152,3 +152,15 @@ def test_light_path_integrators_refuse_portals_by_name(tmp_path, integrator):
     with pytest.raises(ValueError, match=f"the {integrator} integrator.*portal"):
         scene.render_tile(0, 0, 2, 2, width=RES, height=RES, spp=1, integrator=integrator,
                           splats=np.zeros((RES, RES, 3), np.int64))
+
+
+def test_auto_pilot_leaves_out_integrators_that_start_paths_at_lights(tmp_path):
+    from tessera_base.integrators import integrators, pilot_candidates
+
+    assert load_scene(_box_with_hole(tmp_path, "pilot"), default_light=False).kind_without_light_paths() == "portal"
+    assert load_scene(_box_with_hole(tmp_path, "no-portal", portal=False)).kind_without_light_paths() is None
+    tracing = {i["name"] for i in integrators() if i["traces_light_paths"]}
+    assert {"light", "bdpt", "vcm", "sppm", "photon", "photon_direct"} <= tracing
+    kept = pilot_candidates(mirrors_or_glass=True, noise_target=True, delta_caustics=False, light_paths=False)
+    assert "path" in kept and not tracing & set(kept)
+    assert tracing & set(pilot_candidates(mirrors_or_glass=True, noise_target=True, delta_caustics=False))
