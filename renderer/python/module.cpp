@@ -81,7 +81,7 @@ NB_MODULE(_core, m) {
                std::optional<InVector<uint32_t>> curve_segments, std::optional<InVector<uint8_t>> curve_flags,
                std::optional<InVector<uint32_t>> curve_material, std::optional<InArray<float, 7>> media,
                std::optional<InArray<int32_t, 2>> material_media, std::optional<nb::dict> light_links,
-               const std::string& light_selection) {
+               const std::string& light_selection, std::optional<nb::dict> light_rows) {
                 SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
                                           sphere_lights, point_lights, distant_lights, dome_radiance, preview_params,
                                           preview_mask, dome_texture, dome_world_to_light, shading_normals,
@@ -92,6 +92,7 @@ NB_MODULE(_core, m) {
                                         light_motion_indices, light_motion_time_steps, light_motion_transforms,
                                         material_shaping, ies_tables, curve_points, curve_segments,
                                         curve_flags, curve_material, media, material_media, light_links});
+                if (light_rows) AddLightRows(&desc, *light_rows);
                 if (light_selection == "power") desc.light_selection = SceneDesc::LightSelection::kPower;
                 else if (light_selection == "bvh") desc.light_selection = SceneDesc::LightSelection::kBVH;
                 else if (light_selection != "auto")
@@ -113,8 +114,10 @@ NB_MODULE(_core, m) {
             "material_shaping"_a = nb::none(), "ies_tables"_a = nb::none(), "curve_points"_a = nb::none(),
             "curve_segments"_a = nb::none(), "curve_flags"_a = nb::none(), "curve_material"_a = nb::none(),
             "media"_a = nb::none(), "material_media"_a = nb::none(), "light_links"_a = nb::none(),
-            "light_selection"_a = "auto",
-            "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
+            "light_selection"_a = "auto", "light_rows"_a = nb::none(),
+            "Builds the BVH. light_rows: {kind name: float32 (lights, columns)} for the kinds light_kinds() "
+            "gives columns, the row layout their own files in lights/ state (the first three columns a "
+            "position). Rows of the others: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
             "(x, y, z, r, g, b intensity W/sr, then optionally the shaping columns of light_shaping.h: "
             "shaped, axis xyz, cutoff, smooth start, focus, focus tint rgb, IES table + 1 (0 none), horizontal "
             "angle 0 axis xyz); distant_lights (dx, dy, dz travel direction, half angle in "
@@ -159,6 +162,14 @@ NB_MODULE(_core, m) {
         .def_prop_ro("has_motion", &Scene::has_motion)
         .def_prop_ro("has_delta_surfaces", &Scene::has_delta_surfaces)
         .def_prop_ro("has_media", &Scene::has_media)
+        .def_prop_ro(
+            "kind_without_light_paths",
+            [](const Scene& s) -> std::optional<std::string> {
+                if (const char* k = s.kind_without_light_paths()) return std::string(k);
+                return std::nullopt;
+            },
+            "The name of a light kind in the scene that cannot start light paths (portal), or None: "
+            "integrators with traces_light_paths refuse the scene.")
         .def_prop_ro("num_triangles", &Scene::num_triangles)
         .def_prop_ro("num_curve_segments", &Scene::num_curve_segments)
         .def_prop_ro("num_linked_lights", &Scene::num_linked_lights)
@@ -174,11 +185,12 @@ NB_MODULE(_core, m) {
         [] {
             nb::list kinds;
             for (const LightKindInfo& k : LightKindInfos())
-                kinds.append(nb::make_tuple(nb::str(k.name), k.moves));
+                kinds.append(nb::make_tuple(nb::str(k.name), k.moves, k.row_columns));
             return kinds;
         },
-        "The core's light kinds as (name, can move rigidly) in LightKind order: a moving light's "
-        "light_motion_kinds entry is its kind's position here.");
+        "The core's light kinds as (name, can move rigidly, row columns) in LightKind order: a moving "
+        "light's light_motion_kinds entry is its kind's position here; a kind with row columns > 0 is "
+        "handed to Scene in light_rows[name].");
 
     m.def("embree_memory_bytes", &EmbreeMemoryBytes,
           "Bytes Embree holds right now (BVHs and geometry buffers), from its device memory monitor.");
@@ -263,6 +275,7 @@ NB_MODULE(_core, m) {
                                            : "never";
                 d["merging_alpha"] = info.merging_alpha;
                 d["view_independent_product"] = info.view_independent_product;
+                d["traces_light_paths"] = info.traces_light_paths;
                 d["estimates"] = std::string(info.estimates);
                 nb::list blind;
                 for (const PathExclusion& x : info.blind_to) {
@@ -290,7 +303,7 @@ NB_MODULE(_core, m) {
         },
         "The registered integrators in registry order: dicts of name, description, the capabilities "
         "(splats, scene_passes, stop_per_tile, complete, delta_caustics, shades_curves, iteration_cap, "
-        "pilot_candidate, merging_alpha, view_independent_product; "
+        "pilot_candidate, merging_alpha, view_independent_product, traces_light_paths; "
         "integrators/integrator.h), what a pixel estimates, the light-path classes it is blind to (dicts of "
         "paths and reason; classes from PATH_CLASSES) and "
         "params (setting name -> description).");

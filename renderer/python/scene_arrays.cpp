@@ -2,6 +2,7 @@
 #include "scene_arrays.h"
 
 #include <nanobind/stl/optional.h>
+#include <nanobind/stl/string.h>
 
 #include <cmath>
 #include <string>
@@ -79,6 +80,24 @@ void AddLightLinks(SceneDesc* d, const nb::dict& links) {
 }
 
 }  // namespace
+
+void AddLightRows(SceneDesc* d, const nb::dict& rows) {
+    const std::vector<LightKindInfo> infos = LightKindInfos();
+    d->light_rows.assign(infos.size(), {});
+    for (auto [key, value] : rows) {
+        const std::string name = nb::cast<std::string>(key);
+        size_t k = 0;
+        while (k < infos.size() && name != infos[k].name) ++k;
+        if (k == infos.size()) throw std::invalid_argument("light_rows: the core has no light kind '" + name + "'");
+        if (infos[k].row_columns == 0)
+            throw std::invalid_argument("light_rows: " + name + " lights are not handed over in rows");
+        auto a = nb::cast<nb::ndarray<const float, nb::ndim<2>, nb::c_contig, nb::device::cpu>>(value);
+        if (a.shape(0) > 0 && a.shape(1) != infos[k].row_columns)
+            throw std::invalid_argument("light_rows['" + name + "'] needs " + std::to_string(infos[k].row_columns) +
+                                        " columns, not " + std::to_string(a.shape(1)));
+        d->light_rows[k].assign(a.data(), a.data() + a.size());
+    }
+}
 
 void AddExtras(SceneDesc* d, const Extras& x) {
     const size_t n_tri = d->indices.size() / 3;

@@ -75,6 +75,10 @@ struct Extras {
     std::optional<nb::dict> light_links;
 };
 
+// The lights of the kinds handed over in rows ({kind name: float32 (lights, columns)}):
+// the kind's name and column count come from the kind (light_kinds.h), nothing per kind here.
+void AddLightRows(SceneDesc* d, const nb::dict& rows);
+
 // Checks the extra tables against the description's triangles and materials and adds them.
 void AddExtras(SceneDesc* d, const Extras& x);
 

@@ -78,6 +78,10 @@ class Scene:
             links = getattr(data, "light_links", None)
             if links is not None:
                 extras["light_links"] = {k: np.ascontiguousarray(v) for k, v in links.items()}
+            light_rows = {kind: np.ascontiguousarray(rows, np.float32) for kind, rows in
+                          (getattr(data, "light_rows", None) or {}).items() if len(rows)}
+            if light_rows:
+                extras["light_rows"] = light_rows
             uvs = getattr(data, "uvs", None)
             if uvs is not None and len(uvs) and extras.get("texture_table") is not None:
                 extras["uvs"] = np.ascontiguousarray(uvs, dtype=np.float32).reshape(-1, 3, 2)
@@ -125,6 +129,7 @@ class Scene:
 
     @property
     def has_media(self) -> bool:
+        """Some material bounds a participating medium (absorbing glass, docs/media.md)."""
         return self._core.has_media
 
     @property
@@ -168,10 +173,10 @@ class Scene:
             return next(i["name"] for i in integrators() if i["complete"] and i.get("handles_media"))
         return _core.auto_integrator(self.has_delta_caustics())
 
-    @property
-    def has_media(self) -> bool:
-        """Some material bounds a participating medium (absorbing glass, docs/media.md)."""
-        return bool(getattr(self._core, "has_media", False))
+    def kind_without_light_paths(self) -> str | None:
+        """A light kind in the scene that cannot start light paths (portal), or None: the
+        integrators that trace them (traces_light_paths) refuse the scene."""
+        return self._core.kind_without_light_paths
 
     def has_delta_surfaces(self) -> bool:
         """Some material may have a delta lobe (a smooth mirror, clear glass): where photon

@@ -58,8 +58,9 @@ BLOB_VERSION = 1
 # by UsdLux lights and the measured power of material emission (usd/emission.py), and
 # SceneData.brightest_light; 12: MaterialX transmission colour and depth (absorbing
 # interiors of closed meshes, SceneData.media and material_media; a tint at depth 0); 13:
-# UsdLux light and shadow links (SceneData.light_links), NurbsPatch trim curves cut out.
-TRANSLATOR_VERSION = 13
+# UsdLux light and shadow links (SceneData.light_links), NurbsPatch trim curves cut out;
+# 14: PortalLights (SceneData.light_rows["portal"]).
+TRANSLATOR_VERSION = 14
 _ALIGN = 64
 _LIGHT_MOTION_FIELDS = ("light_motion_kinds", "light_motion_indices", "light_motion_time_steps",
                         "light_motion_transforms")
@@ -130,6 +131,8 @@ def _blob_arrays(data: SceneData) -> dict[str, np.ndarray]:
         arrays[f"curves.{key}"] = value
     for key, value in (getattr(data, "light_links", None) or {}).items():
         arrays[f"light_links.{key}"] = value
+    for kind, rows in (getattr(data, "light_rows", None) or {}).items():
+        arrays[f"light_rows.{kind}"] = np.asarray(rows, np.float32)
     for key, value in data.material_params.items():
         arrays[f"material_params.{key}"] = value
     if data.shading_normals is not None:
@@ -291,6 +294,7 @@ def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
         media=arrays.get("media"), material_media=arrays.get("material_media"),
         curves={k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("curves.")} or None,
         light_links={k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("light_links.")} or None,
+        light_rows={k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("light_rows.")},
         time_code=meta.get("time_code"),
         shutter=None if meta.get("shutter") is None else tuple(meta["shutter"]))
     if tmp:

@@ -118,14 +118,17 @@ def candidates(scene, settings) -> tuple[str, ...]:
         # Only integrators that handle media accept the scene: nothing to measure between.
         return (scene.resolve_integrator("auto"),)
     return pilot_candidates(mirrors_or_glass=scene.has_delta_surfaces(), noise_target=settings.adaptive,
-                            delta_caustics=scene.has_delta_caustics())
+                            delta_caustics=scene.has_delta_caustics(),
+                            light_paths=scene.kind_without_light_paths() is None)
 
 
-def left_out(names: tuple[str, ...]) -> list[str]:
-    """The always-candidates a scene's delta-light caustics left out of `names`."""
+def left_out(names: tuple[str, ...], light_paths: bool = True) -> list[str]:
+    """The always-candidates a scene's delta-light caustics left out of `names` (among those
+    its lights allow: `light_paths` as in pilot_candidates)."""
     from tessera_base.integrators import pilot_candidates
 
-    always = pilot_candidates(mirrors_or_glass=False, noise_target=False, delta_caustics=False)
+    always = pilot_candidates(mirrors_or_glass=False, noise_target=False, delta_caustics=False,
+                              light_paths=light_paths)
     return [c for c in always if c not in names]
 
 
@@ -179,7 +182,9 @@ def run_pilot(scene, settings, threads: int = 0, seed: int = 0x51107) -> Pilot:
     if getattr(scene, "has_media", False):
         return Pilot(choice=names[0], size=(w, h), spp=0, repeats=0,
                      reason=f"the scene has participating media, which only {names[0]} renders: no pilot")
-    missed = f"a delta light lights a caustic {', '.join(left_out(names))} cannot reach"
+    light_paths = scene.kind_without_light_paths() is None
+    missed = f"a delta light lights a caustic {', '.join(left_out(names, light_paths))} cannot reach" \
+        if left_out(names, light_paths) else f"{scene.kind_without_light_paths()} lights start no light paths"
     if len(names) == 1:
         return Pilot(choice=names[0], size=(w, h), spp=0, repeats=0, reason=f"{missed}: {names[0]} without a pilot")
     images: dict[str, list] = {c: [] for c in names}
@@ -201,7 +206,7 @@ def run_pilot(scene, settings, threads: int = 0, seed: int = 0x51107) -> Pilot:
         r.handicap = merging_handicap(r.integrator, r.rel_variance, settings)
         r.efficiency *= r.handicap
         r.typical_efficiency *= merging_handicap(r.integrator, r.typical_rel_variance, settings)
-    reason = missed if left_out(names) else ""
+    reason = missed if left_out(names, light_paths) else ""
     return Pilot(choice=choose(rows), rows=rows, size=(w, h), reason=reason)
 
 

@@ -159,14 +159,18 @@ def validate_params(name: str, values: dict[str, float]) -> dict[str, float]:
     return dict(sorted(values.items()))
 
 
-def pilot_candidates(*, mirrors_or_glass: bool, noise_target: bool, delta_caustics: bool) -> tuple[str, ...]:
+def pilot_candidates(*, mirrors_or_glass: bool, noise_target: bool, delta_caustics: bool,
+                     light_paths: bool = True) -> tuple[str, ...]:
     """The integrators `auto`'s measuring pilot (tessera/tessera/pilot.py) tries, in registry
     order, for a scene with (or without) mirrors or glass and delta-light caustics, rendered
-    to a noise target or not: each integrator's `pilot_candidate` says when it is one, and
-    delta-light caustics leave out those that cannot find them (`delta_caustics`)."""
+    to a noise target or not: each integrator's `pilot_candidate` says when it is one,
+    delta-light caustics leave out those that cannot find them (`delta_caustics`), and a
+    scene whose lights cannot start light paths (`light_paths` False: portals) those that
+    start paths at the lights (`traces_light_paths`)."""
     when = {"always": True, "mirrors_or_glass_with_noise_target": mirrors_or_glass and noise_target}
     return tuple(i["name"] for i in integrators()
-                 if when.get(i["pilot_candidate"], False) and (i["delta_caustics"] or not delta_caustics))
+                 if when.get(i["pilot_candidate"], False) and (i["delta_caustics"] or not delta_caustics)
+                 and (light_paths or not i.get("traces_light_paths", False)))
 
 
 def merging_alpha(name: str) -> float:

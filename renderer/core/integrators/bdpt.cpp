@@ -16,6 +16,7 @@ const IntegratorInfo& BDPTIntegrator::Info() {
         .stop_per_tile = false,
         .complete = true,
         .delta_caustics = true,
+        .traces_light_paths = true,
         .pilot_candidate = IntegratorInfo::PilotCandidate::kAlways,
     };
     return info;

@@ -125,7 +125,7 @@ public:
     // Density of light vertex `v` being chosen as a light subpath's origin (`next` is the
     // vertex it lights, which fixes the direction for lights at infinity).
     float PdfLightOrigin(const Vertex& v, const Vertex& next) const {
-        if (v.infinite) return scene_.InfiniteLightDensity(DirectionTo(next, v));
+        if (v.infinite) return scene_.InfiniteLightDensity(next.p, DirectionTo(next, v));
         if (v.emitter < 0) return 0.f;
         return scene_.light_sampler().Pmf(uint32_t(v.emitter)) * scene_.EmissionPdfPosition(uint32_t(v.emitter));
     }
@@ -134,7 +134,7 @@ public:
     Color Le(const Vertex& v, const Vertex& to) const {
         if (v.infinite) {
             Color L(0.f);
-            scene_.ForEachEnvironmentLight(-v.dir, [&](uint32_t, Color Le, float) { L += Le; });
+            scene_.ForEachEnvironmentLight(to.p, -v.dir, [&](uint32_t, Color Le, float) { L += Le; });
             return L;
         }
         if (v.emitter < 0) return Color(0.f);
@@ -260,7 +260,7 @@ public:
                 path[1].pdf_fwd = es.pdf_pos;
                 if (path[1].OnSurface()) path[1].pdf_fwd *= std::abs(Dot(es.wo, path[1].ng));
             }
-            v.pdf_fwd = scene_.InfiniteLightDensity(-es.wo);
+            v.pdf_fwd = scene_.InfiniteLightDensity(n > 1 ? path[1].p : es.p, -es.wo);
         }
         return n;
     }

@@ -68,7 +68,7 @@ public:
                 // Lights at infinity: seen directly or through delta lobes only; after a
                 // non-delta scattering they are NEE's.
                 if (depth == 0 || specular_bounce)
-                    scene.ForEachEnvironmentLight(ray.d, [&](uint32_t, Color Le, float) { L += beta * Le; });
+                    scene.ForEachEnvironmentLight(ray.o, ray.d, [&](uint32_t, Color Le, float) { L += beta * Le; });
                 break;
             }
             if (depth == 0) result.alpha = 1.f;

@@ -78,6 +78,9 @@ struct IntegratorInfo {
     // estimates. One that does not is named in one warning for a scene with links
     // (tessera_base.integrators.scene_warnings); its image ignores them where it cannot.
     bool honours_light_links = false;
+    // Starts paths at the lights (Scene::SampleEmission): one that does refuses a scene with a
+    // light kind that cannot start them (Scene::kind_without_light_paths: portals).
+    bool traces_light_paths = false;
     std::vector<IntegratorParam> params = {};
     // What a pixel estimates: "radiance", or another quantity (ao: "ambient occlusion"),
     // which the integrator matrix checks on its own closed forms.

@@ -13,6 +13,7 @@ const IntegratorInfo& LightTracer::Info() {
         .stop_per_tile = false,
         .delta_caustics = true,
         .handles_media = true,
+        .traces_light_paths = true,
         .blind_to = {{"L S+ E", "a light path reaches the pinhole camera only by a connection from its last "
                                 "vertex, and a smooth mirror or glass (a delta lobe) never connects"}},
     };
@@ -32,7 +33,7 @@ PathSample DirectlyVisibleLight(const Scene& scene, const Ray& ray, float t_min,
         result.alpha = 1.f;
         if (int32_t e = scene.EmitterAt(hit); e != Scene::kNoEmitter) result.radiance = scene.Emitted(e, hit, -ray.d);
     } else {
-        scene.ForEachEnvironmentLight(ray.d, [&](uint32_t, Color Le, float) { result.radiance += Le; });
+        scene.ForEachEnvironmentLight(ray.o, ray.d, [&](uint32_t, Color Le, float) { result.radiance += Le; });
     }
     return result;
 }

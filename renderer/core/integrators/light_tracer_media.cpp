@@ -35,7 +35,7 @@ PathSample DirectlyVisibleLightThroughMedia(const Scene& scene, const Ray& camer
             if (std::isinf(t_max)) {  // a medium's infinite segment lets nothing through
                 if (medium >= 0) tr *= scene.medium(medium).Transmittance(t_max);
                 if (!IsBlack(tr))
-                    scene.ForEachEnvironmentLight(ray.d, [&](uint32_t, Color Le, float) { result.radiance += Le * tr; });
+                    scene.ForEachEnvironmentLight(ray.o, ray.d, [&](uint32_t, Color Le, float) { result.radiance += Le * tr; });
             }
             return result;
         }

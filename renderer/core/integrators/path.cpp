@@ -90,7 +90,7 @@ PathSample PathIntegrator::Trace(const Scene& scene, Ray ray, PixelSampler& samp
         SurfaceHit hit;
         if (!(depth == 0 ? scene.Intersect(ray, &hit, t_min, t_max) : scene.Intersect(ray, &hit))) {
             // Escaped: lights at infinity (dome, distant cones), weighted like emitters.
-            scene.ForEachEnvironmentLight(ray.d, [&](uint32_t light, Color Le, float pdf) {
+            scene.ForEachEnvironmentLight(ray.o, ray.d, [&](uint32_t light, Color Le, float pdf) {
                 const float w = bsdf_hit_weight(depth, light, [&] { return scene.LightPmf(prev_p, prev_n, light, prev_group) * pdf; });
                 L += beta * Le * w;
             });

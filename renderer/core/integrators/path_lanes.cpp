@@ -57,7 +57,7 @@ void ShadeVertex(const Scene& scene, int max_depth, int roulette_depth, LaneGrou
     g.ends[i] = true;
     const Ray& ray = g.ray[i];
     if (!g.found[i]) {
-        scene.ForEachEnvironmentLight(ray.d, [&](uint32_t light, Color Le, float pdf) {
+        scene.ForEachEnvironmentLight(ray.o, ray.d, [&](uint32_t light, Color Le, float pdf) {
             float w = (depth == 0 || g.specular_bounce[i])
                           ? 1.f
                           : PowerHeuristic(g.bsdf_pdf[i], scene.LightPmf(g.prev_p[i], g.prev_n[i], light) * pdf);

@@ -118,7 +118,7 @@ PathSample PathIntegrator::TraceMedia(const Scene& scene, Ray ray, PixelSampler&
         }
 
         if (!found) {
-            scene.ForEachEnvironmentLight(ray.d, [&](uint32_t light, Color Le, float pdf) {
+            scene.ForEachEnvironmentLight(ray.o, ray.d, [&](uint32_t light, Color Le, float pdf) {
                 const float w = (depth == 0 || specular_bounce)
                                     ? 1.f
                                     : PowerHeuristic(scatter_pdf, scene.LightPmf(prev_p, prev_n, light) * pdf);

@@ -67,6 +67,7 @@ public:
             .scene_passes = true,
             .stop_per_tile = false,
             .delta_caustics = true,
+            .traces_light_paths = true,
             .params = {{"photons", "photon paths for the global map per iteration (default 200000)"},
                        {"caustic_photons", "photon paths for the caustic map per iteration (default 250000)"},
                        {"radius", "global map's kernel radius in scene units (default: 2 % of the scene's "

@@ -83,6 +83,7 @@ public:
             .scene_passes = true,
             // Every tile of an iteration reads the same photons: the image advances together.
             .stop_per_tile = false,
+            .traces_light_paths = true,
             .params = {{"photons", "photons per batch; an iteration traces one batch per share of samples "
                                    "(default 200000)"},
                        {"radius", "density-estimation disk radius in scene units (default: a hundredth "

@@ -69,6 +69,7 @@ public:
             .scene_passes = true,
             .stop_per_tile = false,
             .delta_caustics = true,
+            .traces_light_paths = true,
             .params = {{"photons", "photon paths per batch (default 100000)"},
                        {"radius", "first batch's disk-kernel radius in scene units (default: a hundredth of "
                                   "the scene's bounding diameter)"},

@@ -150,6 +150,7 @@ public:
             // Consistent, not unbiased: `auto` does not choose it (yet).
             .complete = false,
             .delta_caustics = true,
+            .traces_light_paths = true,
             .params = {{"light_paths", "light subpaths in a batch; iteration k traces its pass's share of batches (default 100000)"},
                        {"radius", "merging radius of the first iteration in scene units (default: 0.005 of the "
                                   "scene's bounding diameter)"},

@@ -28,7 +28,7 @@ PathSample TraceVisiblePoints(const Scene& scene, const CameraSample& cs, PixelS
     for (int depth = 0;; ++depth) {
         SurfaceHit hit;
         if (!(depth == 0 ? scene.Intersect(ray, &hit, cs.t_min, cs.t_max) : scene.Intersect(ray, &hit))) {
-            scene.ForEachEnvironmentLight(ray.d, [&](uint32_t, Color Le, float) { L += beta * Le; });
+            scene.ForEachEnvironmentLight(ray.o, ray.d, [&](uint32_t, Color Le, float) { L += beta * Le; });
             break;
         }
         if (depth == 0) result.alpha = 1.f;

@@ -31,7 +31,7 @@ PathSample WhittedIntegrator::Li(const Scene& scene, Ray ray, PixelSampler& samp
         if (!(depth == 0 ? scene.Intersect(ray, &hit, t_min, t_max) : scene.Intersect(ray, &hit))) {
             // Seen directly or through mirrors only: BSDF sampling never met these lights
             // at a diffuse vertex, so no weighting is needed.
-            scene.ForEachEnvironmentLight(ray.d, [&](uint32_t, Color Le, float) { L += beta * Le; });
+            scene.ForEachEnvironmentLight(ray.o, ray.d, [&](uint32_t, Color Le, float) { L += beta * Le; });
             break;
         }
         if (depth == 0) result.alpha = 1.f;

@@ -136,7 +136,7 @@ struct EmitterOf<DistantLight> : InfiniteEmitterAnswers {
         return e.one_minus_cos == 0.f;
     }
     template <class S, class E>
-    static Color Environment(const S& s, const E& e, Vec3 dir, float* pdf) {
+    static Color Environment(const S& s, const E& e, Vec3, Vec3 dir, float* pdf) {
         typename S::LightFrame f;
         s.FrameOf(e, &f);
         return s.lights_.template Of<DistantLight>()[e.index].Radiance(f.ToLightDir(dir), e.one_minus_cos, pdf);

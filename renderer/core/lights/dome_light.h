@@ -169,7 +169,7 @@ struct EmitterOf<DomeLight> : InfiniteEmitterAnswers {
         return false;
     }
     template <class S, class E>
-    static Color Environment(const S& s, const E& e, Vec3 dir, float* pdf) {
+    static Color Environment(const S& s, const E& e, Vec3, Vec3 dir, float* pdf) {
         typename S::LightFrame f;
         s.FrameOf(e, &f);
         return s.lights_.template Of<DomeLight>()[e.index].Radiance(f.ToLightDir(dir), pdf);

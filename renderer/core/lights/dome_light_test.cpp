@@ -69,7 +69,7 @@ TEST(Dome, SampledTexelsFollowTheDistributionAndPdfsAgree) {
         observed[y * W + x] += 1;
         if (i % 97 == 0) {  // the pdf the sample reports is the pdf of its direction
             float pdf = -1.f;
-            scene.ForEachEnvironmentLight(ls.wi, [&](uint32_t, Color, float p) { pdf = p; });
+            scene.ForEachEnvironmentLight(Vec3(0.f), ls.wi, [&](uint32_t, Color, float p) { pdf = p; });
             EXPECT_NEAR(pdf, ls.pdf, 2e-3f * ls.pdf);
         }
     }

@@ -38,7 +38,7 @@ struct AreaEmitterAnswers {
         return false;
     }
     template <class S, class E>
-    static Color Environment(const S&, const E&, Vec3, float*) {
+    static Color Environment(const S&, const E&, Vec3, Vec3, float*) {
         return Color(0.f);
     }
 };

@@ -21,6 +21,7 @@
 #include "dome_light.h"
 #include "light.h"
 #include "point_light.h"
+#include "portal_light.h"
 #include "sphere_light.h"
 #include "triangle_light.h"
 
@@ -32,7 +33,7 @@ struct LightKindList {
 };
 
 // Every light kind, in LightKind order (a moving light names its kind by this number).
-using LightKinds = LightKindList<TriangleLight, SphereLight, PointLight, DistantLight, DomeLight>;
+using LightKinds = LightKindList<TriangleLight, SphereLight, PointLight, DistantLight, DomeLight, PortalLight>;
 
 namespace light_kinds_detail {
 template <typename K, typename... Ks>
@@ -108,17 +109,44 @@ private:
     decltype(light_kinds_detail::TupleOf<Slot>(LightKinds{})) slots_;
 };
 
-// The kinds' names (EmitterOf<K>::kName) by LightKind number, and whether a light of the
-// kind can move rigidly (SceneDesc::light_motion_kinds; triangles move with their meshes).
+// What a kind may declare beyond the queries every kind answers, each with its default:
+// - kRowColumns and FromRow(const float*): its lights come from the binding as rows of
+//   that many floats (SceneDesc::light_rows), the first three the light's position; a
+//   new kind hands its lights over this way, with nothing restated per kind on the route.
+// - kStartsLightPaths = false: SampleEmission cannot start a light subpath from it, and
+//   the integrators that trace those refuse the scene (Integrator::Create).
+// - using Guides = OtherKind: its lights carry OtherKind's light (portals the dome's);
+//   when the scene has any, OtherKind adds no emitters of its own.
+template <typename K>
+inline constexpr size_t kRowColumnsOf = [] {
+    if constexpr (requires { EmitterOf<K>::kRowColumns; }) return size_t(EmitterOf<K>::kRowColumns);
+    else return size_t(0);
+}();
+template <typename K>
+inline constexpr bool kStartsLightPathsOf = [] {
+    if constexpr (requires { EmitterOf<K>::kStartsLightPaths; }) return bool(EmitterOf<K>::kStartsLightPaths);
+    else return true;
+}();
+template <typename K, typename Guided>
+inline constexpr bool kGuides = [] {
+    if constexpr (requires { typename EmitterOf<K>::Guides; })
+        return std::is_same_v<typename EmitterOf<K>::Guides, Guided>;
+    else return false;
+}();
+
+// The kinds' names (EmitterOf<K>::kName) by LightKind number, whether a light of the kind
+// can move rigidly (SceneDesc::light_motion_kinds; triangles move with their meshes), and
+// the columns of its rows when it is handed over in rows (0: it is not).
 struct LightKindInfo {
     const char* name;
     bool moves;
+    size_t row_columns;
 };
 inline std::vector<LightKindInfo> LightKindInfos() {
     std::vector<LightKindInfo> infos;
     ForEachLightKind([&](auto tag) {
         using Kind = typename decltype(tag)::type;
-        infos.push_back({EmitterOf<Kind>::kName, EmitterOf<Kind>::kMoves});
+        infos.push_back({EmitterOf<Kind>::kName, EmitterOf<Kind>::kMoves, kRowColumnsOf<Kind>});
     });
     return infos;
 }

@@ -21,7 +21,8 @@ struct Expected {
     bool moves;
 };
 constexpr Expected kExpected[] = {
-    {"triangle", 0, false}, {"sphere", 1, true}, {"point", 2, true}, {"distant", 3, true}, {"dome", 4, true}};
+    {"triangle", 0, false}, {"sphere", 1, true}, {"point", 2, true}, {"distant", 3, true}, {"dome", 4, true},
+    {"portal", 5, false}};
 
 }  // namespace
 
@@ -31,6 +32,7 @@ TEST(LightKinds, NumbersNamesAndMotionAreTheStableOnes) {
     EXPECT_EQ(uint8_t(kKindOf<PointLight>), 2);
     EXPECT_EQ(uint8_t(kKindOf<DistantLight>), 3);
     EXPECT_EQ(uint8_t(kKindOf<DomeLight>), 4);
+    EXPECT_EQ(uint8_t(kKindOf<PortalLight>), 5);
     const std::vector<LightKindInfo> infos = LightKindInfos();
     ASSERT_EQ(infos.size(), std::size(kExpected));
     for (const Expected& e : kExpected) {

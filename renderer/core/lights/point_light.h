@@ -102,7 +102,7 @@ struct EmitterOf<PointLight> {
         return true;
     }
     template <class S, class E>
-    static Color Environment(const S&, const E&, Vec3, float*) {
+    static Color Environment(const S&, const E&, Vec3, Vec3, float*) {
         return Color(0.f);
     }
     // add(index, area, one_minus_cos, power, at_infinity) per light that emits.

@@ -195,11 +195,11 @@ TEST(Motion, MovingLightsAreSeenAndSampledWhereTheyAreAtTheInstant) {
             EXPECT_NEAR(a.radiance.x, b.radiance.x, 1e-4f * b.radiance.x) << "t = " << t;
             Color la(0.f), lb(0.f);
             float pa = 0.f, pb = 0.f;
-            turning.ForEachEnvironmentLight(a.wi, [&](uint32_t, Color l, float pdf) { la += l; pa += pdf; });
-            still.ForEachEnvironmentLight(a.wi, [&](uint32_t, Color l, float pdf) { lb += l; pb += pdf; });
+            turning.ForEachEnvironmentLight(Vec3(0, 0, -2), a.wi, [&](uint32_t, Color l, float pdf) { la += l; pa += pdf; });
+            still.ForEachEnvironmentLight(Vec3(0, 0, -2), a.wi, [&](uint32_t, Color l, float pdf) { lb += l; pb += pdf; });
             EXPECT_NEAR(la.x, lb.x, 1e-4f * lb.x);
             EXPECT_NEAR(pa, pb, 1e-3f * pb);
-            EXPECT_NEAR(turning.InfiniteLightDensity(a.wi), still.InfiniteLightDensity(a.wi), 1e-3f * pb);
+            EXPECT_NEAR(turning.InfiniteLightDensity(Vec3(0, 0, -2), a.wi), still.InfiniteLightDensity(Vec3(0, 0, -2), a.wi), 1e-3f * pb);
         }
     }
     // The turn is seen: at t = 1 the bright quarter has moved away from where it was at 0.

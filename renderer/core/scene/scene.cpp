@@ -62,6 +62,8 @@ void RequireLambertOnly(const SceneDesc& d, const std::vector<Material>& materia
     if (!d.sphere_lights.empty() || !d.point_lights.empty() || !d.distant_lights.empty() ||
         !IsBlack(d.dome_radiance))
         refuse("lights other than emissive triangles");
+    for (const std::vector<float>& rows : d.light_rows)
+        if (!rows.empty()) refuse("lights other than emissive triangles");
 }
 
 // A sphere light is seen, and blocks rays, from outside only: UsdLux sphere lights emit
@@ -221,6 +223,30 @@ Scene::Scene(const SceneDesc& desc)
                                         " needs a direction, a half angle in [0, pi/2) and radiance >= 0");
         d.direction = d.direction / len;
     }
+    // The kinds handed over in rows (kRowColumnsOf), each row checked by its kind.
+    if (desc.light_rows.size() > LightKinds::kCount) throw std::invalid_argument("light_rows has more kinds than the core");
+    ForEachLightKind([&](auto kind) {
+        using Kind = typename decltype(kind)::type;
+        constexpr size_t columns = kRowColumnsOf<Kind>;
+        const size_t k = size_t(kKindOf<Kind>);
+        if (k >= desc.light_rows.size() || desc.light_rows[k].empty()) return;
+        if constexpr (columns == 0) {
+            throw std::invalid_argument(std::string(EmitterOf<Kind>::kName) + " lights are not handed over in rows");
+        } else {
+            const std::vector<float>& rows = desc.light_rows[k];
+            if (rows.size() % columns != 0)
+                throw std::invalid_argument(std::string(EmitterOf<Kind>::kName) + " light rows need " +
+                                            std::to_string(columns) + " columns");
+            for (size_t r = 0; r < rows.size(); r += columns) {
+                try {
+                    lights_.Of<Kind>().push_back(EmitterOf<Kind>::FromRow(&rows[r]));
+                } catch (const std::invalid_argument& e) {
+                    throw std::invalid_argument(std::string(EmitterOf<Kind>::kName) + " light " +
+                                                std::to_string(r / columns) + ": " + e.what());
+                }
+            }
+        }
+    });
     if (!IsNonNegativeFinite(desc.dome_radiance)) throw std::invalid_argument("dome radiance must be finite and >= 0");
     // Built in place: a copy would hold the texture and its distribution twice at once.
     lights_.Of<DomeLight>().emplace_back(desc.dome_radiance, desc.dome_width, desc.dome_height, desc.dome_rgb,
@@ -516,14 +542,23 @@ void Scene::BuildGeometryAndLights(const SceneDesc& desc) {
         for (uint32_t t = 0; t < mesh.num_triangles; ++t)
             if (mesh.emitter[t] >= 0) add_triangle_emitter(instances_[i].mesh, t, i);
     }
-    // Every other kind adds its own emitters, in LightKinds order.
+    // Every other kind adds its own emitters, in LightKinds order; a kind whose light
+    // another kind's lights carry (the dome through portals) adds none when there are some.
     ForEachLightKind([&](auto kind) {
         using Kind = typename decltype(kind)::type;
+        bool guided = false;
+        ForEachLightKind([&](auto guide) {
+            using Guide = typename decltype(guide)::type;
+            if constexpr (kGuides<Guide, Kind>) guided = guided || !lights_.Of<Guide>().empty();
+        });
+        if (guided) return;
+        const size_t before = emitters_.size();
         EmitterOf<Kind>::AddEmitters(*this, [&](uint32_t index, float area, float one_minus_cos, double p, bool at_infinity) {
             if (at_infinity) environment_lights_.push_back(uint32_t(emitters_.size()));
             emitters_.push_back({kKindOf<Kind>, index, area, one_minus_cos});
             power.push_back(p);
         });
+        if (!kStartsLightPathsOf<Kind> && emitters_.size() > before) kind_without_light_paths_ = EmitterOf<Kind>::kName;
     });
     sphere_emitter_.assign(lights_.Of<SphereLight>().size(), kNoEmitter);
     for (uint32_t i = 0; i < emitters_.size(); ++i)

@@ -118,6 +118,9 @@ struct SceneDesc {
     std::vector<uint32_t> light_motion_indices;
     std::vector<uint32_t> light_motion_time_steps;
     std::vector<float> light_motion_transforms;
+    // The lights of the kinds handed over in rows (light_kinds.h, kRowColumnsOf), by
+    // LightKind number: each kind's rows back to back, kRowColumnsOf<Kind> floats a row.
+    std::vector<std::vector<float>> light_rows;
     // Curves (UsdGeom BasisCurves of the world, static): Embree round linear curves, cones
     // between spheres. curve_points holds 4 floats per control point (x, y, z, radius);
     // segment s joins points curve_segments[s] and curve_segments[s] + 1, has the material
@@ -380,8 +383,8 @@ public:
     // Position: 1/area for area lights, 1 for points, the bounding disk's for lights at infinity.
     float EmissionPdfPosition(uint32_t emitter) const;
     // Sum over lights at infinity of pmf * solid-angle density of their emitting toward -w
-    // (w points from the scene toward the light). Zero for delta-distant lights.
-    float InfiniteLightDensity(Vec3 w) const;
+    // (w points from point p of the scene toward the light). Zero for delta-distant lights.
+    float InfiniteLightDensity(Vec3 p, Vec3 w) const;
     bool IsInfiniteLight(uint32_t emitter) const;
     bool IsDeltaLight(uint32_t emitter) const;
     float scene_radius() const { return scene_radius_; }
@@ -389,10 +392,14 @@ public:
     // Splats are stored in units of 2^splat_exponent() (see SplatFilm).
     int splat_exponent() const { return splat_exponent_; }
 
-    // Lights at infinity seen along a ray that escapes the scene: calls
-    // visit(light_index, radiance, solid-angle pdf of sampling that direction from it).
+    // Lights at infinity seen along a ray from `origin` that escapes the scene in `dir`:
+    // calls visit(light_index, radiance, solid-angle pdf of sampling that direction from
+    // it). The origin matters to portals: only rays through one see the dome.
     template <typename Visit>
-    void ForEachEnvironmentLight(Vec3 dir, Visit&& visit) const;
+    void ForEachEnvironmentLight(Vec3 origin, Vec3 dir, Visit&& visit) const;
+    // The name of a light kind in the scene that cannot start light subpaths
+    // (kStartsLightPathsOf), or nullptr: integrators that trace them refuse such a scene.
+    const char* kind_without_light_paths() const { return kind_without_light_paths_; }
     bool has_environment() const { return !environment_lights_.empty(); }
     // Every material is a plain Lambertian (no UsdPreviewSurface): the BSDF at any hit is
     // DiffuseBSDF(MaterialAt(hit).albedo), and integrators may shade with it directly
@@ -550,7 +557,8 @@ private:
     SphereLight SphereAt(uint32_t s) const;  // the sphere at this thread's shutter time
     const LightMotion& MotionOf(const Emitter& e) const;  // a still one for triangles
 
-    Color EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const;
+    Color EnvironmentRadiance(const Emitter& e, Vec3 origin, Vec3 dir, float* pdf) const;
+    const char* kind_without_light_paths_ = nullptr;
     // Emitter e (a triangle; an element of emitters_) as its light kind sees it, in world
     // space at this thread's shutter time: from still_triangle_lights_ when nothing moves.
     TriangleLight TriangleLightOf(const Emitter& e) const;
@@ -664,10 +672,10 @@ private:
 };
 
 template <typename Visit>
-void Scene::ForEachEnvironmentLight(Vec3 dir, Visit&& visit) const {
+void Scene::ForEachEnvironmentLight(Vec3 origin, Vec3 dir, Visit&& visit) const {
     for (uint32_t i : environment_lights_) {
         float pdf = 0.f;
-        Color L = EnvironmentRadiance(emitters_[i], dir, &pdf);
+        Color L = EnvironmentRadiance(emitters_[i], origin, dir, &pdf);
         if (!IsBlack(L)) visit(i, L, pdf);
     }
 }

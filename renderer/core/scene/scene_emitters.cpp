@@ -93,12 +93,12 @@ float Scene::EmissionPdfPosition(uint32_t emitter) const {
     return VisitLightKind(e.kind, [&](auto kind) { return EmitterOf<typename decltype(kind)::type>::PdfPosition(*this, e); });
 }
 
-float Scene::InfiniteLightDensity(Vec3 w) const {
+float Scene::InfiniteLightDensity(Vec3 p, Vec3 w) const {
     float pdf = 0.f;
     for (uint32_t i : environment_lights_) {
-        float p = 0.f;
-        EnvironmentRadiance(emitters_[i], w, &p);
-        pdf += light_sampler_.Pmf(i) * p;
+        float density = 0.f;
+        EnvironmentRadiance(emitters_[i], p, w, &density);
+        pdf += light_sampler_.Pmf(i) * density;
     }
     return pdf;
 }
@@ -113,9 +113,9 @@ bool Scene::IsDeltaLight(uint32_t emitter) const {
     return VisitLightKind(e.kind, [&](auto kind) { return EmitterOf<typename decltype(kind)::type>::Delta(e); });
 }
 
-Color Scene::EnvironmentRadiance(const Emitter& e, Vec3 dir, float* pdf) const {
+Color Scene::EnvironmentRadiance(const Emitter& e, Vec3 origin, Vec3 dir, float* pdf) const {
     return VisitLightKind(e.kind, [&](auto kind) {
-        return EmitterOf<typename decltype(kind)::type>::Environment(*this, e, dir, pdf);
+        return EmitterOf<typename decltype(kind)::type>::Environment(*this, e, origin, dir, pdf);
     });
 }
 

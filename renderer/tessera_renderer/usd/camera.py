@@ -254,6 +254,9 @@ def _move_to_camera(tr, camera: CameraDesc) -> CameraDesc:
         row[:3] = list(np.asarray(row[:3], np.float64) - shift)
     for row in tr.point_lights:
         row[:3] = list(np.asarray(row[:3], np.float64) - shift)
+    for rows in tr.light_rows.values():  # a row's first three columns are a position
+        for row in rows:
+            row[:3] = list(np.asarray(row[:3], np.float64) - shift)
     for mats in tr.instance_xforms:
         mats[:, 3, :3] -= shift
     for _, mats in tr.motion:

@@ -7,8 +7,10 @@ import numpy as np
 
 from .. import _core
 from . import gprims, light_shaping
+from . import portal_light  # noqa: F401  (registers its reader)
 from .camera import CameraDesc, _unit
 from .errors import SceneError, read_float, read_floats
+from .light_readers import READERS, reads, row_columns
 from .authoring import authoring_layer
 from .meshes import _Chunk
 from .scene_data import SceneData
@@ -44,14 +46,13 @@ class LightReader:
         return radiance
 
     def add_light(self, prim, type_name: str) -> None:
-        handler = {"RectLight": self.add_rect_light, "SphereLight": self.add_sphere_light,
-                   "DiskLight": self.add_disk_light, "CylinderLight": self.add_cylinder_light,
-                   "DistantLight": self.add_distant_light, "DomeLight": self.add_dome_light}.get(type_name)
-        if handler is None:
+        """The registered reader of the prim's UsdLux schema (usd/light_readers.py) adds it."""
+        entry = READERS.get(type_name)
+        if entry is None:
             self.unsupported[type_name or "untyped light"] += 1
             return
         before = (len(self.sphere_lights), len(self.point_lights), len(self.distant_lights), self.dome_light)
-        handler(prim)
+        entry.read(self, prim)
         # Each light row of a kind gets its link, kept aligned with the kind's rows.
         link = self.light_links.link_of(prim.GetPath())
         for rows, links in ((self.sphere_lights, self.sphere_light_links), (self.point_lights, self.point_light_links),
@@ -61,6 +62,20 @@ class LightReader:
             self.dome_light["link"] = link
         if type_name in ("SphereLight", "DistantLight", "DomeLight"):
             self._add_light_motion(prim, type_name, before)
+
+    def add_light_row(self, kind: str, row) -> None:
+        """A light of a core kind handed over in rows (light_readers.py): `row` as the
+        kind's file in renderer/core/lights/ lays it out, its first three columns a position."""
+        columns = row_columns(kind)
+        if len(row) != columns:
+            raise ValueError(f"a {kind} light row has {columns} columns, not {len(row)}")
+        self.light_rows.setdefault(kind, []).append([float(x) for x in row])
+
+    def finish_lights(self) -> None:
+        """The registered readers' checks across lights, after the walk."""
+        for entry in READERS.values():
+            if entry.finish is not None:
+                entry.finish(self)
 
     def _add_light_motion(self, prim, type_name: str, before) -> None:
         """A sphere, point, distant or dome light that moves during the shutter: its rigid
@@ -130,6 +145,7 @@ class LightReader:
         else:
             self.emit(chunk.transformed(m), self.chunks, str(prim.GetPath()))
 
+    @reads("RectLight")
     def add_rect_light(self, prim) -> None:
         from pxr import UsdLux
 
@@ -170,6 +186,7 @@ class LightReader:
             wrap_t="clamp", scale=[1.0, 1.0, 1.0, 1.0], bias=[0.0, 0.0, 0.0, 0.0], color_space="auto",
             st_primvar=None, transform2d=None)
 
+    @reads("DiskLight")
     def add_disk_light(self, prim) -> None:
         from pxr import UsdLux
 
@@ -183,6 +200,7 @@ class LightReader:
         pts, tris = gprims.disk_light(r)
         self._emissive(prim, pts, tris, self.light_radiance(prim, area), shaped="normal")
 
+    @reads("CylinderLight")
     def add_cylinder_light(self, prim) -> None:
         from pxr import UsdLux
 
@@ -202,6 +220,7 @@ class LightReader:
         pts, tris = gprims.cylinder_light(r, length)
         self._emissive(prim, pts, tris, self.light_radiance(prim, area), shaped="axis")
 
+    @reads("SphereLight")
     def add_sphere_light(self, prim) -> None:
         from pxr import UsdLux
 
@@ -241,6 +260,7 @@ class LightReader:
         radiance = self.light_radiance(prim, 4.0 * math.pi * radius * radius)
         self.sphere_lights.append([*center, radius, *radiance])
 
+    @reads("DistantLight")
     def add_distant_light(self, prim) -> None:
         from pxr import UsdLux
 
@@ -258,6 +278,7 @@ class LightReader:
         radiance = radiance * light_shaping.along_axis_factor(self, prim)
         self.distant_lights.append([*direction, half, *radiance])
 
+    @reads("DomeLight")
     def add_dome_light(self, prim) -> None:
         from pxr import UsdGeom, UsdLux
 
@@ -293,7 +314,7 @@ class LightReader:
 def light_kind_number(name: str) -> int:
     """The core's LightKind number of a kind that can move (SceneData.light_motion_kinds):
     the core lists its kinds (lights/light_kinds.h), this file does not copy them."""
-    for number, (kind, moves) in enumerate(_core.light_kinds()):
+    for number, (kind, moves, *_) in enumerate(_core.light_kinds()):
         if kind == name and moves:
             return number
     raise ValueError(f"the renderer core has no light kind {name!r} that can move")

@@ -34,6 +34,9 @@ class SceneData:
     distant_lights: np.ndarray = field(default_factory=lambda: np.zeros((0, 7), np.float32))
     point_lights: np.ndarray = field(default_factory=lambda: np.zeros((0, 6), np.float32))
     dome_light: dict | None = None
+    # The lights of the core kinds handed over in rows (usd/light_readers.py), by kind name:
+    # float32 (lights, columns) as the kind's file in renderer/core/lights/ lays a row out.
+    light_rows: dict[str, np.ndarray] = field(default_factory=dict)
     prototypes: list[dict] = field(default_factory=list)
     instances: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint32))
     instance_transforms: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4), np.float32))

@@ -87,6 +87,8 @@ class _Translator(MeshReader, InstanceReader, MaterialReader, LightReader, Motio
         self.point_light_links: list[int] = []
         self.distant_light_links: list[int] = []
         self.dome_light: dict | None = None
+        # The lights of the core kinds handed over in rows, by kind name (light_readers.py).
+        self.light_rows: dict[str, list[list[float]]] = {}
         # UsdLux area lights (emissive triangles of their own): what makes a stage lit,
         # unlike material emission, which is weighed (usd/emission.py).
         self.area_lights = 0
@@ -386,6 +388,7 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate) if instancing == "flatten" \
         else Usd.PrimDefaultPredicate
     tr.walk(Usd.PrimRange.Stage(stage, predicate), None, tr.chunks, top_level=True)
+    tr.finish_lights()
     for type_name, count in sorted(tr.unsupported.items()):
         warn(f"{count} {type_name} prim{'s' if count > 1 else ''} not supported yet; skipped")
     tr.flush_notes()
@@ -482,7 +485,9 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     else:
         point = np.array(tr.point_lights, np.float32).reshape(-1, 6)
     dome = tr.dome_light
-    has_light = bool(tr.area_lights or len(sphere_lights) or len(distant) or len(point) or dome)
+    light_rows = {kind: np.array(rows, np.float32).reshape(len(rows), -1) for kind, rows in tr.light_rows.items()}
+    has_light = bool(tr.area_lights or len(sphere_lights) or len(distant) or len(point) or dome or
+                     any(len(rows) for rows in light_rows.values()))
     emission_note = None
     if not has_light and _emits(rows, tri_material, prototypes):
         has_light, emission_note = _emission_lights(tr, rows, positions, indices, tri_material, prototypes,
@@ -509,7 +514,7 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
                      resolution_from_stage=from_stage, warnings=warnings,
                      material_params=params, shading_normals=normals, uvs=uvs,
                      textures=tr.materials.textures, material_textures=material_textures,
-                     distant_lights=distant, point_lights=point, dome_light=dome,
+                     distant_lights=distant, point_lights=point, dome_light=dome, light_rows=light_rows,
                      prototypes=prototypes, instances=instances, instance_transforms=instance_xforms,
                      meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)), up_axis=str(up_axis),
                      world_offset=camera_offset, default_lights=default_lights, brightest_light=brightest,

@@ -275,7 +275,7 @@ def test_a_moving_scene_travels_in_its_blob_and_renders_the_same(tmp_path):
 def test_moving_light_kind_numbers_come_from_the_core():
     """usd/lights.py reads the kind numbers from the core's list (lights/light_kinds.h), not
     a copy: the numbers blobs have always carried, and a kind that cannot move is refused."""
-    assert [name for name, _ in _core.light_kinds()][:5] == ["triangle", "sphere", "point", "distant", "dome"]
+    assert [name for name, *_ in _core.light_kinds()][:5] == ["triangle", "sphere", "point", "distant", "dome"]
     assert [light_kind_number(k) for k in ("sphere", "point", "distant", "dome")] == [1, 2, 3, 4]
     with pytest.raises(ValueError, match="triangle"):
         light_kind_number("triangle")  # triangles move with their mesh, not as lights
