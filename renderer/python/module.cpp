@@ -21,6 +21,7 @@
 #include "integrator.h"
 #include "render.h"
 #include "scene.h"
+#include "media_arrays.h"
 #include "scene_arrays.h"
 #include "splat_film.h"
 
@@ -79,7 +80,10 @@ NB_MODULE(_core, m) {
                std::optional<Matrices> light_motion_transforms, std::optional<PointLightRows> material_shaping,
                std::optional<IesTables> ies_tables, std::optional<InArray<float, 4>> curve_points,
                std::optional<InVector<uint32_t>> curve_segments, std::optional<InVector<uint8_t>> curve_flags,
-               std::optional<InVector<uint32_t>> curve_material, const std::string& light_selection) {
+               std::optional<InVector<uint32_t>> curve_material, const std::string& light_selection,
+               std::optional<InArray<float, 7>> media, std::optional<nb::list> grid_media,
+               std::optional<InArray<int32_t, 2>> material_media,
+               std::optional<InVector<bool>> material_interface_only) {
                 SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
                                           sphere_lights, point_lights, distant_lights, dome_radiance, preview_params,
                                           preview_mask, dome_texture, dome_world_to_light, shading_normals,
@@ -90,6 +94,7 @@ NB_MODULE(_core, m) {
                                         light_motion_indices, light_motion_time_steps, light_motion_transforms,
                                         material_shaping, ies_tables, curve_points, curve_segments,
                                         curve_flags, curve_material});
+                AddMedia(&desc, MediaArgs{media, grid_media, material_media, material_interface_only});
                 if (light_selection == "power") desc.light_selection = SceneDesc::LightSelection::kPower;
                 else if (light_selection == "bvh") desc.light_selection = SceneDesc::LightSelection::kBVH;
                 else if (light_selection != "auto")
@@ -110,7 +115,8 @@ NB_MODULE(_core, m) {
             "light_motion_time_steps"_a = nb::none(), "light_motion_transforms"_a = nb::none(),
             "material_shaping"_a = nb::none(), "ies_tables"_a = nb::none(), "curve_points"_a = nb::none(),
             "curve_segments"_a = nb::none(), "curve_flags"_a = nb::none(), "curve_material"_a = nb::none(),
-            "light_selection"_a = "auto",
+            "light_selection"_a = "auto", "media"_a = nb::none(), "grid_media"_a = nb::none(),
+            "material_media"_a = nb::none(), "material_interface_only"_a = nb::none(),
             "Builds the BVH. Rows: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
             "(x, y, z, r, g, b intensity W/sr, then optionally the shaping columns of light_shaping.h: "
             "shaped, axis xyz, cutoff, smooth start, focus, focus tint rgb, IES table + 1 (0 none), horizontal "
@@ -145,7 +151,12 @@ NB_MODULE(_core, m) {
             "horizontal angle 0..360 (5 degrees apart), named by the shaping columns. Curves (round linear, "
             "world space): curve_points float32 (points, 4) x y z radius; per segment curve_segments uint32 "
             "(its first point; it ends at the next), curve_flags uint8 (1: a segment before it on the same "
-            "curve, 2: one after it) and curve_material uint32.")
+            "curve, 2: one after it) and curve_material uint32. Participating media (docs/media.md): media float32 "
+            "(N, 7) sigma_a rgb, sigma_s rgb, g; grid_media: list of (density float32 (nz, ny, nx), world_to_index "
+            "float32 (3, 4), float32 (7,) sigma_a rgb, sigma_s rgb per unit density, g), numbered after media; "
+            "material_media int32 (materials, 2) inside, outside medium (-1 vacuum); material_interface_only bool "
+            "(materials,): pure medium interfaces.")
+        .def_prop_ro("has_media", &Scene::has_media)
         .def_prop_ro("has_motion", &Scene::has_motion)
         .def_prop_ro("has_delta_surfaces", &Scene::has_delta_surfaces)
         .def_prop_ro("num_triangles", &Scene::num_triangles)

@@ -72,6 +72,7 @@ class Scene:
                               curve_segments=np.ascontiguousarray(curves["segments"], np.uint32),
                               curve_flags=np.ascontiguousarray(curves["flags"], np.uint8),
                               curve_material=np.ascontiguousarray(curves["material"], np.uint32))
+            extras.update(_media_tables(data))
             uvs = getattr(data, "uvs", None)
             if uvs is not None and len(uvs) and extras.get("texture_table") is not None:
                 extras["uvs"] = np.ascontiguousarray(uvs, dtype=np.float32).reshape(-1, 3, 2)
@@ -371,6 +372,20 @@ def _udim_tiles(tex: dict) -> list[tuple[int, str]]:
         if m and 0 <= int(m.group(1)) - 1001 < 100:
             tiles.append((int(m.group(1)) - 1001, f))
     return tiles
+
+
+def _media_tables(data) -> dict:
+    """The core's participating-media arguments (docs/media.md), none without media."""
+    out = {}
+    grids = getattr(data, "grid_media", None)
+    if grids:
+        out["grid_media"] = [(np.ascontiguousarray(d, np.float32), np.ascontiguousarray(w, np.float32),
+                              np.ascontiguousarray(c, np.float32)) for d, w, c in grids]
+    for key, dtype in (("material_media", np.int32), ("material_interface_only", bool)):
+        value = getattr(data, key, None)
+        if value is not None:
+            out[key] = np.ascontiguousarray(value, dtype)
+    return out
 
 
 def _texture_tables(data) -> dict:

@@ -56,8 +56,9 @@ BLOB_VERSION = 1
 # shaped Cylinder lights (about their -Z) and Distant lights (along their direction),
 # still curves of the world as Embree round curves (SceneData.curves); 11: light-lessness
 # by UsdLux lights and the measured power of material emission (usd/emission.py), and
-# SceneData.brightest_light.
-TRANSLATOR_VERSION = 11
+# SceneData.brightest_light; 12: UsdVol.Volume density fields as grid media in boxes of pure
+# medium interfaces (SceneData.grid_media, material_media, material_interface_only).
+TRANSLATOR_VERSION = 12
 _ALIGN = 64
 _LIGHT_MOTION_FIELDS = ("light_motion_kinds", "light_motion_indices", "light_motion_time_steps",
                         "light_motion_transforms")
@@ -128,6 +129,13 @@ def _blob_arrays(data: SceneData) -> dict[str, np.ndarray]:
         arrays["shading_normals"] = data.shading_normals
     if data.uvs is not None:
         arrays["uvs"] = data.uvs
+    for i, (density, world_to_index, coefficients) in enumerate(getattr(data, "grid_media", None) or []):
+        arrays[f"grid_media.{i}.density"] = density
+        arrays[f"grid_media.{i}.world_to_index"] = world_to_index
+        arrays[f"grid_media.{i}.coefficients"] = coefficients
+    for key in ("material_media", "material_interface_only"):
+        if getattr(data, key, None) is not None:
+            arrays[key] = getattr(data, key)
     for i, proto in enumerate(data.prototypes):
         for f in _PROTO_FIELDS:
             if proto.get(f) is not None:
@@ -181,7 +189,8 @@ def scene_data_to_blob(data: SceneData) -> bytes:
         "dome_light": dome, "meters_per_unit": data.meters_per_unit, "up_axis": data.up_axis,
         "world_offset": list(data.world_offset), "default_lights": data.default_lights,
         "brightest_light": data.brightest_light,
-        "prototypes": len(data.prototypes), "translator_version": TRANSLATOR_VERSION,
+        "prototypes": len(data.prototypes), "grid_media": len(getattr(data, "grid_media", None) or []),
+        "translator_version": TRANSLATOR_VERSION,
         "time_code": data.time_code, "shutter": None if data.shutter is None else list(data.shutter),
     }
     table, offset = {}, 0
@@ -281,6 +290,9 @@ def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
         material_shaping=arrays.get("material_shaping"),
         ies_tables=arrays.get("ies_tables"),
         curves={k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("curves.")} or None,
+        grid_media=[tuple(arrays[f"grid_media.{i}.{f}"] for f in ("density", "world_to_index", "coefficients"))
+                    for i in range(meta.get("grid_media", 0))],
+        material_media=arrays.get("material_media"), material_interface_only=arrays.get("material_interface_only"),
         time_code=meta.get("time_code"),
         shutter=None if meta.get("shutter") is None else tuple(meta["shutter"]))
     if tmp:

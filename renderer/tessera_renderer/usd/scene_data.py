@@ -86,3 +86,10 @@ class SceneData:
     # bytes; stage._subdivision_summary), None without any. Not carried by the scene blob:
     # the farm refines at the job's fixed level.
     subdivision_summary: str | None = None
+    # Participating media (usd/volumes.py, docs/media.md): grid media as (density float32
+    # (nz, ny, nx), world_to_index float32 (3, 4), float32 (7,) sigma_a rgb, sigma_s rgb per
+    # unit density, g); per material row its (inside, outside) medium, -1 vacuum, int32
+    # (M, 2), and whether it is a pure medium interface, bool (M,); None without media.
+    grid_media: list = field(default_factory=list)
+    material_media: np.ndarray | None = None
+    material_interface_only: np.ndarray | None = None
