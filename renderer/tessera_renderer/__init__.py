@@ -151,6 +151,11 @@ class Scene:
             return name
         return _core.auto_integrator(self.has_delta_caustics())
 
+    def has_media(self) -> bool:
+        """Some material bounds a participating medium (docs/media.md): only integrators that
+        handle media (path) accept the scene."""
+        return bool(self._core.has_media)
+
     def has_delta_surfaces(self) -> bool:
         """Some material may have a delta lobe (a smooth mirror, clear glass): where photon
         merging (vcm, sppm) earns its cost, and where sppm aims its photons."""

@@ -172,6 +172,9 @@ def run_pilot(scene, settings, threads: int = 0, seed: int = 0x51107) -> Pilot:
     import numpy as np
 
     w, h = pilot_size(settings.width, settings.height)
+    if getattr(scene, "has_media", lambda: False)():
+        return Pilot(choice="path", size=(w, h), spp=0, repeats=0,
+                     reason="participating media: path is the integrator that renders them")
     names = candidates(scene, settings)
     missed = f"a delta light lights a caustic {', '.join(left_out(names))} cannot reach"
     if len(names) == 1:
