@@ -15,8 +15,12 @@ from tessera_base import images
 from tessera_queue import redis_schema as rdb
 from tessera_renderer import load_scene
 
+import pytest
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "renderer" / "usd"))
 from test_volumes import CAMERA, LIGHTS, smoke_grid, volume_prim, write_vdb  # noqa: E402
+
+pytestmark = pytest.mark.slow  # a real farm and two CLI renders: about 25 s
 
 ARGS = ["--res", "16x16", "--spp", "4", "--seed", "3", "--max-depth", "8", "--tile", "8", "--integrator", "path"]
 

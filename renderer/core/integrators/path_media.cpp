@@ -3,7 +3,9 @@
 // through, scattering by the Henyey-Greenstein phase function, next event estimation at
 // medium vertices and Beer-Lambert transmittance on every shadow ray through the
 // boundaries between. Scenes without media never enter it (PathIntegrator::Li), so their
-// images and speed are those of the surface kernel.
+// images and speed are those of the surface kernel. A grid medium (media/grid_medium.h)
+// samples its free flights by delta tracking and its transmittance by ratio tracking; its
+// sample has the homogeneous one's meaning, so the kernel treats both alike.
 //
 // Boundaries follow pbrt-v4: a surface whose material is a pure interface
 // (Material::interface_only) has no BSDF; a ray passes it unchanged, entering the medium
