@@ -9,13 +9,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from conftest import clean_env, start_api, start_worker
 from tessera_base import images
 from tessera_queue import redis_schema as rdb
 from tessera_renderer import load_scene
-
-import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "renderer" / "usd"))
 from test_volumes import CAMERA, LIGHTS, smoke_grid, volume_prim, write_vdb  # noqa: E402
