@@ -12,6 +12,8 @@ APT_PACKAGES=(
   build-essential cmake ninja-build pkg-config python3-venv
   libembree-dev libtbb-dev libopenimageio-dev openimageio-tools libopenexr-dev
   libosd-dev  # OpenSubdiv: subdivision surfaces refined at translation time
+  libopenvdb-dev libboost-dev  # OpenVDB (its headers need Boost): UsdVol.Volume fields (.vdb) read at translation time
+  python3-openvdb  # makes the tests' small .vdb files (with the system Python's numpy)
   openexr  # exrheader/exrinfo: tests check that OpenEXR's own tools read every EXR we write
   libgtest-dev redis-server iproute2
   ccache  # compiler cache: a re-run or a fresh clone rebuilds only what changed (scripts/ccache-env.sh)

@@ -21,6 +21,7 @@
 #include "integrator.h"
 #include "render.h"
 #include "scene.h"
+#include "media_arrays.h"
 #include "scene_arrays.h"
 #include "splat_film.h"
 
@@ -81,7 +82,8 @@ NB_MODULE(_core, m) {
                std::optional<InVector<uint32_t>> curve_segments, std::optional<InVector<uint8_t>> curve_flags,
                std::optional<InVector<uint32_t>> curve_material, std::optional<InArray<float, 7>> media,
                std::optional<InArray<int32_t, 2>> material_media, std::optional<nb::dict> light_links,
-               const std::string& light_selection, std::optional<nb::dict> light_rows) {
+               const std::string& light_selection, std::optional<nb::dict> light_rows,
+               std::optional<nb::list> grid_media, std::optional<InVector<bool>> material_interface_only) {
                 SceneDesc desc = MakeDesc(positions, indices, triangle_material, albedo, emission, two_sided_emission,
                                           sphere_lights, point_lights, distant_lights, dome_radiance, preview_params,
                                           preview_mask, dome_texture, dome_world_to_light, shading_normals,
@@ -91,7 +93,8 @@ NB_MODULE(_core, m) {
                                         motion_time_steps, motion_transforms, light_motion_kinds,
                                         light_motion_indices, light_motion_time_steps, light_motion_transforms,
                                         material_shaping, ies_tables, curve_points, curve_segments,
-                                        curve_flags, curve_material, media, material_media, light_links});
+                                        curve_flags, curve_material, light_links});
+                AddMedia(&desc, MediaArgs{media, grid_media, material_media, material_interface_only});
                 if (light_rows) AddLightRows(&desc, *light_rows);
                 if (light_selection == "power") desc.light_selection = SceneDesc::LightSelection::kPower;
                 else if (light_selection == "bvh") desc.light_selection = SceneDesc::LightSelection::kBVH;
@@ -114,7 +117,8 @@ NB_MODULE(_core, m) {
             "material_shaping"_a = nb::none(), "ies_tables"_a = nb::none(), "curve_points"_a = nb::none(),
             "curve_segments"_a = nb::none(), "curve_flags"_a = nb::none(), "curve_material"_a = nb::none(),
             "media"_a = nb::none(), "material_media"_a = nb::none(), "light_links"_a = nb::none(),
-            "light_selection"_a = "auto", "light_rows"_a = nb::none(),
+            "light_selection"_a = "auto", "light_rows"_a = nb::none(), "grid_media"_a = nb::none(),
+            "material_interface_only"_a = nb::none(),
             "Builds the BVH. light_rows: {kind name: float32 (lights, columns)} for the kinds light_kinds() "
             "gives columns, the row layout their own files in lights/ state (the first three columns a "
             "position). Rows of the others: sphere_lights (cx, cy, cz, radius, r, g, b radiance); point_lights "
@@ -151,10 +155,12 @@ NB_MODULE(_core, m) {
             "horizontal angle 0..360 (5 degrees apart), named by the shaping columns. Curves (round linear, "
             "world space): curve_points float32 (points, 4) x y z radius; per segment curve_segments uint32 "
             "(its first point; it ends at the next), curve_flags uint8 (1: a segment before it on the same "
-            "curve, 2: one after it) and curve_material uint32. Homogeneous media (docs/media.md): media float32 "
-            "(media, 7) sigma_a rgb, sigma_s rgb (per unit length), Henyey-Greenstein g; material_media int32 "
-            "(materials, 2) the medium inside (opposite the geometric normal) and outside each material, -1 "
-            "vacuum. light_links: a dict of UsdLux light and "
+            "curve, 2: one after it) and curve_material uint32. Participating media (docs/media.md): media float32 "
+            "(N, 7) sigma_a rgb, sigma_s rgb (per unit length), Henyey-Greenstein g; grid_media: list of (density "
+            "float32 (nz, ny, nx), world_to_index float32 (3, 4), float32 (7,) sigma_a rgb, sigma_s rgb per unit "
+            "density, g), numbered after media; material_media int32 (materials, 2) the medium inside (opposite "
+            "the geometric normal) and outside each material, -1 vacuum; material_interface_only bool "
+            "(materials,): pure medium interfaces. light_links: a dict of UsdLux light and "
             "shadow links (renderer/core/lights/light_links.h): 'illuminates' and 'shadows' uint8 (links, "
             "groups) flags, 'material_group' uint32 and 'material_light' int32 per material (its link group; "
             "an area light's link, -1 none), 'sphere', 'point', 'distant' int32 per light and 'dome' int32 (1,) "

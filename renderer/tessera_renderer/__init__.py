@@ -72,9 +72,7 @@ class Scene:
                               curve_segments=np.ascontiguousarray(curves["segments"], np.uint32),
                               curve_flags=np.ascontiguousarray(curves["flags"], np.uint8),
                               curve_material=np.ascontiguousarray(curves["material"], np.uint32))
-            if getattr(data, "media", None) is not None:
-                extras.update(media=np.ascontiguousarray(data.media, np.float32).reshape(-1, 7),
-                              material_media=np.ascontiguousarray(data.material_media, np.int32).reshape(-1, 2))
+            extras.update(_media_tables(data))
             links = getattr(data, "light_links", None)
             if links is not None:
                 extras["light_links"] = {k: np.ascontiguousarray(v) for k, v in links.items()}
@@ -401,6 +399,24 @@ def _udim_tiles(tex: dict) -> list[tuple[int, str]]:
         if m and 0 <= int(m.group(1)) - 1001 < 100:
             tiles.append((int(m.group(1)) - 1001, f))
     return tiles
+
+
+def _media_tables(data) -> dict:
+    """The core's participating-media arguments (docs/media.md), none without media."""
+    out = {}
+    grids = getattr(data, "grid_media", None)
+    if grids:
+        out["grid_media"] = [(np.ascontiguousarray(d, np.float32), np.ascontiguousarray(w, np.float32),
+                              np.ascontiguousarray(c, np.float32)) for d, w, c in grids]
+    if getattr(data, "media", None) is not None:
+        out["media"] = np.ascontiguousarray(data.media, np.float32).reshape(-1, 7)
+    for key, dtype in (("material_media", np.int32), ("material_interface_only", bool)):
+        value = getattr(data, key, None)
+        if value is not None:
+            out[key] = np.ascontiguousarray(value, dtype)
+    if "material_media" in out:
+        out["material_media"] = out["material_media"].reshape(-1, 2)
+    return out
 
 
 def _texture_tables(data) -> dict:

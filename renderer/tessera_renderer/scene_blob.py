@@ -59,8 +59,10 @@ BLOB_VERSION = 1
 # SceneData.brightest_light; 12: MaterialX transmission colour and depth (absorbing
 # interiors of closed meshes, SceneData.media and material_media; a tint at depth 0); 13:
 # UsdLux light and shadow links (SceneData.light_links), NurbsPatch trim curves cut out;
-# 14: PortalLights (SceneData.light_rows["portal"]).
-TRANSLATOR_VERSION = 14
+# 14: PortalLights (SceneData.light_rows["portal"]); 15: UsdVol.Volume density fields as
+# grid media in boxes of pure medium interfaces (SceneData.grid_media,
+# material_interface_only).
+TRANSLATOR_VERSION = 15
 _ALIGN = 64
 _LIGHT_MOTION_FIELDS = ("light_motion_kinds", "light_motion_indices", "light_motion_time_steps",
                         "light_motion_transforms")
@@ -139,6 +141,13 @@ def _blob_arrays(data: SceneData) -> dict[str, np.ndarray]:
         arrays["shading_normals"] = data.shading_normals
     if data.uvs is not None:
         arrays["uvs"] = data.uvs
+    for i, (density, world_to_index, coefficients) in enumerate(getattr(data, "grid_media", None) or []):
+        arrays[f"grid_media.{i}.density"] = density
+        arrays[f"grid_media.{i}.world_to_index"] = world_to_index
+        arrays[f"grid_media.{i}.coefficients"] = coefficients
+    for key in ("material_interface_only",):
+        if getattr(data, key, None) is not None:
+            arrays[key] = getattr(data, key)
     for i, proto in enumerate(data.prototypes):
         for f in _PROTO_FIELDS:
             if proto.get(f) is not None:
@@ -192,7 +201,8 @@ def scene_data_to_blob(data: SceneData) -> bytes:
         "dome_light": dome, "meters_per_unit": data.meters_per_unit, "up_axis": data.up_axis,
         "world_offset": list(data.world_offset), "default_lights": data.default_lights,
         "brightest_light": data.brightest_light,
-        "prototypes": len(data.prototypes), "translator_version": TRANSLATOR_VERSION,
+        "prototypes": len(data.prototypes), "grid_media": len(getattr(data, "grid_media", None) or []),
+        "translator_version": TRANSLATOR_VERSION,
         "time_code": data.time_code, "shutter": None if data.shutter is None else list(data.shutter),
     }
     table, offset = {}, 0
@@ -295,6 +305,9 @@ def scene_data_from_blob(blob: bytes | bytearray | memoryview) -> SceneData:
         curves={k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("curves.")} or None,
         light_links={k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("light_links.")} or None,
         light_rows={k.split(".", 1)[1]: v for k, v in arrays.items() if k.startswith("light_rows.")},
+        grid_media=[tuple(arrays[f"grid_media.{i}.{f}"] for f in ("density", "world_to_index", "coefficients"))
+                    for i in range(meta.get("grid_media", 0))],
+        material_interface_only=arrays.get("material_interface_only"),
         time_code=meta.get("time_code"),
         shutter=None if meta.get("shutter") is None else tuple(meta["shutter"]))
     if tmp:

@@ -3,7 +3,9 @@
 // through, scattering by the Henyey-Greenstein phase function, next event estimation at
 // medium vertices and Beer-Lambert transmittance on every shadow ray through the
 // boundaries between. Scenes without media never enter it (PathIntegrator::Li), so their
-// images and speed are those of the surface kernel.
+// images and speed are those of the surface kernel. A grid medium (media/grid_medium.h)
+// samples its free flights by delta tracking and its transmittance by ratio tracking; its
+// sample has the homogeneous one's meaning, so the kernel treats both alike.
 //
 // Boundaries follow pbrt-v4: a surface whose material is a pure interface
 // (Material::interface_only) has no BSDF; a ray passes it unchanged, entering the medium
@@ -77,10 +79,11 @@ PathSample PathIntegrator::TraceMedia(const Scene& scene, Ray ray, PixelSampler&
         if (found && camera_segment) result.alpha = 1.f;
 
         if (medium >= 0) {
-            const HomogeneousMedium& m = scene.medium(medium);
+            const GridMedium* grid = scene.grid_medium(medium);
             // The segment ends at the hit, or at the camera's far clip, or never.
             const float end = found ? hit.t : camera_segment ? t_max : std::numeric_limits<float>::infinity();
-            const MediumSample ms = SampleFreeFlight(m, end, hero, sampler.Get1D());
+            const MediumSample ms = grid ? SampleFreeFlight(*grid, ray.o, ray.d, end, hero, sampler.Get1D())
+                                         : SampleFreeFlight(scene.medium(medium), end, hero, sampler.Get1D());
             const float hero_pdf = ms.HeroPdf(hero);
             if (!(hero_pdf > 0.f)) break;
             beta *= ms.f * (1.f / hero_pdf);
@@ -89,7 +92,7 @@ PathSample PathIntegrator::TraceMedia(const Scene& scene, Ray ray, PixelSampler&
             if (ms.scattered) {
                 if (depth >= max_depth_) break;
                 const Vec3 p = ray.o + ray.d * ms.t;
-                const HGPhase phase{m.g};
+                const HGPhase phase{grid ? grid->g : scene.medium(medium).g};
                 if (!scene.light_sampler().empty())
                     L += beta * over_r() * DirectLightThroughMedia(
                                     scene, p, 0.f, Vec3(0.f), Vec3(0.f), sampler,

@@ -19,13 +19,27 @@ void Scene::BuildMedia(const SceneDesc& desc) {
         if (!media_[i].Valid())
             throw std::invalid_argument("medium " + std::to_string(i) +
                                         ": sigma_a and sigma_s must be finite and >= 0, and |g| < 1");
+    grid_media_ = desc.grid_media;
+    for (size_t i = 0; i < grid_media_.size(); ++i) {
+        const std::string what = "grid medium " + std::to_string(i) + ": ";
+        if (!grid_media_[i].Valid())
+            throw std::invalid_argument(what + "needs a density grid, sigma_a and sigma_s finite and >= 0, and |g| < 1");
+        if (grid_media_[i].grid->block_max.empty()) {
+            try {
+                grid_media_[i].grid->BuildBlocks();
+            } catch (const std::invalid_argument& e) {
+                throw std::invalid_argument(what + e.what());
+            }
+        }
+    }
+    const int64_t num_media = int64_t(media_.size() + grid_media_.size());
     for (size_t m = 0; m < materials_.size(); ++m) {
         const Material& mat = materials_[m];
         const std::string what = "material " + std::to_string(m) + ": ";
         for (int32_t k : {mat.media.inside, mat.media.outside})
-            if (k < -1 || k >= int64_t(media_.size()))
+            if (k < -1 || k >= num_media)
                 throw std::invalid_argument(what + "refers to medium " + std::to_string(k) + " of " +
-                                            std::to_string(media_.size()));
+                                            std::to_string(num_media));
         if (mat.interface_only && !mat.media.is_boundary())
             throw std::invalid_argument(what + "is a pure medium interface but names no medium on either side");
         if (mat.interface_only && (mat.preview || !IsBlack(mat.emission) || !IsBlack(mat.albedo)))
@@ -67,6 +81,18 @@ int32_t Scene::MediumAt(Vec3 p) const {
     return -1;
 }
 
+namespace {
+// Transmittance of medium i over [0, len] of the ray (o, dir): Beer-Lambert, or residual
+// ratio tracking in a grid (seeded by the ray: the same shadow ray, the same estimate).
+Color SegmentTransmittance(const Scene& scene, int32_t i, Vec3 o, Vec3 dir, float len) {
+    if (const GridMedium* g = scene.grid_medium(i)) {
+        TrackingRng rng(TrackingSeed(o, dir, len));
+        return EstimateTransmittance(*g, g->sigma_t(), o, dir, 0.f, len, rng);
+    }
+    return scene.medium(i).Transmittance(len);
+}
+}  // namespace
+
 Color Scene::Transmittance(Vec3 p, float p_error, Vec3 ng, int32_t medium, const LightSample& ls) const {
     const bool infinite = std::isinf(ls.distance);
     Vec3 from = OffsetRayOrigin(p, p_error, ng, ls.wi);
@@ -84,11 +110,11 @@ Color Scene::Transmittance(Vec3 p, float p_error, Vec3 ng, int32_t medium, const
         SurfaceHit hit;
         // As Unoccluded: both ends sit off their surfaces; the shortening absorbs Embree's rounding.
         if (!Intersect({from, dir}, &hit, 0.f, infinite ? len : len * (1.f - kShadowEpsilon))) {
-            if (medium >= 0) tr *= media_[size_t(medium)].Transmittance(len);
+            if (medium >= 0) tr *= SegmentTransmittance(*this, medium, from, dir, len);
             return tr;
         }
         if (!IsInterfaceOnly(hit)) return Color(0.f);
-        if (medium >= 0) tr *= media_[size_t(medium)].Transmittance(hit.t);
+        if (medium >= 0) tr *= SegmentTransmittance(*this, medium, from, dir, hit.t);
         if (IsBlack(tr)) return tr;
         medium = MediumInterfaceAt(hit).After(hit.ng, dir, medium);
         from = OffsetRayOrigin(hit.p, hit.p_error, hit.ng, dir);

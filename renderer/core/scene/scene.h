@@ -20,6 +20,7 @@
 #include "light_links.h"
 #include "light_sampler.h"
 #include "math.h"
+#include "grid_medium.h"
 #include "medium.h"
 #include "texture.h"
 
@@ -143,6 +144,8 @@ struct SceneDesc {
     LightLinkTable light_links;
     std::vector<int32_t> sphere_light_link, point_light_link, distant_light_link;
     int32_t dome_light_link = -1;
+    // Heterogeneous media (media/grid_medium.h): Material::media indices media.size() and on.
+    std::vector<GridMedium> grid_media;
     std::vector<LightShaping> emission_shapings;  // Material::emission_shaping (axes used when about_axis)
     std::vector<SphereLight> sphere_lights;
     std::vector<PointLight> point_lights;
@@ -414,7 +417,12 @@ public:
     // Participating media (media/scene_media.cpp; docs/media.md). has_media: some material
     // bounds a medium; scenes without pay nothing (PathIntegrator::Li picks its kernel by it).
     bool has_media() const { return has_media_; }
+    // Medium i is homogeneous below num_homogeneous_media(), a grid medium from there on.
     const HomogeneousMedium& medium(int32_t i) const { return media_[size_t(i)]; }
+    int32_t num_homogeneous_media() const { return int32_t(media_.size()); }
+    const GridMedium* grid_medium(int32_t i) const {
+        return i >= int32_t(media_.size()) ? &grid_media_[size_t(i) - media_.size()] : nullptr;
+    }
     const MediumInterface& MediumInterfaceAt(const SurfaceHit& hit) const;
     bool IsInterfaceOnly(const SurfaceHit& hit) const;
     // The medium at p (-1: vacuum), from the side of the first boundary a ray from p meets.
@@ -465,6 +473,7 @@ private:
     void BuildGeometryAndLights(const SceneDesc& desc);
     void BuildMedia(const SceneDesc& desc);
     std::vector<HomogeneousMedium> media_;
+    std::vector<GridMedium> grid_media_;
     bool has_media_ = false;
     void BoundDeltaSurfaces();
     void ReleaseEmbree() noexcept;

@@ -65,7 +65,7 @@ class SceneData:
     curves: dict[str, np.ndarray] | None = None
     # Homogeneous media (usd/media.py; docs/media.md), or None: rows sigma_a rgb, sigma_s
     # rgb, g (float32 (K, 7)), and per material row the medium inside and outside it (int32
-    # (M, 2), -1 vacuum).
+    # (M, 2), -1 vacuum; grid media numbered after these).
     media: np.ndarray | None = None
     material_media: np.ndarray | None = None
     # UsdLux light and shadow links (usd/light_links.py), or None when no light has any:
@@ -99,3 +99,9 @@ class SceneData:
     # bytes; stage._subdivision_summary), None without any. Not carried by the scene blob:
     # the farm refines at the job's fixed level.
     subdivision_summary: str | None = None
+    # Grid media (usd/volumes.py, docs/media.md) as (density float32 (nz, ny, nx),
+    # world_to_index float32 (3, 4), float32 (7,) sigma_a rgb, sigma_s rgb per unit density,
+    # g), numbered after `media` in material_media; and per material row whether it is a pure
+    # medium interface (a Volume's box), bool (M,), None without volumes.
+    grid_media: list = field(default_factory=list)
+    material_interface_only: np.ndarray | None = None

@@ -38,6 +38,7 @@ from .meshes import _Chunk, MeshReader, _face_normals, _normalized
 from .motion import Shutter, MotionReader, render_time, shutter_interval
 from .dicing import Dicing
 from .scene_data import SceneData
+from .volumes import VolumeReader, volume_tables
 
 
 DEFAULT_RESOLUTION = (512, 512)
@@ -56,7 +57,7 @@ _STRUCTURAL_TYPES = {
 _GPRIMS = ("Sphere", "Cube", "Cylinder", "Cone", "Capsule", "Plane")
 
 
-class _Translator(MeshReader, InstanceReader, MaterialReader, LightReader, MotionReader):
+class _Translator(MeshReader, InstanceReader, MaterialReader, LightReader, MotionReader, VolumeReader):
     def __init__(self, stage, time, warn, bundle, limits, instancing: str,
                  subdivision_level: int = subdivision.DEFAULT_LEVEL, shutter: Shutter | None = None):
         from pxr import Sdr, UsdGeom
@@ -106,6 +107,11 @@ class _Translator(MeshReader, InstanceReader, MaterialReader, LightReader, Motio
         self.prims = 0
         self.cameras: list = []
         self.unsupported: Counter = Counter()
+        # UsdVol.Volume prims (usd/volumes.py): translated density grids in walk order, the
+        # grids read per (file, grid name), and what of them is not rendered (one warning).
+        self.volumes: list[dict] = []
+        self.volume_grids_read: dict = {}
+        self.volume_unread: set[str] = set()
         self._surface_cache: dict[Any, dict] = {}
         self._geometry_cache: dict[str, Any] = {}
         self._notes: Counter = Counter()  # repeated warnings, reported once with a count
@@ -138,7 +144,7 @@ class _Translator(MeshReader, InstanceReader, MaterialReader, LightReader, Motio
     def walk(self, root_range, base_inv: np.ndarray | None, sink: list, top_level: bool) -> None:
         """Translates every renderable prim of a prim range into `sink` as chunks in the
         space `world @ base_inv` (world space when base_inv is None)."""
-        from pxr import UsdGeom, UsdLux
+        from pxr import UsdGeom, UsdLux, UsdVol
 
         it = iter(root_range)
         for prim in it:
@@ -193,6 +199,12 @@ class _Translator(MeshReader, InstanceReader, MaterialReader, LightReader, Motio
                     self.add_moving_chunk(chunk, mats, str(prim.GetPath()))
                 else:
                     self.emit(chunk.transformed(m), sink, str(prim.GetPath()))
+            elif prim.IsA(UsdVol.Volume):
+                if not top_level:
+                    self._count_note("volumes inside instance prototypes are not supported yet; skipped")
+                else:
+                    self.add_volume(prim, m)
+                it.PruneChildren()  # its fields are read through it
             elif prim.HasAPI(UsdLux.LightAPI) or prim.IsA(UsdLux.BoundableLightBase) or \
                     prim.IsA(UsdLux.NonboundableLightBase):
                 if not top_level:
@@ -391,6 +403,9 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     tr.finish_lights()
     for type_name, count in sorted(tr.unsupported.items()):
         warn(f"{count} {type_name} prim{'s' if count > 1 else ''} not supported yet; skipped")
+    if tr.volume_unread:
+        warn("volumes: " + ", ".join(sorted(tr.volume_unread)) + " not rendered yet (density only, "
+             "docs/media.md)")
     tr.flush_notes()
     if instancing == "flatten" and tr.instanced_triangles > FLATTEN_WARN_TRIANGLES:
         warn(f"instancing was flattened into {tr.instanced_triangles} triangles; "
@@ -460,6 +475,41 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
     used_rows.update(r for proto in tr.prototypes for c in proto["chunks"] for r in np.unique(c.material).tolist())
     used_rows.update(r for m in tr.curves["material"] for r in np.unique(m).tolist())
     media_rows, material_media = media_tables(rows, used_rows)
+    grid_media, interface_only = [], None
+    if tr.volumes:
+        # Each volume's box: a pure medium interface of its own (its row names its medium,
+        # numbered after the homogeneous media of absorbing glass).
+        first = 0 if media_rows is None else len(media_rows)
+        grid_media, boxes = volume_tables(tr.volumes, np.asarray(camera_offset, np.float64), first)
+        material_media = np.concatenate([np.full((len(rows), 2), -1, np.int32) if material_media is None
+                                         else np.asarray(material_media, np.int32).reshape(-1, 2),
+                                         np.full((len(boxes), 2), -1, np.int32)])
+        interface_only = np.zeros(len(rows) + len(boxes), bool)
+        extra_p, extra_i, extra_m = [positions.reshape(-1, 3)], [indices.reshape(-1, 3)], [tri_material]
+        base = len(positions.reshape(-1, 3))
+        for corners, tris, medium in boxes:
+            row = len(albedo)
+            albedo = np.r_[albedo, np.zeros((1, 3), np.float32)]
+            emission = np.r_[emission, np.zeros((1, 3), np.float32)]
+            two_sided = np.r_[two_sided, False]
+            for key in params:
+                params[key] = np.r_[params[key], params[key][:1] * 0]
+            material_media[row, 0] = medium
+            interface_only[row] = True
+            extra_p.append(corners.astype(np.float32))
+            extra_i.append(tris + np.uint32(base))
+            extra_m.append(np.full(len(tris), row, np.uint32))
+            base += len(corners)
+        positions = np.concatenate(extra_p).astype(np.float32)
+        indices = np.concatenate(extra_i).astype(np.uint32)
+        tri_material = np.concatenate(extra_m).astype(np.uint32)
+        if normals is not None:
+            normals = np.concatenate([normals, _face_normals(positions, indices[-12 * len(boxes):])[:, None, :]
+                                      .repeat(3, axis=1)]).astype(normals.dtype)
+        if uvs is not None:
+            uvs = np.concatenate([uvs, np.zeros((12 * len(boxes), 3, 2), uvs.dtype)])
+        if material_shaping is not None:
+            material_shaping = np.r_[material_shaping, np.repeat(material_shaping[:1] * 0, len(boxes), axis=0)]
 
     prototypes = []
     for proto in tr.prototypes:
@@ -526,7 +576,8 @@ def translate_opened_stage(stage, frame: float | None = None, *, bundle=None, in
                      motion_transforms=motion_transforms,
                      time_code=None if time.IsDefault() else float(time.GetValue()),
                      shutter=None if tr.shutter is None else (tr.shutter.open, tr.shutter.close),
-                     animated=stage_is_animated(stage))
+                     animated=stage_is_animated(stage), grid_media=grid_media,
+                     material_interface_only=interface_only)
     if default_light:
         apply_default_lighting(data)
     data._native_prototype_lights = tr.native_prototype_lights
