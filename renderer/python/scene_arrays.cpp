@@ -231,18 +231,6 @@ void AddExtras(SceneDesc* d, const Extras& x) {
         d->curve_flags.assign(x.curve_flags->data(), x.curve_flags->data() + x.curve_flags->size());
         d->curve_material.assign(x.curve_material->data(), x.curve_material->data() + x.curve_material->size());
     }
-    if (x.media)
-        for (size_t k = 0; k < x.media->shape(0); ++k) {
-            auto c = [&](size_t j) { return (*x.media)(k, j); };
-            d->media.push_back({Color(c(0), c(1), c(2)), Color(c(3), c(4), c(5)), c(6)});
-        }
-    if (x.material_media) {
-        // Indices are checked against the media by Scene (BuildMedia), which names the material.
-        if (x.material_media->shape(0) != d->materials.size())
-            throw std::invalid_argument("material_media needs one row (inside, outside) per material");
-        for (size_t m = 0; m < d->materials.size(); ++m)
-            d->materials[m].media = {(*x.material_media)(m, 0), (*x.material_media)(m, 1)};
-    }
     if (x.light_links) AddLightLinks(d, *x.light_links);
     if (x.light_motion_kinds) {
         if (!x.light_motion_indices || !x.light_motion_time_steps || !x.light_motion_transforms)

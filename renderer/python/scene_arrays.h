@@ -65,10 +65,6 @@ struct Extras {
     std::optional<InVector<uint32_t>> curve_segments;
     std::optional<InVector<uint8_t>> curve_flags;
     std::optional<InVector<uint32_t>> curve_material;
-    // Homogeneous media (media/medium.h): rows sigma_a rgb, sigma_s rgb, g; and per material
-    // the medium inside and outside it (-1: vacuum), docs/media.md.
-    std::optional<InArray<float, 7>> media;
-    std::optional<InArray<int32_t, 2>> material_media;
     // Light linking (SceneData.light_links): {"illuminates", "shadows": uint8 (links,
     // groups); "material_group": uint32, "material_light": int32 per material; "sphere",
     // "point", "distant": int32 per light; "dome": int32 (1,)}.
