@@ -178,9 +178,6 @@ def run_pilot(scene, settings, threads: int = 0, seed: int = 0x51107) -> Pilot:
     import numpy as np
 
     w, h = pilot_size(settings.width, settings.height)
-    if getattr(scene, "has_media", lambda: False)():
-        return Pilot(choice="path", size=(w, h), spp=0, repeats=0,
-                     reason="participating media: path is the integrator that renders them")
     names = candidates(scene, settings)
     if getattr(scene, "has_media", False):
         return Pilot(choice=names[0], size=(w, h), spp=0, repeats=0,
