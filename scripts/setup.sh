@@ -10,6 +10,7 @@ SUDO=""
 
 APT_PACKAGES=(
   build-essential cmake ninja-build pkg-config python3-venv
+  python3-dev  # Python.h: the core is a Python extension (nanobind); not in a minimal Debian 12
   libembree-dev libtbb-dev libopenimageio-dev openimageio-tools libopenexr-dev
   libosd-dev  # OpenSubdiv: subdivision surfaces refined at translation time
   openexr  # exrheader/exrinfo: tests check that OpenEXR's own tools read every EXR we write
