@@ -10,6 +10,7 @@ SUDO=""
 
 APT_PACKAGES=(
   build-essential cmake ninja-build pkg-config python3-venv
+  python3-dev  # Python.h: the core is a Python extension (nanobind); not in a minimal Debian 12
   libembree-dev libtbb-dev libopenimageio-dev openimageio-tools libopenexr-dev
   libosd-dev  # OpenSubdiv: subdivision surfaces refined at translation time
   libopenvdb-dev libboost-dev  # OpenVDB (its headers need Boost): UsdVol.Volume fields (.vdb) read at translation time
