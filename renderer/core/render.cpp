@@ -100,8 +100,8 @@ TextureFootprintCamera FootprintCameraOf(const Camera& camera) {
     c.forward = camera.forward;
     c.orthographic = camera.IsOrthographic();
     // The window is 2 tan_half_height tall at distance 1 (perspective) or in scene units
-    // (orthographic): one pixel's share of it, at the image centre.
-    const float pixel = 2.f * camera.tan_half_height / float(camera.height);
+    // (orthographic): a fraction of one pixel's share of it, at the image centre.
+    const float pixel = kFootprintPixelFraction * 2.f * camera.tan_half_height / float(camera.height);
     c.pixel_angle = c.orthographic ? 0.f : pixel;
     c.pixel_width = c.orthographic ? pixel : 0.f;
     return c;

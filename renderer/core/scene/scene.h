@@ -199,11 +199,21 @@ inline const float* MatrixAtShutterTime(const float* steps, uint32_t time_steps,
 // passes, a radiosity solve) lookups are point lookups on the finest level. It depends
 // only on the camera and the hit point, not on spp, the tile or the thread: a farm job's
 // images stay bit-identical to a local render's.
+//
+// The footprint is a quarter of the pixel's: the pixel's samples already average over the
+// pixel, so the texture filter only has to remove what falls between them. A whole pixel
+// blurs twice (relMSE 4x that of no filtering at 16 spp on a checker to the horizon);
+// pbrt-v4 scales by 1 / sqrt(spp), but a fixed fraction keeps render passes composable
+// (samples [a, b) and [b, c) make [a, c)). A quarter beat no filtering at 1, 4, 16 and 64 spp
+// (docs/benchmarks/textures.md).
+constexpr float kFootprintPixelFraction = 0.25f;
+
 struct TextureFootprintCamera {
     Vec3 origin;
     Vec3 forward;
     bool orthographic = false;
-    // A pixel's width: an angle at the image centre (perspective), in scene units (orthographic).
+    // kFootprintPixelFraction of a pixel's width: an angle at the image centre (perspective),
+    // in scene units (orthographic).
     float pixel_angle = 0.f, pixel_width = 0.f;
 };
 inline thread_local const TextureFootprintCamera* tls_footprint_camera = nullptr;

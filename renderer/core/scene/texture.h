@@ -69,12 +69,13 @@ public:
     // replicated to three channels. Non-finite st gives the fallback.
     // A footprint filters: the texels under it are averaged, anisotropically (up to
     // kMaxAnisotropy trilinear probes along its longer axis, on the pyramid level of its
-    // shorter one). A footprint under one texel gives the point lookup's bilinear value.
+    // shorter one; 16 measured better than 8 on a plane to the horizon,
+    // docs/benchmarks/textures.md). A footprint under one texel gives the point lookup's bilinear value.
     Color EvaluateColor(uint32_t texture, Vec2 st, const TextureFootprint& footprint = {}) const;
     float EvaluateFloat(uint32_t texture, Vec2 st, const TextureFootprint& footprint = {}) const;
     // All four channels after scale and bias (fallback where there is no data).
     RGBA EvaluateRGBA(uint32_t texture, Vec2 st, const TextureFootprint& footprint = {}) const;
-    static constexpr int kMaxAnisotropy = 8;
+    static constexpr int kMaxAnisotropy = 16;
     // Bytes of texels held: the images and their pyramids.
     size_t TexelBytes() const;
     // The texture's output averaged over its image(s) (every texel equally, scale and bias

@@ -80,7 +80,7 @@ def floor_pixels(path: str, point: bool = False) -> np.ndarray:
 
 def test_a_pixel_over_many_checks_shows_the_checker_average(tmp_path):
     """Each pixel (0.036 / 8 units wide at height 1, 100 st per unit: 0.45 st, 14 checks per
-    side) shows (lo + hi) / 2 / pi * E to 1 %. The smallest error this detects is a 2 % shift
+    side; the footprint a quarter of that, 3.6 checks) shows (lo + hi) / 2 / pi * E to 1 %. The smallest error this detects is a 2 % shift
     of the average: a checker whose bright squares are 0.018 brighter fails the same check,
     and so do point lookups (each sample reads one square: pixels alias)."""
     expected = (LO + HI) / 2 / math.pi * E
@@ -100,10 +100,10 @@ def test_magnified_texture_reads_as_without_filtering(tmp_path):
 
 
 def test_filtered_render_is_the_same_on_one_thread_and_two(tmp_path):
-    """A grazing view (the camera tilted 80 degrees from straight down, anisotropic
-    footprints up to the horizon) renders bit-identically on 1 and on 2 threads."""
-    path = checker_floor(tmp_path, "grazing", tilt=80.0, camera_height=1.0, res=(32, 16))
+    """A grazing view (the camera tilted 80 degrees from straight down: footprints 6 times
+    longer than wide, about one check) renders bit-identically on 1 and on 2 threads."""
+    path = checker_floor(tmp_path, "grazing", tilt=80.0, camera_height=1.0, res=(32, 16), st_per_unit=3.0)
     one = render(path, spp=4, threads=1, variance=False, tile_size=8)
     two = render(path, spp=4, threads=2, variance=False, tile_size=8)
     assert np.array_equal(one.rgba, two.rgba)
-    assert np.ptp(one.rgb) > 0  # the floor is in view
+    assert np.ptp(one.rgb) > 0.1 * one.rgb.max()  # checks in view, not their flat average
