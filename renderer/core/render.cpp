@@ -7,10 +7,12 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cstdlib>
 #include <limits>
 #include <mutex>
 #include <optional>
 #include <stdexcept>
+#include <string>
 
 #include "bsdf.h"
 #include "integrator.h"
@@ -81,6 +83,30 @@ AOVSample SampleAOVs(const Scene& scene, const Camera& camera, Ray ray, float t_
     return out;
 }
 
+// TESSERA_TEXTURE_FILTER=point turns texture filtering off (point lookups on the finest
+// level, as before filtering existed): a diagnostic for comparing images. Every worker of a
+// farm job must agree on it.
+bool TextureFilteringOn() {
+    static const bool on = [] {
+        const char* v = std::getenv("TESSERA_TEXTURE_FILTER");
+        return !(v && std::string(v) == "point");
+    }();
+    return on;
+}
+
+TextureFootprintCamera FootprintCameraOf(const Camera& camera) {
+    TextureFootprintCamera c;
+    c.origin = camera.origin;
+    c.forward = camera.forward;
+    c.orthographic = camera.IsOrthographic();
+    // The window is 2 tan_half_height tall at distance 1 (perspective) or in scene units
+    // (orthographic): a fraction of one pixel's share of it, at the image centre.
+    const float pixel = kFootprintPixelFraction * 2.f * camera.tan_half_height / float(camera.height);
+    c.pixel_angle = c.orthographic ? 0.f : pixel;
+    c.pixel_width = c.orthographic ? pixel : 0.f;
+    return c;
+}
+
 }  // namespace
 
 RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOptions& options, TileRect tile,
@@ -139,8 +165,12 @@ RenderStats RenderTile(const Scene& scene, const Camera& camera, const RenderOpt
     constexpr uint32_t kBatchSamples = 256;
     const uint32_t chunk = in_batches ? kBatchSamples : 1;
 
+    const TextureFootprintCamera footprint_camera = FootprintCameraOf(camera);
+    const bool filter_textures = kFullFeatures && TextureFilteringOn();
+
     auto render_range = [&](const tbb::blocked_range<uint32_t>& range) {
         ScopedFlushDenormals ftz;
+        const TextureFootprintScope footprint(filter_textures ? &footprint_camera : nullptr);
         IntegratorCounters counters;
         const RayCounters rays_before = tls_ray_counters;
         RayCounters aov_rays;  // traced for the AOVs: not the integrators' rays

@@ -183,6 +183,7 @@ NB_MODULE(_core, m) {
         .def_prop_ro("uses_light_bvh", &Scene::uses_light_bvh)
         .def_prop_ro("num_instances", &Scene::num_instances)
         .def_prop_ro("num_stored_triangles", &Scene::num_stored_triangles)
+        .def_prop_ro("texture_bytes", &Scene::texture_bytes)
         .def_prop_ro("splat_exponent", &Scene::splat_exponent,
                      "splats are fixed point in units of 2^splat_exponent (SPLAT_SCALE / 2^e per unit)");
 

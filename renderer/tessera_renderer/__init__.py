@@ -135,6 +135,11 @@ class Scene:
         return self._core.num_emitters
 
     @property
+    def texture_bytes(self) -> int:
+        """Bytes of texels the core holds: every image whole, as float, with its mip-maps."""
+        return self._core.texture_bytes
+
+    @property
     def uses_light_bvh(self) -> bool:
         """Whether next event estimation chooses area emitters through the light BVH."""
         return self._core.uses_light_bvh

@@ -121,7 +121,9 @@ def _render_one(args: argparse.Namespace) -> int:
     if getattr(data, "shutter", None) is not None:
         when += (f", motion blur over [{data.shutter[0]:g}, {data.shutter[1]:g}] "
                  f"({len(data.motion_instances)} moving)")
-    print(f"{scene_path.name}: {scene.num_triangles} triangles{instanced}, {scene.num_emitters} emitters; "
+    # Textures are held whole (no texture cache bounds them): their memory belongs in the log.
+    textures = f", textures {scene.texture_bytes / 2**20:.0f} MB" if scene.texture_bytes else ""
+    print(f"{scene_path.name}: {scene.num_triangles} triangles{instanced}, {scene.num_emitters} emitters{textures}; "
           f"{width}x{height}, {samples}, seed {settings.seed}{when}", file=sys.stderr)
     if getattr(data, "subdivision_summary", None):
         print(data.subdivision_summary, file=sys.stderr)

@@ -208,6 +208,46 @@ inline const float* MatrixAtShutterTime(const float* steps, uint32_t time_steps,
     return scratch;
 }
 
+// The camera that textures are filtered for. RenderTile sets it for its camera samples
+// (TextureFootprintScope); every surface a sample's paths shade, first hit or after any
+// bounce, filters its textures over the footprint this camera's pixel would have there
+// (pbrt-v4's camera approximation): never wider for rough or curved surfaces on the way,
+// so secondary hits are filtered at most as much as if seen directly. Without it (scene
+// passes, a radiosity solve) lookups are point lookups on the finest level. It depends
+// only on the camera and the hit point, not on spp, the tile or the thread: a farm job's
+// images stay bit-identical to a local render's.
+//
+// The footprint is a quarter of the pixel's: the pixel's samples already average over the
+// pixel, so the texture filter only has to remove what falls between them. A whole pixel
+// blurs twice (relMSE 4x that of no filtering at 16 spp on a checker to the horizon);
+// pbrt-v4 scales by 1 / sqrt(spp), but a fixed fraction keeps render passes composable
+// (samples [a, b) and [b, c) make [a, c)). A quarter beat no filtering at 1, 4, 16 and 64 spp
+// (docs/benchmarks/textures.md).
+constexpr float kFootprintPixelFraction = 0.25f;
+
+struct TextureFootprintCamera {
+    Vec3 origin;
+    Vec3 forward;
+    bool orthographic = false;
+    // kFootprintPixelFraction of a pixel's width: an angle at the image centre (perspective),
+    // in scene units (orthographic).
+    float pixel_angle = 0.f, pixel_width = 0.f;
+};
+inline thread_local const TextureFootprintCamera* tls_footprint_camera = nullptr;
+
+class TextureFootprintScope {
+public:
+    explicit TextureFootprintScope(const TextureFootprintCamera* camera) : saved_(tls_footprint_camera) {
+        tls_footprint_camera = camera;
+    }
+    ~TextureFootprintScope() { tls_footprint_camera = saved_; }
+    TextureFootprintScope(const TextureFootprintScope&) = delete;
+    TextureFootprintScope& operator=(const TextureFootprintScope&) = delete;
+
+private:
+    const TextureFootprintCamera* saved_;
+};
+
 // Row-major 3x4 m applied to a point and to a vector; row-major 3x3 n to a vector.
 inline Vec3 TransformPoint(const float* m, Vec3 p) {
     return {m[0] * p.x + m[1] * p.y + m[2] * p.z + m[3], m[4] * p.x + m[5] * p.y + m[6] * p.z + m[7],
@@ -312,6 +352,9 @@ public:
     const Material& MaterialAt(const SurfaceHit& hit) const;
     // The scattering function at a hit; a black DiffuseBSDF on light-only geometry.
     BSDF BSDFAt(const SurfaceHit& hit, TransportMode mode) const;
+    // The st footprint of tls_footprint_camera's pixel at a triangle hit (what BSDFAt
+    // filters its textures over); zero without that camera or without st.
+    TextureFootprint FootprintAt(const SurfaceHit& hit) const;
     int32_t EmitterAt(const SurfaceHit& hit) const;
     // Radiance leaving emitter e at the hit toward wo.
     Color Emitted(int32_t emitter, const SurfaceHit& hit, Vec3 wo) const;
@@ -454,6 +497,8 @@ public:
     void ForEachTriangle(Visit&& visit) const;
 
     size_t num_triangles() const { return num_triangles_; }
+    // Bytes of texture texels held, mip-maps included.
+    size_t texture_bytes() const { return textures_.TexelBytes(); }
     size_t num_curve_segments() const { return curve_material_.size(); }
     RTCScene embree_scene() const { return scene_; }  // for raw-Embree benchmarks
     size_t num_emitters() const { return emitters_.size(); }
@@ -593,7 +638,7 @@ private:
     void BuildCurves(const SceneDesc& desc, RTCDevice device);
     // Emitted radiance of a triangle's material at barycentrics (b1, b2), before sidedness.
     Color TriangleEmission(uint32_t mesh, uint32_t prim, float b1, float b2) const;
-    void ApplyTextures(const Material& m, Vec2 st, MaterialParams* p) const;
+    void ApplyTextures(const Material& m, Vec2 st, const TextureFootprint& footprint, MaterialParams* p) const;
     void ApplyNormalMap(SurfaceHit* hit) const;
 
     RTCScene scene_ = nullptr;

@@ -102,24 +102,83 @@ Color Scene::TriangleEmission(uint32_t mesh, uint32_t prim, float b1, float b2) 
     return {std::max(0.f, c.x), std::max(0.f, c.y), std::max(0.f, c.z)};
 }
 
-void Scene::ApplyTextures(const Material& m, Vec2 st, MaterialParams* p) const {
+void Scene::ApplyTextures(const Material& m, Vec2 st, const TextureFootprint& footprint, MaterialParams* p) const {
     auto color = [&](TextureSlot slot, Color* out) {
-        if (m.textures[slot] >= 0) *out = textures_.EvaluateColor(uint32_t(m.textures[slot]), st);
+        if (m.textures[slot] >= 0) *out = textures_.EvaluateColor(uint32_t(m.textures[slot]), st, footprint);
     };
     auto scalar = [&](TextureSlot slot, float* out) {
+        if (m.textures[slot] >= 0) *out = textures_.EvaluateFloat(uint32_t(m.textures[slot]), st, footprint);
+    };
+    // Emission and opacity stay point lookups: light sampling (TriangleEmission) and
+    // presence (IsCutoutHit) see them without a footprint, and a BSDF-hit and a light
+    // sample must agree on the same surface's values for MIS.
+    auto point_color = [&](TextureSlot slot, Color* out) {
+        if (m.textures[slot] >= 0) *out = textures_.EvaluateColor(uint32_t(m.textures[slot]), st);
+    };
+    auto point_scalar = [&](TextureSlot slot, float* out) {
         if (m.textures[slot] >= 0) *out = textures_.EvaluateFloat(uint32_t(m.textures[slot]), st);
     };
     // Out-of-range values (a texture scaled past 1, say) are sanitised by
     // MakePreviewSurfaceBSDF like constant inputs are.
     color(kSlotDiffuseColor, &p->diffuse_color);
-    color(kSlotEmissiveColor, &p->emissive_color);
+    point_color(kSlotEmissiveColor, &p->emissive_color);
     color(kSlotSpecularColor, &p->specular_color);
     scalar(kSlotMetallic, &p->metallic);
     scalar(kSlotRoughness, &p->roughness);
     scalar(kSlotClearcoat, &p->clearcoat);
     scalar(kSlotClearcoatRoughness, &p->clearcoat_roughness);
-    scalar(kSlotOpacity, &p->opacity);
+    point_scalar(kSlotOpacity, &p->opacity);
     scalar(kSlotIor, &p->ior);
+}
+
+TextureFootprint Scene::FootprintAt(const SurfaceHit& hit) const {
+    const TextureFootprintCamera* cam = tls_footprint_camera;
+    if (!cam || hit.geom_id != kTriangleGeometry) return {};
+    const Mesh& mesh = meshes_[hit.mesh];
+    if (mesh.uvs.empty()) return {};
+    // The pixel's ray cone at the hit: its width across the ray, stretched by 1 / cos along
+    // the ray's projection onto the surface (the footprint's long axis at grazing angles).
+    Vec3 r = cam->forward;
+    float width = cam->pixel_width;
+    if (!cam->orthographic) {
+        const Vec3 to = hit.p - cam->origin;
+        const float dist = Length(to);
+        if (!(dist > 0.f)) return {};
+        r = to / dist;
+        width = dist * cam->pixel_angle;
+    }
+    if (!(width > 0.f) || !std::isfinite(width)) return {};
+    const Vec3 n = hit.ng;
+    const float cos_theta = std::max(std::abs(Dot(r, n)), 1e-3f);
+    const Vec3 along = r - n * Dot(r, n);
+    const float along_length = Length(along);
+    Vec3 u;
+    if (along_length > 1e-6f) {
+        u = along / along_length;
+    } else {  // head-on: any direction in the surface
+        u = Normalize(Cross(n, std::abs(n.x) < 0.9f ? Vec3{1.f, 0.f, 0.f} : Vec3{0.f, 1.f, 0.f}));
+    }
+    const Vec3 v = Cross(n, u);
+    const Vec3 a = u * (width / cos_theta), b = v * width;
+    // World offsets in the triangle's plane to st: x = alpha e1 + beta e2 solved through the
+    // edges' Gram matrix, then st moves by alpha duv1 + beta duv2.
+    Vec3 p[3];
+    TriangleVertices(hit.mesh, hit.prim_id, hit.instance, p);
+    const Vec3 e1 = p[1] - p[0], e2 = p[2] - p[0];
+    const float g11 = Dot(e1, e1), g12 = Dot(e1, e2), g22 = Dot(e2, e2);
+    const float det = g11 * g22 - g12 * g12;
+    if (!(det > 0.f) || !std::isfinite(det)) return {};
+    const float* uv = &mesh.uvs[6 * size_t(hit.prim_id)];
+    const float du1 = uv[2] - uv[0], dv1 = uv[3] - uv[1], du2 = uv[4] - uv[0], dv2 = uv[5] - uv[1];
+    const auto to_st = [&](Vec3 x) {
+        const float p1 = Dot(x, e1), p2 = Dot(x, e2);
+        const float alpha = (g22 * p1 - g12 * p2) / det, beta = (g11 * p2 - g12 * p1) / det;
+        return Vec2{alpha * du1 + beta * du2, alpha * dv1 + beta * dv2};
+    };
+    TextureFootprint f{to_st(a), to_st(b)};
+    if (!std::isfinite(f.dx.x) || !std::isfinite(f.dx.y) || !std::isfinite(f.dy.x) || !std::isfinite(f.dy.y))
+        return {};
+    return f;
 }
 
 void Scene::ApplyNormalMap(SurfaceHit* hit) const {
@@ -386,7 +445,7 @@ BSDF Scene::BSDFAt(const SurfaceHit& hit, TransportMode mode) const {
     if (!kFullFeatures || !m.preview || !material_has_textures_[mi])
         return material_bsdfs_[2 * size_t(mi) + size_t(mode)];
     MaterialParams p = *m.preview;  // a copy on the stack, textured inputs evaluated at st
-    ApplyTextures(m, hit.st, &p);
+    ApplyTextures(m, hit.st, FootprintAt(hit), &p);
     return MakePreviewSurfaceBSDF(p, mode);
 }
 

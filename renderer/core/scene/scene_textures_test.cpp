@@ -311,3 +311,39 @@ TEST(Textures, BadTextureInputIsRejectedWithAClearError) {
     d.uvs.pop_back();
     EXPECT_THROW(Scene s(d), std::invalid_argument);  // wrong uv count
 }
+
+// The footprint a camera pixel has on the floor (s = x / 2 + c, t = -z / 2 + c): seen head
+// on from height h, a square of side h * angle in both directions; seen at an angle theta
+// from the normal at distance D, D * angle across the ray and D * angle / cos(theta) along
+// the ray's trace on the floor (z here). st halves each (the floor maps 2 units to 1).
+TEST(Textures, FootprintIsThePixelConeOnTheSurface) {
+    SceneDesc d;
+    std::array<int32_t, kNumTextureSlots> slots = NoTextures();
+    slots[kSlotDiffuseColor] = 0;
+    d.images.push_back(BlockImage(Color(0.5f)));
+    d.textures.push_back(RGBTexture(0));
+    AddFloorST(d, AddPreviewMaterial(d, LambertLike(Color(0.18f)), Color(0.f), slots));
+    Scene scene(d);
+    const float h = 0.5f, angle = 1e-3f;
+    TextureFootprintCamera cam;
+    cam.origin = {0.f, h, 0.f};
+    cam.forward = {0.f, -1.f, 0.f};
+    cam.pixel_angle = angle;
+    auto length = [](Vec2 v) { return std::sqrt(v.x * v.x + v.y * v.y); };
+    auto footprint_towards = [&](Vec3 target) {
+        SurfaceHit hit;
+        EXPECT_TRUE(scene.Intersect({cam.origin, Normalize(target - cam.origin)}, &hit));
+        return scene.FootprintAt(hit);
+    };
+    EXPECT_EQ(length(footprint_towards({0.f, 0.f, 0.f}).dx), 0.f);  // no camera: a point lookup
+    const TextureFootprintScope scope(&cam);
+    const TextureFootprint head_on = footprint_towards({0.f, 0.f, 0.f});
+    EXPECT_NEAR(length(head_on.dx), 0.5f * h * angle, 1e-4f * h * angle);
+    EXPECT_NEAR(length(head_on.dy), 0.5f * h * angle, 1e-4f * h * angle);
+    const float z = -0.8f, D = std::sqrt(h * h + z * z), cos_theta = h / D;
+    const TextureFootprint oblique = footprint_towards({0.f, 0.f, z});
+    EXPECT_NEAR(oblique.dx.x, 0.f, 1e-7f);  // along the ray's trace: t only
+    EXPECT_NEAR(std::abs(oblique.dx.y), 0.5f * D * angle / cos_theta, 1e-4f * D * angle / cos_theta);
+    EXPECT_NEAR(std::abs(oblique.dy.x), 0.5f * D * angle, 1e-4f * D * angle);  // across: s only
+    EXPECT_NEAR(oblique.dy.y, 0.f, 1e-7f);
+}

@@ -1,6 +1,7 @@
 #include "texture.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -62,6 +63,66 @@ inline Color ToColor(const RGBA& v, TextureOutput out) {
     return Color(Pick(v, out));
 }
 
+// One axis of a level: n texels become ceil(n / 2), output texel j the box average of input
+// [j r, (j + 1) r) with r = n / ceil(n / 2), partial texels weighed by their overlap. Even
+// sizes are the plain 2-to-1 box; odd ones keep every texel's weight equal, so each level's
+// mean is the image's (a checker's average stays exact at every level).
+struct AxisWeights {
+    std::vector<uint32_t> first;          // first input texel of output j
+    std::vector<std::array<float, 3>> w;  // weights of inputs first, first + 1, first + 2
+};
+
+AxisWeights HalvingWeights(uint32_t n) {
+    const uint32_t m = (n + 1) / 2;
+    AxisWeights a;
+    a.first.resize(m);
+    a.w.resize(m);
+    const double r = double(n) / double(m);
+    for (uint32_t j = 0; j < m; ++j) {
+        const double lo = j * r, hi = (j + 1) * r;
+        a.first[j] = uint32_t(std::floor(lo));
+        for (int k = 0; k < 3; ++k) {
+            const double i0 = a.first[j] + k, i1 = i0 + 1.0;
+            const double overlap = std::max(0.0, std::min(hi, i1) - std::max(lo, i0));
+            a.w[j][k] = i0 < n ? float(overlap / r) : 0.f;
+        }
+    }
+    return a;
+}
+
+Image HalfSize(const Image& in) {
+    const uint32_t c = in.channels;
+    const AxisWeights ax = HalvingWeights(in.width), ay = HalvingWeights(in.height);
+    Image wide;  // halved along x only
+    wide.width = uint32_t(ax.first.size());
+    wide.height = in.height;
+    wide.channels = c;
+    wide.texels.assign(size_t(wide.width) * wide.height * c, 0.f);
+    for (uint32_t y = 0; y < in.height; ++y)
+        for (uint32_t x = 0; x < wide.width; ++x)
+            for (int k = 0; k < 3; ++k) {
+                const float w = ax.w[x][k];
+                if (w == 0.f) continue;
+                const float* src = &in.texels[(size_t(y) * in.width + ax.first[x] + k) * c];
+                float* dst = &wide.texels[(size_t(y) * wide.width + x) * c];
+                for (uint32_t q = 0; q < c; ++q) dst[q] += w * src[q];
+            }
+    Image out;
+    out.width = wide.width;
+    out.height = uint32_t(ay.first.size());
+    out.channels = c;
+    out.texels.assign(size_t(out.width) * out.height * c, 0.f);
+    for (uint32_t y = 0; y < out.height; ++y)
+        for (int k = 0; k < 3; ++k) {
+            const float w = ay.w[y][k];
+            if (w == 0.f) continue;
+            const float* src = &wide.texels[size_t(ay.first[y] + k) * wide.width * c];
+            float* dst = &out.texels[size_t(y) * out.width * c];
+            for (size_t q = 0; q < size_t(out.width) * c; ++q) dst[q] += w * src[q];
+        }
+    return out;
+}
+
 }  // namespace
 
 float SrgbToLinear(float c) {
@@ -87,6 +148,14 @@ TextureSet::TextureSet(std::vector<Image> images, std::vector<TextureDesc> textu
             for (size_t k = 0; k < im.texels.size(); k += im.channels)
                 for (uint32_t c = 0; c < colour; ++c) im.texels[k + c] = SrgbToLinear(im.texels[k + c]);
             im.srgb = false;  // decoded
+        }
+    }
+    pyramids_.resize(images_.size());
+    for (size_t i = 0; i < images_.size(); ++i) {
+        const Image* finer = &images_[i];
+        while (finer->width > 1 || finer->height > 1) {
+            pyramids_[i].push_back(HalfSize(*finer));
+            finer = &pyramids_[i].back();
         }
     }
     auto check_image = [&](int32_t index, size_t t) {
@@ -156,16 +225,68 @@ RGBA TextureSet::Bilinear(const Image& im, float s, float t, WrapMode ws, WrapMo
     return out;
 }
 
-RGBA TextureSet::EvaluateRGBA(uint32_t texture, Vec2 st) const {
+RGBA TextureSet::Trilinear(int32_t image, float level, float s, float t, WrapMode ws, WrapMode wt) const {
+    const std::vector<Image>& pyramid = pyramids_[image];
+    const float clamped = std::clamp(level, 0.f, float(pyramid.size()));
+    const size_t l0 = size_t(clamped);
+    const float f = clamped - float(l0);
+    const Image& fine = l0 == 0 ? images_[image] : pyramid[l0 - 1];
+    const RGBA a = Bilinear(fine, s, t, ws, wt);
+    if (f == 0.f || l0 >= pyramid.size()) return a;
+    const RGBA b = Bilinear(pyramid[l0], s, t, ws, wt);
+    RGBA out;
+    for (int c = 0; c < 4; ++c) out[c] = a[c] + f * (b[c] - a[c]);
+    return out;
+}
+
+RGBA TextureSet::Filtered(int32_t image, float s, float t, Vec2 dx, Vec2 dy, WrapMode ws, WrapMode wt) const {
+    const Image& im = images_[image];
+    const float w = float(im.width), h = float(im.height);
+    // The footprint's axes in finest-level texels.
+    const auto sq = [](float x) { return x * x; };
+    const float la = sq(dx.x * w) + sq(dx.y * h), lb = sq(dy.x * w) + sq(dy.y * h);
+    const float major = std::sqrt(std::max(la, lb));
+    if (!(major > 1.f) || !std::isfinite(major)) return Bilinear(im, s, t, ws, wt);
+    const Vec2 axis = la >= lb ? dx : dy;
+    // The shorter axis picks the level; a thin footprint is covered by probes along the
+    // longer one, at most kMaxAnisotropy of them (beyond that the level rises: blur rather
+    // than alias).
+    const float minor = std::max(std::sqrt(std::min(la, lb)), major / float(kMaxAnisotropy));
+    const int probes = std::clamp(int(std::ceil(major / minor - 1e-3f)), 1, kMaxAnisotropy);
+    const float level = std::log2(std::max(minor, 1.f));
+    RGBA sum{0.f, 0.f, 0.f, 0.f};
+    for (int k = 0; k < probes; ++k) {
+        const float f = (float(k) + 0.5f) / float(probes) - 0.5f;
+        const RGBA v = Trilinear(image, level, s + f * axis.x, t + f * axis.y, ws, wt);
+        for (int c = 0; c < 4; ++c) sum[c] += v[c];
+    }
+    for (int c = 0; c < 4; ++c) sum[c] /= float(probes);
+    return sum;
+}
+
+size_t TextureSet::TexelBytes() const {
+    size_t n = 0;
+    for (size_t i = 0; i < images_.size(); ++i) {
+        n += images_[i].texels.size();
+        for (const Image& level : pyramids_[i]) n += level.texels.size();
+    }
+    return n * sizeof(float);
+}
+
+RGBA TextureSet::EvaluateRGBA(uint32_t texture, Vec2 st, const TextureFootprint& footprint) const {
     const Prepared& p = textures_[texture];
     const TextureDesc& d = p.desc;
     if (!std::isfinite(st.x) || !std::isfinite(st.y)) return d.fallback;
     float s = st.x, t = st.y;
+    Vec2 dx = footprint.dx, dy = footprint.dy;
     if (p.has_transform) {
         s = p.m[0] * st.x + p.m[1] * st.y + p.m[4];
         t = p.m[2] * st.x + p.m[3] * st.y + p.m[5];
         if (!std::isfinite(s) || !std::isfinite(t)) return d.fallback;
+        dx = {p.m[0] * footprint.dx.x + p.m[1] * footprint.dx.y, p.m[2] * footprint.dx.x + p.m[3] * footprint.dx.y};
+        dy = {p.m[0] * footprint.dy.x + p.m[1] * footprint.dy.y, p.m[2] * footprint.dy.x + p.m[3] * footprint.dy.y};
     }
+    const bool point = dx.x == 0.f && dx.y == 0.f && dy.x == 0.f && dy.y == 0.f;
     RGBA v;
     if (!d.udim_tiles.empty()) {
         // UDIM: tile 1001 + u + 10 v covers [u, u+1) x [v, v+1); filtering stays in the tile.
@@ -173,21 +294,23 @@ RGBA TextureSet::EvaluateRGBA(uint32_t texture, Vec2 st) const {
         if (fu < 0.f || fu > 9.f || fv < 0.f || fv > 9.f) return d.fallback;
         const int32_t image = d.udim_tiles[size_t(fv) * 10 + size_t(fu)];
         if (image < 0) return d.fallback;
-        v = Bilinear(images_[image], s - fu, t - fv, WrapMode::kClamp, WrapMode::kClamp);
+        v = point ? Bilinear(images_[image], s - fu, t - fv, WrapMode::kClamp, WrapMode::kClamp)
+                  : Filtered(image, s - fu, t - fv, dx, dy, WrapMode::kClamp, WrapMode::kClamp);
     } else {
         if (d.image < 0) return d.fallback;
-        v = Bilinear(images_[d.image], s, t, d.wrap_s, d.wrap_t);
+        v = point ? Bilinear(images_[d.image], s, t, d.wrap_s, d.wrap_t)
+                  : Filtered(d.image, s, t, dx, dy, d.wrap_s, d.wrap_t);
     }
     for (int c = 0; c < 4; ++c) v[c] = v[c] * d.scale[c] + d.bias[c];
     return v;
 }
 
-Color TextureSet::EvaluateColor(uint32_t texture, Vec2 st) const {
-    return ToColor(EvaluateRGBA(texture, st), textures_[texture].desc.output);
+Color TextureSet::EvaluateColor(uint32_t texture, Vec2 st, const TextureFootprint& footprint) const {
+    return ToColor(EvaluateRGBA(texture, st, footprint), textures_[texture].desc.output);
 }
 
-float TextureSet::EvaluateFloat(uint32_t texture, Vec2 st) const {
-    return Pick(EvaluateRGBA(texture, st), textures_[texture].desc.output);
+float TextureSet::EvaluateFloat(uint32_t texture, Vec2 st, const TextureFootprint& footprint) const {
+    return Pick(EvaluateRGBA(texture, st, footprint), textures_[texture].desc.output);
 }
 
 Color TextureSet::MeanColor(uint32_t texture) const {

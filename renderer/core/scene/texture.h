@@ -1,5 +1,6 @@
 // Image textures for UsdUVTexture: linear float images, bilinear lookups with the
-// schema's wrap modes, scale/bias/fallback, channel outputs, UsdTransform2d and UDIM tiles.
+// schema's wrap modes, scale/bias/fallback, channel outputs, UsdTransform2d and UDIM tiles,
+// and filtered lookups over a footprint from a mip-map pyramid built once per image.
 //
 // Images arrive decoded (Python reads files with OpenImageIO, inside the bundle sandbox,
 // and hands over float texels), so the core never parses untrusted image files. The one
@@ -36,6 +37,12 @@ struct Image {
     bool srgb = false;                            // colour channels are sRGB-encoded
 };
 
+// A lookup's footprint: the st offsets of one pixel step along two directions on the
+// surface (pbrt's dst/dx and dst/dy). Zero is a point lookup: bilinear on the finest level.
+struct TextureFootprint {
+    Vec2 dx, dy;
+};
+
 struct TextureDesc {
     int32_t image = -1;               // the image, for a texture without UDIM tiles
     std::vector<int32_t> udim_tiles;  // empty, or 100 image indices (-1: missing) for tiles 1001..1100
@@ -60,10 +67,17 @@ public:
 
     // The texture's output at st (scale and bias applied), as a colour: a scalar output is
     // replicated to three channels. Non-finite st gives the fallback.
-    Color EvaluateColor(uint32_t texture, Vec2 st) const;
-    float EvaluateFloat(uint32_t texture, Vec2 st) const;
+    // A footprint filters: the texels under it are averaged, anisotropically (up to
+    // kMaxAnisotropy trilinear probes along its longer axis, on the pyramid level of its
+    // shorter one; 16 measured better than 8 on a plane to the horizon,
+    // docs/benchmarks/textures.md). A footprint under one texel gives the point lookup's bilinear value.
+    Color EvaluateColor(uint32_t texture, Vec2 st, const TextureFootprint& footprint = {}) const;
+    float EvaluateFloat(uint32_t texture, Vec2 st, const TextureFootprint& footprint = {}) const;
     // All four channels after scale and bias (fallback where there is no data).
-    RGBA EvaluateRGBA(uint32_t texture, Vec2 st) const;
+    RGBA EvaluateRGBA(uint32_t texture, Vec2 st, const TextureFootprint& footprint = {}) const;
+    static constexpr int kMaxAnisotropy = 16;
+    // Bytes of texels held: the images and their pyramids.
+    size_t TexelBytes() const;
     // The texture's output averaged over its image(s) (every texel equally, scale and bias
     // applied): what light selection uses as a textured emitter's mean radiance.
     Color MeanColor(uint32_t texture) const;
@@ -93,8 +107,13 @@ private:
         bool has_transform = false;
     };
     RGBA Bilinear(const Image& image, float s, float t, WrapMode ws, WrapMode wt) const;
+    RGBA Filtered(int32_t image, float s, float t, Vec2 dx, Vec2 dy, WrapMode ws, WrapMode wt) const;
+    RGBA Trilinear(int32_t image, float level, float s, float t, WrapMode ws, WrapMode wt) const;
     RGBA Texel(const Image& image, int64_t x, int64_t y) const;  // in range
     std::vector<Image> images_;
+    // Per image, its levels 1, 2, ... (level 0 is the image): each half the size of the
+    // one before (odd sizes round up), down to 1 x 1, texels box averages of the level before.
+    std::vector<std::vector<Image>> pyramids_;
     std::vector<Prepared> textures_;
     std::map<std::pair<uint32_t, int32_t>, ZeroGrid> zero_grids_;  // (texture, image)
 };

@@ -278,3 +278,115 @@ TEST(Texture, ZeroOverTriangleNeverClaimsAnEmittingTriangle) {
     const Vec2 nan_st[3] = {{std::numeric_limits<float>::quiet_NaN(), 0.f}, {0.1f, 0.1f}, {0.05f, 0.2f}};
     EXPECT_FALSE(set.ZeroOverTriangle(0, nan_st));
 }
+
+namespace {
+
+// A w x w checker of `check`-texel squares, alternating lo and hi (mean (lo + hi) / 2).
+Image Checker(uint32_t w, uint32_t check, float lo, float hi) {
+    std::vector<float> v(size_t(w) * w);
+    for (uint32_t y = 0; y < w; ++y)
+        for (uint32_t x = 0; x < w; ++x) v[size_t(y) * w + x] = ((x / check + y / check) % 2) ? hi : lo;
+    return Grey(w, w, std::move(v));
+}
+
+// Vertical stripes `stripe` texels wide, lo and hi: constant along t.
+Image Stripes(uint32_t w, uint32_t stripe, float lo, float hi) {
+    std::vector<float> v(size_t(w) * w);
+    for (uint32_t y = 0; y < w; ++y)
+        for (uint32_t x = 0; x < w; ++x) v[size_t(y) * w + x] = ((x / stripe) % 2) ? hi : lo;
+    return Grey(w, w, std::move(v));
+}
+
+// The largest |lookup - expected| over a fixed set of st points with one footprint.
+float WorstError(const TextureSet& set, TextureFootprint f, float expected) {
+    float worst = 0.f;
+    for (int i = 0; i < 64; ++i) {
+        // Points spread irregularly over the texture, off the texel and check grid.
+        const Vec2 st{std::fmod(0.137f + 0.6180339f * float(i), 1.f), std::fmod(0.291f + 0.7548776f * float(i), 1.f)};
+        worst = std::max(worst, std::abs(set.EvaluateFloat(0, st, f) - expected));
+    }
+    return worst;
+}
+
+}  // namespace
+
+// A footprint covering many checks reads the checker's average, (lo + hi) / 2, to 1 %. The
+// smallest error this detects is a 2 % shift of the average: a checker whose bright squares
+// are 0.04 brighter (average 2 % up) fails the same check (negative control), and so do
+// point lookups at the same places (the aliasing the filter removes).
+TEST(Texture, FilteredLookupOverManyChecksIsTheCheckerAverage) {
+    const float lo = 0.1f, hi = 0.9f, mean = 0.5f, tol = 0.01f * mean;
+    // 4-texel checks under a 40-texel footprint; 3-texel checks (not a divisor of any
+    // level's texel size) under a 150-texel one.
+    const struct { uint32_t size, check; float footprint; } cases[] = {{256, 4, 40.f}, {512, 3, 150.f}};
+    for (const auto& [size, check, footprint] : cases) {
+        const float wide = footprint / float(size);
+        TextureSet set({Checker(size, check, lo, hi)}, {Tex(0)});
+        EXPECT_LE(WorstError(set, {{wide, 0.f}, {0.f, wide}}, mean), tol) << "checks of " << check;
+        // Rotated 30 degrees: the footprint's axes need not follow the texel grid.
+        const float c = std::cos(0.5236f) * wide, s = std::sin(0.5236f) * wide;
+        EXPECT_LE(WorstError(set, {{c, s}, {-s, c}}, mean), tol) << "checks of " << check;
+        // Negative controls: point lookups alias; a 2 % brighter checker is told apart.
+        EXPECT_GT(WorstError(set, {}, mean), 10.f * tol);
+        TextureSet brighter({Checker(size, check, lo, hi + 0.04f)}, {Tex(0)});
+        EXPECT_GT(WorstError(brighter, {{wide, 0.f}, {0.f, wide}}, mean), tol);
+    }
+}
+
+// A thin footprint averages along its long axis only: across 4-texel vertical stripes it
+// reads their average, along them (at a stripe's centre) the stripe's own value. An
+// isotropic filter of the long axis's size would read 0.5 in both (the negative control).
+TEST(Texture, ThinFootprintAveragesAlongItsLongAxisOnly) {
+    TextureSet set({Stripes(256, 4, 0.1f, 0.9f)}, {Tex(0)});
+    const float major = 16.f / 256.f, minor = 0.5f / 256.f;
+    const float across = set.EvaluateFloat(0, {0.3f, 0.4f}, {{major, 0.f}, {0.f, minor}});
+    EXPECT_NEAR(across, 0.5f, 0.005f);
+    // s = 2 / 256: the centre of stripe 0 (texels 0..3, value 0.1).
+    const float along = set.EvaluateFloat(0, {2.f / 256.f, 0.4f}, {{minor, 0.f}, {0.f, major}});
+    EXPECT_NEAR(along, 0.1f, 0.002f);
+    const float isotropic = set.EvaluateFloat(0, {2.f / 256.f, 0.4f}, {{major, 0.f}, {0.f, major}});
+    EXPECT_GT(std::abs(isotropic - 0.1f), 0.2f);
+}
+
+// Under a footprint of at most one texel (magnification) the lookup is the point lookup's
+// bilinear value, bit for bit, under every wrap mode and a UsdTransform2d.
+TEST(Texture, MagnifiedLookupIsTheBilinearValue) {
+    std::vector<float> v(16 * 16);
+    for (size_t i = 0; i < v.size(); ++i) v[i] = std::fmod(0.37f * float(i * i % 101), 1.f);
+    for (WrapMode mode : {WrapMode::kRepeat, WrapMode::kClamp, WrapMode::kMirror, WrapMode::kBlack}) {
+        TextureDesc d = Tex(0, mode, mode);
+        d.st_scale[0] = 1.5f;
+        d.st_rotation_degrees = 20.f;
+        TextureSet set({Grey(16, 16, v)}, {d});
+        for (int i = 0; i < 32; ++i) {
+            const Vec2 st{-0.3f + 0.051f * float(i), 1.2f - 0.047f * float(i)};
+            const TextureFootprint f{{0.5f / 16.f / 1.5f, 0.f}, {0.f, 0.3f / 16.f}};
+            EXPECT_EQ(set.EvaluateFloat(0, st, f), set.EvaluateFloat(0, st));
+        }
+    }
+}
+
+// Every level keeps the image's mean, odd sizes included (a level's texels are box averages
+// with partial texels weighed by their overlap): a footprint covering the whole image reads
+// the mean. An even-only 2 x 2 box on a 3-texel row {0, 0.5, 1} would read 0.625.
+TEST(Texture, EveryPyramidLevelKeepsTheImageMean) {
+    TextureSet row({Grey(3, 1, {0.f, 0.5f, 1.f})}, {Tex(0, WrapMode::kClamp, WrapMode::kClamp)});
+    EXPECT_NEAR(row.EvaluateFloat(0, {0.5f, 0.5f}, {{4.f, 0.f}, {0.f, 4.f}}), 0.5f, 1e-6f);
+    std::vector<float> v(37 * 23);
+    double sum = 0;
+    for (size_t i = 0; i < v.size(); ++i) sum += v[i] = std::fmod(0.61f * float(i % 29), 1.f);
+    TextureSet odd({Grey(37, 23, v)}, {Tex(0)});
+    EXPECT_NEAR(odd.EvaluateFloat(0, {0.2f, 0.7f}, {{64.f, 0.f}, {0.f, 64.f}}), float(sum / double(v.size())), 1e-5f);
+}
+
+// A UDIM lookup filters within its tile: a footprint as wide as the tile next to a brighter
+// one still reads its own tile's value.
+TEST(Texture, FilteredUdimLookupStaysInItsTile) {
+    TextureDesc d = Tex(-1);
+    d.udim_tiles.assign(100, -1);
+    d.udim_tiles[0] = 0;
+    d.udim_tiles[1] = 1;
+    TextureSet set({Grey(2, 2, {0.3f, 0.3f, 0.3f, 0.3f}), Grey(2, 2, {0.7f, 0.7f, 0.7f, 0.7f})}, {d});
+    EXPECT_FLOAT_EQ(set.EvaluateFloat(0, {0.95f, 0.5f}, {{1.f, 0.f}, {0.f, 1.f}}), 0.3f);
+    EXPECT_FLOAT_EQ(set.EvaluateFloat(0, {1.05f, 0.5f}, {{1.f, 0.f}, {0.f, 1.f}}), 0.7f);
+}
