@@ -27,7 +27,9 @@ std::vector<NamedBSDF> ConductorCases(TransportMode, bool white) {
 
 }  // namespace
 
-TEST(ConductorBSDF, HasEveryKindsProperties) { ExpectAKindsProperties(ConductorCases, 3000); }
+TEST(ConductorBSDF, SamplingFollowsPdf) { ExpectSamplingFollowsPdf(ConductorCases, 3000); }
+TEST(ConductorBSDF, WhiteFurnaceAtMostOne) { ExpectWhiteFurnaceAtMostOne(ConductorCases); }
+TEST(ConductorBSDF, SampleAgreesReciprocalAndFinite) { ExpectConsistentReciprocalAndFinite(ConductorCases); }
 
 // A white metal reflects (almost) everything at every roughness once multiple scattering is
 // compensated: >= 0.97 at roughness 1 (single scattering alone gives 0.31 head-on, the

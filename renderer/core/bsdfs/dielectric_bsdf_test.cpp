@@ -27,7 +27,9 @@ std::vector<NamedBSDF> DielectricCases(TransportMode mode, bool) {
 
 }  // namespace
 
-TEST(DielectricBSDF, HasEveryKindsProperties) { ExpectAKindsProperties(DielectricCases, 4000); }
+TEST(DielectricBSDF, SamplingFollowsPdf) { ExpectSamplingFollowsPdf(DielectricCases, 4000); }
+TEST(DielectricBSDF, WhiteFurnaceAtMostOne) { ExpectWhiteFurnaceAtMostOne(DielectricCases); }
+TEST(DielectricBSDF, SampleAgreesReciprocalAndFinite) { ExpectConsistentReciprocalAndFinite(DielectricCases); }
 
 // The smooth interface chooses reflection with probability R = Fresnel, to 5 sigma of
 // 200000 draws (about 0.005 at R = 0.5), and its directions are exact.

@@ -20,7 +20,9 @@ std::vector<NamedBSDF> DiffuseCases(TransportMode, bool white) {
 
 }  // namespace
 
-TEST(DiffuseBSDF, HasEveryKindsProperties) { ExpectAKindsProperties(DiffuseCases, 2000); }
+TEST(DiffuseBSDF, SamplingFollowsPdf) { ExpectSamplingFollowsPdf(DiffuseCases, 2000); }
+TEST(DiffuseBSDF, WhiteFurnaceAtMostOne) { ExpectWhiteFurnaceAtMostOne(DiffuseCases); }
+TEST(DiffuseBSDF, SampleAgreesReciprocalAndFinite) { ExpectConsistentReciprocalAndFinite(DiffuseCases); }
 
 TEST(DiffuseBSDF, FurnaceDetectsEnergyGain) {
     // Negative control: the bound must catch a surface that reflects 3% too much.

@@ -74,7 +74,9 @@ MaterialParams Plastic(float roughness, float ior, Color diffuse) {
 
 }  // namespace
 
-TEST(PreviewSurfaceBSDF, HasEveryKindsProperties) { ExpectAKindsProperties(PreviewSurfaceCases, 5000); }
+TEST(PreviewSurfaceBSDF, SamplingFollowsPdf) { ExpectSamplingFollowsPdf(PreviewSurfaceCases, 5000); }
+TEST(PreviewSurfaceBSDF, WhiteFurnaceAtMostOne) { ExpectWhiteFurnaceAtMostOne(PreviewSurfaceCases); }
+TEST(PreviewSurfaceBSDF, SampleAgreesReciprocalAndFinite) { ExpectConsistentReciprocalAndFinite(PreviewSurfaceCases); }
 
 TEST(PreviewSurfaceBSDF, LayeringKeepsMostEnergy) {
     // The rule must not merely bound energy but keep most of it: smooth white plastic with

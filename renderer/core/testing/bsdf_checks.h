@@ -359,14 +359,22 @@ inline void ExpectFiniteAtExtremes(const std::vector<NamedBSDF>& cases) {
         }
 }
 
-// All five on a kind's cases: make_cases(mode, white) lists them (white: every colour 1).
+// A kind's tests run the five on its cases, make_cases(mode, white) listing them (white:
+// every colour 1), in three tests: (a) and (d) are long statistical tests
+// (scripts/cpp-long-tests.txt), (b), (c) and (e) their short stand-ins in the quick tier.
 template <typename MakeCases>
-void ExpectAKindsProperties(const MakeCases& make_cases, uint32_t seed) {
+void ExpectSamplingFollowsPdf(const MakeCases& make_cases, uint32_t seed) {
     ExpectSamplingFollowsPdf(make_cases(TransportMode::Radiance, false), seed);
-    for (TransportMode mode : {TransportMode::Radiance, TransportMode::Importance}) {
-        ExpectSampleReturnsFAndPdf(make_cases(mode, false));
+}
+template <typename MakeCases>
+void ExpectWhiteFurnaceAtMostOne(const MakeCases& make_cases) {
+    for (TransportMode mode : {TransportMode::Radiance, TransportMode::Importance})
         ExpectWhiteFurnaceAtMostOne(make_cases(mode, true), mode);
-    }
+}
+template <typename MakeCases>
+void ExpectConsistentReciprocalAndFinite(const MakeCases& make_cases) {
+    for (TransportMode mode : {TransportMode::Radiance, TransportMode::Importance})
+        ExpectSampleReturnsFAndPdf(make_cases(mode, false));
     ExpectReflectionIsSymmetric(make_cases(TransportMode::Radiance, false));
     ExpectFiniteAtExtremes(make_cases(TransportMode::Radiance, false));
 }
