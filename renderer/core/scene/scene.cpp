@@ -191,12 +191,12 @@ Scene::Scene(const SceneDesc& desc)
         has_normal_maps_ = has_normal_maps_ || (pv && materials_[m].textures[kSlotNormal] >= 0);
         // An untextured material's BSDF is the same at every hit: built here once per
         // transport mode, copied by BSDFAt (its constructor costs more than the copy).
-        // Its angle-only terms are tabulated once too (bsdf.h, PreviewSurfaceTable).
+        // Its angle-only terms are tabulated once too (preview_surface_bsdf.h, PreviewSurfaceTable).
         for (TransportMode mode : {TransportMode::Radiance, TransportMode::Importance}) {
             material_bsdfs_.push_back(!pv ? BSDF(DiffuseBSDF(materials_[m].albedo))
                                       : material_has_textures_.back() ? BSDF()
                                                                       : MakePreviewSurfaceBSDF(*pv, mode));
-            if (PreviewSurfaceBSDF* ps = material_bsdfs_.back().preview_surface()) {
+            if (PreviewSurfaceBSDF* ps = material_bsdfs_.back().GetIf<PreviewSurfaceBSDF>()) {
                 preview_tables_.push_back(std::make_unique<PreviewSurfaceTable>(ps->Tabulate()));
                 ps->UseTable(preview_tables_.back().get());
             }
