@@ -298,3 +298,32 @@ TEST(Instancing, EmbreeMemoryGrowsWithFlattenedCopiesNotWithInstances) {
     EXPECT_GT(inst, 0);
     EXPECT_LT(inst * 10, flat) << "instanced " << inst << " bytes, flattened " << flat;
 }
+
+// World curves and instances share the top-level scene, each under its own geometry ID: the
+// first instance once took the curves' ID and Embree refused every such scene ("error 3 in
+// creating instances"), as a USD stage with BasisCurves beside a native instance is.
+TEST(Instancing, WorldCurvesAndInstancesLiveTogether) {
+    SceneDesc d;
+    const uint32_t grey = AddMaterial(d, Color(0.5f), Color(0.f));
+    MeshDesc quad;  // x, y in [-1, 1] at z = -3
+    quad.positions = {-1, -1, -3, 1, -1, -3, 1, 1, -3, -1, 1, -3};
+    quad.indices = {0, 1, 2, 0, 2, 3};
+    quad.triangle_material = {grey, grey};
+    d.prototypes = {quad};
+    d.instance_prototype = {0};
+    d.instance_transforms = {1, 0, 0, 2, 0, 1, 0, 0, 0, 0, 1, 0};  // moved to x in [1, 3]
+    d.curve_points = {-2, -1, -3, 0.1f, -2, 1, -3, 0.1f};          // a strand at x = -2
+    d.curve_segments = {0};
+    d.curve_flags = {0};
+    d.curve_material = {grey};
+    Scene scene(d);
+    SurfaceHit hit;
+    ASSERT_TRUE(scene.Intersect(Ray{{2, 0, 0}, {0, 0, -1}}, &hit));
+    EXPECT_EQ(hit.instance, 0u);
+    EXPECT_NEAR(hit.t, 3.f, 1e-4f);
+    ASSERT_TRUE(scene.Intersect(Ray{{-2, 0, 0}, {0, 0, -1}}, &hit));
+    EXPECT_EQ(hit.geom_id, Scene::kCurveGeometry);
+    EXPECT_NEAR(hit.t, 2.9f, 1e-2f);  // the strand's front, radius 0.1 in front of z = -3
+    EXPECT_FALSE(scene.Intersect(Ray{{0, 0, 0}, {0, 0, -1}}, &hit));  // between them
+}
+

@@ -572,7 +572,9 @@ private:
     Vec3 DeformedVertex(const Mesh& mesh, uint32_t prim, int corner) const;
     // A triangle emitter's area now (moving instances may scale it, deforming meshes reshape it).
     float EmitterArea(const Emitter& e) const;
-    static constexpr uint32_t kFirstInstanceGeometry = 2;
+    // After every world geometry ID (triangles, spheres, curves): instances share the top
+    // level with them, and Embree refuses a scene that attaches two geometries by one ID.
+    static constexpr uint32_t kFirstInstanceGeometry = kCurveGeometry + 1;
     static constexpr uint32_t kMaxTimeSteps = 129;  // Embree's own limit
 
     // A moving light's steps (time_steps 1: it stands still).

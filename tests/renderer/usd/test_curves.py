@@ -29,8 +29,17 @@ def _stadium(width, length):
     return width * length + math.pi * width * width / 4
 
 
-def _coverage(tmp_path, width, roll_deg, name, basis=None, moving=False):
+def _coverage(tmp_path, width, roll_deg, name, basis=None, moving=False, instances=False):
     stage = new_stage(tmp_path / f"{name}.usda")
+    if instances:  # two native instances of a box, out of the frame, beside the still curve
+        proto = stage.CreateClassPrim("/Proto")
+        box = UsdGeom.Cube.Define(stage, "/Proto/Box")
+        box.CreateSizeAttr(0.5)
+        for k, x in enumerate((40.0, 50.0)):
+            inst = stage.DefinePrim(f"/Inst{k}", "Xform")
+            inst.GetReferences().AddInternalReference(proto.GetPath())
+            inst.SetInstanceable(True)
+            UsdGeom.Xformable(inst).AddTranslateOp().Set(Gf.Vec3d(x, 0, 0))
     curve = UsdGeom.BasisCurves.Define(stage, "/Hair")
     if basis is None:
         curve.CreateTypeAttr(UsdGeom.Tokens.linear)
@@ -53,6 +62,8 @@ def _coverage(tmp_path, width, roll_deg, name, basis=None, moving=False):
     add_render_settings(stage, cam, (RES, RES))
     stage.GetRootLayer().Save()
     scene = load_scene(tmp_path / f"{name}.usda")
+    if instances:
+        assert scene.num_instances == 2 and scene.num_curve_segments == 1
     img = scene.render_tile(0, 0, RES, RES, spp=16, max_depth=1)
     return float(img[..., 3].astype(np.float64).mean()) * FRAME * FRAME, scene
 
@@ -195,3 +206,15 @@ def test_radiosity_names_the_curves_it_cannot_shade(tmp_path):
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     assert "the radiosity integrator does not shade curves (1 curve segments)" in r.stderr, r.stderr
+
+
+def test_a_still_curve_beside_native_instances_is_still_a_round_strand(tmp_path):
+    """World curves and Embree instances share the top-level scene: such a stage once failed
+    to load (both took geometry ID 2; Embree error 3 in creating instances). The strand
+    keeps its stadium coverage; the control, 2 % wider, fails the same check."""
+    w = 0.3
+    area, _ = _coverage(tmp_path, w, 0.0, "curve_and_instances", instances=True)
+    assert abs(area / _stadium(w, 1.2) - 1) < TOL, area / _stadium(w, 1.2)
+    wider, _ = _coverage(tmp_path, 1.02 * w, 0.0, "wider_curve_and_instances", instances=True)
+    assert abs(wider / _stadium(w, 1.2) - 1) > TOL, wider / _stadium(w, 1.2)
+
