@@ -273,6 +273,7 @@ NB_MODULE(_core, m) {
                 d["complete"] = info.complete;
                 d["delta_caustics"] = info.delta_caustics;
                 d["handles_media"] = info.handles_media;
+                d["handles_grid_media"] = info.handles_grid_media;
                 d["shades_curves"] = info.shades_curves;
                 d["honours_light_links"] = info.honours_light_links;
                 using Pilot = IntegratorInfo::PilotCandidate;

@@ -74,6 +74,9 @@ struct IntegratorInfo {
     // Renders participating media (docs/media.md). One that does not refuses a scene with
     // media when created (Integrator::Create) rather than render it as if they were absent.
     bool handles_media = false;
+    // Of those, renders grid media too (heterogeneous volumes, media/grid_medium.h); one
+    // that handles only homogeneous media refuses a scene with a grid medium.
+    bool handles_grid_media = false;
     // Honours UsdLux light and shadow links (light_links.h) in every light path it
     // estimates. One that does not is named in one warning for a scene with links
     // (tessera_base.integrators.scene_warnings); its image ignores them where it cannot.

@@ -18,6 +18,7 @@ const IntegratorInfo& PathIntegrator::Info() {
         .description = "path tracing: next event estimation, MIS with BSDF sampling, Russian roulette",
         .complete = true,
         .handles_media = true,
+        .handles_grid_media = true,
         .honours_light_links = true,
         .params = {{"rr_depth", "vertex index (0 = the first hit) from which Russian roulette may end a path "
                                 "(default 2; 5 reaches an error sooner in closed diffuse scenes)"},

@@ -102,6 +102,9 @@ std::unique_ptr<Integrator> Integrator::Create(std::string_view name, const Inte
         if (scene.has_media() && !info.handles_media)
             throw std::invalid_argument("the " + std::string(name) + " integrator does not render participating "
                                         "media, and the scene has some (docs/media.md): render it with path");
+        if (scene.num_grid_media() > 0 && !info.handles_grid_media)
+            throw std::invalid_argument("the " + std::string(name) + " integrator does not render volumes (grid "
+                                        "media), and the scene has some (docs/media.md): render it with path");
         if (info.traces_light_paths && scene.kind_without_light_paths())
             throw std::invalid_argument("the " + std::string(name) + " integrator starts paths at the lights, and " +
                                         scene.kind_without_light_paths() + " lights cannot start one yet "

@@ -463,6 +463,7 @@ public:
     // Medium i is homogeneous below num_homogeneous_media(), a grid medium from there on.
     const HomogeneousMedium& medium(int32_t i) const { return media_[size_t(i)]; }
     int32_t num_homogeneous_media() const { return int32_t(media_.size()); }
+    size_t num_grid_media() const { return grid_media_.size(); }
     const GridMedium* grid_medium(int32_t i) const {
         return i >= int32_t(media_.size()) ? &grid_media_[size_t(i) - media_.size()] : nullptr;
     }

@@ -172,6 +172,9 @@ def test_smoke_vdb_renders_without_warnings(tmp_path):
     assert np.allclose(img[corner][..., :3], sky[corner][..., :3], rtol=1e-5)
     with pytest.raises(Exception, match="participating media"):
         render(scene, spp=1, size=8, integrator="bdpt")
+    # light renders homogeneous media (absorbing glass) but not grid media: it says so too.
+    with pytest.raises(Exception, match="grid media"):
+        render(scene, spp=1, size=8, integrator="light")
     from tessera.pilot import run_pilot  # auto measures no candidate that would refuse the scene
     assert run_pilot(scene, RenderSettings(width=16, height=16, spp=1, integrator="auto")).choice == "path"
 
