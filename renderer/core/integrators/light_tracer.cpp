@@ -105,21 +105,29 @@ bool ConnectToCameraThroughMedia(const Scene& scene, const Camera& camera, Vec3 
                            });
 }
 
+bool LightTracer::StartLightPath(const Scene& scene, PixelSampler& sampler, LightPathStart* start) {
+    const LightSampler& lights = scene.light_sampler();
+    if (lights.empty()) return false;
+    float pmf = 0.f;
+    const uint32_t light = lights.Sample(sampler.Get1D(), &pmf);
+    const Vec2 u_pos = sampler.Get2D(), u_dir = sampler.Get2D();
+    const float u_side = sampler.Get1D();
+    EmissionSample& es = start->es;
+    if (!scene.SampleEmission(light, u_pos, u_dir, u_side, &es) || !(pmf > 0.f)) return false;
+    start->beta = es.beta / pmf;
+    start->ray = Ray{es.on_surface ? OffsetRayOrigin(es.p, es.p_error, es.n, es.wo) : es.p, es.wo};
+    return true;
+}
+
 void LightTracer::Trace(const Scene& scene, const Camera& camera, PixelSampler& sampler, SplatFilm& film,
                         IntegratorCounters* counters) const {
     if (scene.has_media()) return TraceMedia(scene, camera, sampler, film, counters);
-    const LightSampler& lights = scene.light_sampler();
-    if (lights.empty()) return;
-    float pmf = 0.f;
-    uint32_t light = lights.Sample(sampler.Get1D(), &pmf);
-    Vec2 u_pos = sampler.Get2D(), u_dir = sampler.Get2D();
-    float u_side = sampler.Get1D();
-    EmissionSample es;
-    if (!scene.SampleEmission(light, u_pos, u_dir, u_side, &es) || !(pmf > 0.f)) return;
-    Color beta = es.beta / pmf;
+    LightPathStart start;
+    if (!StartLightPath(scene, sampler, &start)) return;
+    Color beta = start.beta;
+    Ray ray = start.ray;
     float eta_scale = 1.f;
     const float roulette_scale = RouletteScale(beta);
-    Ray ray{es.on_surface ? OffsetRayOrigin(es.p, es.p_error, es.n, es.wo) : es.p, es.wo};
 
     for (int depth = 1; depth <= max_depth_; ++depth) {
         SurfaceHit hit;

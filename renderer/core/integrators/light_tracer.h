@@ -53,6 +53,15 @@ public:
                IntegratorCounters* counters) const;
 
 private:
+    // A light path's first vertex: a light chosen by the scene's light sampler, then a point
+    // and direction on it (the next five sampler dimensions), its throughput divided by
+    // both densities, and the ray leaving it. False when nothing can be emitted.
+    struct LightPathStart {
+        EmissionSample es;
+        Color beta;
+        Ray ray;
+    };
+    static bool StartLightPath(const Scene& scene, PixelSampler& sampler, LightPathStart* start);
     // Trace's kernel for scenes with media (light_tracer_media.cpp).
     void TraceMedia(const Scene& scene, const Camera& camera, PixelSampler& sampler, SplatFilm& film,
                     IntegratorCounters* counters) const;

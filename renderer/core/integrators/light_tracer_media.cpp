@@ -56,18 +56,13 @@ PathSample DirectlyVisibleLightThroughMedia(const Scene& scene, const Ray& camer
 
 void LightTracer::TraceMedia(const Scene& scene, const Camera& camera, PixelSampler& sampler, SplatFilm& film,
                              IntegratorCounters* counters) const {
-    const LightSampler& lights = scene.light_sampler();
-    if (lights.empty() || max_depth_ < 1) return;
-    float pmf = 0.f;
-    uint32_t light = lights.Sample(sampler.Get1D(), &pmf);
-    Vec2 u_pos = sampler.Get2D(), u_dir = sampler.Get2D();
-    float u_side = sampler.Get1D();
-    EmissionSample es;
-    if (!scene.SampleEmission(light, u_pos, u_dir, u_side, &es) || !(pmf > 0.f)) return;
-    Color beta = es.beta / pmf;
+    if (max_depth_ < 1) return;
+    LightPathStart start;
+    if (!StartLightPath(scene, sampler, &start)) return;
+    Color beta = start.beta;
+    Ray ray = start.ray;
     float eta_scale = 1.f;
     const float roulette_scale = RouletteScale(beta);
-    Ray ray{es.on_surface ? OffsetRayOrigin(es.p, es.p_error, es.n, es.wo) : es.p, es.wo};
     int32_t medium = scene.MediumAt(ray.o);
     const int hero = HeroChannel(sampler.Get1D());
     Color r(1.f);

@@ -706,6 +706,10 @@ private:
     std::vector<uint32_t> other_light_ids_;   // other_lights_ index -> emitter
     std::vector<int32_t> other_light_index_;  // emitter -> other_lights_ index, -1 if in the BVH
     bool SampleAnyLight(float u, Vec3 p, Vec3 n, uint32_t* light, float* pmf) const;
+    // One draw between the light BVH, with probability `share`, and the power table `other`
+    // over the lights outside it (numbered as other_light_ids_).
+    bool SampleBVHOrTable(float u, Vec3 p, Vec3 n, float share, const LightSampler& other, uint32_t* light,
+                          float* pmf) const;
     float AnyLightPmf(Vec3 p, Vec3 n, uint32_t light) const;
     // Light linking: the table, and each emitter's link (-1: the default).
     bool has_light_links_ = false;

@@ -186,7 +186,11 @@ bool Scene::SampleAnyLight(float u, Vec3 p, Vec3 n, uint32_t* light, float* pmf)
         *light = light_sampler_.Sample(u, pmf);
         return true;
     }
-    const float share = light_bvh_share_;
+    return SampleBVHOrTable(u, p, n, light_bvh_share_, other_lights_, light, pmf);
+}
+
+bool Scene::SampleBVHOrTable(float u, Vec3 p, Vec3 n, float share, const LightSampler& other, uint32_t* light,
+                             float* pmf) const {
     if (u < share) {
         const float ub = std::min(u / share, 0x1.fffffep-1f);
         if (!light_bvh_.Sample(ub, p, n, light, pmf)) return false;
@@ -194,9 +198,9 @@ bool Scene::SampleAnyLight(float u, Vec3 p, Vec3 n, uint32_t* light, float* pmf)
         return true;
     }
     const float uo = std::min((u - share) / (1.f - share), 0x1.fffffep-1f);
-    float other = 0.f;
-    *light = other_light_ids_[other_lights_.Sample(uo, &other)];
-    *pmf = other * (1.f - share);
+    float other_pmf = 0.f;
+    *light = other_light_ids_[other.Sample(uo, &other_pmf)];
+    *pmf = other_pmf * (1.f - share);
     return true;
 }
 
@@ -283,18 +287,7 @@ bool Scene::SampleLinkedLight(float u, Vec3 p, Vec3 n, uint32_t* light, float* p
         *light = gl.all.Sample(u, pmf);
         return true;
     }
-    const float share = gl.bvh_share;
-    if (u < share) {
-        const float ub = std::min(u / share, 0x1.fffffep-1f);
-        if (!light_bvh_.Sample(ub, p, n, light, pmf)) return false;
-        *pmf *= share;
-        return true;
-    }
-    const float uo = std::min((u - share) / (1.f - share), 0x1.fffffep-1f);
-    float other = 0.f;
-    *light = other_light_ids_[gl.other.Sample(uo, &other)];
-    *pmf = other * (1.f - share);
-    return true;
+    return SampleBVHOrTable(u, p, n, gl.bvh_share, gl.other, light, pmf);
 }
 
 float Scene::LinkedLightPmf(Vec3 p, Vec3 n, uint32_t light, uint32_t group) const {
