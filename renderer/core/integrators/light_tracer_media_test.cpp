@@ -27,17 +27,6 @@ std::vector<float> RenderSlabWithLight(Color sigma_a, Color Le) {
     return RenderResolved(scene, LookDownMinusZ({0, 0, 0}, 4, 4, 1e-4f), opt);
 }
 
-bool Within1Percent(const std::vector<float>& img, Color expected, std::string* why) {
-    for (size_t i = 0; i < img.size() / 4; ++i)
-        for (int k = 0; k < 3; ++k)
-            if (!(std::abs(img[4 * i + k] / Ch(expected, k) - 1.f) < 0.01f)) {
-                *why = "pixel " + std::to_string(i) + " channel " + std::to_string(k) + ": " +
-                       std::to_string(img[4 * i + k]) + " vs " + std::to_string(Ch(expected, k));
-                return false;
-            }
-    return true;
-}
-
 }  // namespace
 
 // 2 % detected: each pixel within 1 %, and a slab of tau + ln 1.02 fails. Chromatic:
@@ -49,8 +38,8 @@ TEST(LightMedia, AbsorbingSlabTransmitsBeerLambert) {
         const Color sigma = Color(1.f, 0.5f, 2.f) * tau;
         const Color want = Le * Color(std::exp(-sigma.x), std::exp(-sigma.y), std::exp(-sigma.z));
         std::string why;
-        EXPECT_TRUE(Within1Percent(RenderSlabWithLight(sigma, Le), want, &why)) << "tau " << tau << ": " << why;
-        EXPECT_FALSE(Within1Percent(RenderSlabWithLight(sigma + Color(std::log(1.02f)), Le), want, &why))
+        EXPECT_TRUE(EveryPixelWithin1Percent(RenderSlabWithLight(sigma, Le), want, &why)) << "tau " << tau << ": " << why;
+        EXPECT_FALSE(EveryPixelWithin1Percent(RenderSlabWithLight(sigma + Color(std::log(1.02f)), Le), want, &why))
             << "negative control, tau " << tau;
     }
 }

@@ -1,6 +1,10 @@
 // Scene pieces shared by the media tests of the path tracer and the light tracer.
 #pragma once
 
+#include <cmath>
+#include <string>
+#include <vector>
+
 #include "scene_helpers.h"
 
 namespace tessera_test {
@@ -26,5 +30,18 @@ inline uint32_t AddInterface(SceneDesc& d, int32_t inside) {
 }
 
 inline float Ch(Color c, int k) { return k == 0 ? c.x : (k == 1 ? c.y : c.z); }
+
+// Every pixel of an RGBA image within 1 % of `expected`, in every channel; else false with
+// the first pixel that is not in `why`.
+inline bool EveryPixelWithin1Percent(const std::vector<float>& img, Color expected, std::string* why) {
+    for (size_t i = 0; i < img.size() / 4; ++i)
+        for (int k = 0; k < 3; ++k)
+            if (!(std::abs(img[4 * i + k] / Ch(expected, k) - 1.f) < 0.01f)) {
+                *why = "pixel " + std::to_string(i) + " channel " + std::to_string(k) + ": " +
+                       std::to_string(img[4 * i + k]) + " vs " + std::to_string(Ch(expected, k));
+                return false;
+            }
+    return true;
+}
 
 }  // namespace tessera_test
