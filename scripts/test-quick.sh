@@ -11,7 +11,8 @@ tests=$(ls -t "$ROOT"/build/*/renderer/tessera_core_tests 2>/dev/null | grep -v 
 LONG_TESTS=$(sed -e 's/#.*//' -e 's/[[:space:]]//g' "$ROOT/scripts/cpp-long-tests.txt" | grep -v '^$' | paste -sd:)
 status=0
 echo "[quick] C++ unit tests without the long renders ($tests)"
-# Two shards at once (GoogleTest's sharding), one per core: most tests are single-threaded.
+# Two shards (GoogleTest's sharding) run beside pytest: most C++ tests are single-threaded and
+# pytest's workers spend much of their time waiting on the processes they start.
 SHARDS=$(nproc)
 log=$(mktemp -d)
 pids=()
@@ -20,12 +21,13 @@ for i in $(seq 0 $((SHARDS - 1))); do
     > "$log/shard-$i.log" 2>&1 &
   pids+=($!)
 done
+echo "[quick] Python tests, not slow"
+cd "$ROOT" && "$VENV/bin/python" -m pytest -m "not slow" "$@" || status=1
+echo "[quick] C++ unit tests: the shards' output"
 for i in "${!pids[@]}"; do
   wait "${pids[$i]}" || status=1
   cat "$log/shard-$i.log"
 done
 rm -rf "$log"
-echo "[quick] Python tests, not slow"
-cd "$ROOT" && "$VENV/bin/python" -m pytest -m "not slow" "$@" || status=1
 if [ $status -eq 0 ]; then echo "[quick] all passed"; else echo "[quick] FAILED"; fi
 exit $status

@@ -38,8 +38,13 @@ STARTUP_TIMEOUT = 30.0
 # (API, workers, Redis restarts, network namespaces), the bench, the fuzz campaign or
 # long statistical renders; a test elsewhere may carry @pytest.mark.slow itself.
 SLOW_MODULES = {"test_farm_e2e", "test_farm_lifecycle", "test_farm_resilience", "test_farm_netns",
-                "test_farm_openapi", "test_farm_storage", "test_farm_auth", "test_farm_users", "test_compare_memory", "test_user_scene_limits", "test_slowloris", "test_bundles_farm", "test_packing_farm", "test_bench", "test_fuzz", "test_caustic", "test_compare_integrators",
-                "test_integrators", "test_scene_passes"}
+                "test_farm_openapi", "test_farm_storage", "test_farm_auth", "test_farm_users",
+                "test_compare_memory", "test_user_scene_limits", "test_slowloris", "test_bundles_farm",
+                "test_packing_farm", "test_bench", "test_fuzz", "test_caustic", "test_compare_integrators",
+                "test_integrators", "test_scene_passes",
+                # A real worker rendering a job to compare with a local render, 4-9 s each.
+                "test_farm_black_image", "test_farm_frames", "test_farm_subdivision", "test_farm_variants",
+                "test_farm_motion", "test_farm_camera"}
 
 
 # Real USD files from outside the project (README, "The external scenes"): they sit beside
