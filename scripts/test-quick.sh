@@ -22,7 +22,9 @@ for i in $(seq 0 $((SHARDS - 1))); do
   pids+=($!)
 done
 echo "[quick] Python tests, not slow"
-cd "$ROOT" && "$VENV/bin/python" -m pytest -m "not slow" "$@" || status=1
+# Both cores unless the arguments choose (-n N, -p no:xdist).
+case " $* " in *" -n"*|*"--numprocesses"*|*"no:xdist"*) workers=() ;; *) workers=(-n "$(nproc)") ;; esac
+cd "$ROOT" && "$VENV/bin/python" -m pytest -m "not slow" "${workers[@]}" "$@" || status=1
 echo "[quick] C++ unit tests: the shards' output"
 for i in "${!pids[@]}"; do
   wait "${pids[$i]}" || status=1
