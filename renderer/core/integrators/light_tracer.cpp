@@ -1,6 +1,7 @@
 #include "light_tracer.h"
 
 #include "bsdf.h"
+#include "bsdf_step.h"
 #include "sampling.h"
 
 namespace tessera {
@@ -154,13 +155,12 @@ void LightTracer::Trace(const Scene& scene, const Camera& camera, PixelSampler& 
         }
         if (depth == max_depth_) break;
 
-        const float uc = sampler.Get1D();
-        const std::optional<BSDFSample> bs = bsdf.Sample_f(wo_local, uc, sampler.Get2D());
-        if (!bs || !(bs->pdf > 0.f) || IsBlack(bs->f)) break;
-        const Vec3 wi = Normalize(frame.FromLocal(bs->wi));
-        if (!SidesAgree(wo, wi, hit.ng, wo_local, bs->wi)) break;
-        beta *= bs->f * (std::abs(bs->wi.z) / bs->pdf * ImportanceShadingCorrection(wo, wi, hit.ns, hit.ng));
-        if (bs->is_transmission) eta_scale *= bs->eta * bs->eta;
+        const std::optional<BSDFStep> step =
+            SampleBSDFStep(bsdf, frame, wo, wo_local, hit.ng, sampler, beta,
+                           [&](Vec3 w) { return ImportanceShadingCorrection(wo, w, hit.ns, hit.ng); });
+        if (!step) break;
+        const Vec3 wi = step->wi;
+        if (step->sample.is_transmission) eta_scale *= step->sample.eta * step->sample.eta;
         ray = {OffsetRayOrigin(hit.p, hit.p_error, hit.ng, wi), wi};
         if (depth >= 3) {
             float q = std::min(1.f, MaxComponent(beta) * eta_scale * roulette_scale);

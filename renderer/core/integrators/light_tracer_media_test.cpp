@@ -15,12 +15,7 @@ namespace {
 // z in [-2, -1] of thickness 1: every pixel reads Le e^(-sigma_a). The light tracer sees
 // the emitter through its camera rays; its light paths leave the scene unscattered.
 std::vector<float> RenderSlabWithLight(Color sigma_a, Color Le) {
-    SceneDesc d;
-    d.media.push_back({sigma_a, Color(0.f), 0.f});
-    const float s = 100.f;
-    AddQuad(d, {-s, -s, -3}, {s, -s, -3}, {s, s, -3}, {-s, s, -3}, AddMaterial(d, Color(0.f), Le));
-    AddOutwardBox(d, {-50, -50, -2}, {50, 50, -1}, AddInterface(d, 0));
-    Scene scene(d);
+    Scene scene(AbsorbingSlabBeforeEmitter(sigma_a, Le));
     RenderOptions opt;
     opt.spp = 4;
     opt.integrator = "light";

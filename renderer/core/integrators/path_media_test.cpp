@@ -33,12 +33,7 @@ void AddOutwardSphere(SceneDesc& d, float r, uint32_t material, int rings = 24, 
 // An emitter of radiance Le facing the camera (z = -3) behind a slab z in [-2, -1] of
 // absorbing medium sigma_a (albedo 0), thickness 1: every pixel reads Le e^(-sigma_a).
 std::vector<float> RenderSlab(Color sigma_a, Color Le) {
-    SceneDesc d;
-    d.media.push_back({sigma_a, Color(0.f), 0.f});
-    const float s = 100.f;
-    AddQuad(d, {-s, -s, -3}, {s, -s, -3}, {s, s, -3}, {-s, s, -3}, AddMaterial(d, Color(0.f), Le));
-    AddOutwardBox(d, {-50, -50, -2}, {50, 50, -1}, AddInterface(d, 0));
-    Scene scene(d);
+    Scene scene(AbsorbingSlabBeforeEmitter(sigma_a, Le));
     EXPECT_TRUE(scene.has_media());
     RenderOptions opt;
     opt.spp = 4;

@@ -29,6 +29,17 @@ inline uint32_t AddInterface(SceneDesc& d, int32_t inside) {
     return m;
 }
 
+// An emitter of radiance Le facing the camera (z = -3) behind a slab z in [-2, -1] of
+// absorbing medium sigma_a (albedo 0), thickness 1: head-on, every pixel reads Le e^(-sigma_a).
+inline SceneDesc AbsorbingSlabBeforeEmitter(Color sigma_a, Color Le) {
+    SceneDesc d;
+    d.media.push_back({sigma_a, Color(0.f), 0.f});
+    const float s = 100.f;
+    AddQuad(d, {-s, -s, -3}, {s, -s, -3}, {s, s, -3}, {-s, s, -3}, AddMaterial(d, Color(0.f), Le));
+    AddOutwardBox(d, {-50, -50, -2}, {50, 50, -1}, AddInterface(d, 0));
+    return d;
+}
+
 inline float Ch(Color c, int k) { return k == 0 ? c.x : (k == 1 ? c.y : c.z); }
 
 // Every pixel of an RGBA image within 1 % of `expected`, in every channel; else false with
